@@ -1,0 +1,35 @@
+"""GET /robots: every served model and the facts from its manifest."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter
+
+from service.api.deps import RegistryDep
+from service.registry import ServedModel
+from service.schemas import RobotModel, RobotsResponse
+
+router = APIRouter(prefix="/robots", tags=["robots"])
+
+
+def describe(model: ServedModel) -> RobotModel:
+    manifest = model.manifest
+    return RobotModel(
+        robot=manifest.robot,
+        task=manifest.task.name,
+        model=model.reference,
+        joint_names=manifest.joints.names,
+        joint_lower=manifest.joints.lower_rad,
+        joint_upper=manifest.joints.upper_rad,
+        periodic_joints=manifest.joints.periodic,
+        redundancy=manifest.redundancy,
+        target_position_length=len(manifest.task.position_axes),
+        orientation=manifest.task.orientation,
+        defaults=manifest.defaults.model_dump(),
+        training=manifest.training.model_dump(exclude={"config"}),
+        quality=None if manifest.quality is None else manifest.quality.model_dump(),
+    )
+
+
+@router.get("", response_model=RobotsResponse)
+def list_robots(registry: RegistryDep) -> RobotsResponse:
+    return RobotsResponse(models=[describe(m) for m in registry.all()])

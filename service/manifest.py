@@ -1,0 +1,173 @@
+"""The model manifest: what `models/<model-id>/manifest.json` records.
+
+One schema, written by `training.export` and read by `service.registry`. It holds
+everything needed to use a model (joints, task, condition layout, normalisation,
+defaults) and to trust it (training budget, measured quality, sha256 of every file).
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+MANIFEST_FILE = "manifest.json"
+FLOW_FILE = "flow.onnx"
+KINEMATICS_FILE = "kinematics.onnx"
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class JointSpec(_Strict):
+    """Joint names in model order, limits in rad, and which joints are full circles."""
+
+    names: list[str]
+    lower_rad: list[float]
+    upper_rad: list[float]
+    periodic: list[bool] = Field(
+        description="True for joints whose range covers the full circle; only these are wrapped."
+    )
+
+    @model_validator(mode="after")
+    def _same_lengths(self) -> JointSpec:
+        n = len(self.names)
+        if not (len(self.lower_rad) == len(self.upper_rad) == len(self.periodic) == n):
+            raise ValueError("joints: names, lower_rad, upper_rad and periodic differ in length")
+        return self
+
+    @property
+    def count(self) -> int:
+        return len(self.names)
+
+    def arrays(self) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
+        """(lower_rad (n,), upper_rad (n,), periodic (n,)) as numpy arrays."""
+        return (
+            np.asarray(self.lower_rad, dtype=np.float64),
+            np.asarray(self.upper_rad, dtype=np.float64),
+            np.asarray(self.periodic, dtype=bool),
+        )
+
+
+TaskName = Literal["position", "pose"]
+
+
+class TaskSpec(_Strict):
+    """Which components of the end-effector pose the task constrains.
+
+    position_axes: base-frame axes of the end-effector position that are
+    constrained ([0, 1] for a planar arm, [0, 1, 2] in space); orientation:
+    whether the full orientation is constrained as well (the pose task).
+    """
+
+    name: TaskName
+    position_axes: list[int]
+    orientation: bool
+
+    @property
+    def dimension(self) -> int:
+        """m, the number of task coordinates."""
+        return len(self.position_axes) + (3 if self.orientation else 0)
+
+
+class AffineNormalisation(_Strict):
+    """value_normalised = (value - offset) / scale, per dimension."""
+
+    offset: list[float]
+    scale: list[float]
+
+    def normalise(self, value: NDArray[np.float64]) -> NDArray[np.float64]:
+        return (value - np.asarray(self.offset)) / np.asarray(self.scale)
+
+    def denormalise(self, value: NDArray[np.float64]) -> NDArray[np.float64]:
+        return value * np.asarray(self.scale) + np.asarray(self.offset)
+
+
+class ConditionSpec(_Strict):
+    """Layout of the flow's condition vector and its normalisation."""
+
+    names: list[str]
+    normalisation: AffineNormalisation
+
+
+class SamplerSpec(_Strict):
+    method: Literal["euler"] = "euler"
+    steps: int = Field(ge=1)
+
+
+class Defaults(_Strict):
+    """Serving defaults, chosen by measurement; `reasons` says why each has its value."""
+
+    num_samples: int = Field(ge=1)
+    sampler: SamplerSpec
+    correction_steps: int = Field(ge=0)
+    damping: float = Field(gt=0)
+    cluster_radius_rad: float = Field(gt=0)
+    tolerance_position_m: float = Field(gt=0)
+    tolerance_orientation_rad: float = Field(gt=0)
+    reasons: dict[str, str]
+
+
+class TrainingRecord(_Strict):
+    """Provenance: how the flow was trained and by which command."""
+
+    command: str
+    samples: int
+    epochs: int
+    batch_size: int
+    device: str
+    wall_time_s: float
+    best_validation_loss: float
+    best_epoch: int
+    torch_version: str
+    git_commit: str
+    config: dict[str, object]
+
+
+class Quality(_Strict):
+    """Measured on held-out targets (FK of random configurations, fixed seed)."""
+
+    held_out_targets: int
+    samples_per_target: int
+    raw_position_error_mm_mean: float
+    raw_position_error_mm_median: float
+    raw_position_error_pct_reach_mean: float
+    raw_orientation_error_deg_mean: float | None
+    raw_orientation_error_deg_median: float | None
+    raw_orientation_error_pct_mean: float | None
+    keep_rate: float = Field(
+        description="Fraction of raw samples accepted after the default correction."
+    )
+    targets_with_solution: float
+    measured_by: str
+
+
+class FileRef(_Strict):
+    path: str = Field(description="Relative to the models directory.")
+    sha256: str
+
+
+class Manifest(_Strict):
+    format_version: Literal[1] = 1
+    model_id: str
+    robot: str
+    task: TaskSpec
+    urdf: FileRef
+    end_effector_link: str
+    reach_m: float = Field(description="L, the reach used to express errors in % (paper).")
+    joints: JointSpec
+    joint_normalisation: AffineNormalisation
+    condition: ConditionSpec
+    files: dict[str, str] = Field(description="File name in the model directory -> sha256.")
+    defaults: Defaults
+    training: TrainingRecord
+    quality: Quality | None = None
+    created_utc: str
+
+    @property
+    def redundancy(self) -> int:
+        """r = n - m."""
+        return self.joints.count - self.task.dimension

@@ -1,0 +1,53 @@
+"""The two exported networks behind the pipeline's interfaces, run with onnxruntime.
+
+flow.onnx:       (q_t (B, n) f32, t (B, 1) f32, condition (B, c) f32) -> velocity (B, n) f32
+kinematics.onnx: q (B, n) f64 -> position (B, 3), rotation (B, 3, 3), jacobian (B, 6, n), f64
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import onnxruntime as ort
+from numpy.typing import NDArray
+
+from service.pipeline.types import FloatArray, KinematicsResult
+
+FLOW_INPUTS = ("q_t", "t", "condition")
+FLOW_OUTPUT = "velocity"
+KINEMATICS_INPUT = "q"
+KINEMATICS_OUTPUTS = ("position", "rotation", "jacobian")
+
+
+def open_session(path: Path, threads: int) -> ort.InferenceSession:
+    options = ort.SessionOptions()
+    options.intra_op_num_threads = threads  # 0: onnxruntime's default (all cores)
+    options.inter_op_num_threads = 1
+    return ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+
+
+class OnnxVelocityField:
+    def __init__(self, session: ort.InferenceSession) -> None:
+        self._session = session
+
+    def __call__(
+        self,
+        q_t: NDArray[np.float32],  # (B, n)
+        t: NDArray[np.float32],  # (B, 1)
+        condition: NDArray[np.float32],  # (B, c)
+    ) -> NDArray[np.float32]:  # (B, n)
+        feeds = dict(zip(FLOW_INPUTS, (q_t, t, condition), strict=True))
+        (velocity,) = self._session.run([FLOW_OUTPUT], feeds)
+        return np.asarray(velocity, dtype=np.float32)
+
+
+class OnnxKinematics:
+    def __init__(self, session: ort.InferenceSession) -> None:
+        self._session = session
+
+    def __call__(self, q_rad: FloatArray) -> KinematicsResult:  # q_rad (B, n)
+        position, rotation, jacobian = self._session.run(
+            list(KINEMATICS_OUTPUTS), {KINEMATICS_INPUT: np.ascontiguousarray(q_rad, np.float64)}
+        )
+        return KinematicsResult(position_m=position, rotation=rotation, jacobian=jacobian)

@@ -1,0 +1,80 @@
+"""Stage 3: correct samples onto the fibre with damped-least-squares (DLS) steps, in float64.
+
+dq = J^T (J J^T + lambda^2 I)^-1 e, where e is the task error: the constrained
+position axes, then (pose task) the base-frame rotation vector log(R* R^T).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from service.manifest import TaskSpec
+from service.pipeline.joint_space import wrap_periodic
+from service.pipeline.rotations import rotation_error
+from service.pipeline.targets import Target
+from service.pipeline.types import BoolArray, Correction, FloatArray, Kinematics, KinematicsResult
+
+
+def dls_step(
+    jacobian: FloatArray,  # (B, m, n)
+    error: FloatArray,  # (B, m)
+    damping: float,
+) -> FloatArray:  # (B, n)
+    """One damped-least-squares step dq = J^T (J J^T + damping^2 I)^-1 e."""
+    m = jacobian.shape[1]
+    jacobian_t = np.swapaxes(jacobian, 1, 2)  # (B, n, m)
+    gram = jacobian @ jacobian_t + (damping * damping) * np.eye(m)  # (B, m, m)
+    y = np.linalg.solve(gram, error[..., None])  # (B, m, 1)
+    return (jacobian_t @ y)[..., 0]
+
+
+def task_error(
+    fk: KinematicsResult, target: Target, task: TaskSpec
+) -> tuple[FloatArray, FloatArray]:
+    """Task error e (B, m) = target - current and the task Jacobian (B, m, n)."""
+    axes = task.position_axes
+    error = target.position_m[None, :] - fk.position_m[:, axes]  # (B, m_p)
+    jacobian = fk.jacobian[:, axes, :]  # (B, m_p, n)
+    if task.orientation and target.rotation is not None:
+        rotation_target = np.broadcast_to(target.rotation, fk.rotation.shape)
+        error = np.concatenate([error, rotation_error(rotation_target, fk.rotation)], axis=1)
+        jacobian = np.concatenate([jacobian, fk.jacobian[:, 3:6, :]], axis=1)
+    return error, jacobian
+
+
+def correct(
+    q_rad: FloatArray,  # (N, n)
+    target: Target,
+    task: TaskSpec,
+    kinematics: Kinematics,
+    steps: int,
+    damping: float,
+    periodic: BoolArray,  # (n,)
+) -> Correction:
+    """Apply `steps` DLS steps to every finite sample and measure the remaining errors.
+
+    Samples with non-finite coordinates are left out of the arithmetic and get an
+    infinite error, so acceptance rejects them without NaNs spreading.
+    """
+    num_samples = q_rad.shape[0]
+    finite = np.all(np.isfinite(q_rad), axis=1)  # (N,)
+    q = q_rad[finite]
+    m_p = len(task.position_axes)
+    for _ in range(steps):
+        error, jacobian = task_error(kinematics(q), target, task)
+        q = wrap_periodic(q + dls_step(jacobian, error, damping), periodic)
+    error, _ = task_error(kinematics(q), target, task)
+
+    position_error_m = np.full(num_samples, np.inf)
+    orientation_error_rad = np.zeros(num_samples)
+    position_error_m[finite] = np.linalg.norm(error[:, :m_p], axis=1)
+    if task.orientation:
+        orientation_error_rad[~finite] = np.inf
+        orientation_error_rad[finite] = np.linalg.norm(error[:, m_p:], axis=1)
+    q_out = np.full_like(q_rad, np.nan)
+    q_out[finite] = q
+    return Correction(
+        q_rad=q_out,
+        position_error_m=position_error_m,
+        orientation_error_rad=orientation_error_rad,
+    )

@@ -1,0 +1,30 @@
+"""Rotations: unit quaternions with named fields, rotation logarithm, 6-D representation."""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+FloatArray = NDArray[np.float64]
+
+
+def quaternion_to_matrix(w: float, x: float, y: float, z: float) -> FloatArray:
+    """Rotation matrix (3, 3) of the unit quaternion w + xi + yj + zk (normalised here)."""
+    # scipy orders quaternions scalar-last; the named fields make the order explicit.
+    return np.asarray(Rotation.from_quat([x, y, z, w]).as_matrix(), dtype=np.float64)
+
+
+def rotation_log(rotation: FloatArray) -> FloatArray:
+    """Rotation vector (B, 3) (axis * angle, rad) of rotation matrices (B, 3, 3)."""
+    return np.asarray(Rotation.from_matrix(rotation).as_rotvec(), dtype=np.float64)
+
+
+def rotation_error(rotation_target: FloatArray, rotation: FloatArray) -> FloatArray:
+    """Base-frame rotation vector e (B, 3) with exp([e]) R = R*: log(R* R^T)."""
+    return rotation_log(rotation_target @ np.swapaxes(rotation, -1, -2))
+
+
+def rotation_6d(rotation: FloatArray) -> FloatArray:
+    """Continuous 6-D representation (B, 6) of rotations (B, 3, 3): the first two columns."""
+    return np.concatenate([rotation[..., :, 0], rotation[..., :, 1]], axis=-1)

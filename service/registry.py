@@ -1,0 +1,96 @@
+"""The model registry: every `models/<model-id>/manifest.json`, verified, with its ONNX sessions.
+
+Start-up refuses a model whose files are missing or whose sha256 differs from its
+manifest, with a message naming the file.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from pathlib import Path
+
+from pydantic import ValidationError
+
+from service.errors import ModelVerificationError, UnknownModelError
+from service.manifest import FLOW_FILE, KINEMATICS_FILE, MANIFEST_FILE, Manifest
+from service.onnx_models import OnnxKinematics, OnnxVelocityField, open_session
+
+
+def sha256_of(path: Path) -> str:
+    digest = hashlib.sha256()
+    with path.open("rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+@dataclass(frozen=True)
+class ServedModel:
+    manifest: Manifest
+    velocity: OnnxVelocityField
+    kinematics: OnnxKinematics
+    version: str  # first 12 hex digits of the sha256 over the model's file digests
+
+    @property
+    def reference(self) -> str:
+        """`<model-id>@<version>`, as reported in every answer."""
+        return f"{self.manifest.model_id}@{self.version}"
+
+
+def _verify_file(path: Path, expected_sha256: str) -> None:
+    if not path.is_file():
+        raise ModelVerificationError(f"{path}: file listed in the manifest is missing")
+    actual = sha256_of(path)
+    if actual != expected_sha256:
+        raise ModelVerificationError(
+            f"{path}: sha256 {actual} does not match the manifest's {expected_sha256}"
+        )
+
+
+def load_model(model_dir: Path, threads: int) -> ServedModel:
+    """Read, verify and open one model directory."""
+    manifest_path = model_dir / MANIFEST_FILE
+    try:
+        manifest = Manifest.model_validate_json(manifest_path.read_bytes())
+    except (OSError, ValidationError) as error:
+        raise ModelVerificationError(f"{manifest_path}: unreadable manifest: {error}") from error
+    for required in (FLOW_FILE, KINEMATICS_FILE):
+        if required not in manifest.files:
+            raise ModelVerificationError(f"{manifest_path}: does not list {required}")
+    for name, expected in sorted(manifest.files.items()):
+        _verify_file(model_dir / name, expected)
+    _verify_file(model_dir.parent / manifest.urdf.path, manifest.urdf.sha256)
+    combined = "".join(f"{name}:{sha}\n" for name, sha in sorted(manifest.files.items()))
+    return ServedModel(
+        manifest=manifest,
+        velocity=OnnxVelocityField(open_session(model_dir / FLOW_FILE, threads)),
+        kinematics=OnnxKinematics(open_session(model_dir / KINEMATICS_FILE, threads)),
+        version=hashlib.sha256(combined.encode()).hexdigest()[:12],
+    )
+
+
+class Registry:
+    """Served models keyed by (robot, task)."""
+
+    def __init__(self, models: list[ServedModel]) -> None:
+        self._models: dict[tuple[str, str], ServedModel] = {
+            (m.manifest.robot, m.manifest.task.name): m for m in models
+        }
+
+    @classmethod
+    def load(cls, models_dir: Path, threads: int = 0) -> Registry:
+        """Load every directory of `models_dir` that holds a manifest."""
+        directories = sorted(p.parent for p in models_dir.glob(f"*/{MANIFEST_FILE}"))
+        if not directories:
+            raise ModelVerificationError(f"{models_dir}: no */{MANIFEST_FILE} found")
+        return cls([load_model(directory, threads) for directory in directories])
+
+    def get(self, robot: str, task: str) -> ServedModel:
+        try:
+            return self._models[(robot, task)]
+        except KeyError:
+            raise UnknownModelError(robot, task, sorted(self._models)) from None
+
+    def all(self) -> list[ServedModel]:
+        return [self._models[key] for key in sorted(self._models)]

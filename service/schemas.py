@@ -1,0 +1,131 @@
+"""Request and response models of the HTTP contract (see README)."""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+# JSON has no NaN or infinity; refuse them where a parser lets them through.
+Finite = Annotated[float, Field(allow_inf_nan=False)]
+
+
+class _Request(BaseModel):
+    # A misspelt option must not silently fall back to its default.
+    model_config = ConfigDict(extra="forbid")
+
+
+class Quaternion(_Request):
+    """Unit quaternion w + xi + yj + zk, fields named so the order is never ambiguous."""
+
+    w: Finite
+    x: Finite
+    y: Finite
+    z: Finite
+
+
+class Target(_Request):
+    position: list[Finite] = Field(
+        min_length=1,
+        max_length=3,
+        description="End-effector position in metres, base frame; one value per constrained "
+        "axis (2 for a planar arm, 3 in space).",
+        examples=[[0.5, 0.0]],
+    )
+    orientation: Quaternion | None = Field(
+        None, description="Required for the pose task, refused for the position task."
+    )
+
+
+class Tolerance(_Request):
+    position: Annotated[float, Field(gt=0.0, le=0.1, allow_inf_nan=False)] | None = Field(
+        None, description="Largest accepted position error in metres (default: the model's)."
+    )
+    orientation: Annotated[float, Field(gt=0.0, le=3.14, allow_inf_nan=False)] | None = Field(
+        None,
+        description="Largest accepted orientation error in radians (pose task only; default: "
+        "the model's).",
+    )
+
+
+class SmmRequest(_Request):
+    robot: str = Field(examples=["planar3r"])
+    task: str = Field(examples=["position"])
+    target: Target
+    num_samples: int | None = Field(
+        None, ge=1, description="Flow samples to draw (default: the model's; 413 above the limit)."
+    )
+    seed: int = Field(0, ge=0, le=2**63 - 1, description="The same seed gives the same answer.")
+    tolerance: Tolerance = Field(default_factory=Tolerance)
+    reference_configuration: list[Finite] | None = Field(
+        None,
+        description="Joint angles in radians (model joint order); components are then ordered "
+        "by their distance to it and report their nearest member.",
+    )
+    max_configurations_per_component: int | None = Field(
+        None,
+        ge=1,
+        description="Cap on configurations returned per component (a covering subset by "
+        "farthest-point sampling); `size` still counts every member. Default: all.",
+    )
+
+
+class Counts(BaseModel):
+    sampled: int
+    accepted: int
+    rejected_tolerance: int
+    rejected_joint_limits: int
+
+
+class ComponentOut(BaseModel):
+    id: int
+    size: int = Field(description="Accepted configurations in this component.")
+    representative: list[float]
+    configurations: list[list[float]]
+    joint_min: list[float]
+    joint_max: list[float]
+    max_position_error: float = Field(description="metres")
+    max_orientation_error: float = Field(description="radians; 0 for a position task")
+    distance_to_reference: float | None = Field(description="joint metric, radians")
+    nearest_to_reference: list[float] | None
+
+
+class Timings(BaseModel):
+    encode: float
+    sample: float
+    correct: float
+    accept: float
+    cluster: float
+    total: float
+
+
+class SmmResponse(BaseModel):
+    robot: str
+    task: str
+    model: str = Field(description="<model-id>@<first 12 hex of the model files' digest>")
+    joint_names: list[str]
+    redundancy: int
+    status: Literal["ok", "no_solution"]
+    counts: Counts
+    components: list[ComponentOut]
+    timings_ms: Timings
+
+
+class RobotModel(BaseModel):
+    robot: str
+    task: str
+    model: str
+    joint_names: list[str]
+    joint_lower: list[float]
+    joint_upper: list[float]
+    periodic_joints: list[bool]
+    redundancy: int
+    target_position_length: int
+    orientation: bool
+    defaults: dict[str, object]
+    training: dict[str, object]
+    quality: dict[str, object] | None
+
+
+class RobotsResponse(BaseModel):
+    models: list[RobotModel]

@@ -1,0 +1,77 @@
+"""Training data: configurations spread over the joint limits, labelled by pytorch-kinematics FK."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from service.manifest import AffineNormalisation, JointSpec, TaskSpec
+from service.pipeline.targets import condition_features
+from training.kinematics import ForwardKinematics
+
+
+def sobol_configurations(joints: JointSpec, count: int, seed: int) -> torch.Tensor:
+    """(count, n) float64 configurations: scrambled Sobol points scaled to the joint limits."""
+    engine = torch.quasirandom.SobolEngine(joints.count, scramble=True, seed=seed)
+    unit = engine.draw(count, dtype=torch.float64)  # (N, n) in [0, 1)
+    lower = torch.tensor(joints.lower_rad, dtype=torch.float64)
+    upper = torch.tensor(joints.upper_rad, dtype=torch.float64)
+    return lower + unit * (upper - lower)
+
+
+@torch.no_grad()
+def end_effector_poses(
+    fk: ForwardKinematics, q: torch.Tensor, chunk: int = 200_000
+) -> tuple[np.ndarray, np.ndarray]:
+    """Positions (N, 3) and rotations (N, 3, 3) of configurations q (N, n), in float64."""
+    positions, rotations = [], []
+    for start in range(0, q.shape[0], chunk):
+        position, rotation, _ = fk(q[start : start + chunk])
+        positions.append(position.numpy())
+        rotations.append(rotation.numpy())
+    return np.concatenate(positions), np.concatenate(rotations)
+
+
+def joint_normalisation(joints: JointSpec) -> AffineNormalisation:
+    """Maps the joint limits onto [-1, 1]."""
+    lower, upper, _ = joints.arrays()
+    return AffineNormalisation(
+        offset=((upper + lower) / 2).tolist(), scale=((upper - lower) / 2).tolist()
+    )
+
+
+def fit_condition_normalisation(features: np.ndarray) -> AffineNormalisation:
+    """Maps each condition dimension's range in the training data onto [-1, 1]."""
+    low, high = features.min(axis=0), features.max(axis=0)
+    scale = np.where(high - low > 1e-12, (high - low) / 2, 1.0)
+    return AffineNormalisation(offset=((high + low) / 2).tolist(), scale=scale.tolist())
+
+
+@dataclass(frozen=True)
+class FlowData:
+    """Normalised training pairs: targets of the flow (q_1) and their conditions."""
+
+    q_1: torch.Tensor  # (N, n) float32 in [-1, 1]
+    condition: torch.Tensor  # (N, c) float32 in [-1, 1]
+    joint_normalisation: AffineNormalisation
+    condition_normalisation: AffineNormalisation
+
+
+def build_flow_data(
+    fk: ForwardKinematics, joints: JointSpec, task: TaskSpec, count: int, seed: int
+) -> FlowData:
+    q = sobol_configurations(joints, count, seed)
+    position, rotation = end_effector_poses(fk, q)
+    features = condition_features(
+        task, position[:, task.position_axes], rotation if task.orientation else None
+    )
+    joint_norm = joint_normalisation(joints)
+    condition_norm = fit_condition_normalisation(features)
+    return FlowData(
+        q_1=torch.from_numpy(joint_norm.normalise(q.numpy()).astype(np.float32)),
+        condition=torch.from_numpy(condition_norm.normalise(features).astype(np.float32)),
+        joint_normalisation=joint_norm,
+        condition_normalisation=condition_norm,
+    )

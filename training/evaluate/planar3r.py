@@ -1,0 +1,151 @@
+"""Closed-form ground truth for the planar 3R (unit links) and the issue-2 acceptance check.
+
+SMM of a target p at distance rho from the base: for every end-effector angle phi the
+wrist w = p - (cos phi, sin phi) must be within the 2R's reach (|w| <= 2), and each
+elbow branch s = +-1 gives one configuration. For rho < 1 every phi is feasible and
+the two branches are two disjoint loops (2 components); for 1 < rho < 3 phi covers an
+arc at whose ends the branches meet (1 component); beyond 3 there is none.
+
+    python -m training.evaluate.planar3r   # count accuracy over 50 targets + coverage at rho 2
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from dataclasses import dataclass
+
+import numpy as np
+
+from service.config import REPO_MODELS_DIR
+from service.pipeline.joint_space import joint_distance, wrap_to_pi
+from service.pipeline.run import Query, SmmResult, run
+from service.registry import ServedModel, load_model
+
+LINK_M = 1.0
+
+
+def planar3r_position(q_rad: np.ndarray) -> np.ndarray:
+    """End-effector position (..., 2) of configurations (..., 3): sum of unit links."""
+    angle = np.cumsum(q_rad, axis=-1)  # (..., 3) absolute link angles
+    return LINK_M * np.stack([np.cos(angle).sum(-1), np.sin(angle).sum(-1)], axis=-1)
+
+
+def planar3r_jacobian(q_rad: np.ndarray) -> np.ndarray:
+    """Position Jacobian (..., 2, 3): column j sums the links from joint j outwards."""
+    angle = np.cumsum(q_rad, axis=-1)
+    # d p / d q_j = sum_{k >= j} (-sin a_k, cos a_k)
+    tail_cos = np.flip(np.cumsum(np.flip(np.cos(angle), -1), -1), -1)
+    tail_sin = np.flip(np.cumsum(np.flip(np.sin(angle), -1), -1), -1)
+    return LINK_M * np.stack([-tail_sin, tail_cos], axis=-2)
+
+
+def expected_component_count(rho_m: float) -> int:
+    if rho_m < 1.0:
+        return 2
+    if rho_m < 3.0:
+        return 1
+    return 0
+
+
+def closed_form_smm(target_m: np.ndarray, phi_step_rad: float = 0.01) -> list[np.ndarray]:
+    """The SMM of `target_m` (2,) as a list of components, each (k, 3) rad, sampled in phi."""
+    phi = np.arange(0.0, 2 * np.pi, phi_step_rad)  # (K,)
+    wrist = target_m[None, :] - np.stack([np.cos(phi), np.sin(phi)], axis=1)  # (K, 2)
+    d2 = np.sum(wrist**2, axis=1)
+    feasible = d2 <= (2 * LINK_M) ** 2
+    phi, wrist, d2 = phi[feasible], wrist[feasible], d2[feasible]
+    cos_q2 = np.clip((d2 - 2 * LINK_M**2) / (2 * LINK_M**2), -1.0, 1.0)
+    branches = []
+    for elbow in (1.0, -1.0):
+        q2 = elbow * np.arccos(cos_q2)
+        q1 = np.arctan2(wrist[:, 1], wrist[:, 0]) - np.arctan2(np.sin(q2), 1 + np.cos(q2))
+        q3 = phi - q1 - q2
+        branches.append(wrap_to_pi(np.stack([q1, q2, q3], axis=1)))
+    count = expected_component_count(float(np.linalg.norm(target_m)))
+    if count == 2:
+        return branches
+    if count == 1:
+        return [np.concatenate(branches)]
+    return []
+
+
+@dataclass(frozen=True)
+class CheckReport:
+    targets: int
+    count_correct: int
+    wrong: list[dict[str, float]]  # rho, expected, got
+    max_fk_error_m: float
+    coverage_max_rad: float  # at rho = 2: worst distance from a closed-form point to the answer
+    coverage_within_0_1: float
+
+
+def query(position: np.ndarray, num_samples: int = 1000, seed: int = 0) -> Query:
+    return Query(
+        position_m=position.tolist(),
+        orientation_wxyz=None,
+        num_samples=num_samples,
+        seed=seed,
+        tolerance_position_m=1e-6,
+        tolerance_orientation_rad=1e-6,
+        reference_rad=None,
+        max_configurations_per_component=None,
+    )
+
+
+def returned_configurations(result: SmmResult) -> np.ndarray:
+    return np.concatenate([c.configurations_rad for c in result.components] or [np.zeros((0, 3))])
+
+
+def random_targets(count: int, seed: int) -> np.ndarray:
+    """(count, 2) targets, half at rho in (0.05, 0.95), half in (1.05, 2.95), random bearing."""
+    rng = np.random.default_rng(seed)
+    inner = rng.uniform(0.05, 0.95, count // 2)
+    outer = rng.uniform(1.05, 2.95, count - count // 2)
+    rho = np.concatenate([inner, outer])
+    bearing = rng.uniform(-np.pi, np.pi, count)
+    return rho[:, None] * np.stack([np.cos(bearing), np.sin(bearing)], axis=1)
+
+
+def check(model: ServedModel, num_targets: int = 50, seed: int = 2) -> CheckReport:
+    """Component counts against the closed form, exactness by the closed-form FK, coverage."""
+    periodic = np.asarray(model.manifest.joints.periodic)
+    correct, wrong, max_error = 0, [], 0.0
+    for i, target in enumerate(random_targets(num_targets, seed)):
+        result = run(model, query(target, seed=i))
+        rho = float(np.linalg.norm(target))
+        expected = expected_component_count(rho)
+        if len(result.components) == expected:
+            correct += 1
+        else:
+            wrong.append({"rho": rho, "expected": expected, "got": len(result.components)})
+        q = returned_configurations(result)
+        if len(q):
+            max_error = max(max_error, float(np.linalg.norm(planar3r_position(q) - target, axis=1).max()))
+    target = np.array([2.0, 0.0])
+    q = returned_configurations(run(model, query(target)))
+    truth = np.concatenate(closed_form_smm(target))
+    nearest = np.array([joint_distance(q, p, periodic).min() for p in truth])
+    return CheckReport(
+        targets=num_targets,
+        count_correct=correct,
+        wrong=wrong,
+        max_fk_error_m=max_error,
+        coverage_max_rad=float(nearest.max()),
+        coverage_within_0_1=float(np.mean(nearest <= 0.1)),
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    parser.add_argument("--model-dir", default=str(REPO_MODELS_DIR / "planar3r-position"))
+    parser.add_argument("--targets", type=int, default=50)
+    args = parser.parse_args()
+    from pathlib import Path
+
+    report = check(load_model(Path(args.model_dir), threads=0), args.targets)
+    print(json.dumps(report.__dict__, indent=1))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,173 @@
+"""Export a trained flow and the robot's kinematics to ONNX, check parity, write the manifest.
+
+Parity is checked on random inputs: torch vs onnxruntime must agree (flow in float32,
+kinematics in float64) or the export fails loudly and nothing is left half-written.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import onnxruntime as ort
+import torch
+
+from service.manifest import (
+    FLOW_FILE,
+    KINEMATICS_FILE,
+    MANIFEST_FILE,
+    ConditionSpec,
+    FileRef,
+    JointSpec,
+    Manifest,
+    TaskSpec,
+    TrainingRecord,
+)
+from service.onnx_models import FLOW_INPUTS, FLOW_OUTPUT, KINEMATICS_INPUT, KINEMATICS_OUTPUTS
+from service.pipeline.targets import condition_names
+from service.registry import load_model, sha256_of
+from training.config import TrainConfig
+from training.data import FlowData
+from training.defaults import serving_defaults
+from training.evaluate.quality import measure_quality
+from training.kinematics import ForwardKinematics
+from training.model import VelocityField
+from training.robots import RobotSpec
+from training.train import TrainResult
+
+FLOW_PARITY_ATOL = 1e-4  # float32 network, outputs O(1)
+KINEMATICS_PARITY_ATOL = 1e-10  # float64; observed ~1e-15
+
+
+class ExportParityError(RuntimeError):
+    """onnxruntime disagrees with torch on the exported graph."""
+
+
+def _export(
+    module: torch.nn.Module,
+    inputs: tuple[torch.Tensor, ...],
+    path: Path,
+    input_names: list[str],
+    output_names: list[str],
+) -> None:
+    batch = torch.export.Dim("batch", min=1)
+    torch.onnx.export(
+        module,
+        inputs,
+        str(path),
+        dynamo=True,
+        input_names=input_names,
+        output_names=output_names,
+        dynamic_shapes=tuple({0: batch} for _ in inputs),
+        external_data=False,  # one self-contained file per network
+        verbose=False,
+    )
+
+
+def export_flow(model: VelocityField, path: Path, joint_dim: int, condition_dim: int) -> None:
+    model = model.cpu().eval()
+    example = (torch.zeros(4, joint_dim), torch.zeros(4, 1), torch.zeros(4, condition_dim))
+    _export(model, example, path, list(FLOW_INPUTS), [FLOW_OUTPUT])
+    generator = torch.Generator().manual_seed(0)
+    q_t = torch.randn(257, joint_dim, generator=generator)
+    t = torch.rand(257, 1, generator=generator)
+    condition = torch.rand(257, condition_dim, generator=generator) * 2 - 1
+    with torch.no_grad():
+        expected = model(q_t, t, condition).numpy()
+    session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    (actual,) = session.run(
+        [FLOW_OUTPUT], {"q_t": q_t.numpy(), "t": t.numpy(), "condition": condition.numpy()}
+    )
+    error = float(np.max(np.abs(actual - expected)))
+    if not error <= FLOW_PARITY_ATOL:
+        raise ExportParityError(
+            f"{path}: flow differs from torch by {error:.3g} > {FLOW_PARITY_ATOL}"
+        )
+
+
+def export_kinematics(fk: ForwardKinematics, path: Path, joints: JointSpec) -> None:
+    lower, upper, _ = joints.arrays()
+    example = torch.zeros(4, joints.count, dtype=torch.float64)
+    _export(fk, (example,), path, [KINEMATICS_INPUT], list(KINEMATICS_OUTPUTS))
+    rng = np.random.default_rng(0)
+    q = rng.uniform(lower, upper, size=(257, joints.count))
+    with torch.no_grad():
+        expected = [x.numpy() for x in fk(torch.from_numpy(q))]
+    session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    actual = session.run(list(KINEMATICS_OUTPUTS), {KINEMATICS_INPUT: q})
+    for name, a, e in zip(KINEMATICS_OUTPUTS, actual, expected, strict=True):
+        error = float(np.max(np.abs(a - e)))
+        if not error <= KINEMATICS_PARITY_ATOL:
+            raise ExportParityError(
+                f"{path}: kinematics output {name!r} differs from pytorch-kinematics by "
+                f"{error:.3g} > {KINEMATICS_PARITY_ATOL}"
+            )
+
+
+def git_commit() -> str:
+    try:
+        return subprocess.run(
+            ["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True
+        ).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
+def export_model(
+    model_dir: Path,
+    models_dir: Path,
+    robot: RobotSpec,
+    task: TaskSpec,
+    joints: JointSpec,
+    fk: ForwardKinematics,
+    data: FlowData,
+    config: TrainConfig,
+    result: TrainResult,
+    command: str,
+) -> Manifest:
+    """Write flow.onnx, kinematics.onnx and manifest.json into `model_dir`; measure quality."""
+    model_dir.mkdir(parents=True, exist_ok=True)
+    export_flow(result.model, model_dir / FLOW_FILE, joints.count, data.condition.shape[1])
+    export_kinematics(fk, model_dir / KINEMATICS_FILE, joints)
+    model_id = f"{robot.name}-{task.name}"
+    manifest = Manifest(
+        model_id=model_id,
+        robot=robot.name,
+        task=task,
+        urdf=FileRef(path=robot.urdf, sha256=sha256_of(models_dir / robot.urdf)),
+        end_effector_link=robot.end_effector_link,
+        reach_m=robot.reach_m,
+        joints=joints,
+        joint_normalisation=data.joint_normalisation,
+        condition=ConditionSpec(
+            names=condition_names(task), normalisation=data.condition_normalisation
+        ),
+        files={name: sha256_of(model_dir / name) for name in (FLOW_FILE, KINEMATICS_FILE)},
+        defaults=serving_defaults(model_id),
+        training=TrainingRecord(
+            command=command,
+            samples=config.samples,
+            epochs=config.epochs,
+            batch_size=config.batch_size,
+            device=config.device if config.device != "cuda" else torch.cuda.get_device_name(),
+            wall_time_s=round(result.wall_time_s, 1),
+            best_validation_loss=result.best_validation_loss,
+            best_epoch=result.best_epoch,
+            torch_version=torch.__version__,
+            git_commit=git_commit(),
+            config=config.as_dict(),
+        ),
+        created_utc=dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
+    )
+    manifest_path = model_dir / MANIFEST_FILE
+    manifest_path.write_text(manifest.model_dump_json(indent=2) + "\n")
+    # Quality is measured on exactly what ships: the model loaded as the service loads it.
+    served = load_model(model_dir, threads=config.threads)
+    quality = measure_quality(
+        served, config.eval_targets, config.eval_samples_per_target, config.eval_seed
+    )
+    manifest = manifest.model_copy(update={"quality": quality})
+    manifest_path.write_text(manifest.model_dump_json(indent=2) + "\n")
+    return manifest
