@@ -6,18 +6,21 @@ elbow branch s = +-1 gives one configuration. For rho < 1 every phi is feasible 
 the two branches are two disjoint loops (2 components); for 1 < rho < 3 phi covers an
 arc at whose ends the branches meet (1 component); beyond 3 there is none.
 
-    python -m training.evaluate.planar3r   # count accuracy over 50 targets + coverage at rho 2
+    python -m training.evaluate.planar3r          # counts over 50 targets, coverage at rho 2
+    python -m training.evaluate.planar3r --sweep  # the same for candidate serving defaults
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from pathlib import Path
 
 import numpy as np
 
 from service.config import REPO_MODELS_DIR
+from service.manifest import SamplerSpec
 from service.pipeline.joint_space import joint_distance, wrap_to_pi
 from service.pipeline.run import Query, SmmResult, run
 from service.registry import ServedModel, load_model
@@ -78,6 +81,9 @@ class CheckReport:
     max_fk_error_m: float
     coverage_max_rad: float  # at rho = 2: worst distance from a closed-form point to the answer
     coverage_within_0_1: float
+    keep_rate: float  # accepted / sampled over the targets
+    median_total_ms: float  # per target, warm, this process
+    median_stage_ms: dict[str, float]
 
 
 def query(position: np.ndarray, num_samples: int = 1000, seed: int = 0) -> Query:
@@ -111,8 +117,13 @@ def check(model: ServedModel, num_targets: int = 50, seed: int = 2) -> CheckRepo
     """Component counts against the closed form, exactness by the closed-form FK, coverage."""
     periodic = np.asarray(model.manifest.joints.periodic)
     correct, wrong, max_error = 0, [], 0.0
+    accepted, sampled, timings = 0, 0, []
+    run(model, query(np.array([2.0, 0.0])))  # warm-up: first-call allocations in onnxruntime
     for i, target in enumerate(random_targets(num_targets, seed)):
         result = run(model, query(target, seed=i))
+        accepted += result.counts.accepted
+        sampled += result.counts.sampled
+        timings.append(vars(result.timings))
         rho = float(np.linalg.norm(target))
         expected = expected_component_count(rho)
         if len(result.components) == expected:
@@ -121,7 +132,9 @@ def check(model: ServedModel, num_targets: int = 50, seed: int = 2) -> CheckRepo
             wrong.append({"rho": rho, "expected": expected, "got": len(result.components)})
         q = returned_configurations(result)
         if len(q):
-            max_error = max(max_error, float(np.linalg.norm(planar3r_position(q) - target, axis=1).max()))
+            max_error = max(
+                max_error, float(np.linalg.norm(planar3r_position(q) - target, axis=1).max())
+            )
     target = np.array([2.0, 0.0])
     q = returned_configurations(run(model, query(target)))
     truth = np.concatenate(closed_form_smm(target))
@@ -133,18 +146,59 @@ def check(model: ServedModel, num_targets: int = 50, seed: int = 2) -> CheckRepo
         max_fk_error_m=max_error,
         coverage_max_rad=float(nearest.max()),
         coverage_within_0_1=float(np.mean(nearest <= 0.1)),
+        keep_rate=accepted / sampled,
+        median_total_ms=float(np.median([t["total_ms"] for t in timings])),
+        median_stage_ms={
+            key.removesuffix("_ms"): round(float(np.median([t[key] for t in timings])), 2)
+            for key in timings[0]
+        },
     )
 
 
+def with_defaults(model: ServedModel, **changes: object) -> ServedModel:
+    """The same model with some serving defaults changed (for measuring candidates)."""
+    defaults = model.manifest.defaults.model_copy(update=changes)
+    return replace(model, manifest=model.manifest.model_copy(update={"defaults": defaults}))
+
+
+def sweep(model: ServedModel, num_targets: int) -> list[dict[str, object]]:
+    """Count accuracy, coverage, keep rate and time for candidate sampler steps and radii."""
+    rows: list[dict[str, object]] = []
+    for steps in (5, 10, 20, 50, 100):
+        for radius in (0.2, 0.3, 0.5, 1.0):
+            candidate = with_defaults(
+                model, sampler=SamplerSpec(method="euler", steps=steps), cluster_radius_rad=radius
+            )
+            report = check(candidate, num_targets)
+            rows.append(
+                {
+                    "sampler_steps": steps,
+                    "cluster_radius_rad": radius,
+                    "count_correct": f"{report.count_correct}/{report.targets}",
+                    "coverage_max_rad": round(report.coverage_max_rad, 4),
+                    "keep_rate": round(report.keep_rate, 4),
+                    "median_total_ms": round(report.median_total_ms, 1),
+                }
+            )
+            print(rows[-1], flush=True)
+    return rows
+
+
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawTextHelpFormatter
+    )
     parser.add_argument("--model-dir", default=str(REPO_MODELS_DIR / "planar3r-position"))
     parser.add_argument("--targets", type=int, default=50)
+    parser.add_argument(
+        "--sweep", action="store_true", help="measure candidate sampler steps x cluster radii"
+    )
     args = parser.parse_args()
-    from pathlib import Path
-
-    report = check(load_model(Path(args.model_dir), threads=0), args.targets)
-    print(json.dumps(report.__dict__, indent=1))
+    model = load_model(Path(args.model_dir), threads=0)
+    if args.sweep:
+        sweep(model, args.targets)
+    else:
+        print(json.dumps(check(model, args.targets).__dict__, indent=1))
 
 
 if __name__ == "__main__":

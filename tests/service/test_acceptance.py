@@ -1,0 +1,43 @@
+"""acceptance: tolerance and limit masks, with every sample accounted for exactly once."""
+
+import numpy as np
+
+from service.pipeline.acceptance import accept
+from service.pipeline.types import Correction, Counts
+
+
+def test_masks_and_counts() -> None:
+    q = np.array([[0.0, 0.0], [0.0, 2.5], [3.0, 0.0], [0.0, 0.0], [np.nan, 0.0]])
+    correction = Correction(
+        q_rad=q,
+        position_error_m=np.array([1e-9, 1e-9, 1e-9, 1e-3, np.inf]),
+        orientation_error_rad=np.zeros(5),
+    )
+    periodic = np.array([True, False])
+    acceptance = accept(
+        correction, 1e-6, 1e-6, np.array([-np.pi, -2.0]), np.array([np.pi, 2.0]), periodic
+    )
+    assert acceptance.within_tolerance.tolist() == [True, True, True, False, False]
+    # Joint 1 is periodic (3.0 passes); joint 2 is limited to +-2 (2.5 fails).
+    assert acceptance.within_limits.tolist() == [True, False, True, True, False]
+    assert acceptance.accepted.tolist() == [True, False, True, False, False]
+    counts = Counts.of(acceptance)
+    assert (
+        counts.sampled,
+        counts.accepted,
+        counts.rejected_tolerance,
+        counts.rejected_joint_limits,
+    ) == (5, 2, 2, 1)
+    assert counts.accepted + counts.rejected_tolerance + counts.rejected_joint_limits == 5
+
+
+def test_orientation_tolerance_applies() -> None:
+    correction = Correction(
+        q_rad=np.zeros((2, 1)),
+        position_error_m=np.zeros(2),
+        orientation_error_rad=np.array([1e-7, 1e-5]),
+    )
+    acceptance = accept(
+        correction, 1e-6, 1e-6, np.array([-1.0]), np.array([1.0]), np.array([False])
+    )
+    assert acceptance.accepted.tolist() == [True, False]

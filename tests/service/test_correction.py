@@ -1,0 +1,81 @@
+"""correction: a DLS step follows its closed form and reduces the error; bad samples are fenced."""
+
+import numpy as np
+
+from service.manifest import TaskSpec
+from service.pipeline.correction import correct, dls_step
+from service.pipeline.targets import Target
+from service.pipeline.types import KinematicsResult
+from service.registry import ServedModel
+from training.evaluate.planar3r import planar3r_jacobian, planar3r_position
+
+POSITION_2D = TaskSpec(name="position", position_axes=[0, 1], orientation=False)
+PERIODIC = np.array([True, True, True])
+
+
+def closed_form_kinematics(q_rad: np.ndarray) -> KinematicsResult:
+    """Planar 3R FK and Jacobian from the closed form, in the pipeline's container."""
+    batch = q_rad.shape[0]
+    position = np.zeros((batch, 3))
+    position[:, :2] = planar3r_position(q_rad)
+    jacobian = np.zeros((batch, 6, 3))
+    jacobian[:, :2] = planar3r_jacobian(q_rad)
+    jacobian[:, 5] = 1.0
+    return KinematicsResult(
+        position_m=position, rotation=np.tile(np.eye(3), (batch, 1, 1)), jacobian=jacobian
+    )
+
+
+def target_at(position: np.ndarray) -> Target:
+    return Target(position_m=position, rotation=None, condition=np.zeros(2, np.float32))
+
+
+def test_dls_step_equals_the_damped_pseudo_inverse() -> None:
+    rng = np.random.default_rng(0)
+    jacobian = rng.normal(size=(5, 2, 3))
+    error = rng.normal(size=(5, 2))
+    damping = 0.1
+    dq = dls_step(jacobian, error, damping)
+    for J, e, step in zip(jacobian, error, dq, strict=True):
+        expected = J.T @ np.linalg.inv(J @ J.T + damping**2 * np.eye(2)) @ e
+        np.testing.assert_allclose(step, expected, rtol=1e-12)
+    # Vanishing damping on a square, well-conditioned Jacobian: the Newton step J^-1 e.
+    square = rng.normal(size=(4, 3, 3)) + 3 * np.eye(3)
+    np.testing.assert_allclose(
+        dls_step(square, error[:4, :1].repeat(3, 1), 1e-9),
+        np.linalg.solve(square, error[:4, :1].repeat(3, 1)[..., None])[..., 0],
+        rtol=1e-6,
+    )
+
+
+def test_one_dls_step_reduces_the_task_error() -> None:
+    rng = np.random.default_rng(1)
+    q_true = rng.uniform(-np.pi, np.pi, (200, 3))
+    target = planar3r_position(q_true)
+    q = q_true + rng.normal(0, 0.05, q_true.shape)
+    error = target - planar3r_position(q)
+    q_next = q + dls_step(planar3r_jacobian(q), error, 1e-3)
+    error_next = target - planar3r_position(q_next)
+    assert np.all(np.linalg.norm(error_next, axis=1) < np.linalg.norm(error, axis=1))
+
+
+def test_correct_converges_with_the_exported_kinematics(planar3r: ServedModel) -> None:
+    rng = np.random.default_rng(2)
+    q_true = rng.uniform(-np.pi, np.pi, (1, 3))
+    target = planar3r_position(q_true)[0]
+    q = q_true + rng.normal(0, 0.01, (100, 3))  # raw flow samples are mm, i.e. mrad, off
+    result = correct(q, target_at(target), POSITION_2D, planar3r.kinematics, 3, 1e-3, PERIODIC)
+    closed_form_error = np.linalg.norm(planar3r_position(result.q_rad) - target, axis=1)
+    assert closed_form_error.max() < 1e-9
+    np.testing.assert_allclose(result.position_error_m, closed_form_error, atol=1e-12)
+    assert np.all(np.abs(result.q_rad) <= np.pi)
+
+
+def test_non_finite_samples_get_infinite_error_and_leave_the_others_alone() -> None:
+    q_true = np.array([[0.3, 0.4, -0.2]])
+    target = planar3r_position(q_true)[0]
+    q = np.array([[0.31, 0.41, -0.21], [np.nan, 0.0, 0.0], [np.inf, 1.0, 1.0]])
+    result = correct(q, target_at(target), POSITION_2D, closed_form_kinematics, 4, 1e-3, PERIODIC)
+    assert result.position_error_m[0] < 1e-10
+    assert np.all(np.isinf(result.position_error_m[1:]))
+    assert np.all(np.isnan(result.q_rad[1:]))

@@ -1,0 +1,35 @@
+"""kinematics.onnx (planar 3R): FK equals the closed form, Jacobian equals finite differences."""
+
+import numpy as np
+
+from service.registry import ServedModel
+from training.evaluate.planar3r import planar3r_jacobian, planar3r_position
+
+
+def test_forward_kinematics_matches_the_closed_form(planar3r: ServedModel) -> None:
+    q = np.random.default_rng(0).uniform(-np.pi, np.pi, (500, 3))
+    fk = planar3r.kinematics(q)
+    np.testing.assert_allclose(fk.position_m[:, :2], planar3r_position(q), atol=1e-12)
+    np.testing.assert_allclose(fk.position_m[:, 2], 0.0, atol=1e-12)
+    angle = q.sum(axis=1)
+    np.testing.assert_allclose(fk.rotation[:, 0, 0], np.cos(angle), atol=1e-12)
+    np.testing.assert_allclose(fk.rotation[:, 1, 0], np.sin(angle), atol=1e-12)
+
+
+def test_jacobian_matches_central_finite_differences(planar3r: ServedModel) -> None:
+    q = np.random.default_rng(1).uniform(-np.pi, np.pi, (50, 3))
+    jacobian = planar3r.kinematics(q).jacobian  # (B, 6, 3)
+    step = 1e-6
+    for j in range(3):
+        dq = np.zeros(3)
+        dq[j] = step
+        forward = planar3r.kinematics(q + dq).position_m
+        backward = planar3r.kinematics(q - dq).position_m
+        np.testing.assert_allclose(jacobian[:, :3, j], (forward - backward) / (2 * step), atol=1e-8)
+    np.testing.assert_allclose(jacobian[:, :2], planar3r_jacobian(q), atol=1e-12)
+    np.testing.assert_allclose(jacobian[:, 5], 1.0, atol=1e-12)  # every joint turns about z
+
+
+def test_batch_size_is_dynamic(planar3r: ServedModel) -> None:
+    for batch in (1, 7, 2048):
+        assert planar3r.kinematics(np.zeros((batch, 3))).jacobian.shape == (batch, 6, 3)

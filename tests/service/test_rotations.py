@@ -1,0 +1,42 @@
+"""rotations: quaternion fields map to the right matrix; log is the inverse of Rodrigues' exp."""
+
+import numpy as np
+
+from service.pipeline.rotations import (
+    quaternion_to_matrix,
+    rotation_6d,
+    rotation_error,
+    rotation_log,
+)
+
+
+def rodrigues(rotvec: np.ndarray) -> np.ndarray:
+    angle = np.linalg.norm(rotvec)
+    k = rotvec / angle
+    skew = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + np.sin(angle) * skew + (1 - np.cos(angle)) * skew @ skew
+
+
+def test_quaternion_fields_are_named_not_ordered() -> None:
+    half = np.pi / 4  # 90 deg about z: w = cos 45, z = sin 45
+    rotation = quaternion_to_matrix(w=np.cos(half), x=0.0, y=0.0, z=np.sin(half))
+    np.testing.assert_allclose(rotation, [[0, -1, 0], [1, 0, 0], [0, 0, 1]], atol=1e-15)
+
+
+def test_log_inverts_rodrigues_and_error_vanishes_at_the_target() -> None:
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        rotvec = rng.normal(size=3)
+        rotvec *= rng.uniform(0.01, 3.1) / np.linalg.norm(rotvec)
+        rotation = rodrigues(rotvec)
+        np.testing.assert_allclose(rotation_log(rotation[None])[0], rotvec, atol=1e-10)
+        np.testing.assert_allclose(rotation_error(rotation[None], rotation[None]), 0, atol=1e-12)
+        other = rodrigues(rng.normal(size=3))
+        # exp(e) R = R*: the error is expressed in the base frame.
+        error = rotation_error(rotation[None], other[None])[0]
+        np.testing.assert_allclose(rodrigues(error) @ other, rotation, atol=1e-10)
+
+
+def test_6d_representation_is_the_first_two_columns() -> None:
+    rotation = rodrigues(np.array([0.3, -0.2, 0.9]))
+    np.testing.assert_allclose(rotation_6d(rotation[None])[0], rotation[:, :2].T.ravel())

@@ -1,0 +1,60 @@
+"""data and kinematics: URDF joints, Sobol points in the limits, FK labels vs the closed form."""
+
+import math
+
+import numpy as np
+import torch
+
+from service.config import REPO_MODELS_DIR
+from training.data import (
+    build_flow_data,
+    end_effector_poses,
+    joint_normalisation,
+    sobol_configurations,
+)
+from training.evaluate.planar3r import planar3r_position
+from training.kinematics import ForwardKinematics, joint_spec, load_chain
+from training.robots import robot_spec
+
+PLANAR = robot_spec("planar3r")
+
+
+def planar_fk() -> ForwardKinematics:
+    return ForwardKinematics(load_chain(REPO_MODELS_DIR / PLANAR.urdf, PLANAR.end_effector_link))
+
+
+def test_continuous_joints_are_periodic_with_limits_pi() -> None:
+    joints = joint_spec(planar_fk().chain)
+    assert joints.names == ["joint1", "joint2", "joint3"]
+    assert joints.periodic == [True, True, True]
+    assert joints.lower_rad == [-math.pi] * 3 and joints.upper_rad == [math.pi] * 3
+
+
+def test_sobol_configurations_fill_the_limits_deterministically() -> None:
+    joints = joint_spec(planar_fk().chain)
+    q = sobol_configurations(joints, 4096, seed=3)
+    assert q.dtype == torch.float64 and q.shape == (4096, 3)
+    assert float(q.min()) >= -math.pi and float(q.max()) < math.pi
+    assert torch.equal(q, sobol_configurations(joints, 4096, seed=3))
+    # Low discrepancy: every octant of the cube holds close to 1/8 of the points.
+    octant = ((q > 0).long() * torch.tensor([1, 2, 4])).sum(1)
+    assert torch.bincount(octant, minlength=8).min() >= 4096 // 8 - 8
+
+
+def test_labels_match_the_closed_form_fk() -> None:
+    fk = planar_fk()
+    q = sobol_configurations(joint_spec(fk.chain), 1000, seed=0)
+    position, rotation = end_effector_poses(fk, q, chunk=300)
+    np.testing.assert_allclose(position[:, :2], planar3r_position(q.numpy()), atol=1e-12)
+    np.testing.assert_allclose(position[:, 2], 0.0, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.det(rotation), 1.0, atol=1e-12)
+
+
+def test_flow_data_is_normalised_to_the_unit_box() -> None:
+    fk = planar_fk()
+    joints = joint_spec(fk.chain)
+    data = build_flow_data(fk, joints, PLANAR.task("position"), 2000, seed=0)
+    assert data.q_1.shape == (2000, 3) and data.condition.shape == (2000, 2)
+    assert float(data.q_1.abs().max()) <= 1.0 and float(data.condition.abs().max()) <= 1.0 + 1e-6
+    norm = joint_normalisation(joints)
+    np.testing.assert_allclose(norm.normalise(np.array(joints.upper_rad)), 1.0)
