@@ -127,17 +127,29 @@ class TrainingRecord(_Strict):
     config: dict[str, object]
 
 
+class RawError(_Strict):
+    """Task error of uncorrected flow samples, over all samples (not only kept ones).
+
+    e_p in % is |p - p*| / reach; e_o in % is the geodesic angle / pi (the paper's metrics).
+    """
+
+    sampler_steps: int
+    position_error_mm_mean: float
+    position_error_mm_median: float
+    position_error_pct_reach_mean: float
+    orientation_error_deg_mean: float | None
+    orientation_error_deg_median: float | None
+    orientation_error_pct_mean: float | None
+
+
 class Quality(_Strict):
     """Measured on held-out targets (FK of random configurations, fixed seed)."""
 
     held_out_targets: int
     samples_per_target: int
-    raw_position_error_mm_mean: float
-    raw_position_error_mm_median: float
-    raw_position_error_pct_reach_mean: float
-    raw_orientation_error_deg_mean: float | None
-    raw_orientation_error_deg_median: float | None
-    raw_orientation_error_pct_mean: float | None
+    raw: list[RawError] = Field(
+        description="First at the serving default sampler, then at the paper's 100 Euler steps."
+    )
     keep_rate: float = Field(
         description="Fraction of raw samples accepted after the default correction."
     )

@@ -7,7 +7,9 @@ kinematics in float64) or the export fails loudly and nothing is left half-writt
 from __future__ import annotations
 
 import datetime as dt
+import logging
 import subprocess
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -45,6 +47,14 @@ class ExportParityError(RuntimeError):
     """onnxruntime disagrees with torch on the exported graph."""
 
 
+def _quiet_exporter() -> None:
+    # torch.onnx logs a warning per missing torchvision op and pytorch-kinematics trips a
+    # dynamo lru_cache warning; neither concerns these graphs, and parity is checked below.
+    logging.getLogger("torch.onnx").setLevel(logging.ERROR)
+    warnings.filterwarnings("ignore", module=r"torch\.(onnx|_dynamo|export)")
+    warnings.filterwarnings("ignore", category=FutureWarning)
+
+
 def _export(
     module: torch.nn.Module,
     inputs: tuple[torch.Tensor, ...],
@@ -52,6 +62,7 @@ def _export(
     input_names: list[str],
     output_names: list[str],
 ) -> None:
+    _quiet_exporter()
     batch = torch.export.Dim("batch", min=1)
     torch.onnx.export(
         module,
@@ -90,6 +101,7 @@ def export_flow(model: VelocityField, path: Path, joint_dim: int, condition_dim:
 def export_kinematics(fk: ForwardKinematics, path: Path, joints: JointSpec) -> None:
     lower, upper, _ = joints.arrays()
     example = torch.zeros(4, joints.count, dtype=torch.float64)
+    fk = fk.eval()
     _export(fk, (example,), path, [KINEMATICS_INPUT], list(KINEMATICS_OUTPUTS))
     rng = np.random.default_rng(0)
     q = rng.uniform(lower, upper, size=(257, joints.count))
