@@ -23,6 +23,9 @@ class Quaternion(_Request):
     y: Finite
     z: Finite
 
+    def wxyz(self) -> tuple[float, float, float, float]:
+        return (self.w, self.x, self.y, self.z)
+
 
 class Target(_Request):
     position: list[Finite] = Field(

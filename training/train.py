@@ -40,6 +40,17 @@ class TrainResult:
     wall_time_s: float
 
 
+def build_model(config: TrainConfig, data: FlowData) -> VelocityField:
+    """The velocity field of `config`'s architecture for `data`'s joint and condition sizes."""
+    return VelocityField(
+        joint_dim=data.q_1.shape[1],
+        condition_dim=data.condition.shape[1],
+        hidden_width=config.hidden_width,
+        hidden_layers=config.hidden_layers,
+        time_embedding_dim=config.time_embedding_dim,
+    )
+
+
 def split(
     data: FlowData, fraction: float, generator: torch.Generator
 ) -> tuple[torch.Tensor, torch.Tensor]:
@@ -109,13 +120,7 @@ def train(config: TrainConfig, data: FlowData) -> TrainResult:
     q_0_val = torch.randn(q_val.shape, generator=generator).to(device)
     t_val = torch.rand(q_val.shape[0], 1, generator=generator).to(device)
 
-    model = VelocityField(
-        joint_dim=q_train.shape[1],
-        condition_dim=c_train.shape[1],
-        hidden_width=config.hidden_width,
-        hidden_layers=config.hidden_layers,
-        time_embedding_dim=config.time_embedding_dim,
-    ).to(device)
+    model = build_model(config, data).to(device)
     optimizer = torch.optim.AdamW(
         model.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay
     )
@@ -190,13 +195,7 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
 def load_checkpoint(path: Path, data: FlowData) -> tuple[TrainConfig, TrainResult, str]:
     checkpoint = torch.load(path, map_location="cpu", weights_only=False)
     config = TrainConfig(**checkpoint["config"])
-    model = VelocityField(
-        joint_dim=data.q_1.shape[1],
-        condition_dim=data.condition.shape[1],
-        hidden_width=config.hidden_width,
-        hidden_layers=config.hidden_layers,
-        time_embedding_dim=config.time_embedding_dim,
-    )
+    model = build_model(config, data)
     model.load_state_dict(checkpoint["state_dict"])
     result = TrainResult(
         model=model.eval(),

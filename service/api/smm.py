@@ -17,7 +17,7 @@ router = APIRouter(prefix="/smm", tags=["smm"])
 def to_query(body: SmmRequest, model: ServedModel, max_num_samples: int) -> Query:
     """Fill the model's defaults into the request and check what depends on the model."""
     defaults = model.manifest.defaults
-    num_samples = body.num_samples or defaults.num_samples
+    num_samples = defaults.num_samples if body.num_samples is None else body.num_samples
     if num_samples > max_num_samples:
         raise LimitExceededError(
             f"num_samples must be at most {max_num_samples} on this server, got {num_samples}"
@@ -27,16 +27,20 @@ def to_query(body: SmmRequest, model: ServedModel, max_num_samples: int) -> Quer
             ("body", "tolerance", "orientation"),
             "tolerance.orientation applies only to the pose task",
         )
-    orientation = body.target.orientation
+    orientation, tolerance = body.target.orientation, body.tolerance
     return Query(
         position_m=body.target.position,
-        orientation_wxyz=None
-        if orientation is None
-        else (orientation.w, orientation.x, orientation.y, orientation.z),
+        orientation_wxyz=None if orientation is None else orientation.wxyz(),
         num_samples=num_samples,
         seed=body.seed,
-        tolerance_position_m=body.tolerance.position or defaults.tolerance_position_m,
-        tolerance_orientation_rad=body.tolerance.orientation or defaults.tolerance_orientation_rad,
+        tolerance_position_m=(
+            defaults.tolerance_position_m if tolerance.position is None else tolerance.position
+        ),
+        tolerance_orientation_rad=(
+            defaults.tolerance_orientation_rad
+            if tolerance.orientation is None
+            else tolerance.orientation
+        ),
         reference_rad=body.reference_configuration,
         max_configurations_per_component=body.max_configurations_per_component,
     )

@@ -109,16 +109,15 @@ def run(model: ServedModel, query: Query) -> SmmResult:
             periodic,
         )
     with watch.stage("cluster"):
-        kept = acceptance.accepted
-        q_kept = correction.q_rad[kept]
-        labels = component_labels(q_kept, periodic, defaults.cluster_radius_rad)
+        kept = np.flatnonzero(acceptance.accepted)  # (K,) sample indices
+        labels = component_labels(correction.q_rad[kept], periodic, defaults.cluster_radius_rad)
         components = [
             Component(
-                q_rad=q_kept[labels == label],
-                position_error_m=correction.position_error_m[kept][labels == label],
-                orientation_error_rad=correction.orientation_error_rad[kept][labels == label],
+                q_rad=correction.q_rad[members],
+                position_error_m=correction.position_error_m[members],
+                orientation_error_rad=correction.orientation_error_rad[members],
             )
-            for label in range(int(labels.max(initial=-1)) + 1)
+            for members in (kept[labels == label] for label in range(labels.max(initial=-1) + 1))
         ]
         summaries = summarise_all(
             components, periodic, reference_rad, query.max_configurations_per_component
