@@ -80,8 +80,12 @@ class Registry:
 
     @classmethod
     def load(cls, models_dir: Path, threads: int = 0) -> Registry:
-        """Load every directory of `models_dir` that holds a manifest."""
-        directories = sorted(p.parent for p in models_dir.glob(f"*/{MANIFEST_FILE}"))
+        """Load every directory of `models_dir` that holds a manifest (hidden ones excepted)."""
+        directories = sorted(
+            p.parent
+            for p in models_dir.glob(f"*/{MANIFEST_FILE}")
+            if not p.parent.name.startswith(".")
+        )
         if not directories:
             raise ModelVerificationError(f"{models_dir}: no */{MANIFEST_FILE} found")
         return cls([load_model(directory, threads) for directory in directories])

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import datetime as dt
 import logging
+import shutil
 import subprocess
 import warnings
 from pathlib import Path
@@ -81,6 +82,11 @@ def export_flow(model: VelocityField, path: Path, joint_dim: int, condition_dim:
     model = model.cpu().eval()
     example = (torch.zeros(4, joint_dim), torch.zeros(4, 1), torch.zeros(4, condition_dim))
     _export(model, example, path, list(FLOW_INPUTS), [FLOW_OUTPUT])
+    check_flow_parity(model, path, joint_dim, condition_dim)
+
+
+def check_flow_parity(model: VelocityField, path: Path, joint_dim: int, condition_dim: int) -> None:
+    """Raise ExportParityError unless onnxruntime on `path` reproduces `model`."""
     generator = torch.Generator().manual_seed(0)
     q_t = torch.randn(257, joint_dim, generator=generator)
     t = torch.rand(257, 1, generator=generator)
@@ -99,10 +105,15 @@ def export_flow(model: VelocityField, path: Path, joint_dim: int, condition_dim:
 
 
 def export_kinematics(fk: ForwardKinematics, path: Path, joints: JointSpec) -> None:
-    lower, upper, _ = joints.arrays()
     example = torch.zeros(4, joints.count, dtype=torch.float64)
     fk = fk.eval()
     _export(fk, (example,), path, [KINEMATICS_INPUT], list(KINEMATICS_OUTPUTS))
+    check_kinematics_parity(fk, path, joints)
+
+
+def check_kinematics_parity(fk: ForwardKinematics, path: Path, joints: JointSpec) -> None:
+    """Raise ExportParityError unless onnxruntime on `path` reproduces pytorch-kinematics."""
+    lower, upper, _ = joints.arrays()
     rng = np.random.default_rng(0)
     q = rng.uniform(lower, upper, size=(257, joints.count))
     with torch.no_grad():
@@ -139,10 +150,17 @@ def export_model(
     result: TrainResult,
     command: str,
 ) -> Manifest:
-    """Write flow.onnx, kinematics.onnx and manifest.json into `model_dir`; measure quality."""
-    model_dir.mkdir(parents=True, exist_ok=True)
-    export_flow(result.model, model_dir / FLOW_FILE, joints.count, data.condition.shape[1])
-    export_kinematics(fk, model_dir / KINEMATICS_FILE, joints)
+    """Write flow.onnx, kinematics.onnx and manifest.json into `model_dir`; measure quality.
+
+    Everything is written to a hidden staging directory beside `model_dir` (the registry
+    skips hidden directories) and moved into place only once parity and quality are done,
+    so a failed export never leaves a half-written model behind.
+    """
+    staging = model_dir.with_name(f".{model_dir.name}.staging")
+    shutil.rmtree(staging, ignore_errors=True)
+    staging.mkdir(parents=True)
+    export_flow(result.model, staging / FLOW_FILE, joints.count, data.condition.shape[1])
+    export_kinematics(fk, staging / KINEMATICS_FILE, joints)
     model_id = f"{robot.name}-{task.name}"
     manifest = Manifest(
         model_id=model_id,
@@ -156,7 +174,7 @@ def export_model(
         condition=ConditionSpec(
             names=condition_names(task), normalisation=data.condition_normalisation
         ),
-        files={name: sha256_of(model_dir / name) for name in (FLOW_FILE, KINEMATICS_FILE)},
+        files={name: sha256_of(staging / name) for name in (FLOW_FILE, KINEMATICS_FILE)},
         defaults=serving_defaults(model_id),
         training=TrainingRecord(
             command=command,
@@ -173,13 +191,15 @@ def export_model(
         ),
         created_utc=dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
     )
-    manifest_path = model_dir / MANIFEST_FILE
+    manifest_path = staging / MANIFEST_FILE
     manifest_path.write_text(manifest.model_dump_json(indent=2) + "\n")
     # Quality is measured on exactly what ships: the model loaded as the service loads it.
-    served = load_model(model_dir, threads=config.threads)
+    served = load_model(staging, threads=config.threads)
     quality = measure_quality(
         served, config.eval_targets, config.eval_samples_per_target, config.eval_seed
     )
     manifest = manifest.model_copy(update={"quality": quality})
     manifest_path.write_text(manifest.model_dump_json(indent=2) + "\n")
+    shutil.rmtree(model_dir, ignore_errors=True)
+    staging.rename(model_dir)
     return manifest
