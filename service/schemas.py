@@ -11,8 +11,9 @@ Finite = Annotated[float, Field(allow_inf_nan=False)]
 
 
 class _Request(BaseModel):
-    # A misspelt option must not silently fall back to its default.
-    model_config = ConfigDict(extra="forbid")
+    # A misspelt option must not silently fall back to its default, and a string or a
+    # boolean is not a number (strict: no "0.5" -> 0.5 or true -> 1.0 coercion).
+    model_config = ConfigDict(extra="forbid", strict=True)
 
 
 class Quaternion(_Request):

@@ -58,20 +58,23 @@ def correct(
     """
     num_samples = q_rad.shape[0]
     finite = np.all(np.isfinite(q_rad), axis=1)  # (N,)
+    position_error_m = np.full(num_samples, np.inf)
+    orientation_error_rad = (
+        np.where(finite, 0.0, np.inf) if task.orientation else np.zeros(num_samples)
+    )
+    q_out = np.full_like(q_rad, np.nan)
+    if not finite.any():  # nothing to correct (and the kinematics needs a non-empty batch)
+        return Correction(q_out, position_error_m, orientation_error_rad)
+
     q = q_rad[finite]
     m_p = len(task.position_axes)
     for _ in range(steps):
         error, jacobian = task_error(kinematics(q), target, task)
         q = wrap_periodic(q + dls_step(jacobian, error, damping), periodic)
     error, _ = task_error(kinematics(q), target, task)
-
-    position_error_m = np.full(num_samples, np.inf)
-    orientation_error_rad = np.zeros(num_samples)
     position_error_m[finite] = np.linalg.norm(error[:, :m_p], axis=1)
     if task.orientation:
-        orientation_error_rad[~finite] = np.inf
         orientation_error_rad[finite] = np.linalg.norm(error[:, m_p:], axis=1)
-    q_out = np.full_like(q_rad, np.nan)
     q_out[finite] = q
     return Correction(
         q_rad=q_out,

@@ -91,5 +91,6 @@ def encode_target(
     features = condition_features(
         task, position[None], None if rotation is None else rotation[None]
     )
-    normalised = condition.normalisation.normalise(features)[0].astype(np.float32)
+    with np.errstate(over="ignore"):  # an absurdly far target overflows to inf: no_solution
+        normalised = condition.normalisation.normalise(features)[0].astype(np.float32)
     return Target(position_m=position, rotation=rotation, condition=normalised)

@@ -76,6 +76,14 @@ def test_out_of_reach_is_no_solution_not_an_error(client: TestClient) -> None:
     assert answer["counts"]["accepted"] == 0 and answer["counts"]["sampled"] == 1000
 
 
+def test_absurdly_far_target_is_no_solution_not_a_crash(client: TestClient) -> None:
+    # Every flow sample is non-finite here: correction must not hand an empty batch to
+    # the kinematics.
+    response = smm(client, target={"position": [1e308, 1e308]})
+    assert response.status_code == 200
+    assert response.json()["status"] == "no_solution"
+
+
 def test_same_seed_same_answer_and_another_seed_another_sample(client: TestClient) -> None:
     first = smm(client, seed=7).json()
     second = smm(client, seed=7).json()
@@ -127,7 +135,10 @@ def detail_locations(response: Any) -> list[list[Any]]:
         ({"target": {"position": [0.5]}}, ["body", "target", "position"], "must have 2 values"),
         ({"target": {}}, ["body", "target", "position"], "Field required"),
         ({"target": {"position": [0.5, "a"]}}, ["body", "target", "position", 1], "valid number"),
+        ({"target": {"position": [0.5, True]}}, ["body", "target", "position", 1], "valid number"),
+        ({"target": {"position": ["0.5", 0]}}, ["body", "target", "position", 0], "valid number"),
         ({"num_samples": 0}, ["body", "num_samples"], "greater than or equal to 1"),
+        ({"num_samples": "10"}, ["body", "num_samples"], "valid integer"),
         ({"tolerance": {"position": -1}}, ["body", "tolerance", "position"], "greater than 0"),
         ({"tolerance": {"orientation": 1e-3}}, ["body", "tolerance", "orientation"], "pose task"),
         ({"reference_configuration": [0, 0]}, ["body", "reference_configuration"], "3 values"),

@@ -79,3 +79,10 @@ def test_non_finite_samples_get_infinite_error_and_leave_the_others_alone() -> N
     assert result.position_error_m[0] < 1e-10
     assert np.all(np.isinf(result.position_error_m[1:]))
     assert np.all(np.isnan(result.q_rad[1:]))
+
+
+def test_all_non_finite_samples_skip_the_kinematics(planar3r: ServedModel) -> None:
+    q = np.full((4, 3), np.nan)
+    target = target_at(np.array([0.5, 0.0]))
+    result = correct(q, target, POSITION_2D, planar3r.kinematics, 3, 1e-3, PERIODIC)
+    assert np.all(np.isinf(result.position_error_m)) and np.all(np.isnan(result.q_rad))
