@@ -45,6 +45,7 @@ def test_pose_condition_appends_the_6d_rotation_and_refuses_far_from_unit_quater
     # 180 deg about x: columns (1, 0, 0) and (0, -1, 0).
     np.testing.assert_allclose(target.condition, [0.1, 0.2, 0.3, 1, 0, 0, 0, -1, 0], atol=1e-7)
     nearly_unit = encode_target(POSE, spec(POSE), [0.1, 0.2, 0.3], (0.0, 1.005, 0.0, 0.0))
+    assert nearly_unit.rotation is not None and target.rotation is not None
     np.testing.assert_allclose(nearly_unit.rotation, target.rotation, atol=1e-12)
     for bad in [(0.0, 0.0, 0.0, 0.0), (0.0, 2.0, 0.0, 0.0)]:
         with pytest.raises(RequestFieldError, match="unit quaternion"):
