@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import resource
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -85,6 +86,7 @@ class CheckReport:
     keep_rate: float  # accepted / sampled over the targets
     median_total_ms: float  # per target, warm, this process
     median_stage_ms: dict[str, float]
+    peak_rss_mib: float  # of this process (model loaded, all queries run)
 
 
 def query(position: np.ndarray, num_samples: int = 1000, seed: int = 0) -> Query:
@@ -151,6 +153,7 @@ def check(model: ServedModel, num_targets: int = 50, seed: int = 2) -> CheckRepo
             key.removesuffix("_ms"): round(float(np.median([t[key] for t in timings])), 2)
             for key in timings[0]
         },
+        peak_rss_mib=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
     )
 
 
