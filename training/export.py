@@ -40,7 +40,10 @@ from training.model import VelocityField
 from training.robots import RobotSpec
 from training.train import TrainResult
 
-FLOW_PARITY_ATOL = 1e-4  # float32 network, outputs O(1)
+# float32 network: velocities reach a few hundred near t = 1, where float32 rounding
+# differences between torch and onnxruntime are ~1e-6 relative; compare like np.allclose.
+FLOW_PARITY_ATOL = 1e-4
+FLOW_PARITY_RTOL = 1e-5
 KINEMATICS_PARITY_ATOL = 1e-10  # float64; observed ~1e-15
 
 
@@ -97,10 +100,12 @@ def check_flow_parity(model: VelocityField, path: Path, joint_dim: int, conditio
     (actual,) = session.run(
         [FLOW_OUTPUT], {"q_t": q_t.numpy(), "t": t.numpy(), "condition": condition.numpy()}
     )
-    error = float(np.max(np.abs(actual - expected)))
-    if not error <= FLOW_PARITY_ATOL:
+    excess = np.abs(actual - expected) - (FLOW_PARITY_ATOL + FLOW_PARITY_RTOL * np.abs(expected))
+    if not np.max(excess) <= 0:
+        error = float(np.max(np.abs(actual - expected)))
         raise ExportParityError(
-            f"{path}: flow differs from torch by {error:.3g} > {FLOW_PARITY_ATOL}"
+            f"{path}: flow differs from torch by up to {error:.3g}, beyond "
+            f"atol {FLOW_PARITY_ATOL} + rtol {FLOW_PARITY_RTOL} x |torch output|"
         )
 
 
