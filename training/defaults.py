@@ -19,15 +19,15 @@ SERVING_DEFAULTS: dict[str, Defaults] = {
         tolerance_orientation_rad=1e-6,
         reasons={
             "num_samples": "1000 samples leave at most 0.05 rad between a closed-form SMM point "
-            "and a returned configuration at rho = 2 (coverage), at ~0.12 s per target",
-            "sampler": "Euler 20 steps: 99.7 % of samples corrected within 1e-6 m vs 98.0 % at "
-            "10 and 99.9 % at 50 steps, for 0.12 s vs 0.08 s and 0.21 s per target; counts "
-            "50/50 from 10 steps up (python -m training.evaluate.planar3r --sweep)",
-            "correction_steps": "the paper's 3 DLS steps: keep rate 99.65 %; 5 steps reach "
-            "99.94 % for +8 ms per target",
+            "and a returned configuration at rho = 2 (coverage), at ~0.11 s per target",
+            "sampler": "Euler 20 steps: 99.8 % of samples corrected within 1e-6 m vs 98.4 % at "
+            "10 and 99.96 % at 50 steps, for 0.11 s vs 0.08 s and 0.20 s per target; counts "
+            "50/50 at radius 0.5 from 10 steps up (python -m training.evaluate.planar3r --sweep)",
+            "correction_steps": "the paper's 3 DLS steps: keep rate 99.76 %; 5 steps reach "
+            "99.95 % for +8 ms per target",
             "damping": "the paper's lambda = 1e-3 (seed Table 4)",
-            "cluster_radius_rad": "200/200 closed-form counts for every radius in 0.3-0.7 at 20 "
-            "steps; 0.2 splits loops (49/50), the paper's 1.0 merges the two loops near rho = 1 "
+            "cluster_radius_rad": "200/200 closed-form counts for radii 0.3, 0.4 and 0.7 at 20 "
+            "steps (50/50 from 0.2 to 0.5); the paper's 1.0 merges the two loops near rho = 1 "
             "(49/50); 0.4 sits inside the plateau",
             "tolerance": "micrometre-exact answers for planners (DESIGN.md)",
         },
