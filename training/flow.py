@@ -20,16 +20,3 @@ def cfm_loss(
     q_t = (1 - t) * q_0 + t * q_1
     dq_t = q_1 - q_0
     return torch.mean((velocity(q_t, t, condition) - dq_t) ** 2)
-
-
-@torch.no_grad()
-def euler_sample(
-    velocity: nn.Module, q_0: torch.Tensor, condition: torch.Tensor, steps: int
-) -> torch.Tensor:
-    """Integrate dq/dt = v(q, t, x) from t=0 to 1 with explicit Euler; q_0 (B, n) -> q_1 (B, n)."""
-    q_t = q_0
-    dt = 1.0 / steps
-    for k in range(steps):
-        t = torch.full((q_0.shape[0], 1), k * dt, dtype=q_0.dtype, device=q_0.device)
-        q_t = q_t + dt * velocity(q_t, t, condition)
-    return q_t
