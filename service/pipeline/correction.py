@@ -42,6 +42,18 @@ def task_error(
     return error, jacobian
 
 
+def task_error_norms(
+    fk: KinematicsResult, target: Target, task: TaskSpec
+) -> tuple[FloatArray, FloatArray]:
+    """Position error (B,) in m and orientation error (B,) in rad (0 for a position task)."""
+    error, _ = task_error(fk, target, task)
+    m_p = len(task.position_axes)
+    position_error_m = np.linalg.norm(error[:, :m_p], axis=1)
+    if not task.orientation:
+        return position_error_m, np.zeros(len(error))
+    return position_error_m, np.linalg.norm(error[:, m_p:], axis=1)
+
+
 def correct(
     q_rad: FloatArray,  # (N, n)
     target: Target,
@@ -67,14 +79,12 @@ def correct(
         return Correction(q_out, position_error_m, orientation_error_rad)
 
     q = q_rad[finite]
-    m_p = len(task.position_axes)
     for _ in range(steps):
         error, jacobian = task_error(kinematics(q), target, task)
         q = wrap_periodic(q + dls_step(jacobian, error, damping), periodic)
-    error, _ = task_error(kinematics(q), target, task)
-    position_error_m[finite] = np.linalg.norm(error[:, :m_p], axis=1)
-    if task.orientation:
-        orientation_error_rad[finite] = np.linalg.norm(error[:, m_p:], axis=1)
+    position_error_m[finite], orientation_error_rad[finite] = task_error_norms(
+        kinematics(q), target, task
+    )
     q_out[finite] = q
     return Correction(
         q_rad=q_out,

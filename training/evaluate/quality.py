@@ -16,9 +16,9 @@ from scipy.spatial.transform import Rotation
 
 from service.manifest import Quality, RawError
 from service.pipeline.acceptance import accept
-from service.pipeline.correction import correct
+from service.pipeline.correction import correct, task_error_norms
 from service.pipeline.sampling import sample_configurations
-from service.pipeline.targets import Target, encode_target
+from service.pipeline.targets import encode_target
 from service.registry import ServedModel
 
 PAPER_SAMPLER_STEPS = 100
@@ -41,19 +41,6 @@ def held_out_targets(served: ServedModel, count: int, seed: int) -> HeldOutTarge
 def orientation_wxyz(rotation: np.ndarray) -> tuple[float, float, float, float]:
     x, y, z, w = Rotation.from_matrix(rotation).as_quat()
     return (float(w), float(x), float(y), float(z))
-
-
-def raw_errors(
-    served: ServedModel, target: Target, q_raw: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Position (N,) m and orientation (N,) rad errors of uncorrected samples q_raw (N, n)."""
-    task = served.manifest.task
-    fk = served.kinematics(q_raw)
-    position = np.linalg.norm(fk.position_m[:, task.position_axes] - target.position_m, axis=1)
-    if target.rotation is None:
-        return position, np.zeros(len(q_raw))
-    relative = np.swapaxes(fk.rotation, 1, 2) @ target.rotation
-    return position, Rotation.from_matrix(relative).magnitude()
 
 
 def summarise_raw(
@@ -100,7 +87,7 @@ def measure_quality(served: ServedModel, num_targets: int, samples: int, seed: i
                 periodic,
                 np.random.default_rng(seed + 1 + i),
             )
-            errors[steps].append(raw_errors(served, target, q_raw))
+            errors[steps].append(task_error_norms(served.kinematics(q_raw), target, task))
             if steps != defaults.sampler.steps:
                 continue
             correction = correct(
