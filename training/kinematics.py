@@ -8,16 +8,64 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+import numpy as np
 import pytorch_kinematics as pk
 import torch
+from pytorch_kinematics.urdf_parser_py.urdf import URDF
 
 from service.manifest import JointSpec
 
 
 def load_chain(urdf_path: Path, end_effector_link: str) -> pk.SerialChain:
-    """Serial chain from the base to `end_effector_link`, in float64."""
-    chain = pk.build_serial_chain_from_urdf(urdf_path.read_bytes(), end_effector_link)
-    return chain.to(dtype=torch.float64)
+    """Serial chain from the base to `end_effector_link`, exact in float64.
+
+    pytorch-kinematics 0.10 parses URDF origins (xyz, rpy) and joint axes in float32,
+    which puts a float64 chain ~3e-8 m off the URDF (a rotation of pi/2 is not exact in
+    float32). The chain's static frame offsets and axes are rebuilt here from the URDF
+    text in float64, so FK agrees with an exact DH evaluation to ~1e-16 m.
+    """
+    urdf_text = urdf_path.read_text()
+    chain = pk.build_serial_chain_from_urdf(urdf_text.encode(), end_effector_link)
+    chain = chain.to(dtype=torch.float64)
+    _set_exact_offsets(chain, URDF.from_xml_string(urdf_text))
+    return chain
+
+
+def _origin_matrix(origin: object) -> np.ndarray:
+    """4x4 transform of a URDF origin: translation xyz, then fixed-axis roll, pitch, yaw."""
+    transform = np.eye(4)
+    if origin is None:
+        return transform
+    roll, pitch, yaw = (float(v) for v in getattr(origin, "rpy", None) or (0.0, 0.0, 0.0))
+    cr, sr = math.cos(roll), math.sin(roll)
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    r_x = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
+    r_y = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
+    r_z = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
+    transform[:3, :3] = r_z @ r_y @ r_x
+    transform[:3, 3] = [float(v) for v in getattr(origin, "xyz", None) or (0.0, 0.0, 0.0)]
+    return transform
+
+
+def _set_exact_offsets(chain: pk.SerialChain, robot: URDF) -> None:
+    """Overwrite the chain's float32-parsed frame offsets and joint axes with float64 ones."""
+    joints = {joint.child: joint for joint in robot.joints}
+    links = robot.link_map
+    offsets = chain._static_offsets.clone()  # (num_frames, 4, 4)
+    for index, name in chain.idx_to_frame.items():
+        link = links[name]
+        joint = joints.get(name)
+        exact = _origin_matrix(getattr(link, "origin", None)) @ _origin_matrix(
+            None if joint is None else joint.origin
+        )
+        offsets[index] = torch.from_numpy(exact)
+        if joint is not None and joint.type != "fixed":
+            axis = np.asarray(joint.axis if joint.axis is not None else (1.0, 0.0, 0.0), float)
+            dof = chain.get_joint_parameter_names().index(joint.name)
+            chain.axes[dof] = torch.from_numpy(axis / np.linalg.norm(axis))
+    chain._static_offsets = offsets
+    chain._serial_dof_axes = chain.axes.clone()
 
 
 def joint_spec(chain: pk.SerialChain) -> JointSpec:

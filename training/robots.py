@@ -32,6 +32,16 @@ ROBOTS: dict[str, RobotSpec] = {
         reach_m=3.0,
         tasks={"position": TaskSpec(name="position", position_axes=[0, 1], orientation=False)},
     ),
+    "iiwa14": RobotSpec(
+        name="iiwa14",
+        urdf="robots/iiwa14.urdf",
+        end_effector_link="ee",
+        reach_m=1.2,
+        tasks={
+            "pose": TaskSpec(name="pose", position_axes=[0, 1, 2], orientation=True),
+            "position": TaskSpec(name="position", position_axes=[0, 1, 2], orientation=False),
+        },
+    ),
 }
 
 
