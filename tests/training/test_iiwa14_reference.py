@@ -1,0 +1,113 @@
+"""training.evaluate.iiwa14_kinematics (S-R-S IK ground truth) and the component matcher.
+
+The IK's configurations are checked by the tests' own DH FK (tests/iiwa14_dh.py) to
+1e-9 on all 8 branches; the configuration that made a target must lie on its exact SMM;
+each feasible component stays within the limits and is continuous. The matcher is
+checked on answers built from the ground truth itself: exact, merged and missed cases.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from service.pipeline.components import summarise_all
+from service.pipeline.run import SmmResult
+from service.pipeline.types import Component, Counts, StageTimings
+from tests.iiwa14_dh import LIMITS_RAD, iiwa14_pose, rotation_angle_rad
+from training.evaluate.iiwa14 import match_components
+from training.evaluate.iiwa14_kinematics import (
+    BRANCHES,
+    inverse_kinematics,
+    pose_smm,
+)
+
+
+def _targets(count: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    q = np.random.default_rng(seed).uniform(-LIMITS_RAD, LIMITS_RAD, (count, 7))
+    return q, iiwa14_pose(q)
+
+
+def test_every_branch_reaches_the_pose_by_dh_fk() -> None:
+    _, poses = _targets(10, seed=0)
+    psi = np.linspace(-np.pi, np.pi, 97, endpoint=False)
+    for pose in poses:
+        solutions = []
+        for branch in BRANCHES:
+            q = inverse_kinematics(pose[:3, 3], pose[:3, :3], psi, branch)
+            assert q is not None
+            reached = iiwa14_pose(q)
+            assert np.abs(reached[:, :3, 3] - pose[:3, 3]).max() < 1e-9
+            goal = np.broadcast_to(pose[:3, :3], reached[:, :3, :3].shape)
+            assert rotation_angle_rad(reached[:, :3, :3], goal).max() < 1e-9
+            solutions.append(q)
+        # The 8 branches are 8 different configurations at every arm angle.
+        stacked = np.stack(solutions)  # (8, K, 7)
+        gaps = np.linalg.norm(stacked[:, None] - stacked[None], axis=-1)  # (8, 8, K)
+        assert gaps[~np.eye(8, dtype=bool)].min() > 1e-3
+
+
+def test_an_unreachable_pose_has_no_solution() -> None:
+    rotation = np.eye(3)
+    assert inverse_kinematics(np.array([2.0, 0, 0.36]), rotation, np.zeros(1), BRANCHES[0]) is None
+    assert pose_smm(np.array([2.0, 0, 0.36]), rotation) == []
+
+
+def test_the_generating_configuration_lies_on_the_exact_smm() -> None:
+    q_targets, poses = _targets(10, seed=1)
+    for q_target, pose in zip(q_targets, poses, strict=True):
+        components = pose_smm(pose[:3, 3], pose[:3, :3], psi_steps=3600)
+        nearest = min(np.linalg.norm(c.q_rad - q_target, axis=1).min() for c in components)
+        assert nearest < 0.01  # psi step 2 pi / 3600 moves the joints by a few mrad
+
+
+def test_components_are_feasible_continuous_and_exact() -> None:
+    _, poses = _targets(5, seed=2)
+    for pose in poses:
+        components = pose_smm(pose[:3, 3], pose[:3, :3])
+        assert 2 <= len(components) <= 60
+        for component in components:
+            assert np.all(np.abs(component.q_rad) <= LIMITS_RAD)
+            steps = np.linalg.norm(np.diff(component.q_rad, axis=0), axis=1)
+            assert steps.max(initial=0.0) <= 0.2
+            assert component.arc_length_rad == pytest.approx(steps.sum(), rel=1e-9, abs=0.2)
+            reached = iiwa14_pose(component.q_rad)
+            assert np.abs(reached[:, :3, 3] - pose[:3, 3]).max() < 1e-9
+
+
+def _answer(pieces: list[np.ndarray]) -> SmmResult:
+    components = [
+        Component(
+            q_rad=q, position_error_m=np.zeros(len(q)), orientation_error_rad=np.zeros(len(q))
+        )
+        for q in pieces
+    ]
+    accepted = sum(len(q) for q in pieces)
+    return SmmResult(
+        counts=Counts(sampled=accepted, accepted=accepted, rejected_tolerance=0,
+                      rejected_joint_limits=0),
+        components=summarise_all(components, np.zeros(7, dtype=bool), None, None),
+        timings=StageTimings(0, 0, 0, 0, 0, 0),
+    )  # fmt: skip
+
+
+def test_matcher_recognises_exact_merged_and_missed_components() -> None:
+    _, poses = _targets(1, seed=3)
+    reference = pose_smm(poses[0][:3, 3], poses[0][:3, :3])
+    assert len(reference) >= 3
+    every = [c.q_rad[::5] for c in reference]
+
+    exact = match_components(_answer(every), reference)
+    assert exact.exact and exact.found == len(reference) and exact.coverage_p95_rad < 0.05
+
+    merged = match_components(_answer([np.concatenate(every[:2]), *every[2:]]), reference)
+    assert merged.merged == 1 and merged.returned == len(reference) - 1 and not merged.exact
+
+    missed = match_components(_answer(every[1:]), reference)
+    assert missed.found == len(reference) - 1
+    assert missed.missed_arc_rad == [round(reference[0].arc_length_rad, 3)]
+
+    halves = np.array_split(every[0], 2)
+    split = match_components(_answer([*halves, *every[1:]]), reference)
+    assert split.split == 1 and not split.exact
+

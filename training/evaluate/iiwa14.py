@@ -1,0 +1,304 @@
+"""Acceptance check of the iiwa14 models (issue 3), by the paper's DH table, and the sweep
+that chose their serving defaults.
+
+Held-out targets are the FK of configurations drawn uniformly within the joint limits
+(fixed seed). Every returned configuration is re-checked with this module's own DH
+forward kinematics (numpy, float64; shares no code with the URDF or the ONNX export)
+against the target and the joint limits, and every sample is accounted for.
+
+    python -m training.evaluate.iiwa14 --task pose        # 200 targets, defaults, N = 1000
+    python -m training.evaluate.iiwa14 --task position
+    python -m training.evaluate.iiwa14 --task pose --sweep --targets 50
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from service.config import REPO_MODELS_DIR
+from service.manifest import SamplerSpec
+from service.pipeline.run import Query, SmmResult, run
+from service.registry import ServedModel, load_model
+from training.evaluate.iiwa14_kinematics import (
+    LIMITS_RAD,
+    ReferenceComponent,
+    dh_pose,
+    pose_smm,
+    rotation_angle_rad,
+)
+from training.evaluate.planar3r import with_defaults
+from training.evaluate.quality import orientation_wxyz
+
+REACH_M = 1.2  # the paper's L for the iiwa
+TOLERANCE = 1e-6  # m and rad, the service's defaults
+
+
+@dataclass(frozen=True)
+class Targets:
+    q_rad: np.ndarray  # (T, 7) the configurations whose FK made the targets
+    pose: np.ndarray  # (T, 4, 4)
+
+
+def held_out_targets(count: int, seed: int) -> Targets:
+    q = np.random.default_rng(seed).uniform(-LIMITS_RAD, LIMITS_RAD, (count, 7))
+    return Targets(q_rad=q, pose=dh_pose(q))
+
+
+def query(pose: np.ndarray, orientation: bool, num_samples: int, seed: int) -> Query:
+    return Query(
+        position_m=pose[:3, 3].tolist(),
+        orientation_wxyz=orientation_wxyz(pose[:3, :3]) if orientation else None,
+        num_samples=num_samples,
+        seed=seed,
+        tolerance_position_m=TOLERANCE,
+        tolerance_orientation_rad=TOLERANCE,
+        reference_rad=None,
+        max_configurations_per_component=None,
+    )
+
+
+def returned_configurations(result: SmmResult) -> np.ndarray:
+    return np.concatenate([c.configurations_rad for c in result.components] or [np.zeros((0, 7))])
+
+
+@dataclass(frozen=True)
+class CheckReport:
+    task: str
+    targets: int
+    num_samples: int
+    ok_fraction: float  # targets answered with at least one component
+    no_solution_targets: list[int]
+    returned: int  # configurations returned over all targets
+    max_position_error_m: float  # worst returned configuration, by the DH FK
+    max_orientation_error_rad: float  # by the DH FK (pose task; 0 otherwise)
+    limit_violations: int  # returned configurations outside the joint limits
+    accounting_errors: int  # targets whose counts do not add up or miss an accepted sample
+    keep_rate: float  # accepted / sampled
+    components_mean: float
+    components_median: float
+    components_max: int
+    median_total_ms: float  # per target, warm, this process
+    median_stage_ms: dict[str, float]
+    peak_rss_mib: float
+
+
+def check(model: ServedModel, num_targets: int, seed: int, num_samples: int) -> CheckReport:
+    """Run every held-out target through the pipeline and re-check each answer by DH FK."""
+    pose_task = model.manifest.task.orientation
+    targets = held_out_targets(num_targets, seed)
+    run(model, query(targets.pose[0], pose_task, num_samples, seed=-1 % 2**31))  # warm-up
+    no_solution, counts, timings = [], [], []
+    position_errors, orientation_errors = [np.zeros(0)], [np.zeros(0)]
+    returned = violations = accounting = accepted = sampled = 0
+    for i, target in enumerate(targets.pose):
+        result = run(model, query(target, pose_task, num_samples, seed=i))
+        timings.append(vars(result.timings))
+        counts.append(len(result.components))
+        if not result.components:
+            no_solution.append(i)
+        q = returned_configurations(result)
+        reached = dh_pose(q)
+        position_errors.append(np.linalg.norm(reached[:, :3, 3] - target[:3, 3], axis=1))
+        if pose_task:
+            rotations = np.broadcast_to(target[:3, :3], reached[:, :3, :3].shape)
+            orientation_errors.append(rotation_angle_rad(reached[:, :3, :3], rotations))
+        violations += int((np.abs(q) > LIMITS_RAD).any(axis=1).sum())
+        returned += len(q)
+        c = result.counts
+        sizes = sum(component.size for component in result.components)
+        if not (
+            c.sampled == num_samples
+            and c.sampled == c.accepted + c.rejected_tolerance + c.rejected_joint_limits
+            and sizes == c.accepted == len(q)
+        ):
+            accounting += 1
+        accepted += c.accepted
+        sampled += c.sampled
+    return CheckReport(
+        task=model.manifest.task.name,
+        targets=num_targets,
+        num_samples=num_samples,
+        ok_fraction=1 - len(no_solution) / num_targets,
+        no_solution_targets=no_solution,
+        returned=returned,
+        max_position_error_m=float(np.concatenate(position_errors).max(initial=0.0)),
+        max_orientation_error_rad=float(np.concatenate(orientation_errors).max(initial=0.0)),
+        limit_violations=violations,
+        accounting_errors=accounting,
+        keep_rate=accepted / sampled,
+        components_mean=float(np.mean(counts)),
+        components_median=float(np.median(counts)),
+        components_max=int(np.max(counts)),
+        median_total_ms=float(np.median([t["total_ms"] for t in timings])),
+        median_stage_ms={
+            key.removesuffix("_ms"): round(float(np.median([t[key] for t in timings])), 2)
+            for key in timings[0]
+        },
+        peak_rss_mib=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+    )
+
+
+@dataclass(frozen=True)
+class ComponentMatch:
+    """Returned components against the exact ones of a pose (S-R-S IK ground truth).
+
+    Each returned configuration is labelled with the reference component of its nearest
+    reference point (joint metric: Euclidean, no iiwa joint is periodic).
+    """
+
+    reference: int  # feasible components of the exact SMM
+    returned: int
+    found: int  # reference components holding at least one returned configuration
+    merged: int  # returned components whose members lie on two or more reference ones
+    split: int  # reference components spread over two or more returned ones
+    missed_arc_rad: list[float]  # arc lengths of the reference components not found
+    coverage_p95_rad: float  # over reference points: distance to the nearest returned one
+
+    @property
+    def exact(self) -> bool:
+        return self.returned == self.reference == self.found and not self.merged + self.split
+
+
+def match_components(result: SmmResult, reference: list[ReferenceComponent]) -> ComponentMatch:
+    points = np.concatenate([c.q_rad for c in reference])  # (P, 7)
+    owner = np.concatenate([np.full(len(c.q_rad), i) for i, c in enumerate(reference)])
+    tree = cKDTree(points)
+    labels = [owner[tree.query(c.configurations_rad)[1]] for c in result.components]
+    touched = [set(label.tolist()) for label in labels]
+    holders = np.zeros(len(reference), dtype=int)
+    for members in touched:
+        holders[list(members)] += 1
+    returned = returned_configurations(result)
+    coverage = cKDTree(returned).query(points)[0] if len(returned) else np.full(len(points), np.inf)
+    return ComponentMatch(
+        reference=len(reference),
+        returned=len(result.components),
+        found=int((holders > 0).sum()),
+        merged=sum(len(members) > 1 for members in touched),
+        split=int((holders > 1).sum()),
+        missed_arc_rad=[
+            round(c.arc_length_rad, 3) for c, h in zip(reference, holders, strict=True) if not h
+        ],
+        coverage_p95_rad=float(np.percentile(coverage, 95)),
+    )
+
+
+def pose_sweep_row(
+    model: ServedModel, targets: Targets, references: list[list[ReferenceComponent]], n: int
+) -> dict[str, object]:
+    matches = [
+        match_components(run(model, query(pose, True, n, seed=i)), references[i])
+        for i, pose in enumerate(targets.pose)
+    ]
+    defaults = model.manifest.defaults
+    return {
+        "num_samples": n,
+        "sampler_steps": defaults.sampler.steps,
+        "cluster_radius_rad": defaults.cluster_radius_rad,
+        "exact_components": round(float(np.mean([m.exact for m in matches])), 3),
+        "count_right": round(float(np.mean([m.returned == m.reference for m in matches])), 3),
+        "recall": round(sum(m.found for m in matches) / sum(m.reference for m in matches), 4),
+        "merged_per_target": round(float(np.mean([m.merged for m in matches])), 3),
+        "split_per_target": round(float(np.mean([m.split for m in matches])), 3),
+        "coverage_p95_rad": round(float(np.median([m.coverage_p95_rad for m in matches])), 3),
+        "longest_missed_arc_rad": max((a for m in matches for a in m.missed_arc_rad), default=0),
+    }
+
+
+def component_counts(
+    model: ServedModel, targets: Targets, num_samples: int, seed: int = 0
+) -> np.ndarray:
+    """(T,) number of components returned per target."""
+    pose_task = model.manifest.task.orientation
+    return np.array(
+        [
+            len(run(model, query(t, pose_task, num_samples, seed=seed + i)).components)
+            for i, t in enumerate(targets.pose)
+        ]
+    )
+
+
+def sweep(model: ServedModel, num_targets: int, seed: int) -> list[dict[str, object]]:
+    """Candidate serving defaults, measured.
+
+    Sampler steps: keep rate, answered targets and time. Cluster radius and num_samples:
+    for the pose task, against the exact components of each target (S-R-S IK): found,
+    merged, split; for the position task (4-D components, no dense ground truth here),
+    by count stability: a radius too small for the sampling density splits a component,
+    so the count changes with another seed or with four times the samples.
+    """
+    rows: list[dict[str, object]] = []
+
+    def emit(row: dict[str, object]) -> None:
+        rows.append(row)
+        print(json.dumps(row), flush=True)
+
+    targets = held_out_targets(num_targets, seed)
+    pose_task = model.manifest.task.orientation
+    for steps in (10, 20, 50):
+        candidate = with_defaults(model, sampler=SamplerSpec(method="euler", steps=steps))
+        report = check(candidate, num_targets, seed, 1000)
+        emit(
+            {
+                "sampler_steps": steps,
+                "keep_rate": round(report.keep_rate, 4),
+                "ok_fraction": report.ok_fraction,
+                "median_total_ms": round(report.median_total_ms, 1),
+                "median_sample_ms": report.median_stage_ms["sample"],
+            }
+        )
+    if pose_task:
+        references = [pose_smm(p[:3, 3], p[:3, :3]) for p in targets.pose]
+        for radius in (0.1, 0.2, 0.3, 0.5, 1.0):
+            emit(pose_sweep_row(with_defaults(model, cluster_radius_rad=radius), targets,
+                                references, 1000))  # fmt: skip
+        for n in (500, 2000, 4000):
+            emit(pose_sweep_row(model, targets, references, n))
+        return rows
+    for radius in (0.2, 0.3, 0.5, 0.7, 1.0):
+        candidate = with_defaults(model, cluster_radius_rad=radius)
+        base = component_counts(candidate, targets, 1000, seed=0)
+        reseeded = component_counts(candidate, targets, 1000, seed=10_000)
+        dense = component_counts(candidate, targets, 4000, seed=20_000)
+        emit(
+            {
+                "cluster_radius_rad": radius,
+                "components_mean_n1000": round(float(base.mean()), 2),
+                "components_mean_n4000": round(float(dense.mean()), 2),
+                "same_count_other_seed": round(float(np.mean(base == reseeded)), 3),
+                "same_count_n4000": round(float(np.mean(base == dense)), 3),
+            }
+        )
+    return rows
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawTextHelpFormatter
+    )
+    parser.add_argument("--task", choices=("pose", "position"), required=True)
+    parser.add_argument("--model-dir", help="default: models/iiwa14-<task>")
+    parser.add_argument("--targets", type=int, default=200)
+    parser.add_argument("--seed", type=int, default=3, help="seed of the held-out targets")
+    parser.add_argument("--num-samples", type=int, default=1000)
+    parser.add_argument("--sweep", action="store_true", help="measure candidate defaults")
+    args = parser.parse_args()
+    model = load_model(
+        REPO_MODELS_DIR / f"iiwa14-{args.task}" if args.model_dir is None else Path(args.model_dir),
+        threads=0,
+    )
+    if args.sweep:
+        sweep(model, args.targets, args.seed)
+    else:
+        print(json.dumps(asdict(check(model, args.targets, args.seed, args.num_samples)), indent=1))
+
+
+if __name__ == "__main__":
+    main()
