@@ -110,4 +110,3 @@ def test_matcher_recognises_exact_merged_and_missed_components() -> None:
     halves = np.array_split(every[0], 2)
     split = match_components(_answer([*halves, *every[1:]]), reference)
     assert split.split == 1 and not split.exact
-

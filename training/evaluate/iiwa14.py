@@ -78,6 +78,8 @@ class CheckReport:
     returned: int  # configurations returned over all targets
     max_position_error_m: float  # worst returned configuration, by the DH FK
     max_orientation_error_rad: float  # by the DH FK (pose task; 0 otherwise)
+    median_position_error_m: float
+    median_orientation_error_rad: float
     limit_violations: int  # returned configurations outside the joint limits
     accounting_errors: int  # targets whose counts do not add up or miss an accepted sample
     keep_rate: float  # accepted / sampled
@@ -87,6 +89,12 @@ class CheckReport:
     median_total_ms: float  # per target, warm, this process
     median_stage_ms: dict[str, float]
     peak_rss_mib: float
+    # Pose task only: against the exact components (S-R-S IK); see ComponentMatch.
+    reference_components_mean: float | None = None
+    recall: float | None = None  # reference components found / reference components
+    merged_per_target: float | None = None
+    split_per_target: float | None = None
+    count_right: float | None = None
 
 
 def check(model: ServedModel, num_targets: int, seed: int, num_samples: int) -> CheckReport:
@@ -94,13 +102,15 @@ def check(model: ServedModel, num_targets: int, seed: int, num_samples: int) -> 
     pose_task = model.manifest.task.orientation
     targets = held_out_targets(num_targets, seed)
     run(model, query(targets.pose[0], pose_task, num_samples, seed=-1 % 2**31))  # warm-up
-    no_solution, counts, timings = [], [], []
+    no_solution, counts, timings, matches = [], [], [], []
     position_errors, orientation_errors = [np.zeros(0)], [np.zeros(0)]
     returned = violations = accounting = accepted = sampled = 0
     for i, target in enumerate(targets.pose):
         result = run(model, query(target, pose_task, num_samples, seed=i))
         timings.append(vars(result.timings))
         counts.append(len(result.components))
+        if pose_task:
+            matches.append(match_components(result, pose_smm(target[:3, 3], target[:3, :3])))
         if not result.components:
             no_solution.append(i)
         q = returned_configurations(result)
@@ -130,6 +140,10 @@ def check(model: ServedModel, num_targets: int, seed: int, num_samples: int) -> 
         returned=returned,
         max_position_error_m=float(np.concatenate(position_errors).max(initial=0.0)),
         max_orientation_error_rad=float(np.concatenate(orientation_errors).max(initial=0.0)),
+        median_position_error_m=float(np.median(np.concatenate(position_errors))),
+        median_orientation_error_rad=float(np.median(np.concatenate(orientation_errors)))
+        if pose_task
+        else 0.0,
         limit_violations=violations,
         accounting_errors=accounting,
         keep_rate=accepted / sampled,
@@ -142,7 +156,18 @@ def check(model: ServedModel, num_targets: int, seed: int, num_samples: int) -> 
             for key in timings[0]
         },
         peak_rss_mib=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+        **(_match_summary(matches) if matches else {}),
     )
+
+
+def _match_summary(matches: list[ComponentMatch]) -> dict[str, float]:
+    return {
+        "reference_components_mean": float(np.mean([m.reference for m in matches])),
+        "recall": sum(m.found for m in matches) / sum(m.reference for m in matches),
+        "merged_per_target": float(np.mean([m.merged for m in matches])),
+        "split_per_target": float(np.mean([m.split for m in matches])),
+        "count_right": float(np.mean([m.returned == m.reference for m in matches])),
+    }
 
 
 @dataclass(frozen=True)
@@ -176,7 +201,9 @@ def match_components(result: SmmResult, reference: list[ReferenceComponent]) -> 
     for members in touched:
         holders[list(members)] += 1
     returned = returned_configurations(result)
-    coverage = cKDTree(returned).query(points)[0] if len(returned) else np.full(len(points), np.inf)
+    coverage_p95 = (
+        float(np.percentile(cKDTree(returned).query(points)[0], 95)) if len(returned) else np.inf
+    )
     return ComponentMatch(
         reference=len(reference),
         returned=len(result.components),
@@ -186,7 +213,7 @@ def match_components(result: SmmResult, reference: list[ReferenceComponent]) -> 
         missed_arc_rad=[
             round(c.arc_length_rad, 3) for c, h in zip(reference, holders, strict=True) if not h
         ],
-        coverage_p95_rad=float(np.percentile(coverage, 95)),
+        coverage_p95_rad=coverage_p95,
     )
 
 
@@ -225,7 +252,9 @@ def component_counts(
     )
 
 
-def sweep(model: ServedModel, num_targets: int, seed: int) -> list[dict[str, object]]:
+def sweep(
+    model: ServedModel, num_targets: int, seed: int, correction_sweep: bool = True
+) -> list[dict[str, object]]:
     """Candidate serving defaults, measured.
 
     Sampler steps: keep rate, answered targets and time. Cluster radius and num_samples:
@@ -242,16 +271,29 @@ def sweep(model: ServedModel, num_targets: int, seed: int) -> list[dict[str, obj
 
     targets = held_out_targets(num_targets, seed)
     pose_task = model.manifest.task.orientation
-    for steps in (10, 20, 50):
-        candidate = with_defaults(model, sampler=SamplerSpec(method="euler", steps=steps))
+    sampler_and_correction: list[tuple[int | None, int | None]] = [
+        (steps, None) for steps in (10, 20, 50)
+    ]
+    sampler_and_correction += [(None, dls) for dls in (3, 5, 8, 12)]
+    if not correction_sweep:
+        sampler_and_correction = []
+    for steps, dls in sampler_and_correction:
+        changes: dict[str, object] = {}
+        if steps is not None:
+            changes["sampler"] = SamplerSpec(method="euler", steps=steps)
+        if dls is not None:
+            changes["correction_steps"] = dls
+        candidate = with_defaults(model, **changes)
         report = check(candidate, num_targets, seed, 1000)
         emit(
             {
-                "sampler_steps": steps,
+                "sampler_steps": candidate.manifest.defaults.sampler.steps,
+                "correction_steps": candidate.manifest.defaults.correction_steps,
                 "keep_rate": round(report.keep_rate, 4),
                 "ok_fraction": report.ok_fraction,
                 "median_total_ms": round(report.median_total_ms, 1),
                 "median_sample_ms": report.median_stage_ms["sample"],
+                "median_correct_ms": report.median_stage_ms["correct"],
             }
         )
     if pose_task:
@@ -262,7 +304,8 @@ def sweep(model: ServedModel, num_targets: int, seed: int) -> list[dict[str, obj
         for n in (500, 2000, 4000):
             emit(pose_sweep_row(model, targets, references, n))
         return rows
-    for radius in (0.2, 0.3, 0.5, 0.7, 1.0):
+    # 4-D components are sparse at N = 1000: nearest neighbours lie ~0.8 rad apart.
+    for radius in (1.0, 1.5, 2.0, 2.5, 3.0):
         candidate = with_defaults(model, cluster_radius_rad=radius)
         base = component_counts(candidate, targets, 1000, seed=0)
         reseeded = component_counts(candidate, targets, 1000, seed=10_000)
