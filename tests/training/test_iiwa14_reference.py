@@ -20,6 +20,8 @@ from training.evaluate.iiwa14_kinematics import (
     BRANCHES,
     inverse_kinematics,
     pose_smm,
+    position_smm_points,
+    uniform_rotations,
 )
 
 
@@ -110,3 +112,29 @@ def test_matcher_recognises_exact_merged_and_missed_components() -> None:
     halves = np.array_split(every[0], 2)
     split = match_components(_answer([*halves, *every[1:]]), reference)
     assert split.split == 1 and not split.exact
+
+
+def test_position_smm_points_are_exact_feasible_and_cover_the_generating_configuration() -> None:
+    q_targets, poses = _targets(3, seed=5)
+    for q_target, pose in zip(q_targets, poses, strict=True):
+        sparse = position_smm_points(pose[:3, 3], num_orientations=50, psi_steps=36, seed=0)
+        dense = position_smm_points(pose[:3, 3], num_orientations=800, psi_steps=72, seed=1)
+        for points in (sparse, dense):
+            reached = iiwa14_pose(points)[:, :3, 3]
+            assert np.abs(reached - pose[:3, 3]).max() < 1e-9
+            assert np.all(np.abs(points) <= LIMITS_RAD)
+        # Denser sampling of the 4-D fibre comes closer to the configuration that made it.
+        gap_sparse = np.linalg.norm(sparse - q_target, axis=1).min()
+        gap_dense = np.linalg.norm(dense - q_target, axis=1).min()
+        assert gap_dense < gap_sparse
+
+
+def test_uniform_rotations_are_rotations_with_no_preferred_axis() -> None:
+    rotations = uniform_rotations(20000, seed=0)
+    np.testing.assert_allclose(
+        rotations @ np.swapaxes(rotations, 1, 2), np.eye(3)[None].repeat(20000, 0), atol=1e-12
+    )
+    np.testing.assert_allclose(np.linalg.det(rotations), 1.0, atol=1e-12)
+    # Uniform on SO(3): every entry has mean 0 and variance 1/3.
+    np.testing.assert_allclose(rotations.mean(axis=0), 0.0, atol=0.02)
+    np.testing.assert_allclose(rotations.var(axis=0), 1 / 3, atol=0.02)

@@ -174,3 +174,36 @@ def pose_smm(
                 components.append(ReferenceComponent(q[members], branch, length))
                 arc = []
     return components
+
+
+def uniform_rotations(count: int, seed: int) -> np.ndarray:
+    """(count, 3, 3) rotations uniform on SO(3) (normalised Gaussian quaternions)."""
+    quaternion = np.random.default_rng(seed).normal(size=(count, 4))  # (w, x, y, z)
+    w, x, y, z = (quaternion / np.linalg.norm(quaternion, axis=1, keepdims=True)).T
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        -2,
+    )
+
+
+def position_smm_points(
+    position_m: np.ndarray, num_orientations: int, psi_steps: int, seed: int
+) -> np.ndarray:
+    """(P, 7) dense points of the 4-D SMM of a position, within the joint limits.
+
+    The position fibre is the union of the pose fibres over all end-effector
+    orientations: orientations uniform on SO(3) x `psi_steps` arm angles x 8 branches,
+    each configuration exact by the closed-form IK; those outside the limits are dropped.
+    """
+    psi = np.linspace(-np.pi, np.pi, psi_steps, endpoint=False)
+    points = []
+    for rotation in uniform_rotations(num_orientations, seed):
+        for branch in BRANCHES:
+            q = inverse_kinematics(position_m, rotation, psi, branch)
+            if q is not None:
+                points.append(q[np.all(np.abs(q) <= LIMITS_RAD, axis=1)])
+    return np.concatenate(points) if points else np.zeros((0, 7))
