@@ -1,0 +1,434 @@
+"""Evaluate a model against ground truth, beside the paper's baselines; write JSON + Markdown.
+
+Targets: the FK of configurations uniform in the joint limits (fixed seed). Ground truth:
+the planar closed form, the iiwa14 S-R-S IK (pose: exact components; position: dense
+exact points of the 4-D SMM, no component labels). Methods, each with the same number
+of samples per target:
+
+- FM: the flow's raw samples (default sampler), all of them;
+- FM + DLS: the service's pipeline with its defaults (what a client gets);
+- random-restart DLS: pytorch-kinematics PseudoInverseIK from uniform restarts, judged
+  by the same acceptance and clustered with the same radius;
+- ODE (1-D SMMs only): the paper's null-space RK5 trace from the generating configuration.
+
+    python -m training.evaluate.report --model iiwa14-pose --targets 200   # -> docs/reports/
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytorch_kinematics as pk
+from scipy.spatial import cKDTree
+
+from service.config import REPO_MODELS_DIR
+from service.pipeline.acceptance import accept
+from service.pipeline.clustering import component_labels
+from service.pipeline.correction import task_error_norms
+from service.pipeline.joint_space import TWO_PI
+from service.pipeline.run import Query, run
+from service.pipeline.sampling import sample_configurations
+from service.pipeline.targets import Target, encode_target
+from service.pipeline.types import Correction
+from service.registry import ServedModel, load_model
+from training.evaluate.iiwa14_kinematics import pose_smm, position_smm_points
+from training.evaluate.ode_baseline import trace_smm
+from training.evaluate.planar3r import closed_form_smm, expected_component_count
+from training.evaluate.quality import orientation_wxyz
+from training.evaluate.restart_dls import random_restart_dls
+from training.kinematics import load_chain
+from training.robots import robot_spec
+
+REPORTS_DIR = Path(__file__).resolve().parents[2] / "docs" / "reports"
+COVERAGE_RADIUS_RAD = 0.1
+PAPER_TABLE_2: dict[
+    str, dict[str, tuple[float | None, ...]]
+] = {  # seed Table 2: e_p %, e_o %, e %, inference ms (one target, kept samples)
+    "planar3r-position": {"ODE": (None, None, None, None), "FM": (0.144, None, None, None)},
+    "iiwa14-pose": {
+        "ODE": (2.57e-10, 2.37e-6, 1.18e-6, 8210),
+        "FM": (1.07, 1.70, 1.39, 297),
+        "FM + DLS": (2.88e-10, 0.0, 1.44e-10, 375),
+    },
+}
+
+
+def nearest_distance(query: np.ndarray, data: np.ndarray, periodic: np.ndarray) -> np.ndarray:
+    """(Q,) joint-metric distance from each query configuration to its nearest in `data`."""
+    if len(data) == 0:
+        return np.full(len(query), np.inf)
+    both = np.concatenate([query, data])
+    lowest = both.min(axis=0)
+    box = np.where(periodic, TWO_PI, both.max(axis=0) - lowest + 10.0)
+    shift = np.where(periodic, 0.0, lowest)
+
+    def into_box(q: np.ndarray) -> np.ndarray:
+        points = np.where(periodic, np.mod(q, TWO_PI), q - shift)
+        return np.where(points >= box, points - box, points)
+
+    return cKDTree(into_box(data), boxsize=box).query(into_box(query))[0]
+
+
+@dataclass(frozen=True)
+class Truth:
+    points: np.ndarray  # (P, n) exact configurations within the limits
+    count: int | None  # number of feasible components, when known
+
+
+def ground_truth(model: ServedModel, q_target: np.ndarray, seed: int) -> Truth:
+    fk = model.kinematics(q_target[None])
+    position, rotation = fk.position_m[0], fk.rotation[0]
+    if model.manifest.robot == "planar3r":
+        components = closed_form_smm(position[:2], phi_step_rad=0.002)
+        count = expected_component_count(float(np.linalg.norm(position[:2])))
+        return Truth(np.concatenate(components), count)
+    if model.manifest.task.orientation:
+        exact = pose_smm(position, rotation)
+        return Truth(np.concatenate([c.q_rad for c in exact]), len(exact))
+    return Truth(position_smm_points(position, num_orientations=200, psi_steps=36, seed=seed), None)
+
+
+def errors_in_units(
+    position_error_m: np.ndarray, orientation_error_rad: np.ndarray, reach_m: float, pose: bool
+) -> dict[str, float | None]:
+    """The paper's e_p, e_o (mean, % of L and of pi) and e, with mm and degrees beside them."""
+    if len(position_error_m) == 0:
+        return {"e_p_pct": None, "e_o_pct": None, "e_pct": None, "mm": None, "deg": None}
+    e_p = float(position_error_m.mean() / reach_m * 100)
+    e_o = float(orientation_error_rad.mean() / np.pi * 100) if pose else None
+    return {
+        "e_p_pct": e_p,
+        "e_o_pct": e_o,
+        "e_pct": (e_p + e_o) / 2 if e_o is not None else e_p,
+        "mm": float(position_error_m.mean() * 1e3),
+        "deg": float(np.degrees(orientation_error_rad.mean())) if pose else None,
+    }
+
+
+@dataclass
+class MethodTarget:
+    """One method's answer to one target."""
+
+    raw_position_m: np.ndarray
+    raw_orientation_rad: np.ndarray
+    returned: np.ndarray  # (K, n) accepted configurations
+    returned_position_m: np.ndarray
+    returned_orientation_rad: np.ndarray
+    labels: np.ndarray | None  # (K,) component of each, None for the ODE trace
+    sampled: int
+    time_ms: float
+    stage_ms: dict[str, float] | None = None
+
+
+def flow_target(
+    model: ServedModel, q_target: np.ndarray, num_samples: int, seed: int
+) -> MethodTarget:
+    manifest = model.manifest
+    fk = model.kinematics(q_target[None])
+    pose = manifest.task.orientation
+    position = fk.position_m[0, manifest.task.position_axes].tolist()
+    wxyz = orientation_wxyz(fk.rotation[0]) if pose else None
+    target = encode_target(manifest.task, manifest.condition, position, wxyz)
+    _, _, periodic = manifest.joints.arrays()
+    q_raw = sample_configurations(
+        model.velocity, target.condition, num_samples, manifest.defaults.sampler.steps,
+        manifest.joint_normalisation, periodic, np.random.default_rng(seed),
+    )  # fmt: skip
+    raw_p, raw_o = task_error_norms(model.kinematics(q_raw), target, manifest.task)
+    query = Query(position, wxyz, num_samples, seed, manifest.defaults.tolerance_position_m,
+                  manifest.defaults.tolerance_orientation_rad, None, None)  # fmt: skip
+    result = run(model, query)
+    returned = [c.configurations_rad for c in result.components]
+    q = np.concatenate(returned) if returned else np.zeros((0, manifest.joints.count))
+    labels = np.concatenate([np.full(len(r), i) for i, r in enumerate(returned)] or [np.zeros(0)])
+    p, o = (
+        task_error_norms(model.kinematics(q), target, manifest.task)
+        if len(q)
+        else (q[:, 0], q[:, 0])
+    )
+    stages = {k.removesuffix("_ms"): v for k, v in vars(result.timings).items()}
+    return MethodTarget(raw_p, raw_o, q, p, o, labels, num_samples, stages["total"], stages)
+
+
+def restart_target(
+    model: ServedModel, chain: pk.SerialChain, q_target: np.ndarray, num_samples: int, seed: int
+) -> MethodTarget:
+    manifest = model.manifest
+    fk = model.kinematics(q_target[None])
+    rotation = fk.rotation[0] if manifest.task.orientation else None
+    target = Target(
+        fk.position_m[0, manifest.task.position_axes], rotation, np.zeros(1, np.float32)
+    )
+    solutions = random_restart_dls(
+        chain,
+        manifest.joints,
+        manifest.task,
+        fk.position_m[0],
+        rotation,
+        num_samples,
+        seed,
+    )
+    q = solutions.q_rad
+    lower, upper, periodic = manifest.joints.arrays()
+    raw_p, raw_o = task_error_norms(model.kinematics(q), target, manifest.task)
+    start = time.perf_counter()
+    kept = accept(
+        Correction(q, raw_p, raw_o), manifest.defaults.tolerance_position_m,
+        manifest.defaults.tolerance_orientation_rad, lower, upper, periodic,
+    ).accepted  # fmt: skip
+    labels = component_labels(q[kept], periodic, manifest.defaults.cluster_radius_rad)
+    elapsed = solutions.wall_time_ms + (time.perf_counter() - start) * 1e3
+    return MethodTarget(
+        raw_p, raw_o, q[kept], raw_p[kept], raw_o[kept], labels, num_samples, elapsed
+    )
+
+
+def ode_target(model: ServedModel, q_target: np.ndarray) -> MethodTarget:
+    manifest = model.manifest
+    trace = trace_smm(model.kinematics, manifest.task, q_target)
+    fk = model.kinematics(q_target[None])
+    rotation = fk.rotation[0] if manifest.task.orientation else None
+    target = Target(
+        fk.position_m[0, manifest.task.position_axes], rotation, np.zeros(1, np.float32)
+    )
+    p, o = task_error_norms(model.kinematics(trace.q_rad), target, manifest.task)
+    return MethodTarget(p, o, trace.q_rad, p, o, None, len(trace.q_rad), trace.wall_time_ms)
+
+
+def summarise(
+    model: ServedModel, answers: list[MethodTarget], truths: list[Truth]
+) -> dict[str, object]:
+    manifest = model.manifest
+    reach, pose = manifest.reach_m, manifest.task.orientation
+    lower, upper, periodic = manifest.joints.arrays()
+    cat = np.concatenate
+    raw = errors_in_units(
+        cat([a.raw_position_m for a in answers]),
+        cat([a.raw_orientation_rad for a in answers]),
+        reach,
+        pose,
+    )
+    returned = errors_in_units(
+        cat([a.returned_position_m for a in answers]),
+        cat([a.returned_orientation_rad for a in answers]),
+        reach,
+        pose,
+    )
+    outside = [
+        (~(periodic | ((a.returned >= lower) & (a.returned <= upper)))).any(axis=1) for a in answers
+    ]
+    summary: dict[str, object] = {
+        "raw": raw,
+        "returned": returned,
+        "keep_rate": sum(len(a.returned) for a in answers) / sum(a.sampled for a in answers),
+        "limit_violations": int(sum(o.sum() for o in outside)),
+        "median_time_ms": float(np.median([a.time_ms for a in answers])),
+    }
+    if answers[0].stage_ms is not None:
+        summary["median_stage_ms"] = {
+            k: round(float(np.median([a.stage_ms[k] for a in answers if a.stage_ms])), 2)
+            for k in answers[0].stage_ms
+        }
+    if answers[0].labels is None:
+        return summary
+    coverage = [
+        nearest_distance(t.points, a.returned, periodic)
+        for a, t in zip(answers, truths, strict=True)
+    ]
+    precision = [
+        nearest_distance(a.returned, t.points, periodic)
+        for a, t in zip(answers, truths, strict=True)
+    ]
+    every_coverage, every_precision = cat(coverage), cat(precision)
+    summary["coverage_rad"] = {
+        "mean": float(every_coverage.mean()),
+        "p95": float(np.percentile(every_coverage, 95)),
+        f"within_{COVERAGE_RADIUS_RAD}": float(np.mean(every_coverage <= COVERAGE_RADIUS_RAD)),
+    }
+    summary["precision_rad"] = (
+        {"mean": float(every_precision.mean()), "p95": float(np.percentile(every_precision, 95))}
+        if len(every_precision) else None
+    )  # fmt: skip
+    if truths[0].count is not None:
+        counts = np.array(
+            [int(a.labels.max(initial=-1)) + 1 for a in answers if a.labels is not None]
+        )
+        expected = np.array([t.count for t in truths])
+        summary["component_count"] = {
+            "right": float(np.mean(counts == expected)),
+            "too_many": float(np.mean(counts > expected)),
+            "too_few": float(np.mean(counts < expected)),
+            "expected_mean": float(expected.mean()),
+            "returned_mean": float(counts.mean()),
+        }
+    return summary
+
+
+def near_boundary(model: ServedModel, q_targets: np.ndarray) -> np.ndarray:
+    """(T,) targets in the outer 10 % of the reach from the first moving joint's axis point."""
+    position = model.kinematics(q_targets).position_m
+    shoulder = np.array([0.0, 0.0, 0.36]) if model.manifest.robot == "iiwa14" else np.zeros(3)
+    distance = np.linalg.norm(position - shoulder, axis=1)
+    return distance >= 0.9 * distance.max()
+
+
+def evaluate(
+    model: ServedModel, num_targets: int, seed: int, num_samples: int
+) -> dict[str, object]:
+    manifest = model.manifest
+    lower, upper, _ = manifest.joints.arrays()
+    q_targets = np.random.default_rng(seed).uniform(lower, upper, (num_targets, len(lower)))
+    robot = robot_spec(manifest.robot)
+    chain = load_chain(REPO_MODELS_DIR / robot.urdf, robot.end_effector_link)
+    one_dimensional = manifest.joints.count - manifest.task.dimension == 1
+    truths = [ground_truth(model, q, seed + i) for i, q in enumerate(q_targets)]
+    flow_target(model, q_targets[0], 10, seed=0)  # warm-up: onnxruntime's first-call cost
+    methods: dict[str, list[MethodTarget]] = {"FM + DLS": [], "FM": [], "random-restart DLS": []}
+    if one_dimensional:
+        methods["ODE"] = []
+    for i, q in enumerate(q_targets):
+        answer = flow_target(model, q, num_samples, seed=i)
+        methods["FM + DLS"].append(answer)
+        methods["FM"].append(MethodTarget(
+            answer.raw_position_m, answer.raw_orientation_rad, np.zeros((0, len(q))),
+            answer.raw_position_m, answer.raw_orientation_rad, None, num_samples,
+            answer.stage_ms["sample"] if answer.stage_ms else float("nan"),
+        ))  # fmt: skip
+        methods["random-restart DLS"].append(restart_target(model, chain, q, num_samples, seed=i))
+        if one_dimensional:
+            methods["ODE"].append(ode_target(model, q))
+    boundary = near_boundary(model, q_targets)
+    report: dict[str, object] = {
+        "model": model.reference,
+        "targets": num_targets,
+        "seed": seed,
+        "num_samples": num_samples,
+        "defaults": manifest.defaults.model_dump(exclude={"reasons"}),
+        "methods": {name: summarise(model, answers, truths) for name, answers in methods.items()},
+        "near_boundary": {
+            "targets": int(boundary.sum()),
+            "indices": np.flatnonzero(boundary).tolist(),
+            "FM + DLS": summarise(
+                model,
+                [a for a, b in zip(methods["FM + DLS"], boundary, strict=True) if b],
+                [t for t, b in zip(truths, boundary, strict=True) if b],
+            ),
+        },
+    }
+    answers = methods["FM + DLS"]
+    if truths[0].count is not None:
+        report["wrong_count_targets"] = [
+            {
+                "index": i,
+                "expected": t.count,
+                "returned": int(a.labels.max(initial=-1)) + 1 if a.labels is not None else 0,
+            }
+            for i, (a, t) in enumerate(zip(answers, truths, strict=True))
+            if a.labels is not None and int(a.labels.max(initial=-1)) + 1 != t.count
+        ]
+    return report
+
+
+def _cell(value: object) -> str:
+    return "-" if value is None else f"{value:.3g}" if isinstance(value, float) else str(value)
+
+
+def _table(header: list[str], rows: list[list[object]]) -> list[str]:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    return lines + ["| " + " | ".join(_cell(v) for v in row) + " |" for row in rows]
+
+
+def markdown(model_id: str, report: dict[str, Any]) -> str:
+    """The report's two tables: errors and time beside the paper's Table 2, then components."""
+    methods: dict[str, dict[str, Any]] = report["methods"]
+    paper = PAPER_TABLE_2.get(model_id, {})
+    error_rows: list[list[object]] = []
+    for name, summary in methods.items():
+        errors = summary["raw"] if name in ("FM", "ODE") else summary["returned"]
+        quoted = paper.get(name)
+        error_rows.append(
+            [name, errors["e_p_pct"], errors["e_o_pct"], errors["e_pct"], errors["mm"],
+             errors["deg"], None if name in ("FM", "ODE") else summary["keep_rate"],
+             summary["median_time_ms"], ", ".join(_cell(v) for v in quoted) if quoted else None]
+        )  # fmt: skip
+    component_rows: list[list[object]] = []
+    for name, summary in methods.items():
+        if "coverage_rad" not in summary:
+            continue
+        count = summary.get("component_count") or {}
+        coverage, precision = summary["coverage_rad"], summary.get("precision_rad") or {}
+        component_rows.append(
+            [name, count.get("right"), count.get("too_many"), count.get("too_few"),
+             coverage["mean"], coverage["p95"], coverage[f"within_{COVERAGE_RADIUS_RAD}"],
+             precision.get("p95"), summary["limit_violations"]]
+        )  # fmt: skip
+    lines = [
+        f"# {model_id}: evaluation against ground truth",
+        "",
+        f"Model `{report['model']}`; {report['targets']} held-out targets (seed {report['seed']}), "
+        f"{report['num_samples']} samples (or restarts) per target. Produced by "
+        f"`python -m training.evaluate.report --model {model_id} --targets {report['targets']}`.",
+        "",
+        *_table(
+            [
+                "method",
+                "e_p %",
+                "e_o %",
+                "e %",
+                "mean mm",
+                "mean deg",
+                "keep rate",
+                "median ms",
+                "paper (e_p, e_o, e, ms)",
+            ],
+            error_rows,
+        ),
+        "",
+        *_table(
+            [
+                "method",
+                "count right",
+                "too many",
+                "too few",
+                "coverage mean rad",
+                "coverage p95 rad",
+                f"within {COVERAGE_RADIUS_RAD} rad",
+                "precision p95 rad",
+                "limit violations",
+            ],
+            component_rows,
+        ),
+        "",
+        "Errors: the FM and ODE rows are over every raw sample or trace point, the others over "
+        "returned (accepted) configurations. The paper's numbers are from one target, on kept "
+        "samples only.",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawTextHelpFormatter
+    )
+    parser.add_argument("--model", required=True, help="a model id under models/, e.g. iiwa14-pose")
+    parser.add_argument("--targets", type=int, default=200)
+    parser.add_argument("--seed", type=int, default=7)
+    parser.add_argument("--num-samples", type=int, default=1000)
+    parser.add_argument("--out", type=Path, default=REPORTS_DIR)
+    args = parser.parse_args()
+    model = load_model(REPO_MODELS_DIR / args.model, threads=0)
+    report = evaluate(model, args.targets, args.seed, args.num_samples)
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / f"{args.model}.json").write_text(json.dumps(report, indent=1) + "\n")
+    (args.out / f"{args.model}.md").write_text(markdown(args.model, report))
+    print(markdown(args.model, report))
+
+
+if __name__ == "__main__":
+    main()
