@@ -1,8 +1,9 @@
-"""training.evaluate.report: metrics against ground truth, on a small run.
+"""training.evaluate.report and .plots: metrics against ground truth, on a small run.
 
 The toroidal nearest-distance helper equals a brute-force joint-metric search; a small
 planar report finds the closed-form component counts, returns exact configurations within
-the limits, covers the closed-form SMM and writes both tables.
+the limits, covers the closed-form SMM and writes both tables; the count-accuracy plot
+bins targets by distance as a hand count does.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ import numpy as np
 
 from service.pipeline.joint_space import joint_distance
 from service.registry import ServedModel
+from training.evaluate.plots import count_accuracy_by_distance
 from training.evaluate.report import evaluate, markdown, nearest_distance
 
 
@@ -42,3 +44,11 @@ def test_small_planar_report_meets_the_closed_form(planar3r: ServedModel) -> Non
     assert methods["ODE"]["raw"]["mm"] < 1e-6  # RK5 drift only
     text = markdown("planar3r-position", report)
     assert "| FM + DLS |" in text and "| random-restart DLS |" in text and "count right" in text
+
+
+def test_count_accuracy_bins_targets_by_distance() -> None:
+    distance = np.array([0.1, 0.2, 0.6, 0.7, 0.8, 1.0])
+    right = np.array([True, False, True, True, False, True])
+    fraction, totals = count_accuracy_by_distance(distance, right, np.array([0.0, 0.5, 1.0]))
+    np.testing.assert_array_equal(totals, [2, 4])  # the last edge belongs to the last bin
+    np.testing.assert_allclose(fraction, [0.5, 0.75])

@@ -1,0 +1,136 @@
+"""Figures of the evaluation (PNG into docs/plots/), like the paper's Figs. 3-6 and more.
+
+- pairwise joint projections of the service's answer against the exact SMM, for a planar
+  3R target and an iiwa14 pose target;
+- FK-error histograms before and after correction for the 4-D case (iiwa14 position);
+- component-count accuracy against distance from the base (planar 3R, iiwa14 pose).
+
+    python -m training.evaluate.plots --targets 100
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")  # files only, no display
+
+import matplotlib.pyplot as plt
+import numpy as np
+
+from service.config import REPO_MODELS_DIR
+from service.registry import ServedModel, load_model
+from training.evaluate.report import flow_target, ground_truth
+
+PLOTS_DIR = Path(__file__).resolve().parents[2] / "docs" / "plots"
+
+
+def count_accuracy_by_distance(
+    distance_m: np.ndarray, right: np.ndarray, edges_m: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Fraction of targets with the right count (B,) and targets per bin (B,), by distance."""
+    index = np.clip(np.digitize(distance_m, edges_m) - 1, 0, len(edges_m) - 2)
+    totals = np.bincount(index, minlength=len(edges_m) - 1)
+    hits = np.bincount(index, weights=right.astype(float), minlength=len(edges_m) - 1)
+    with np.errstate(invalid="ignore"):
+        return hits / totals, totals
+
+
+def pairwise_projection(model: ServedModel, q_target: np.ndarray, path: Path) -> None:
+    """Lower-triangle grid of joint pairs: exact SMM (grey) and returned configurations."""
+    truth = ground_truth(model, q_target, seed=0).points
+    answer = flow_target(model, q_target, model.manifest.defaults.num_samples, seed=0)
+    n = q_target.shape[0]
+    figure, axes = plt.subplots(n - 1, n - 1, figsize=(2.2 * (n - 1), 2.2 * (n - 1)))
+    axes = np.atleast_2d(axes)
+    for row in range(1, n):
+        for col in range(n - 1):
+            axis = axes[row - 1, col]
+            if col >= row:
+                axis.axis("off")
+                continue
+            axis.scatter(truth[:, col], truth[:, row], s=1, c="0.7", label="exact SMM")
+            axis.scatter(answer.returned[:, col], answer.returned[:, row], s=2, c="tab:blue",
+                         label="returned")  # fmt: skip
+            axis.set_xlabel(f"q{col + 1} (rad)", fontsize=7)
+            axis.set_ylabel(f"q{row + 1} (rad)", fontsize=7)
+            axis.tick_params(labelsize=6)
+    axes[0, 0].legend(fontsize=6, loc="best")
+    figure.suptitle(f"{model.reference}: returned configurations vs the exact SMM", fontsize=9)
+    figure.tight_layout()
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
+
+
+def fk_error_histogram(model: ServedModel, q_targets: np.ndarray, path: Path) -> None:
+    """log10 position error of raw flow samples and of returned configurations."""
+    answers = [flow_target(model, q, model.manifest.defaults.num_samples, seed=i)
+               for i, q in enumerate(q_targets)]  # fmt: skip
+    raw = np.concatenate([a.raw_position_m for a in answers])
+    returned = np.concatenate([a.returned_position_m for a in answers])
+    figure, axis = plt.subplots(figsize=(6, 3.2))
+    bins = np.linspace(-17, 0, 69).tolist()
+    axis.hist(np.log10(np.maximum(raw, 1e-17)), bins=bins, alpha=0.7, label="raw flow samples")
+    axis.hist(np.log10(np.maximum(returned, 1e-17)), bins=bins, alpha=0.7,
+              label="returned (after DLS, accepted)")  # fmt: skip
+    axis.set_xlabel("log10 position error (m)")
+    axis.set_ylabel("samples")
+    axis.legend(fontsize=8)
+    axis.set_title(f"{model.reference}: FK error, {len(q_targets)} targets", fontsize=9)
+    figure.tight_layout()
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
+
+
+def count_accuracy_plot(models: list[ServedModel], num_targets: int, path: Path) -> None:
+    """Fraction of targets with the exact component count, by distance from the base."""
+    figure, axis = plt.subplots(figsize=(6, 3.2))
+    for model in models:
+        lower, upper, _ = model.manifest.joints.arrays()
+        q_targets = np.random.default_rng(11).uniform(lower, upper, (num_targets, len(lower)))
+        right, distance = [], []
+        for i, q in enumerate(q_targets):
+            truth = ground_truth(model, q, seed=i)
+            answer = flow_target(model, q, model.manifest.defaults.num_samples, seed=i)
+            count = 0 if answer.labels is None else int(answer.labels.max(initial=-1)) + 1
+            right.append(count == truth.count)
+            position = model.kinematics(q[None]).position_m[0]
+            base = np.array([0.0, 0.0, 0.36]) if model.manifest.robot == "iiwa14" else np.zeros(3)
+            distance.append(np.linalg.norm(position - base) / model.manifest.reach_m)
+        edges = np.linspace(0.0, max(distance) + 1e-9, 9)
+        fraction, totals = count_accuracy_by_distance(np.array(distance), np.array(right), edges)
+        centres = (edges[:-1] + edges[1:]) / 2
+        axis.plot(centres[totals > 0], fraction[totals > 0], "o-", label=model.reference)
+    axis.set_xlabel("distance from the base (shoulder for the iiwa) / reach L")
+    axis.set_ylabel("targets with the exact count")
+    axis.set_ylim(-0.05, 1.05)
+    axis.legend(fontsize=8)
+    figure.tight_layout()
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawTextHelpFormatter
+    )
+    parser.add_argument("--targets", type=int, default=100)
+    parser.add_argument("--out", type=Path, default=PLOTS_DIR)
+    args = parser.parse_args()
+    args.out.mkdir(parents=True, exist_ok=True)
+    planar = load_model(REPO_MODELS_DIR / "planar3r-position", threads=0)
+    pose = load_model(REPO_MODELS_DIR / "iiwa14-pose", threads=0)
+    position = load_model(REPO_MODELS_DIR / "iiwa14-position", threads=0)
+    pairwise_projection(planar, np.array([0.4, 2.2, 1.1]), args.out / "planar3r-projections.png")
+    pairwise_projection(pose, np.array([0.3, 0.6, 0.0, -1.2, 0.0, 0.9, 0.0]),
+                        args.out / "iiwa14-pose-projections.png")  # fmt: skip
+    lower, upper, _ = position.manifest.joints.arrays()
+    q_targets = np.random.default_rng(12).uniform(lower, upper, (args.targets, len(lower)))
+    fk_error_histogram(position, q_targets, args.out / "iiwa14-position-fk-error.png")
+    count_accuracy_plot([planar, pose], args.targets, args.out / "count-accuracy-by-distance.png")
+
+
+if __name__ == "__main__":
+    main()
