@@ -3,7 +3,8 @@
 The toroidal nearest-distance helper equals a brute-force joint-metric search; a small
 planar report finds the closed-form component counts, returns exact configurations within
 the limits, covers the closed-form SMM and writes both tables; the count-accuracy plot
-bins targets by distance as a hand count does.
+bins targets by distance as a hand count does; recall by arc length counts the exact
+components that hold a returned configuration.
 """
 
 from __future__ import annotations
@@ -13,7 +14,14 @@ import numpy as np
 from service.pipeline.joint_space import joint_distance
 from service.registry import ServedModel
 from training.evaluate.plots import count_accuracy_by_distance
-from training.evaluate.report import evaluate, markdown, nearest_distance
+from training.evaluate.report import (
+    MethodTarget,
+    Truth,
+    evaluate,
+    markdown,
+    nearest_distance,
+    recall_by_arc_length,
+)
 
 
 def test_nearest_distance_equals_brute_force_on_mixed_joints() -> None:
@@ -52,3 +60,22 @@ def test_count_accuracy_bins_targets_by_distance() -> None:
     fraction, totals = count_accuracy_by_distance(distance, right, np.array([0.0, 0.5, 1.0]))
     np.testing.assert_array_equal(totals, [2, 4])  # the last edge belongs to the last bin
     np.testing.assert_allclose(fraction, [0.5, 0.75])
+
+
+def test_recall_by_arc_length_counts_components_holding_an_answer() -> None:
+    pieces = [np.full((5, 7), 0.0), np.full((5, 7), 1.0), np.full((5, 7), 2.0)]
+    for i, piece in enumerate(pieces):
+        piece[:, 0] += np.linspace(0.0, 0.1, 5) + 0.01 * i
+    truth = Truth(
+        points=np.concatenate(pieces),
+        count=3,
+        point_component=np.repeat([0, 1, 2], 5),
+        arc_length_rad=np.array([0.3, 1.0, 3.0]),
+    )
+    returned = np.concatenate([pieces[0][:2], pieces[2][3:]]) + 1e-9  # components 0 and 2
+    answer = MethodTarget(
+        np.zeros(3), np.zeros(3), returned, np.zeros(4), np.zeros(4), np.zeros(4), 4, 1.0
+    )
+    buckets = recall_by_arc_length([answer], [truth])
+    assert [b["components"] for b in buckets] == [1, 1, 1]
+    assert [b["recall"] for b in buckets] == [1.0, 0.0, 1.0]

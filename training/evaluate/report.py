@@ -47,6 +47,9 @@ from training.robots import robot_spec
 
 REPORTS_DIR = Path(__file__).resolve().parents[2] / "docs" / "reports"
 COVERAGE_RADIUS_RAD = 0.1
+# Recall of exact components is reported per arc-length bucket: short pieces are
+# expected to be missed more often at a fixed number of samples.
+ARC_BUCKETS_RAD = (0.0, 0.5, 2.0, np.inf)
 PAPER_TABLE_2: dict[
     str, dict[str, tuple[float | None, ...]]
 ] = {  # seed Table 2: e_p %, e_o %, e %, inference ms (one target, kept samples)
@@ -79,6 +82,9 @@ def nearest_distance(query: np.ndarray, data: np.ndarray, periodic: np.ndarray) 
 class Truth:
     points: np.ndarray  # (P, n) exact configurations within the limits
     count: int | None  # number of feasible components, when known
+    # Component of each point and each component's arc length (iiwa pose only).
+    point_component: np.ndarray | None = None  # (P,)
+    arc_length_rad: np.ndarray | None = None  # (count,)
 
 
 def ground_truth(model: ServedModel, q_target: np.ndarray, seed: int) -> Truth:
@@ -90,7 +96,12 @@ def ground_truth(model: ServedModel, q_target: np.ndarray, seed: int) -> Truth:
         return Truth(np.concatenate(components), count)
     if model.manifest.task.orientation:
         exact = pose_smm(position, rotation)
-        return Truth(np.concatenate([c.q_rad for c in exact]), len(exact))
+        return Truth(
+            np.concatenate([c.q_rad for c in exact]),
+            len(exact),
+            np.concatenate([np.full(len(c.q_rad), i) for i, c in enumerate(exact)]),
+            np.array([c.arc_length_rad for c in exact]),
+        )
     return Truth(position_smm_points(position, num_orientations=200, psi_steps=36, seed=seed), None)
 
 
@@ -255,6 +266,8 @@ def summarise(
         {"mean": float(every_precision.mean()), "p95": float(np.percentile(every_precision, 95))}
         if len(every_precision) else None
     )  # fmt: skip
+    if truths[0].arc_length_rad is not None:
+        summary["recall_by_arc_length"] = recall_by_arc_length(answers, truths)
     if truths[0].count is not None:
         counts = np.array(
             [int(a.labels.max(initial=-1)) + 1 for a in answers if a.labels is not None]
@@ -268,6 +281,36 @@ def summarise(
             "returned_mean": float(counts.mean()),
         }
     return summary
+
+
+def recall_by_arc_length(
+    answers: list[MethodTarget], truths: list[Truth]
+) -> list[dict[str, object]]:
+    """Fraction of exact components holding a returned configuration, by arc length.
+
+    A returned configuration belongs to the exact component of its nearest exact point.
+    """
+    found_by_bucket = [[0, 0] for _ in ARC_BUCKETS_RAD[:-1]]
+    for answer, truth in zip(answers, truths, strict=True):
+        assert truth.point_component is not None and truth.arc_length_rad is not None
+        found = np.zeros(len(truth.arc_length_rad), dtype=bool)
+        if len(answer.returned):
+            nearest = cKDTree(truth.points).query(answer.returned)[1]  # iiwa: no periodic joint
+            found[truth.point_component[nearest]] = True
+        bucket = np.digitize(truth.arc_length_rad, ARC_BUCKETS_RAD[1:-1])
+        for b in range(len(found_by_bucket)):
+            found_by_bucket[b][0] += int(found[bucket == b].sum())
+            found_by_bucket[b][1] += int((bucket == b).sum())
+    return [
+        {
+            "arc_rad": f"{low:g}-{high:g}",
+            "components": total,
+            "recall": hits / total if total else None,
+        }
+        for (hits, total), low, high in zip(
+            found_by_bucket, ARC_BUCKETS_RAD[:-1], ARC_BUCKETS_RAD[1:], strict=True
+        )
+    ]
 
 
 def near_boundary(model: ServedModel, q_targets: np.ndarray) -> np.ndarray:
@@ -344,6 +387,38 @@ def _table(header: list[str], rows: list[list[object]]) -> list[str]:
     return lines + ["| " + " | ".join(_cell(v) for v in row) + " |" for row in rows]
 
 
+def _recall_lines(methods: dict[str, dict[str, Any]]) -> list[str]:
+    rows = [
+        [name, bucket["arc_rad"], bucket["components"], bucket["recall"]]
+        for name, summary in methods.items()
+        for bucket in summary.get("recall_by_arc_length", [])
+    ]
+    if not rows:
+        return []
+    header = ["method", "exact arc length (rad)", "exact components", "found"]
+    return ["", "Exact components found, by arc length:", "", *_table(header, rows)]
+
+
+def _listed_targets(report: dict[str, Any]) -> list[str]:
+    boundary = report["near_boundary"]
+    lines = [
+        "",
+        f"Near-boundary targets (outer 10 % of the reach): {boundary['targets']}, indices "
+        f"{boundary['indices']}.",
+    ]
+    wrong = report.get("wrong_count_targets")
+    if wrong is not None:
+        listed = ", ".join(
+            f"{w['index']} ({w['returned']} for {w['expected']})" for w in wrong[:40]
+        )
+        more = f", and {len(wrong) - 40} more" if len(wrong) > 40 else ""
+        lines.append(
+            f"Targets with the wrong component count (returned for exact): {len(wrong)}"
+            + (f": {listed}{more}." if wrong else ".")
+        )
+    return lines
+
+
 def markdown(model_id: str, report: dict[str, Any]) -> str:
     """The report's two tables: errors and time beside the paper's Table 2, then components."""
     methods: dict[str, dict[str, Any]] = report["methods"]
@@ -404,6 +479,8 @@ def markdown(model_id: str, report: dict[str, Any]) -> str:
             ],
             component_rows,
         ),
+        *_recall_lines(methods),
+        *_listed_targets(report),
         "",
         "Errors: the FM and ODE rows are over every raw sample or trace point, the others over "
         "returned (accepted) configurations. The paper's numbers are from one target, on kept "
