@@ -34,7 +34,7 @@ from training.evaluate.iiwa14_kinematics import (
     rotation_angle_rad,
 )
 from training.evaluate.planar3r import with_defaults
-from training.evaluate.quality import orientation_wxyz
+from training.evaluate.quality import orientation_wxyz, returned_configurations
 
 REACH_M = 1.2  # the paper's L for the iiwa
 TOLERANCE = 1e-6  # m and rad, the service's defaults
@@ -62,10 +62,6 @@ def query(pose: np.ndarray, orientation: bool, num_samples: int, seed: int) -> Q
         reference_rad=None,
         max_configurations_per_component=None,
     )
-
-
-def returned_configurations(result: SmmResult) -> np.ndarray:
-    return np.concatenate([c.configurations_rad for c in result.components] or [np.zeros((0, 7))])
 
 
 @dataclass(frozen=True)
@@ -113,7 +109,7 @@ def check(model: ServedModel, num_targets: int, seed: int, num_samples: int) -> 
             matches.append(match_components(result, pose_smm(target[:3, 3], target[:3, :3])))
         if not result.components:
             no_solution.append(i)
-        q = returned_configurations(result)
+        q = returned_configurations(result, 7)
         reached = dh_pose(q)
         position_errors.append(np.linalg.norm(reached[:, :3, 3] - target[:3, 3], axis=1))
         if pose_task:
@@ -200,7 +196,7 @@ def match_components(result: SmmResult, reference: list[ReferenceComponent]) -> 
     holders = np.zeros(len(reference), dtype=int)
     for members in touched:
         holders[list(members)] += 1
-    returned = returned_configurations(result)
+    returned = returned_configurations(result, 7)
     coverage_p95 = (
         float(np.percentile(cKDTree(returned).query(points)[0], 95)) if len(returned) else np.inf
     )

@@ -23,8 +23,9 @@ import numpy as np
 from service.config import REPO_MODELS_DIR
 from service.manifest import SamplerSpec
 from service.pipeline.joint_space import joint_distance, wrap_to_pi
-from service.pipeline.run import Query, SmmResult, run
+from service.pipeline.run import Query, run
 from service.registry import ServedModel, load_model
+from training.evaluate.quality import returned_configurations
 
 LINK_M = 1.0
 
@@ -102,10 +103,6 @@ def query(position: np.ndarray, num_samples: int = 1000, seed: int = 0) -> Query
     )
 
 
-def returned_configurations(result: SmmResult) -> np.ndarray:
-    return np.concatenate([c.configurations_rad for c in result.components] or [np.zeros((0, 3))])
-
-
 def random_targets(count: int, seed: int) -> np.ndarray:
     """(count, 2) targets, half at rho in (0.05, 0.95), half in (1.05, 2.95), random bearing."""
     rng = np.random.default_rng(seed)
@@ -133,10 +130,10 @@ def check(model: ServedModel, num_targets: int = 50, seed: int = 2) -> CheckRepo
             correct += 1
         else:
             wrong.append({"rho": rho, "expected": expected, "got": len(result.components)})
-        q = returned_configurations(result)
+        q = returned_configurations(result, 3)
         fk_errors.append(np.linalg.norm(planar3r_position(q) - target, axis=1))
     target = np.array([2.0, 0.0])
-    q = returned_configurations(run(model, query(target)))
+    q = returned_configurations(run(model, query(target)), 3)
     truth = np.concatenate(closed_form_smm(target))
     nearest = np.array([joint_distance(q, p, periodic).min() for p in truth])
     return CheckReport(

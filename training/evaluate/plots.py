@@ -22,7 +22,7 @@ import numpy as np
 
 from service.config import REPO_MODELS_DIR
 from service.registry import ServedModel, load_model
-from training.evaluate.report import flow_target, ground_truth
+from training.evaluate.report import distance_from_base_m, flow_target, ground_truth
 
 PLOTS_DIR = Path(__file__).resolve().parents[2] / "docs" / "plots"
 
@@ -96,9 +96,7 @@ def count_accuracy_plot(models: list[ServedModel], num_targets: int, path: Path)
             answer = flow_target(model, q, model.manifest.defaults.num_samples, seed=i)
             count = 0 if answer.labels is None else int(answer.labels.max(initial=-1)) + 1
             right.append(count == truth.count)
-            position = model.kinematics(q[None]).position_m[0]
-            base = np.array([0.0, 0.0, 0.36]) if model.manifest.robot == "iiwa14" else np.zeros(3)
-            distance.append(np.linalg.norm(position - base) / model.manifest.reach_m)
+            distance.append(distance_from_base_m(model, q[None])[0] / model.manifest.reach_m)
         edges = np.linspace(0.0, max(distance) + 1e-9, 9)
         fraction, totals = count_accuracy_by_distance(np.array(distance), np.array(right), edges)
         centres = (edges[:-1] + edges[1:]) / 2

@@ -17,6 +17,7 @@ from scipy.spatial.transform import Rotation
 from service.manifest import Quality, RawError
 from service.pipeline.acceptance import accept
 from service.pipeline.correction import correct, task_error_norms
+from service.pipeline.run import SmmResult
 from service.pipeline.sampling import sample_configurations
 from service.pipeline.targets import encode_target
 from service.registry import ServedModel
@@ -36,6 +37,12 @@ def held_out_targets(served: ServedModel, count: int, seed: int) -> HeldOutTarge
     q = np.random.default_rng(seed).uniform(lower, upper, size=(count, len(lower)))
     fk = served.kinematics(q)
     return HeldOutTargets(q_rad=q, position_m=fk.position_m, rotation=fk.rotation)
+
+
+def returned_configurations(result: SmmResult, num_joints: int) -> np.ndarray:
+    """(K, n) every configuration a pipeline answer returned, all components together."""
+    listed = [c.configurations_rad for c in result.components]
+    return np.concatenate(listed) if listed else np.zeros((0, num_joints))
 
 
 def orientation_wxyz(rotation: np.ndarray) -> tuple[float, float, float, float]:

@@ -37,7 +37,7 @@ from service.pipeline.sampling import sample_configurations
 from service.pipeline.targets import Target, encode_target
 from service.pipeline.types import Correction
 from service.registry import ServedModel, load_model
-from training.evaluate.iiwa14_kinematics import pose_smm, position_smm_points
+from training.evaluate.iiwa14_kinematics import SHOULDER_M, pose_smm, position_smm_points
 from training.evaluate.ode_baseline import trace_smm
 from training.evaluate.planar3r import closed_form_smm, expected_component_count
 from training.evaluate.quality import orientation_wxyz
@@ -167,23 +167,22 @@ def flow_target(
     return MethodTarget(raw_p, raw_o, q, p, o, labels, num_samples, stages["total"], stages)
 
 
+def reference_target(model: ServedModel, q_target: np.ndarray) -> tuple[Target, np.ndarray]:
+    """The target made by q_target (task axes; rotation for a pose task) and its 3-D position."""
+    task = model.manifest.task
+    fk = model.kinematics(q_target[None])
+    rotation = fk.rotation[0] if task.orientation else None
+    target = Target(fk.position_m[0, task.position_axes], rotation, np.zeros(1, np.float32))
+    return target, fk.position_m[0]
+
+
 def restart_target(
     model: ServedModel, chain: pk.SerialChain, q_target: np.ndarray, num_samples: int, seed: int
 ) -> MethodTarget:
     manifest = model.manifest
-    fk = model.kinematics(q_target[None])
-    rotation = fk.rotation[0] if manifest.task.orientation else None
-    target = Target(
-        fk.position_m[0, manifest.task.position_axes], rotation, np.zeros(1, np.float32)
-    )
+    target, position_m = reference_target(model, q_target)
     solutions = random_restart_dls(
-        chain,
-        manifest.joints,
-        manifest.task,
-        fk.position_m[0],
-        rotation,
-        num_samples,
-        seed,
+        chain, manifest.joints, manifest.task, position_m, target.rotation, num_samples, seed
     )
     q = solutions.q_rad
     lower, upper, periodic = manifest.joints.arrays()
@@ -203,11 +202,7 @@ def restart_target(
 def ode_target(model: ServedModel, q_target: np.ndarray) -> MethodTarget:
     manifest = model.manifest
     trace = trace_smm(model.kinematics, manifest.task, q_target)
-    fk = model.kinematics(q_target[None])
-    rotation = fk.rotation[0] if manifest.task.orientation else None
-    target = Target(
-        fk.position_m[0, manifest.task.position_axes], rotation, np.zeros(1, np.float32)
-    )
+    target, _ = reference_target(model, q_target)
     p, o = task_error_norms(model.kinematics(trace.q_rad), target, manifest.task)
     return MethodTarget(p, o, trace.q_rad, p, o, None, len(trace.q_rad), trace.wall_time_ms)
 
@@ -313,11 +308,15 @@ def recall_by_arc_length(
     ]
 
 
+def distance_from_base_m(model: ServedModel, q_targets: np.ndarray) -> np.ndarray:
+    """(T,) distance of each target from the arm's base point (the iiwa's shoulder)."""
+    base = SHOULDER_M if model.manifest.robot == "iiwa14" else np.zeros(3)
+    return np.linalg.norm(model.kinematics(q_targets).position_m - base, axis=1)
+
+
 def near_boundary(model: ServedModel, q_targets: np.ndarray) -> np.ndarray:
-    """(T,) targets in the outer 10 % of the reach from the first moving joint's axis point."""
-    position = model.kinematics(q_targets).position_m
-    shoulder = np.array([0.0, 0.0, 0.36]) if model.manifest.robot == "iiwa14" else np.zeros(3)
-    distance = np.linalg.norm(position - shoulder, axis=1)
+    """(T,) targets in the outer 10 % of the reach from the base point."""
+    distance = distance_from_base_m(model, q_targets)
     return distance >= 0.9 * distance.max()
 
 
