@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
 from service.pipeline.components import summarise_all
 from service.pipeline.run import SmmResult
@@ -20,8 +21,7 @@ from training.evaluate.iiwa14_kinematics import (
     BRANCHES,
     inverse_kinematics,
     pose_smm,
-    position_smm_points,
-    uniform_rotations,
+    position_smm,
 )
 
 
@@ -114,27 +114,63 @@ def test_matcher_recognises_exact_merged_and_missed_components() -> None:
     assert split.split == 1 and not split.exact
 
 
-def test_position_smm_points_are_exact_feasible_and_cover_the_generating_configuration() -> None:
+def test_position_smm_points_are_exact_feasible_and_q7_does_not_move_the_position() -> None:
     q_targets, poses = _targets(3, seed=5)
     for q_target, pose in zip(q_targets, poses, strict=True):
-        sparse = position_smm_points(pose[:3, 3], num_orientations=50, psi_steps=36, seed=0)
-        dense = position_smm_points(pose[:3, 3], num_orientations=800, psi_steps=72, seed=1)
-        for points in (sparse, dense):
-            reached = iiwa14_pose(points)[:, :3, 3]
-            assert np.abs(reached - pose[:3, 3]).max() < 1e-9
-            assert np.all(np.abs(points) <= LIMITS_RAD)
-        # Denser sampling of the 4-D fibre comes closer to the configuration that made it.
-        gap_sparse = np.linalg.norm(sparse - q_target, axis=1).min()
-        gap_dense = np.linalg.norm(dense - q_target, axis=1).min()
-        assert gap_dense < gap_sparse
+        fibre = position_smm(pose[:3, 3], num_points=5000, seed=0)
+        reached = iiwa14_pose(fibre.q_rad)[:, :3, 3]
+        assert np.abs(reached - pose[:3, 3]).max() < 1e-9
+        assert np.all(np.abs(fibre.q_rad) <= LIMITS_RAD)
+        assert fibre.count >= 1 and fibre.share.sum() == pytest.approx(1.0)
+        # The premise of drawing q7 freely: joint 7 turns the end effector about its own
+        # position (checked by the tests' DH FK, not by the reference's).
+        turned = q_target + np.array([0, 0, 0, 0, 0, 0, 1.0])
+        np.testing.assert_allclose(iiwa14_pose(turned[None])[0, :3, 3], pose[:3, 3], atol=1e-12)
+        # The generating configuration's q1..q6 lies among the fibre's points.
+        assert np.linalg.norm(fibre.q_rad[:, :6] - q_target[:6], axis=1).min() < 0.5
 
 
-def test_uniform_rotations_are_rotations_with_no_preferred_axis() -> None:
-    rotations = uniform_rotations(20000, seed=0)
-    np.testing.assert_allclose(
-        rotations @ np.swapaxes(rotations, 1, 2), np.eye(3)[None].repeat(20000, 0), atol=1e-12
-    )
-    np.testing.assert_allclose(np.linalg.det(rotations), 1.0, atol=1e-12)
-    # Uniform on SO(3): every entry has mean 0 and variance 1/3.
-    np.testing.assert_allclose(rotations.mean(axis=0), 0.0, atol=0.02)
-    np.testing.assert_allclose(rotations.var(axis=0), 1 / 3, atol=0.02)
+def _walk_on_position_fibre(q_start: np.ndarray, steps: int, seed: int) -> np.ndarray:
+    """(steps, 7) a random walk along the position fibre within the limits, by the DH FK.
+
+    Each step moves 0.03 rad along the null space of the position Jacobian (central
+    differences), in a direction that drifts at random, and returns to the fibre by
+    Gauss-Newton; steps that leave the limits are refused. Every point is joined to the
+    start by a feasible path.
+    """
+    rng = np.random.default_rng(seed)
+    goal = iiwa14_pose(q_start[None])[0, :3, 3]
+
+    def jacobian(q: np.ndarray) -> np.ndarray:
+        shifted = q[None] + 1e-6 * np.concatenate([np.eye(7), -np.eye(7)])
+        positions = iiwa14_pose(shifted)[:, :3, 3]
+        return ((positions[:7] - positions[7:]) / 2e-6).T  # (3, 7)
+
+    q, heading = q_start.copy(), rng.normal(size=7)
+    path: list[np.ndarray] = []
+    while len(path) < steps:
+        _, _, vt = np.linalg.svd(jacobian(q))
+        null = vt[3:].T  # (7, 4)
+        step = null @ (null.T @ heading)  # keep going the same way, so the walk travels
+        heading = step / np.linalg.norm(step) + 0.3 * rng.normal(size=7)
+        candidate = q + 0.03 * step / np.linalg.norm(step)
+        for _ in range(5):
+            error = iiwa14_pose(candidate[None])[0, :3, 3] - goal
+            candidate = candidate - np.linalg.pinv(jacobian(candidate)) @ error
+        if np.all(np.abs(candidate) <= LIMITS_RAD):
+            q = candidate
+        path.append(q.copy())
+    return np.asarray(path)
+
+
+def test_a_feasible_walk_along_the_position_fibre_stays_in_one_component() -> None:
+    # Components are separated by the limits only: a continuous feasible path (here a
+    # random walk through singular sets and across branches) never changes component.
+    q_targets, poses = _targets(4, seed=11)
+    for i, (q_target, pose) in enumerate(zip(q_targets, poses, strict=True)):
+        fibre = position_smm(pose[:3, 3], num_points=200_000, seed=i)
+        path = _walk_on_position_fibre(q_target, steps=300, seed=i)
+        assert np.abs(iiwa14_pose(path)[:, :3, 3] - pose[:3, 3]).max() < 1e-9
+        assert np.linalg.norm(path[:, :6] - q_target[:6], axis=1).max() > 0.5  # it moved
+        nearest = cKDTree(fibre.q_rad[:, :6]).query(path[:, :6])[1]
+        assert len(set(fibre.component[nearest].tolist())) == 1

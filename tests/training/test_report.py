@@ -20,7 +20,7 @@ from training.evaluate.report import (
     evaluate,
     markdown,
     nearest_distance,
-    recall_by_arc_length,
+    recall_by_size,
 )
 
 
@@ -62,7 +62,7 @@ def test_count_accuracy_bins_targets_by_distance() -> None:
     np.testing.assert_allclose(fraction, [0.5, 0.75])
 
 
-def test_recall_by_arc_length_counts_components_holding_an_answer() -> None:
+def test_recall_by_size_counts_components_holding_an_answer() -> None:
     pieces = [np.full((5, 7), 0.0), np.full((5, 7), 1.0), np.full((5, 7), 2.0)]
     for i, piece in enumerate(pieces):
         piece[:, 0] += np.linspace(0.0, 0.1, 5) + 0.01 * i
@@ -70,12 +70,12 @@ def test_recall_by_arc_length_counts_components_holding_an_answer() -> None:
         points=np.concatenate(pieces),
         count=3,
         point_component=np.repeat([0, 1, 2], 5),
-        arc_length_rad=np.array([0.3, 1.0, 3.0]),
+        size=np.array([0.3, 1.0, 3.0]),
     )
     returned = np.concatenate([pieces[0][:2], pieces[2][3:]]) + 1e-9  # components 0 and 2
     answer = MethodTarget(
         np.zeros(3), np.zeros(3), returned, np.zeros(4), np.zeros(4), np.zeros(4), 4, 1.0
     )
-    buckets = recall_by_arc_length([answer], [truth])
+    buckets = recall_by_size([answer], [truth])
     assert [b["components"] for b in buckets] == [1, 1, 1]
     assert [b["recall"] for b in buckets] == [1.0, 0.0, 1.0]

@@ -176,34 +176,198 @@ def pose_smm(
     return components
 
 
-def uniform_rotations(count: int, seed: int) -> np.ndarray:
-    """(count, 3, 3) rotations uniform on SO(3) (normalised Gaussian quaternions)."""
-    quaternion = np.random.default_rng(seed).normal(size=(count, 4))  # (w, x, y, z)
-    w, x, y, z = (quaternion / np.linalg.norm(quaternion, axis=1, keepdims=True)).T
+def rotations_with_z_axis(z_axis: np.ndarray) -> np.ndarray:
+    """(D, 3, 3) rotations whose third column is the unit vector z_axis (D, 3), zero twist.
+
+    R = Rz(azimuth) Ry(polar): continuous in the direction away from the poles.
+    """
+    polar = np.arccos(np.clip(z_axis[:, 2], -1.0, 1.0))
+    azimuth = np.arctan2(z_axis[:, 1], z_axis[:, 0])
+    ca, sa, cp, sp = np.cos(azimuth), np.sin(azimuth), np.cos(polar), np.sin(polar)
     return np.stack(
         [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+            np.stack([ca * cp, -sa, ca * sp], -1),
+            np.stack([sa * cp, ca, sa * sp], -1),
+            np.stack([-sp, np.zeros_like(sp), cp], -1),
         ],
         -2,
     )
 
 
-def position_smm_points(
-    position_m: np.ndarray, num_orientations: int, psi_steps: int, seed: int
-) -> np.ndarray:
-    """(P, 7) dense points of the 4-D SMM of a position, within the joint limits.
+@dataclass(frozen=True)
+class PositionSmm:
+    """Exact points of the 4-D SMM of a position within the limits, by component.
 
-    The position fibre is the union of the pose fibres over all end-effector
-    orientations: orientations uniform on SO(3) x `psi_steps` arm angles x 8 branches,
-    each configuration exact by the closed-form IK; those outside the limits are dropped.
+    q7 does not move the end effector (it sits on joint 7's axis), so the fibre is the
+    3-D fibre of q1..q6 times the whole q7 range. `share` is each component's fraction
+    of the fibre, measured uniformly over (end-effector z axis on the sphere, arm angle,
+    branch); components below `MIN_SHARE` are slivers at the grid's resolution and are
+    not counted in `count`.
     """
-    psi = np.linspace(-np.pi, np.pi, psi_steps, endpoint=False)
-    points = []
-    for rotation in uniform_rotations(num_orientations, seed):
-        for branch in BRANCHES:
-            q = inverse_kinematics(position_m, rotation, psi, branch)
-            if q is not None:
-                points.append(q[np.all(np.abs(q) <= LIMITS_RAD, axis=1)])
-    return np.concatenate(points) if points else np.zeros((0, 7))
+
+    q_rad: np.ndarray  # (P, 7) exact points drawn uniformly over the fibre, q7 uniform
+    component: np.ndarray  # (P,) component of each point
+    share: np.ndarray  # (C,) fraction of the fibre in each component, all components
+    spacing_rad: float  # grid step of the parametrisation (direction and psi)
+
+    @property
+    def count(self) -> int:
+        return int(np.sum(self.share >= MIN_SHARE))
+
+
+MIN_SHARE = 0.01
+
+
+def position_smm(
+    position_m: np.ndarray,
+    num_points: int = 20000,
+    seed: int = 0,
+    grid_steps: int = 48,
+    max_jump_rad: float = 1.0,
+    contact_rad: float = 0.25,
+) -> PositionSmm:
+    """The exact SMM of a position within the joint limits: its components and points.
+
+    Grid: the end-effector z axis over the sphere (`grid_steps` azimuths x
+    `grid_steps` / 2 polar angles, cell centres), `grid_steps` arm angles psi, 8 branches;
+    each node's q1..q6 is exact by the closed-form IK. Components of the feasible nodes:
+    grid neighbours (along azimuth, polar angle or psi, same branch) are linked unless
+    the IK jumps between them by more than `max_jump_rad` (at a shoulder, elbow or wrist
+    singularity a branch's angles flip by pi, and the fibre continues in a twin
+    branch); nodes closer than `contact_rad` are linked too, in the coordinates that
+    `_contact_coordinates` gives near each singular set, which joins twin branches and
+    the grid across the poles. Pieces closer than `contact_rad` count as one component.
+    `num_points` nodes are drawn with the sphere's area weight and given q7 uniform in
+    its range.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    n_azimuth, n_polar, n_psi = grid_steps, grid_steps // 2, grid_steps
+    azimuth = np.linspace(-np.pi, np.pi, n_azimuth, endpoint=False)
+    polar = (np.arange(n_polar) + 0.5) * np.pi / n_polar
+    z_axis = np.stack(
+        np.broadcast_arrays(
+            np.sin(polar)[None] * np.cos(azimuth)[:, None],
+            np.sin(polar)[None] * np.sin(azimuth)[:, None],
+            np.cos(polar)[None] + 0 * azimuth[:, None],
+        ),
+        -1,
+    ).reshape(-1, 3)  # (A * P, 3), azimuth-major
+    rotation = rotations_with_z_axis(z_axis)
+    psi = np.linspace(-np.pi, np.pi, n_psi, endpoint=False)
+    # A fixed reference for psi = 0 per target keeps psi continuous across directions:
+    # the S-W axis stays within 0.126 m of S-p, far from the helper when p is not at S.
+    to_target = position_m - SHOULDER_M
+    reference = _perpendicular_basis(to_target / np.linalg.norm(to_target))
+    q = np.stack(
+        [_inverse_kinematics_grid(position_m, rotation, psi, b, reference) for b in BRANCHES]
+    )  # (8, A * P, K, 7), NaN where W is out of reach
+    shape = (len(BRANCHES), n_azimuth, n_polar, n_psi)
+    q6 = q[..., :6].reshape(*shape, 6)
+    feasible = np.all(np.abs(q6) <= LIMITS_RAD[:6], axis=-1)  # (8, A, P, K); False on NaN
+    index = np.arange(feasible.size).reshape(shape)
+    rows: list[np.ndarray] = []
+    cols: list[np.ndarray] = []
+    for axis, periodic in ((1, True), (2, False), (3, True)):
+        after = np.roll(index, -1, axis=axis)
+        jump = np.linalg.norm(q6 - np.roll(q6, -1, axis=axis), axis=-1)
+        linked = feasible & np.roll(feasible, -1, axis=axis) & (jump <= max_jump_rad)
+        if not periodic:  # the last polar row has no successor
+            np.moveaxis(linked, axis, 0)[-1] = False
+        rows.append(index[linked])
+        cols.append(after[linked])
+    nodes = index[feasible]
+    points6 = q6[feasible]  # (F, 6)
+    for coordinates, near in _contact_coordinates(points6, contact_rad):
+        pairs = cKDTree(coordinates).query_pairs(contact_rad, output_type="ndarray")
+        rows.append(nodes[near][pairs[:, 0]])
+        cols.append(nodes[near][pairs[:, 1]])
+    edges = np.concatenate(rows), np.concatenate(cols)
+    graph = coo_matrix((np.ones(len(edges[0])), edges), shape=(feasible.size, feasible.size))
+    _, labels = connected_components(graph, directed=False)
+    _, component = np.unique(labels[nodes], return_inverse=True)  # renumber 0..C-1
+    spacing_rad = float(2 * np.pi / grid_steps)
+    if len(nodes) == 0:
+        return PositionSmm(np.zeros((0, 7)), np.zeros(0, int), np.zeros(0), spacing_rad)
+    area = np.broadcast_to(np.sin(polar)[None, None, :, None], shape)[feasible]  # (F,)
+    share = np.bincount(component, weights=area) / area.sum()  # of the feasible fibre
+    rng = np.random.default_rng(seed)
+    drawn = rng.choice(len(nodes), size=num_points, p=area / area.sum())
+    q7 = rng.uniform(-LIMITS_RAD[6], LIMITS_RAD[6], num_points)
+    return PositionSmm(
+        np.concatenate([points6[drawn], q7[:, None]], axis=1),
+        component[drawn],
+        share,
+        spacing_rad,
+    )
+
+
+def _contact_coordinates(
+    q6_rad: np.ndarray, contact_rad: float
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Coordinates (and the rows they cover) in which nearby nodes are one component.
+
+    First q1..q6 themselves. Then each singular set the fibre crosses: at q2 = 0 only
+    q1 + q3 moves the arm, at q4 = 0 only q3 + q5, and at q6 = 0 joint 5 no longer
+    moves the end-effector position; there the fibre holds a whole segment of the
+    free combination, which joins the twin branches. Nodes near a singular set are
+    compared without that free direction. The segment between two feasible values of
+    the free direction stays within the (box) limits.
+    """
+    q = q6_rad
+    sets = [(q, np.ones(len(q), dtype=bool))]
+    reduced = {
+        1: np.stack([q[:, 0] + q[:, 2], q[:, 1], q[:, 3], q[:, 4], q[:, 5]], 1),  # shoulder
+        3: np.stack([q[:, 0], q[:, 1], q[:, 2] + q[:, 4], q[:, 3], q[:, 5]], 1),  # elbow
+        5: q[:, [0, 1, 2, 3, 5]],  # wrist: q5 is free
+    }
+    for joint, coordinates in reduced.items():
+        near = np.abs(q[:, joint]) < contact_rad
+        sets.append((coordinates[near], near))
+    return sets
+
+
+def _inverse_kinematics_grid(
+    position_m: np.ndarray,
+    rotation: np.ndarray,
+    psi_rad: np.ndarray,
+    branch: tuple[int, int, int],
+    reference: tuple[np.ndarray, np.ndarray],
+) -> np.ndarray:
+    """(D, K, 7) IK for many end-effector rotations (D, 3, 3) at once; NaN where out of reach.
+
+    psi is measured from the fixed `reference` basis projected onto each circle's plane,
+    so neighbouring rotations get neighbouring elbows.
+    """
+    shoulder, elbow, wrist = branch
+    wrist_m = position_m - WRIST_TO_EE_M * rotation[:, :, 2]  # (D, 3)
+    shoulder_to_wrist = wrist_m - SHOULDER_M
+    distance = np.linalg.norm(shoulder_to_wrist, axis=1, keepdims=True)  # (D, 1)
+    reachable = (abs(UPPER_ARM_M - FOREARM_M) < distance) & (distance < UPPER_ARM_M + FOREARM_M)
+    distance = np.where(reachable, distance, 1.0)
+    axis = shoulder_to_wrist / distance  # (D, 3)
+    along = (distance**2 + UPPER_ARM_M**2 - FOREARM_M**2) / (2 * distance)  # (D, 1)
+    radius = np.sqrt(np.clip(UPPER_ARM_M**2 - along**2, 0.0, None))
+    u = reference[0] - np.sum(reference[0] * axis, axis=1, keepdims=True) * axis
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    v = np.cross(axis, u)
+    circle = (
+        np.cos(psi_rad)[None, :, None] * u[:, None] + np.sin(psi_rad)[None, :, None] * v[:, None]
+    )
+    elbow_m = SHOULDER_M + (along * axis)[:, None] + radius[:, :, None] * circle  # (D, K, 3)
+    z2 = (elbow_m - SHOULDER_M) / UPPER_ARM_M
+    q2 = shoulder * np.arccos(np.clip(z2[..., 2], -1.0, 1.0))
+    q1 = np.arctan2(shoulder * z2[..., 1], shoulder * z2[..., 0])
+    r_02 = _dh_rotation(q1, ALPHA_RAD[0]) @ _dh_rotation(q2, ALPHA_RAD[1])  # (D, K, 3, 3)
+    z4 = np.einsum("dkji,dkj->dki", r_02, (wrist_m[:, None] - elbow_m) / FOREARM_M)
+    q4 = elbow * np.arccos(np.clip(z4[..., 2], -1.0, 1.0))
+    q3 = np.arctan2(-elbow * z4[..., 1], -elbow * z4[..., 0])
+    r_04 = r_02 @ _dh_rotation(q3, ALPHA_RAD[2]) @ _dh_rotation(q4, ALPHA_RAD[3])
+    r_47 = np.swapaxes(r_04, -1, -2) @ rotation[:, None]  # (D, K, 3, 3)
+    q6 = wrist * np.arccos(np.clip(r_47[..., 2, 2], -1.0, 1.0))
+    q5 = np.arctan2(wrist * r_47[..., 1, 2], wrist * r_47[..., 0, 2])
+    q7 = np.arctan2(wrist * r_47[..., 2, 1], -wrist * r_47[..., 2, 0])
+    q = np.stack([q1, q2, q3, q4, q5, q6, q7], axis=-1)
+    return np.where(reachable[:, :, None], q, np.nan)

@@ -37,7 +37,7 @@ from service.pipeline.sampling import sample_configurations
 from service.pipeline.targets import Target, encode_target
 from service.pipeline.types import Correction
 from service.registry import ServedModel, load_model
-from training.evaluate.iiwa14_kinematics import SHOULDER_M, pose_smm, position_smm_points
+from training.evaluate.iiwa14_kinematics import MIN_SHARE, SHOULDER_M, pose_smm, position_smm
 from training.evaluate.ode_baseline import trace_smm
 from training.evaluate.planar3r import closed_form_smm, expected_component_count
 from training.evaluate.quality import orientation_wxyz
@@ -47,9 +47,11 @@ from training.robots import robot_spec
 
 REPORTS_DIR = Path(__file__).resolve().parents[2] / "docs" / "reports"
 COVERAGE_RADIUS_RAD = 0.1
-# Recall of exact components is reported per arc-length bucket: short pieces are
-# expected to be missed more often at a fixed number of samples.
+# Recall of exact components is reported per size bucket: small pieces are expected
+# to be missed more often at a fixed number of samples. Size is the arc length of a
+# 1-D component and the share of the fibre of a 4-D one.
 ARC_BUCKETS_RAD = (0.0, 0.5, 2.0, np.inf)
+SHARE_BUCKETS = (0.0, MIN_SHARE, 0.1, np.inf)
 PAPER_TABLE_2: dict[
     str, dict[str, tuple[float | None, ...]]
 ] = {  # seed Table 2: e_p %, e_o %, e %, inference ms (one target, kept samples)
@@ -81,10 +83,13 @@ def nearest_distance(query: np.ndarray, data: np.ndarray, periodic: np.ndarray) 
 @dataclass(frozen=True)
 class Truth:
     points: np.ndarray  # (P, n) exact configurations within the limits
-    count: int | None  # number of feasible components, when known
-    # Component of each point and each component's arc length (iiwa pose only).
+    count: int  # number of feasible components (4-D: those of at least MIN_SHARE)
+    # Component of each point, each component's size and the size buckets (iiwa only).
     point_component: np.ndarray | None = None  # (P,)
-    arc_length_rad: np.ndarray | None = None  # (count,)
+    size: np.ndarray | None = None  # (C,) arc length in rad (1-D) or share of the fibre (4-D)
+    size_edges: tuple[float, ...] = ARC_BUCKETS_RAD
+    # Joints that decide membership: the 4-D fibre is q1..q6's fibre times any q7.
+    membership_joints: int = 7  # the first this many joints
 
 
 def ground_truth(model: ServedModel, q_target: np.ndarray, seed: int) -> Truth:
@@ -102,7 +107,8 @@ def ground_truth(model: ServedModel, q_target: np.ndarray, seed: int) -> Truth:
             np.concatenate([np.full(len(c.q_rad), i) for i, c in enumerate(exact)]),
             np.array([c.arc_length_rad for c in exact]),
         )
-    return Truth(position_smm_points(position, num_orientations=200, psi_steps=36, seed=seed), None)
+    fibre = position_smm(position, seed=seed)
+    return Truth(fibre.q_rad, fibre.count, fibre.component, fibre.share, SHARE_BUCKETS, 6)
 
 
 def errors_in_units(
@@ -261,9 +267,9 @@ def summarise(
         {"mean": float(every_precision.mean()), "p95": float(np.percentile(every_precision, 95))}
         if len(every_precision) else None
     )  # fmt: skip
-    if truths[0].arc_length_rad is not None:
-        summary["recall_by_arc_length"] = recall_by_arc_length(answers, truths)
-    if truths[0].count is not None:
+    if truths[0].size is not None:
+        summary["recall_by_size"] = recall_by_size(answers, truths)
+    if answers[0].labels is not None:
         counts = np.array(
             [int(a.labels.max(initial=-1)) + 1 for a in answers if a.labels is not None]
         )
@@ -278,33 +284,31 @@ def summarise(
     return summary
 
 
-def recall_by_arc_length(
-    answers: list[MethodTarget], truths: list[Truth]
-) -> list[dict[str, object]]:
-    """Fraction of exact components holding a returned configuration, by arc length.
+def recall_by_size(answers: list[MethodTarget], truths: list[Truth]) -> list[dict[str, object]]:
+    """Fraction of exact components holding a returned configuration, by component size.
 
     A returned configuration belongs to the exact component of its nearest exact point.
     """
-    found_by_bucket = [[0, 0] for _ in ARC_BUCKETS_RAD[:-1]]
+    edges = truths[0].size_edges
+    found_by_bucket = [[0, 0] for _ in edges[:-1]]
     for answer, truth in zip(answers, truths, strict=True):
-        assert truth.point_component is not None and truth.arc_length_rad is not None
-        found = np.zeros(len(truth.arc_length_rad), dtype=bool)
+        assert truth.point_component is not None and truth.size is not None
+        found = np.zeros(len(truth.size), dtype=bool)
         if len(answer.returned):
-            nearest = cKDTree(truth.points).query(answer.returned)[1]  # iiwa: no periodic joint
+            n = truth.membership_joints  # iiwa: no periodic joint
+            nearest = cKDTree(truth.points[:, :n]).query(answer.returned[:, :n])[1]
             found[truth.point_component[nearest]] = True
-        bucket = np.digitize(truth.arc_length_rad, ARC_BUCKETS_RAD[1:-1])
+        bucket = np.digitize(truth.size, edges[1:-1])
         for b in range(len(found_by_bucket)):
             found_by_bucket[b][0] += int(found[bucket == b].sum())
             found_by_bucket[b][1] += int((bucket == b).sum())
     return [
         {
-            "arc_rad": f"{low:g}-{high:g}",
+            "size": f"{low:g}-{high:g}",
             "components": total,
             "recall": hits / total if total else None,
         }
-        for (hits, total), low, high in zip(
-            found_by_bucket, ARC_BUCKETS_RAD[:-1], ARC_BUCKETS_RAD[1:], strict=True
-        )
+        for (hits, total), low, high in zip(found_by_bucket, edges[:-1], edges[1:], strict=True)
     ]
 
 
@@ -353,6 +357,7 @@ def evaluate(
         "num_samples": num_samples,
         "defaults": manifest.defaults.model_dump(exclude={"reasons"}),
         "methods": {name: summarise(model, answers, truths) for name, answers in methods.items()},
+        "component_size": "arc length (rad)" if one_dimensional else "share of the fibre",
         "near_boundary": {
             "targets": int(boundary.sum()),
             "indices": np.flatnonzero(boundary).tolist(),
@@ -364,7 +369,7 @@ def evaluate(
         },
     }
     answers = methods["FM + DLS"]
-    if truths[0].count is not None:
+    if answers[0].labels is not None:
         report["wrong_count_targets"] = [
             {
                 "index": i,
@@ -386,16 +391,16 @@ def _table(header: list[str], rows: list[list[object]]) -> list[str]:
     return lines + ["| " + " | ".join(_cell(v) for v in row) + " |" for row in rows]
 
 
-def _recall_lines(methods: dict[str, dict[str, Any]]) -> list[str]:
+def _recall_lines(methods: dict[str, dict[str, Any]], size_name: str) -> list[str]:
     rows = [
-        [name, bucket["arc_rad"], bucket["components"], bucket["recall"]]
+        [name, bucket["size"], bucket["components"], bucket["recall"]]
         for name, summary in methods.items()
-        for bucket in summary.get("recall_by_arc_length", [])
+        for bucket in summary.get("recall_by_size", [])
     ]
     if not rows:
         return []
-    header = ["method", "exact arc length (rad)", "exact components", "found"]
-    return ["", "Exact components found, by arc length:", "", *_table(header, rows)]
+    header = ["method", f"exact component {size_name}", "exact components", "found"]
+    return ["", f"Exact components found, by {size_name}:", "", *_table(header, rows)]
 
 
 def _listed_targets(report: dict[str, Any]) -> list[str]:
@@ -478,7 +483,7 @@ def markdown(model_id: str, report: dict[str, Any]) -> str:
             ],
             component_rows,
         ),
-        *_recall_lines(methods),
+        *_recall_lines(methods, report.get("component_size", "size")),
         *_listed_targets(report),
         "",
         "Errors: the FM and ODE rows are over every raw sample or trace point, the others over "
