@@ -44,3 +44,33 @@ class LimitExceededError(SmmError):
 
 class ModelVerificationError(Exception):
     """A model directory failed verification at start-up; the message names the file."""
+
+
+class OverloadedError(SmmError):
+    """Every computation slot is taken and the wait is full or too long (503 + Retry-After)."""
+
+    status_code = 503
+
+    def __init__(self, message: str, retry_after_s: int, reason: str) -> None:
+        super().__init__(message)
+        self.retry_after_s = retry_after_s
+        self.reason = reason  # "queue_full" or "queue_timeout", for the metrics
+
+
+class DeadlineExceededError(SmmError):
+    """The request ran past its deadline; the pipeline stopped at its next step (504)."""
+
+    status_code = 504
+
+    def __init__(self, stage: str, budget_s: float) -> None:
+        super().__init__(
+            f"the request ran past its deadline of {budget_s:g} s (SMM_REQUEST_DEADLINE_S) "
+            f"during stage {stage!r}; ask for fewer num_samples or retry later"
+        )
+        self.stage = stage
+
+
+class ModelUnavailableError(SmmError):
+    """The requested model failed verification at start-up and is not served (503)."""
+
+    status_code = 503

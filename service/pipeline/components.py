@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.joint_space import joint_distance, wrap_to_pi
 from service.pipeline.types import BoolArray, Component, FloatArray
 
@@ -35,7 +36,11 @@ def joint_mean(q_rad: FloatArray, periodic: BoolArray) -> FloatArray:
 
 
 def farthest_point_subset(
-    q_rad: FloatArray, periodic: BoolArray, start: int, count: int
+    q_rad: FloatArray,
+    periodic: BoolArray,
+    start: int,
+    count: int,
+    deadline: Deadline = NO_DEADLINE,
 ) -> FloatArray:
     """`count` members (count, n) of q_rad (k, n), greedily each farthest from those chosen."""
     if count >= len(q_rad):
@@ -43,6 +48,7 @@ def farthest_point_subset(
     chosen = [start]
     distance = joint_distance(q_rad, q_rad[start], periodic)  # (k,)
     for _ in range(count - 1):
+        deadline.check("cluster")
         nxt = int(np.argmax(distance))
         chosen.append(nxt)
         distance = np.minimum(distance, joint_distance(q_rad, q_rad[nxt], periodic))
@@ -54,6 +60,7 @@ def summarise(
     periodic: BoolArray,
     reference_rad: FloatArray | None,
     max_configurations: int | None,
+    deadline: Deadline = NO_DEADLINE,
 ) -> ComponentSummary:
     q = component.q_rad  # (k, n)
     centre = joint_mean(q, periodic)
@@ -61,7 +68,7 @@ def summarise(
     configurations = (
         q
         if max_configurations is None
-        else farthest_point_subset(q, periodic, representative, max_configurations)
+        else farthest_point_subset(q, periodic, representative, max_configurations, deadline)
     )
     distance_to_reference = None
     nearest = None
@@ -88,11 +95,14 @@ def summarise_all(
     periodic: BoolArray,
     reference_rad: FloatArray | None,
     max_configurations: int | None,
+    deadline: Deadline = NO_DEADLINE,
 ) -> list[ComponentSummary]:
     """Summaries ordered by distance to the reference when given, else by size (largest first)."""
     if reference_rad is not None:
         reference_rad = np.where(periodic, wrap_to_pi(reference_rad), reference_rad)
-    summaries = [summarise(c, periodic, reference_rad, max_configurations) for c in components]
+    summaries = [
+        summarise(c, periodic, reference_rad, max_configurations, deadline) for c in components
+    ]
     if reference_rad is not None:
         return sorted(summaries, key=lambda s: (s.distance_to_reference_rad, -s.size))
     return sorted(summaries, key=lambda s: -s.size)

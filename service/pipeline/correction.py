@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from service.manifest import TaskSpec
+from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.joint_space import wrap_periodic
 from service.pipeline.rotations import rotation_error
 from service.pipeline.targets import Target
@@ -20,12 +21,26 @@ def dls_step(
     error: FloatArray,  # (B, m)
     damping: float,
 ) -> FloatArray:  # (B, n)
-    """One damped-least-squares step dq = J^T (J J^T + damping^2 I)^-1 e."""
-    m = jacobian.shape[1]
-    jacobian_t = np.swapaxes(jacobian, 1, 2)  # (B, n, m)
-    gram = jacobian @ jacobian_t + (damping * damping) * np.eye(m)  # (B, m, m)
-    y = np.linalg.solve(gram, error[..., None])  # (B, m, 1)
-    return (jacobian_t @ y)[..., 0]
+    """One damped-least-squares step dq = J^T (J J^T + damping^2 I)^-1 e.
+
+    Failures stay in their own rows: a row whose Jacobian or error is not finite gets a
+    NaN step (its sample is then rejected), and a singular system (zero damping at a
+    kinematic singularity) falls back to the pseudo-inverse instead of failing the batch.
+    """
+    batch, m, n = jacobian.shape
+    finite = np.all(np.isfinite(jacobian), axis=(1, 2)) & np.all(np.isfinite(error), axis=1)
+    dq = np.full((batch, n), np.nan)
+    if not finite.any():
+        return dq
+    jacobian_t = np.swapaxes(jacobian[finite], 1, 2)  # (B', n, m)
+    gram = jacobian[finite] @ jacobian_t + (damping * damping) * np.eye(m)  # (B', m, m)
+    e = error[finite][..., None]  # (B', m, 1)
+    try:
+        y = np.linalg.solve(gram, e)  # (B', m, 1)
+    except np.linalg.LinAlgError:
+        y = np.linalg.pinv(gram) @ e
+    dq[finite] = (jacobian_t @ y)[..., 0]
+    return dq
 
 
 def task_error(
@@ -62,11 +77,14 @@ def correct(
     steps: int,
     damping: float,
     periodic: BoolArray,  # (n,)
+    deadline: Deadline = NO_DEADLINE,
 ) -> Correction:
     """Apply `steps` DLS steps to every finite sample and measure the remaining errors.
 
     Samples with non-finite coordinates are left out of the arithmetic and get an
-    infinite error, so acceptance rejects them without NaNs spreading.
+    infinite error, so acceptance rejects them without NaNs spreading; a sample that
+    turns non-finite during the steps (a NaN from the kinematics) ends with a NaN error,
+    which acceptance rejects too.
     """
     num_samples = q_rad.shape[0]
     finite = np.all(np.isfinite(q_rad), axis=1)  # (N,)
@@ -80,6 +98,7 @@ def correct(
 
     q = q_rad[finite]
     for _ in range(steps):
+        deadline.check("correct")
         error, jacobian = task_error(kinematics(q), target, task)
         q = wrap_periodic(q + dls_step(jacobian, error, damping), periodic)
     position_error_m[finite], orientation_error_rad[finite] = task_error_norms(

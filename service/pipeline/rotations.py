@@ -16,8 +16,18 @@ def quaternion_to_matrix(w: float, x: float, y: float, z: float) -> FloatArray:
 
 
 def rotation_log(rotation: FloatArray) -> FloatArray:
-    """Rotation vector (B, 3) (axis * angle, rad) of rotation matrices (B, 3, 3)."""
-    return np.asarray(Rotation.from_matrix(rotation).as_rotvec(), dtype=np.float64)
+    """Rotation vector (B, 3) (axis * angle, rad) of rotation matrices (B, 3, 3).
+
+    A row that is no rotation at all (non-finite, or a non-positive determinant, as a
+    faulty network may produce) gets a NaN vector instead of failing the whole batch.
+    """
+    rotvec = np.full((rotation.shape[0], 3), np.nan)
+    valid = np.all(np.isfinite(rotation), axis=(1, 2))  # (B,)
+    with np.errstate(over="ignore", invalid="ignore"):
+        valid[valid] = np.linalg.det(rotation[valid]) > 0.0
+    if valid.any():
+        rotvec[valid] = Rotation.from_matrix(rotation[valid]).as_rotvec()
+    return rotvec
 
 
 def rotation_error(rotation_target: FloatArray, rotation: FloatArray) -> FloatArray:

@@ -17,6 +17,7 @@ from service.pipeline.acceptance import accept
 from service.pipeline.clustering import component_labels
 from service.pipeline.components import ComponentSummary, summarise_all
 from service.pipeline.correction import correct
+from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.sampling import sample_configurations
 from service.pipeline.targets import encode_target
 from service.pipeline.types import Component, Counts, FloatArray, StageTimings
@@ -67,7 +68,8 @@ def _reference(query: Query, num_joints: int) -> FloatArray | None:
     return np.asarray(query.reference_rad, dtype=np.float64)
 
 
-def run(model: ServedModel, query: Query) -> SmmResult:
+def run(model: ServedModel, query: Query, deadline: Deadline = NO_DEADLINE) -> SmmResult:
+    """Stages 1-5 for one query; past `deadline`, DeadlineExceededError names the stage."""
     manifest = model.manifest
     defaults = manifest.defaults
     lower_rad, upper_rad, periodic = manifest.joints.arrays()
@@ -88,6 +90,7 @@ def run(model: ServedModel, query: Query) -> SmmResult:
             manifest.joint_normalisation,
             periodic,
             np.random.default_rng(query.seed),
+            deadline,
         )
     with watch.stage("correct"):
         correction = correct(
@@ -98,6 +101,7 @@ def run(model: ServedModel, query: Query) -> SmmResult:
             defaults.correction_steps,
             defaults.damping,
             periodic,
+            deadline,
         )
     with watch.stage("accept"):
         acceptance = accept(
@@ -109,6 +113,7 @@ def run(model: ServedModel, query: Query) -> SmmResult:
             periodic,
         )
     with watch.stage("cluster"):
+        deadline.check("cluster")
         kept = np.flatnonzero(acceptance.accepted)  # (K,) sample indices
         labels = component_labels(correction.q_rad[kept], periodic, defaults.cluster_radius_rad)
         components = [
@@ -120,7 +125,7 @@ def run(model: ServedModel, query: Query) -> SmmResult:
             for members in (kept[labels == label] for label in range(labels.max(initial=-1) + 1))
         ]
         summaries = summarise_all(
-            components, periodic, reference_rad, query.max_configurations_per_component
+            components, periodic, reference_rad, query.max_configurations_per_component, deadline
         )
 
     timings = StageTimings(

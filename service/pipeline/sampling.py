@@ -10,6 +10,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from service.manifest import AffineNormalisation
+from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.joint_space import wrap_periodic
 from service.pipeline.types import BoolArray, FloatArray, VelocityField
 
@@ -19,12 +20,14 @@ def euler_integrate(
     q_0: NDArray[np.float32],  # (N, n)
     condition: NDArray[np.float32],  # (N, c)
     steps: int,
+    deadline: Deadline = NO_DEADLINE,
 ) -> NDArray[np.float32]:  # (N, n)
     """Integrate dq/dt = v(q, t, x) over t in [0, 1] with `steps` explicit Euler steps."""
     dt = np.float32(1.0 / steps)
     q_t = q_0
     t = np.empty((q_0.shape[0], 1), dtype=np.float32)
     for k in range(steps):
+        deadline.check("sample")
         t.fill(k * dt)
         q_t = q_t + dt * velocity(q_t, t, condition)
     return q_t
@@ -38,11 +41,12 @@ def sample_configurations(
     joint_normalisation: AffineNormalisation,
     periodic: BoolArray,  # (n,)
     rng: np.random.Generator,
+    deadline: Deadline = NO_DEADLINE,
 ) -> FloatArray:  # (N, n) rad
     """Draw `num_samples` configurations for one target, periodic joints wrapped."""
     n = len(periodic)
     q_0 = rng.standard_normal((num_samples, n), dtype=np.float32)
     conditions = np.broadcast_to(condition, (num_samples, condition.shape[0]))
-    q_1 = euler_integrate(velocity, q_0, np.ascontiguousarray(conditions), steps)
+    q_1 = euler_integrate(velocity, q_0, np.ascontiguousarray(conditions), steps, deadline)
     q_rad = joint_normalisation.denormalise(q_1.astype(np.float64))
     return wrap_periodic(q_rad, periodic)

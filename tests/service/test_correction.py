@@ -86,3 +86,42 @@ def test_all_non_finite_samples_skip_the_kinematics(planar3r: ServedModel) -> No
     target = target_at(np.array([0.5, 0.0]))
     result = correct(q, target, POSITION_2D, planar3r.kinematics, 3, 1e-3, PERIODIC)
     assert np.all(np.isinf(result.position_error_m)) and np.all(np.isnan(result.q_rad))
+
+
+def test_a_non_finite_row_gets_a_nan_step_and_leaves_the_others_exact() -> None:
+    rng = np.random.default_rng(1)
+    jacobian = rng.normal(size=(4, 2, 3))
+    error = rng.normal(size=(4, 2))
+    clean = dls_step(jacobian, error, 0.1)
+    jacobian[1, 0, 2] = np.nan
+    error[2, 1] = np.inf
+    dq = dls_step(jacobian, error, 0.1)
+    assert np.isnan(dq[1]).all() and np.isnan(dq[2]).all()
+    np.testing.assert_array_equal(dq[[0, 3]], clean[[0, 3]])
+
+
+def test_a_singular_system_falls_back_to_the_pseudo_inverse() -> None:
+    # Zero damping at a singularity: J J^T is singular (rank 1), np.linalg.solve fails;
+    # the step is then the minimum-norm least-squares one, J^+ e.
+    jacobian = np.array([[[1.0, 1.0, 1.0], [2.0, 2.0, 2.0]], [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]])
+    error = np.array([[0.3, -0.2], [0.5, 0.25]])
+    dq = dls_step(jacobian, error, damping=0.0)
+    for J, e, step in zip(jacobian, error, dq, strict=True):
+        np.testing.assert_allclose(step, np.linalg.pinv(J) @ e, atol=1e-12)
+
+
+def test_a_nan_from_the_kinematics_rejects_only_its_own_sample() -> None:
+    def faulty_kinematics(q_rad: np.ndarray) -> KinematicsResult:
+        fk = closed_form_kinematics(q_rad)
+        broken = q_rad[:, 0] > 1.0  # this network fails for a part of joint space
+        fk.position_m[broken] = np.nan
+        fk.jacobian[broken] = np.nan
+        return fk
+
+    q = np.array([[0.1, 1.0, 1.0], [2.0, 1.0, 1.0], [-0.4, 1.2, 0.9]])
+    target = target_at(planar3r_position(q[:1])[0] + 0.01)
+    correction = correct(q, target, POSITION_2D, faulty_kinematics, 3, 1e-3, PERIODIC)
+    assert np.isnan(correction.position_error_m[1])
+    assert np.all(np.isfinite(correction.position_error_m[[0, 2]]))
+    healthy = correct(q[[0, 2]], target, POSITION_2D, closed_form_kinematics, 3, 1e-3, PERIODIC)
+    np.testing.assert_array_equal(correction.q_rad[[0, 2]], healthy.q_rad)

@@ -40,3 +40,12 @@ def test_log_inverts_rodrigues_and_error_vanishes_at_the_target() -> None:
 def test_6d_representation_is_the_first_two_columns() -> None:
     rotation = rodrigues(np.array([0.3, -0.2, 0.9]))
     np.testing.assert_allclose(rotation_6d(rotation[None])[0], rotation[:, :2].T.ravel())
+
+
+def test_rotation_log_of_a_non_rotation_is_nan_in_its_row_only() -> None:
+    """A faulty network's non-finite or degenerate matrix fails its own row, not the batch."""
+    good = rodrigues(np.array([0.3, -0.2, 0.1]))
+    batch = np.stack([good, np.full((3, 3), np.nan), np.zeros((3, 3)), np.diag([1, 1, -1.0])])
+    rotvec = rotation_log(batch)
+    np.testing.assert_allclose(rotvec[0], [0.3, -0.2, 0.1], atol=1e-12)
+    assert np.isnan(rotvec[1:]).all()
