@@ -2,16 +2,22 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
-from pydantic import Field
+from pydantic import Field, SecretStr
 from pydantic_settings import BaseSettings, SettingsConfigDict
+
+from service.logs import LogLevel
 
 REPO_MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
 
 
 class Settings(BaseSettings):
-    model_config = SettingsConfigDict(env_prefix="SMM_", extra="forbid")
+    """Every setting of the service; the environment variable is SMM_<FIELD NAME>."""
+
+    # An empty variable (SMM_API_KEY=) counts as unset, not as an empty key.
+    model_config = SettingsConfigDict(env_prefix="SMM_", extra="forbid", env_ignore_empty=True)
 
     models_dir: Path = Field(REPO_MODELS_DIR, description="Directory of <model-id>/ folders.")
     host: str = Field("127.0.0.1", description="Interface uvicorn binds to.")
@@ -20,6 +26,68 @@ class Settings(BaseSettings):
         10_000, ge=1, description="Largest num_samples a request may ask for (413 beyond)."
     )
     onnx_threads: int = Field(
-        0, ge=0, description="onnxruntime intra-op threads per session; 0 uses every core."
+        0,
+        ge=0,
+        description="onnxruntime intra-op threads per session; 0 shares the cores among the "
+        "max_in_flight computations (cores // max_in_flight, at least 1).",
     )
-    log_level: str = Field("info", description="uvicorn log level.")
+    log_level: LogLevel = Field(
+        "info", description="Level of the service's JSON logs and of uvicorn's."
+    )
+
+    # Bounded work: whatever clients send, the process holds a bounded amount of it.
+    max_body_bytes: int = Field(
+        65_536,
+        ge=1_024,
+        description="Largest request body in bytes (413 beyond); a full POST /smm body with a "
+        "reference configuration is well under 1 KiB.",
+    )
+    max_open_requests: int = Field(
+        64,
+        ge=1,
+        description="Requests being received or answered at once, probes and /metrics "
+        "excepted; more get 503 with Retry-After at once. Bounds the memory held by bodies.",
+    )
+    max_in_flight: int = Field(
+        2,
+        ge=1,
+        description="POST /smm computations running at once. The pipeline is CPU-bound, so "
+        "more than the number of cores only stretches every request's latency.",
+    )
+    max_queued: int = Field(
+        8,
+        ge=0,
+        description="POST /smm requests that may wait for a computation slot; one more gets "
+        "503 with Retry-After at once.",
+    )
+    max_queue_wait_s: float = Field(
+        5.0,
+        gt=0,
+        description="Longest a POST /smm request waits for a computation slot before 503.",
+    )
+    retry_after_s: int = Field(1, ge=1, description="Retry-After header of a 503, in seconds.")
+    request_deadline_s: float = Field(
+        30.0,
+        gt=0,
+        description="Per-request deadline, from arrival, queue wait included: the pipeline "
+        "stops at its next step past it and the request gets 504.",
+    )
+    shutdown_drain_s: float = Field(
+        35.0,
+        gt=0,
+        description="On SIGTERM, how long `smm-serve` waits for requests in flight to finish "
+        "(new connections are refused meanwhile); longer than the deadline so none is cut.",
+    )
+
+    @property
+    def onnx_threads_per_session(self) -> int:
+        """onnx_threads, or the cores shared among the computations that may run at once."""
+        if self.onnx_threads:
+            return self.onnx_threads
+        return max(1, (os.cpu_count() or 1) // self.max_in_flight)
+
+    api_key: SecretStr | None = Field(
+        None,
+        description="When set, every route but /healthz, /readyz and /metrics needs it in an "
+        "X-API-Key header (or Authorization: Bearer); 401 otherwise.",
+    )

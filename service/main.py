@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
@@ -11,11 +12,27 @@ from fastapi import FastAPI, Request
 from fastapi.encoders import jsonable_encoder
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from service.api import health, robots, smm
+from service.admission import Admission
+from service.api import health, metrics, robots, smm
+from service.auth import ApiKeyMiddleware
 from service.config import Settings
-from service.errors import RequestFieldError, SmmError
+from service.errors import OverloadedError, RequestFieldError, SmmError
+from service.http_limits import RequestLimitsMiddleware
+from service.logs import configure_logging, log_event
+from service.metrics import Metrics
+from service.openapi import served_openapi
 from service.registry import Registry
+from service.request_context import RequestContextMiddleware
+from service.schemas import SmmRequest
+from service.validation import explain
+
+# (method, path) of every route that reads a JSON body: the body limit and the content
+# type apply to these (a test checks the set against the OpenAPI document).
+JSON_BODY_ROUTES = frozenset({("POST", "/smm")})
+# Every documented path: metric labels for requests refused before routing.
+API_PATHS = frozenset({"/smm", "/robots", "/healthz", "/readyz", "/metrics"})
 
 
 def _error_response(request: Request, error: Exception) -> JSONResponse:
@@ -27,7 +44,10 @@ def _error_response(request: Request, error: Exception) -> JSONResponse:
         ]
     else:
         detail = str(error)
-    return JSONResponse({"detail": detail}, status_code=error.status_code)
+    headers = None
+    if isinstance(error, OverloadedError):
+        headers = {"Retry-After": str(error.retry_after_s)}
+    return JSONResponse({"detail": detail}, status_code=error.status_code, headers=headers)
 
 
 def _json_safe(value: object) -> object:
@@ -42,21 +62,68 @@ def _json_safe(value: object) -> object:
 
 
 def _validation_error_response(request: Request, error: Exception) -> JSONResponse:
-    # FastAPI's default handler echoes the offending input, which fails to serialise
-    # (a 500) when that input is NaN or infinity.
+    # Each message names its field and what the field allows. FastAPI's default handler
+    # also echoes the offending input, which fails to serialise (a 500) when that input
+    # is NaN or infinity: made JSON-safe here.
     assert isinstance(error, RequestValidationError)
-    detail = _json_safe(jsonable_encoder(error.errors()))
-    return JSONResponse({"detail": detail}, status_code=422)
+    settings: Settings = request.app.state.settings
+    limits = {"num_samples": f"<= {settings.max_num_samples} (this server's limit)"}
+    schema = SmmRequest.model_json_schema()
+    errors = [explain(e, schema, limits) for e in jsonable_encoder(error.errors())]
+    return JSONResponse({"detail": _json_safe(errors)}, status_code=422)
+
+
+def _http_error_response(request: Request, error: Exception) -> JSONResponse:
+    # FastAPI answers a body that is JSON-shaped but unparseable (an integer of more than
+    # Python's 4300 digits) with a bare "There was an error parsing the body": say why.
+    assert isinstance(error, StarletteHTTPException)
+    detail = error.detail
+    if error.status_code == 400 and error.__cause__ is not None:
+        reason = str(error.__cause__).split(";")[0]
+        detail = (
+            f"body: could not be parsed ({reason}); allowed: a JSON object, numbers of at "
+            "most 4300 digits"
+        )
+    return JSONResponse({"detail": detail}, status_code=error.status_code, headers=error.headers)
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:
     settings = settings or Settings()
+    logger = configure_logging(settings.log_level)
+    app_metrics = Metrics()
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-        # Load and verify every model before serving; a broken model stops start-up.
-        app.state.registry = Registry.load(settings.models_dir, settings.onnx_threads)
+        # Load and verify every model before serving. A model that fails verification is
+        # logged by name and listed by /readyz, which then does not claim readiness.
+        registry = Registry.load(settings.models_dir, settings.onnx_threads_per_session)
+        for model in registry.all():
+            app_metrics.model_ready.labels(model.manifest.model_id).set(1)
+            log_event(logger, logging.INFO, "model loaded", model=model.reference)
+        for failure in registry.failed:
+            app_metrics.model_ready.labels(failure.name).set(0)
+            log_event(
+                logger,
+                logging.ERROR,
+                "model failed verification; not served",
+                model=failure.name,
+                reason=failure.reason,
+            )
+        admission = Admission(
+            settings.max_in_flight,
+            settings.max_queued,
+            settings.max_queue_wait_s,
+            settings.retry_after_s,
+        )
+        app_metrics.track_capacity(lambda: admission.in_flight, lambda: admission.waiting)
+        app.state.admission = admission
+        app.state.registry = registry
+        app.state.draining = False
         yield
+        # The server stops taking connections and lets requests in flight finish before
+        # this point; say so to any prober still connected.
+        app.state.draining = True
+        log_event(logger, logging.INFO, "shut down", in_flight=admission.in_flight)
 
     app = FastAPI(
         title="SMM service",
@@ -65,17 +132,46 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         lifespan=lifespan,
     )
     app.state.settings = settings
+    app.state.metrics = app_metrics
     app.add_exception_handler(SmmError, _error_response)
     app.add_exception_handler(RequestValidationError, _validation_error_response)
+    app.add_exception_handler(StarletteHTTPException, _http_error_response)
     app.include_router(smm.router)
     app.include_router(robots.router)
     app.include_router(health.router)
+    app.include_router(metrics.router)
+    app.openapi = lambda: served_openapi(app)  # type: ignore[method-assign]
+
+    # Middlewares, innermost first: limits, then the API key, then the request context
+    # (request id, access log, metrics), so that every refusal is logged and counted.
+    app.add_middleware(
+        RequestLimitsMiddleware,
+        json_routes=JSON_BODY_ROUTES,
+        max_body_bytes=settings.max_body_bytes,
+        max_open_requests=settings.max_open_requests,
+        retry_after_s=settings.retry_after_s,
+        on_reject=lambda reason: app_metrics.rejected.labels(reason).inc(),
+    )
+    if settings.api_key is not None:
+        app.add_middleware(ApiKeyMiddleware, api_key=settings.api_key.get_secret_value())
+    app.add_middleware(
+        RequestContextMiddleware, metrics=app_metrics, logger=logger, known_paths=API_PATHS
+    )
     return app
 
 
 def serve() -> None:
-    """Console entry point `smm-serve`: run uvicorn with the settings from the environment."""
+    """Console entry point `smm-serve`: run uvicorn with the settings from the environment.
+
+    On SIGTERM uvicorn stops accepting connections and waits up to
+    SMM_SHUTDOWN_DRAIN_S for the requests in flight to finish.
+    """
     settings = Settings()
     uvicorn.run(
-        create_app(settings), host=settings.host, port=settings.port, log_level=settings.log_level
+        create_app(settings),
+        host=settings.host,
+        port=settings.port,
+        log_level=settings.log_level,
+        access_log=False,  # the service writes its own JSON access log, with request ids
+        timeout_graceful_shutdown=math.ceil(settings.shutdown_drain_s),
     )

@@ -1,18 +1,23 @@
 """The model registry: every `models/<model-id>/manifest.json`, verified, with its ONNX sessions.
 
-Start-up refuses a model whose files are missing or whose sha256 differs from its
-manifest, with a message naming the file.
+A model whose files are missing or whose sha256 differs from its manifest is not
+served: the registry records it by name with the reason (naming the file), /readyz
+reports it and does not claim readiness, and a request for it gets 503 saying why.
+The other models are served. A models directory with no manifest at all stops
+start-up. After start-up nothing is read from disk: no request field ever becomes a
+path, a request only picks a loaded model out of a dictionary.
 """
 
 from __future__ import annotations
 
 import hashlib
+import json
 from dataclasses import dataclass
 from pathlib import Path
 
 from pydantic import ValidationError
 
-from service.errors import ModelVerificationError, UnknownModelError
+from service.errors import ModelUnavailableError, ModelVerificationError, UnknownModelError
 from service.manifest import FLOW_FILE, KINEMATICS_FILE, MANIFEST_FILE, Manifest
 from service.onnx_models import OnnxKinematics, OnnxVelocityField, open_session
 
@@ -70,17 +75,41 @@ def load_model(model_dir: Path, threads: int) -> ServedModel:
     )
 
 
-class Registry:
-    """Served models keyed by (robot, task)."""
+@dataclass(frozen=True)
+class FailedModel:
+    """A model directory that failed verification at start-up, and why."""
 
-    def __init__(self, models: list[ServedModel]) -> None:
+    name: str  # the directory name, which is the model id
+    reason: str
+    robot: str | None = None  # known when the manifest itself was readable
+    task: str | None = None
+
+
+def _read_identity(model_dir: Path) -> tuple[str | None, str | None]:
+    """(robot, task) from a manifest that may fail full validation; (None, None) if unreadable."""
+    try:
+        raw = json.loads((model_dir / MANIFEST_FILE).read_bytes())
+        return str(raw["robot"]), str(raw["task"]["name"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None, None
+
+
+class Registry:
+    """Served models keyed by (robot, task), and the ones that failed verification."""
+
+    def __init__(self, models: list[ServedModel], failed: list[FailedModel] | None = None) -> None:
         self._models: dict[tuple[str, str], ServedModel] = {
             (m.manifest.robot, m.manifest.task.name): m for m in models
         }
+        self.failed: list[FailedModel] = sorted(failed or [], key=lambda f: f.name)
 
     @classmethod
     def load(cls, models_dir: Path, threads: int = 0) -> Registry:
-        """Load every directory of `models_dir` that holds a manifest (hidden ones excepted)."""
+        """Load every directory of `models_dir` that holds a manifest (hidden ones excepted).
+
+        A directory that fails verification is recorded in `failed`, not raised; only a
+        `models_dir` with no manifest at all raises ModelVerificationError.
+        """
         directories = sorted(
             p.parent
             for p in models_dir.glob(f"*/{MANIFEST_FILE}")
@@ -88,13 +117,34 @@ class Registry:
         )
         if not directories:
             raise ModelVerificationError(f"{models_dir}: no */{MANIFEST_FILE} found")
-        return cls([load_model(directory, threads) for directory in directories])
+        models, failed = [], []
+        for directory in directories:
+            try:
+                models.append(load_model(directory, threads))
+            except ModelVerificationError as error:
+                robot, task = _read_identity(directory)
+                # Paths relative to the models directory: the reason is shown to clients.
+                reason = str(error).replace(f"{models_dir}/", "")
+                failed.append(FailedModel(directory.name, reason, robot, task))
+        return cls(models, failed)
 
     def get(self, robot: str, task: str) -> ServedModel:
         try:
             return self._models[(robot, task)]
         except KeyError:
-            raise UnknownModelError(robot, task, sorted(self._models)) from None
+            pass
+        for failure in self.failed:
+            if (failure.robot, failure.task) == (robot, task):
+                raise ModelUnavailableError(
+                    f"model {failure.name} ({robot}, {task}) failed verification at start-up and "
+                    f"is not served: {failure.reason}"
+                )
+        raise UnknownModelError(robot, task, sorted(self._models))
 
     def all(self) -> list[ServedModel]:
         return [self._models[key] for key in sorted(self._models)]
+
+    @property
+    def ready(self) -> bool:
+        """Every model found was loaded and verified."""
+        return not self.failed

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -133,3 +133,52 @@ class RobotModel(BaseModel):
 
 class RobotsResponse(BaseModel):
     models: list[RobotModel]
+
+
+class ErrorMessage(BaseModel):
+    """Every error but a malformed body's (422) is `{"detail": "<what, and what is allowed>"}`."""
+
+    detail: str
+
+
+class Liveness(BaseModel):
+    status: Literal["alive"]
+
+
+class FailedModelOut(BaseModel):
+    name: str = Field(description="The model directory's name (the model id).")
+    reason: str = Field(description="Why it failed verification, naming the file.")
+
+
+class Readiness(BaseModel):
+    status: Literal["ready", "not_ready", "loading", "draining"] = Field(
+        description="ready: every model found was loaded and verified (200); otherwise 503."
+    )
+    models: list[str] = Field(description="Served models, `<model-id>@<version>`.")
+    failed: list[FailedModelOut] = Field(
+        description="Models that failed verification at start-up and are not served."
+    )
+
+
+def error_responses(*statuses: int) -> dict[int | str, dict[str, Any]]:
+    """OpenAPI entries for the error statuses a route can answer, with their meaning."""
+    meaning = {
+        400: "The body could not be parsed at all.",
+        401: "SMM_API_KEY is set and the request did not present it.",
+        404: "Unknown robot or task; the message lists what is served.",
+        413: "Body over SMM_MAX_BODY_BYTES, or num_samples over SMM_MAX_NUM_SAMPLES.",
+        415: "Content-Type is not application/json.",
+        503: "At capacity (Retry-After says when to retry), or the model failed verification.",
+        504: "The request ran past SMM_REQUEST_DEADLINE_S.",
+    }
+    responses: dict[int | str, dict[str, Any]] = {}
+    for status in statuses:
+        responses[status] = {"model": ErrorMessage, "description": meaning[status]}
+    if 503 in responses:
+        responses[503]["headers"] = {
+            "Retry-After": {
+                "description": "Seconds to wait before retrying (when at capacity).",
+                "schema": {"type": "integer"},
+            }
+        }
+    return responses

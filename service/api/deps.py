@@ -1,4 +1,4 @@
-"""Request dependencies: the loaded registry and the settings, from the app's state."""
+"""Request dependencies: the registry, settings, admission control and metrics of the app."""
 
 from __future__ import annotations
 
@@ -6,7 +6,9 @@ from typing import Annotated
 
 from fastapi import Depends, Request
 
+from service.admission import Admission
 from service.config import Settings
+from service.metrics import Metrics
 from service.registry import Registry
 
 
@@ -20,5 +22,17 @@ def get_settings(request: Request) -> Settings:
     return settings
 
 
+def get_admission(request: Request) -> Admission:
+    admission: Admission = request.app.state.admission
+    return admission
+
+
+def get_metrics(request: Request) -> Metrics:
+    metrics: Metrics = request.app.state.metrics
+    return metrics
+
+
 RegistryDep = Annotated[Registry, Depends(get_registry)]
 SettingsDep = Annotated[Settings, Depends(get_settings)]
+AdmissionDep = Annotated[Admission, Depends(get_admission)]
+MetricsDep = Annotated[Metrics, Depends(get_metrics)]

@@ -1,24 +1,43 @@
-"""Liveness and readiness probes."""
+"""Liveness and readiness probes (open even when an API key is set)."""
 
 from __future__ import annotations
 
 from fastapi import APIRouter, Request
 from fastapi.responses import JSONResponse
 
+from service.schemas import FailedModelOut, Liveness, Readiness
+
 router = APIRouter(tags=["health"])
 
 
-@router.get("/healthz")
-def healthz() -> dict[str, str]:
-    """The process is alive."""
-    return {"status": "alive"}
+@router.get("/healthz", response_model=Liveness)
+async def healthz() -> Liveness:
+    """The process is alive (and its event loop answers)."""
+    return Liveness(status="alive")
 
 
-@router.get("/readyz")
-def readyz(request: Request) -> JSONResponse:
-    """Every model loaded and verified."""
+@router.get(
+    "/readyz",
+    response_model=Readiness,
+    responses={
+        503: {
+            "model": Readiness,
+            "description": "Not ready: loading, draining, or a "
+            "model failed verification (named in `failed`).",
+        }
+    },
+)
+async def readyz(request: Request) -> JSONResponse:
+    """Ready when every model found was loaded and verified, and the server is not draining."""
     registry = getattr(request.app.state, "registry", None)
     if registry is None:
-        return JSONResponse({"status": "loading"}, status_code=503)
-    models = [m.reference for m in registry.all()]
-    return JSONResponse({"status": "ready", "models": models})
+        answer = Readiness(status="loading", models=[], failed=[])
+    else:
+        draining = getattr(request.app.state, "draining", False)
+        status = "draining" if draining else ("ready" if registry.ready else "not_ready")
+        answer = Readiness(
+            status=status,
+            models=[m.reference for m in registry.all()],
+            failed=[FailedModelOut(name=f.name, reason=f.reason) for f in registry.failed],
+        )
+    return JSONResponse(answer.model_dump(), status_code=200 if answer.status == "ready" else 503)

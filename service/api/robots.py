@@ -6,7 +6,7 @@ from fastapi import APIRouter
 
 from service.api.deps import RegistryDep
 from service.registry import ServedModel
-from service.schemas import RobotModel, RobotsResponse
+from service.schemas import RobotModel, RobotsResponse, error_responses
 
 router = APIRouter(prefix="/robots", tags=["robots"])
 
@@ -30,6 +30,6 @@ def describe(model: ServedModel) -> RobotModel:
     )
 
 
-@router.get("", response_model=RobotsResponse)
+@router.get("", response_model=RobotsResponse, responses=error_responses(401, 503))
 def list_robots(registry: RegistryDep) -> RobotsResponse:
     return RobotsResponse(models=[describe(m) for m in registry.all()])

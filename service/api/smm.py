@@ -2,14 +2,31 @@
 
 from __future__ import annotations
 
-from fastapi import APIRouter
+import time
 
-from service.api.deps import RegistryDep, SettingsDep
-from service.errors import LimitExceededError, RequestFieldError
+from fastapi import APIRouter, Request, Response
+from starlette.concurrency import run_in_threadpool
+
+from service.api.deps import AdmissionDep, MetricsDep, RegistryDep, SettingsDep
+from service.errors import (
+    DeadlineExceededError,
+    LimitExceededError,
+    OverloadedError,
+    RequestFieldError,
+)
+from service.metrics import Metrics
 from service.pipeline.components import ComponentSummary
+from service.pipeline.deadline import Deadline
 from service.pipeline.run import Query, SmmResult, run
 from service.registry import ServedModel
-from service.schemas import ComponentOut, Counts, SmmRequest, SmmResponse, Timings
+from service.schemas import (
+    ComponentOut,
+    Counts,
+    SmmRequest,
+    SmmResponse,
+    Timings,
+    error_responses,
+)
 
 router = APIRouter(prefix="/smm", tags=["smm"])
 
@@ -85,9 +102,61 @@ def to_response(model: ServedModel, result: SmmResult) -> SmmResponse:
     )
 
 
-@router.post("", response_model=SmmResponse)
-def post_smm(body: SmmRequest, registry: RegistryDep, settings: SettingsDep) -> SmmResponse:
-    # A plain `def`: FastAPI runs it in its thread pool, so the numerical work
-    # never blocks the event loop.
+def answer(model: ServedModel, query: Query, deadline: Deadline) -> tuple[bytes, SmmResult]:
+    """Run the pipeline and encode the JSON answer (in a worker thread: both are CPU work)."""
+    result = run(model, query, deadline)
+    return to_response(model, result).model_dump_json().encode(), result
+
+
+def _observe(metrics: Metrics, model: ServedModel, result: SmmResult) -> None:
+    t, counts = result.timings, result.counts
+    metrics.observe_pipeline(
+        model.manifest.model_id,
+        {
+            "encode": t.encode_ms,
+            "sample": t.sample_ms,
+            "correct": t.correct_ms,
+            "accept": t.accept_ms,
+            "cluster": t.cluster_ms,
+            "total": t.total_ms,
+        },
+        {
+            "accepted": counts.accepted,
+            "rejected_tolerance": counts.rejected_tolerance,
+            "rejected_joint_limits": counts.rejected_joint_limits,
+        },
+    )
+
+
+@router.post(
+    "",
+    response_model=SmmResponse,
+    responses=error_responses(400, 401, 404, 413, 415, 503, 504),
+)
+async def post_smm(
+    body: SmmRequest,
+    request: Request,
+    registry: RegistryDep,
+    settings: SettingsDep,
+    admission: AdmissionDep,
+    metrics: MetricsDep,
+) -> Response:
+    deadline = Deadline.after(settings.request_deadline_s)
     model = registry.get(body.robot, body.task)
-    return to_response(model, run(model, to_query(body, model, settings.max_num_samples)))
+    request.state.model = model.manifest.model_id  # the metrics' and access log's model label
+    query = to_query(body, model, settings.max_num_samples)
+    arrived_s = time.perf_counter()
+    try:
+        async with admission.slot(deadline.remaining_s()):
+            metrics.queue_wait.observe(time.perf_counter() - arrived_s)
+            # The numerical work runs in a worker thread, so the event loop keeps
+            # answering (probes, metrics, prompt 503s) while slots are busy.
+            content, result = await run_in_threadpool(answer, model, query, deadline)
+    except OverloadedError as error:
+        metrics.rejected.labels(error.reason).inc()
+        raise
+    except DeadlineExceededError:
+        metrics.rejected.labels("deadline").inc()
+        raise
+    _observe(metrics, model, result)
+    return Response(content=content, media_type="application/json")

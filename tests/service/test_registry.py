@@ -1,4 +1,8 @@
-"""registry: models are verified by sha256 at start-up; a broken one stops start-up by name."""
+"""registry: models are verified by sha256 at start-up; a broken one is named and not served.
+
+The app still starts and serves the models that verify, but /readyz answers 503 and
+names the broken model and its file, and a request for that model gets 503 saying why.
+"""
 
 import shutil
 from pathlib import Path
@@ -6,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from service.config import REPO_MODELS_DIR
-from service.errors import ModelVerificationError, UnknownModelError
+from service.errors import ModelUnavailableError, ModelVerificationError, UnknownModelError
 from service.registry import Registry, load_model
 from tests.conftest import PLANAR3R_DIR, make_client
 
@@ -36,9 +40,41 @@ def test_tampered_flow_is_refused_naming_the_file(tmp_path: Path) -> None:
     flow.write_bytes(bytes(data))
     with pytest.raises(ModelVerificationError, match=r"flow\.onnx: sha256 .* does not match"):
         load_model(models / PLANAR3R_DIR.name, threads=1)
-    # The app refuses to start at all.
-    with pytest.raises(ModelVerificationError, match=r"flow\.onnx"), make_client(models):
-        pass
+    registry = Registry.load(models)
+    assert registry.all() == [] and not registry.ready
+    (failure,) = registry.failed
+    assert failure.name == PLANAR3R_DIR.name and (failure.robot, failure.task) == (
+        "planar3r",
+        "position",
+    )
+    assert failure.reason.startswith(f"{PLANAR3R_DIR.name}/flow.onnx: sha256 ")
+    with pytest.raises(ModelUnavailableError, match=r"failed verification .*/flow\.onnx"):
+        registry.get("planar3r", "position")
+
+
+def test_app_with_a_broken_model_serves_the_others_and_is_not_ready(tmp_path: Path) -> None:
+    models = copy_models(tmp_path)
+    shutil.copytree(REPO_MODELS_DIR / "iiwa14-position", models / "iiwa14-position")
+    (models / PLANAR3R_DIR.name / "kinematics.onnx").write_bytes(b"not a model")
+    body = {"robot": "iiwa14", "task": "position", "target": {"position": [0.5, 0.0, 0.6]}}
+    with make_client(models) as client:
+        assert client.get("/healthz").status_code == 200
+        ready = client.get("/readyz")
+        assert ready.status_code == 503
+        assert ready.json()["status"] == "not_ready"
+        assert [m.split("@")[0] for m in ready.json()["models"]] == ["iiwa14-position"]
+        (failed,) = ready.json()["failed"]
+        assert failed["name"] == "planar3r-position" and "kinematics.onnx" in failed["reason"]
+        assert client.post("/smm", json={**body, "num_samples": 50}).status_code == 200
+        refused = client.post(
+            "/smm", json={"robot": "planar3r", "task": "position", "target": {"position": [1, 0]}}
+        )
+        assert refused.status_code == 503
+        assert "planar3r-position" in refused.json()["detail"]
+        assert "kinematics.onnx" in refused.json()["detail"]
+        metrics = client.get("/metrics").text
+        assert 'smm_model_ready{model="planar3r-position"} 0.0' in metrics
+        assert 'smm_model_ready{model="iiwa14-position"} 1.0' in metrics
 
 
 def test_missing_file_and_changed_urdf_are_refused(tmp_path: Path) -> None:

@@ -1,0 +1,37 @@
+"""The OpenAPI document, completed with what only the loaded registry knows.
+
+`robot` and `task` are plain strings in the request model (an unknown one is a 404
+listing what is served), but the document names the served values as enums, so a
+client generator or a fuzzer sees the real choices. It is built once the registry
+has loaded and cached from then on.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fastapi import FastAPI
+from fastapi.openapi.utils import get_openapi
+
+from service.registry import Registry
+
+
+def served_openapi(app: FastAPI) -> dict[str, Any]:
+    """app.openapi(): FastAPI's document with the served robot and task names as enums."""
+    if app.openapi_schema is not None:
+        return app.openapi_schema
+    schema = get_openapi(
+        title=app.title,
+        version=app.version,
+        summary=app.summary,
+        description=app.description,
+        routes=app.routes,
+    )
+    registry: Registry | None = getattr(app.state, "registry", None)
+    if registry is None:  # not loaded yet: plain strings, and do not cache
+        return schema
+    request = schema["components"]["schemas"]["SmmRequest"]["properties"]
+    request["robot"]["enum"] = sorted({m.manifest.robot for m in registry.all()})
+    request["task"]["enum"] = sorted({m.manifest.task.name for m in registry.all()})
+    app.openapi_schema = schema
+    return schema

@@ -1,0 +1,17 @@
+"""openapi: the document names the served robots and tasks, and every error a route answers."""
+
+from __future__ import annotations
+
+from fastapi.testclient import TestClient
+
+
+def test_served_names_are_enums_and_errors_are_documented(client: TestClient) -> None:
+    spec = client.get("/openapi.json").json()
+    request = spec["components"]["schemas"]["SmmRequest"]["properties"]
+    assert request["robot"]["enum"] == ["iiwa14", "planar3r"]
+    assert request["task"]["enum"] == ["pose", "position"]
+    smm = spec["paths"]["/smm"]["post"]["responses"]
+    assert set(smm) == {"200", "400", "401", "404", "413", "415", "422", "503", "504"}
+    assert "Retry-After" in smm["503"]["headers"]
+    assert set(spec["paths"]["/readyz"]["get"]["responses"]) == {"200", "503"}
+    assert "text/plain" in spec["paths"]["/metrics"]["get"]["responses"]["200"]["content"]
