@@ -17,7 +17,8 @@ from service.errors import (
 from service.metrics import Metrics
 from service.pipeline.components import ComponentSummary
 from service.pipeline.deadline import Deadline
-from service.pipeline.run import Query, SmmResult, run
+from service.pipeline.run import Query, SmmResult, reference_array, run
+from service.pipeline.targets import validate_target
 from service.registry import ServedModel
 from service.schemas import (
     ComponentOut,
@@ -32,22 +33,25 @@ router = APIRouter(prefix="/smm", tags=["smm"])
 
 
 def to_query(body: SmmRequest, model: ServedModel, max_num_samples: int) -> Query:
-    """Fill the model's defaults into the request and check what depends on the model."""
-    defaults = model.manifest.defaults
-    num_samples = defaults.num_samples if body.num_samples is None else body.num_samples
-    if num_samples > max_num_samples:
-        raise LimitExceededError(
-            f"num_samples must be at most {max_num_samples} on this server, got {num_samples}"
-        )
-    if body.tolerance.orientation is not None and not model.manifest.task.orientation:
+    """Fill the model's defaults into the request and check what depends on the model.
+
+    Every check runs here, before the request waits for or takes a computation slot:
+    the shape checks first (422), then the server's limit on the work asked for (413).
+    """
+    manifest = model.manifest
+    defaults = manifest.defaults
+    orientation, tolerance = body.target.orientation, body.tolerance
+    orientation_wxyz = None if orientation is None else orientation.wxyz()
+    validate_target(manifest.task, body.target.position, orientation_wxyz)
+    if tolerance.orientation is not None and not manifest.task.orientation:
         raise RequestFieldError(
             ("body", "tolerance", "orientation"),
             "tolerance.orientation applies only to the pose task",
         )
-    orientation, tolerance = body.target.orientation, body.tolerance
-    return Query(
+    num_samples = defaults.num_samples if body.num_samples is None else body.num_samples
+    query = Query(
         position_m=body.target.position,
-        orientation_wxyz=None if orientation is None else orientation.wxyz(),
+        orientation_wxyz=orientation_wxyz,
         num_samples=num_samples,
         seed=body.seed,
         tolerance_position_m=(
@@ -61,6 +65,12 @@ def to_query(body: SmmRequest, model: ServedModel, max_num_samples: int) -> Quer
         reference_rad=body.reference_configuration,
         max_configurations_per_component=body.max_configurations_per_component,
     )
+    reference_array(query, manifest.joints.count)
+    if num_samples > max_num_samples:
+        raise LimitExceededError(
+            f"num_samples must be at most {max_num_samples} on this server, got {num_samples}"
+        )
+    return query
 
 
 def _component_out(index: int, summary: ComponentSummary) -> ComponentOut:

@@ -56,7 +56,8 @@ class _Stopwatch:
         self.ms[name] = (time.perf_counter() - start) * 1e3
 
 
-def _reference(query: Query, num_joints: int) -> FloatArray | None:
+def reference_array(query: Query, num_joints: int) -> FloatArray | None:
+    """The reference configuration (n,), or None; RequestFieldError on a wrong length."""
     if query.reference_rad is None:
         return None
     if len(query.reference_rad) != num_joints:
@@ -73,7 +74,7 @@ def run(model: ServedModel, query: Query, deadline: Deadline = NO_DEADLINE) -> S
     manifest = model.manifest
     defaults = manifest.defaults
     lower_rad, upper_rad, periodic = manifest.joints.arrays()
-    reference_rad = _reference(query, manifest.joints.count)
+    reference_rad = reference_array(query, manifest.joints.count)
     watch = _Stopwatch()
     start = time.perf_counter()
 

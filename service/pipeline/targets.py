@@ -51,13 +51,12 @@ def condition_features(
     return np.concatenate([position_m, rotation_6d(rotation)], axis=-1)
 
 
-def encode_target(
+def validate_target(
     task: TaskSpec,
-    condition: ConditionSpec,
     position_m: list[float],
     orientation_wxyz: tuple[float, float, float, float] | None,
-) -> Target:
-    """Check the target's shape against the task and build the normalised condition."""
+) -> None:
+    """Check the target's shape against the task; RequestFieldError names the field."""
     expected = len(task.position_axes)
     if len(position_m) != expected:
         axes = ", ".join(AXIS_NAMES[a] for a in task.position_axes)
@@ -66,27 +65,37 @@ def encode_target(
             f"target.position must have {expected} values ({axes}) for the {task.name} task "
             f"of this robot, got {len(position_m)}",
         )
-    rotation = None
     if task.orientation:
         if orientation_wxyz is None:
             raise RequestFieldError(
                 ("body", "target", "orientation"),
                 "target.orientation (a unit quaternion {w, x, y, z}) is required for the pose task",
             )
-        norm = float(np.linalg.norm(orientation_wxyz))
-        if abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:
+        with np.errstate(over="ignore"):  # a norm past float range is inf: refused below
+            norm = float(np.linalg.norm(orientation_wxyz))
+        if not abs(norm - 1.0) <= QUATERNION_NORM_TOLERANCE:
             raise RequestFieldError(
                 ("body", "target", "orientation"),
                 f"target.orientation must be a unit quaternion (norm within "
                 f"{QUATERNION_NORM_TOLERANCE} of 1, normalised then), got norm {norm:.6g}",
             )
-        rotation = quaternion_to_matrix(*orientation_wxyz)
     elif orientation_wxyz is not None:
         raise RequestFieldError(
             ("body", "target", "orientation"),
             "target.orientation is not allowed for the position task; use task 'pose' "
             "to constrain orientation",
         )
+
+
+def encode_target(
+    task: TaskSpec,
+    condition: ConditionSpec,
+    position_m: list[float],
+    orientation_wxyz: tuple[float, float, float, float] | None,
+) -> Target:
+    """Check the target's shape against the task and build the normalised condition."""
+    validate_target(task, position_m, orientation_wxyz)
+    rotation = None if orientation_wxyz is None else quaternion_to_matrix(*orientation_wxyz)
     position = np.asarray(position_m, dtype=np.float64)
     features = condition_features(
         task, position[None], None if rotation is None else rotation[None]
