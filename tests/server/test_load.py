@@ -1,0 +1,30 @@
+"""Load, briefly: concurrent clients mixing every served model get answers, and no errors.
+
+The CI version of `python -m tools.load` (same code): 6 clients for 10 s against a real
+server with default settings. Every request gets 200 (or, at worst, a 503 with
+Retry-After that the client honours); every model is answered; nothing else happens.
+"""
+
+from __future__ import annotations
+
+import asyncio
+
+from tools.load import format_report, request_bodies, run_load, summarise
+from tools.local_server import LocalServer
+
+CLIENTS = 6
+DURATION_S = 10.0
+
+
+def test_mixed_concurrent_load_has_no_errors() -> None:
+    bodies = request_bodies(seed=0)
+    with LocalServer() as server:
+        outcomes = asyncio.run(
+            run_load(server.url, bodies, CLIENTS, DURATION_S, backoff=True, timeout_s=60.0)
+        )
+    report = summarise(outcomes, CLIENTS, DURATION_S)
+    print(format_report(report))
+    assert report.errors == 0, report.statuses
+    assert set(report.by_model) == {"iiwa14-pose", "iiwa14-position", "planar3r-position"}
+    assert all(figures["answered"] > 0 for figures in report.by_model.values())
+    assert all(o.retry_after is not None for o in outcomes if o.status == 503)
