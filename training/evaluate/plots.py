@@ -3,7 +3,7 @@
 - pairwise joint projections of the service's answer against the exact SMM, for a planar
   3R target and an iiwa14 pose target;
 - FK-error histograms before and after correction for the 4-D case (iiwa14 position);
-- component-count accuracy against distance from the base (planar 3R, iiwa14 pose).
+- component-count accuracy against distance from the base (every model).
 
     python -m training.evaluate.plots --targets 100
 """
@@ -127,7 +127,9 @@ def main() -> None:
     lower, upper, _ = position.manifest.joints.arrays()
     q_targets = np.random.default_rng(12).uniform(lower, upper, (args.targets, len(lower)))
     fk_error_histogram(position, q_targets, args.out / "iiwa14-position-fk-error.png")
-    count_accuracy_plot([planar, pose], args.targets, args.out / "count-accuracy-by-distance.png")
+    count_accuracy_plot(
+        [planar, pose, position], args.targets, args.out / "count-accuracy-by-distance.png"
+    )
 
 
 if __name__ == "__main__":
