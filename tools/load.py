@@ -115,6 +115,7 @@ class Report:
     p99_ms: float
     by_model: dict[str, dict[str, float]] = field(default_factory=dict)
     machine: str = ""
+    server_rss_mib: dict[str, float] = field(default_factory=dict)  # when started here
 
 
 def percentiles_ms(latencies_s: list[float]) -> tuple[float, float, float]:
@@ -210,6 +211,11 @@ def format_report(report: Report) -> str:
         f"p99 {report.p99_ms:.0f} ms",
         f"statuses: {report.statuses}; errors: {report.errors}; 503s: {report.rejected_503}",
     ]
+    if report.server_rss_mib:
+        lines.append(
+            "server resident memory: "
+            + ", ".join(f"{k} {v:.0f} MiB" for k, v in report.server_rss_mib.items())
+        )
     for model, figures in report.by_model.items():
         lines.append(
             f"  {model}: {figures['answered']:.0f} answered, p50 {figures['p50_ms']:.0f} ms, "
@@ -261,7 +267,12 @@ def main(argv: list[str] | None = None) -> int:
         if args.api_key:
             settings["api_key"] = args.api_key
         with LocalServer(log_level="warning", **settings) as server:
+            rss_start = server.rss_bytes()
             report = load(server.url)
+            report.server_rss_mib = {
+                "at start": rss_start / 2**20,
+                "after the run": server.rss_bytes() / 2**20,
+            }
     print(format_report(report))
     if args.json:
         with open(args.json, "w") as handle:
