@@ -62,7 +62,8 @@ async def burst(url: str) -> list[tuple[int, float, str | None, float]]:
 
 
 def test_burst_gets_prompt_503s_and_latency_recovers() -> None:
-    with LocalServer(max_in_flight=1, max_queued=2, retry_after_s=2) as server:
+    # A long wait bound: the two that wait are served, so every 503 is a prompt "queue full".
+    with LocalServer(max_in_flight=1, max_queued=2, max_queue_wait_s=60, retry_after_s=2) as server:
         sequential_latencies_s(server.url, 3)  # warm up
         unloaded_s = statistics.median(sequential_latencies_s(server.url, 5))
 
@@ -91,9 +92,6 @@ def test_burst_gets_prompt_503s_and_latency_recovers() -> None:
         f"{[round(s * 1e3) for s in recovered_s]} ms (5 requests in {recovery_s:.1f} s)"
     )
     assert statistics.median(recovered_s) <= 2 * unloaded_s + 0.2
-    rejected = metric(scrape, "smm_requests_rejected_total", reason="queue_full") + metric(
-        scrape, "smm_requests_rejected_total", reason="queue_timeout"
-    )
-    assert rejected == len(refused)
+    assert metric(scrape, "smm_requests_rejected_total", reason="queue_full") == len(refused)
     assert metric(scrape, "smm_pipeline_in_flight") == 0
     assert metric(scrape, "smm_pipeline_waiting") == 0
