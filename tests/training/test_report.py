@@ -3,21 +3,24 @@
 The toroidal nearest-distance helper equals a brute-force joint-metric search; a small
 planar report finds the closed-form component counts, returns exact configurations within
 the limits, covers the closed-form SMM and writes both tables; the count-accuracy plot
-bins targets by distance as a hand count does; recall by arc length counts the exact
-components that hold a returned configuration.
+bins targets by distance as a hand count does; recall by size counts the exact
+components that hold a returned configuration; the 4-D ground truth has components and
+falls back to the generating configuration where the fibre is thinner than its grid.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from service.config import REPO_MODELS_DIR
 from service.pipeline.joint_space import joint_distance
-from service.registry import ServedModel
+from service.registry import ServedModel, load_model
 from training.evaluate.plots import count_accuracy_by_distance
 from training.evaluate.report import (
     MethodTarget,
     Truth,
     evaluate,
+    ground_truth,
     markdown,
     nearest_distance,
     recall_by_size,
@@ -79,3 +82,15 @@ def test_recall_by_size_counts_components_holding_an_answer() -> None:
     buckets = recall_by_size([answer], [truth])
     assert [b["components"] for b in buckets] == [1, 1, 1]
     assert [b["recall"] for b in buckets] == [1.0, 0.0, 1.0]
+
+
+def test_position_ground_truth_has_components_and_stands_in_at_the_workspace_edge() -> None:
+    model = load_model(REPO_MODELS_DIR / "iiwa14-position", threads=1)
+    inside = ground_truth(model, np.array([0.3, 0.8, 0.2, -1.2, 0.4, 0.9, 0.1]), seed=0)
+    assert inside.count >= 1 and inside.size is not None and len(inside.points) > 1000
+    # The arm straight out: the target is at full reach, the fibre is thinner than any
+    # grid, and the generating configuration stands for it as one component.
+    straight = np.array([0.3, 0.5, 0.0, 0.0, 0.0, 0.0, 0.0])
+    edge = ground_truth(model, straight, seed=0)
+    assert edge.count == 1
+    np.testing.assert_array_equal(edge.points, straight[None])

@@ -118,6 +118,10 @@ def ground_truth(model: ServedModel, q_target: np.ndarray, seed: int) -> Truth:
             np.array([c.arc_length_rad for c in exact]),
         )
     fibre = position_smm(position, seed=seed)
+    if fibre.count == 0:
+        # At the edge of the workspace (arm straight) the fibre is thinner than the grid
+        # and no node lands on it: the generating configuration stands for it.
+        return Truth(q_target[None], 1, np.zeros(1, int), np.ones(1), SHARE_BUCKETS, 6)
     return Truth(fibre.q_rad, fibre.count, fibre.component, fibre.share, SHARE_BUCKETS, 6)
 
 
