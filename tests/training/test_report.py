@@ -22,6 +22,7 @@ from training.evaluate.report import (
     evaluate,
     ground_truth,
     markdown,
+    missed_components,
     nearest_distance,
     recall_by_size,
 )
@@ -82,6 +83,8 @@ def test_recall_by_size_counts_components_holding_an_answer() -> None:
     buckets = recall_by_size([answer], [truth])
     assert [b["components"] for b in buckets] == [1, 1, 1]
     assert [b["recall"] for b in buckets] == [1.0, 0.0, 1.0]
+    # The 1.0 rad component is missed; the 0.3 rad one is below the listed sizes anyway.
+    assert missed_components([answer], [truth]) == [{"index": 0, "sizes": [1.0]}]
 
 
 def test_position_ground_truth_has_components_and_stands_in_at_the_workspace_edge() -> None:

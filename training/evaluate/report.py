@@ -298,20 +298,27 @@ def summarise(
     return summary
 
 
-def recall_by_size(answers: list[MethodTarget], truths: list[Truth]) -> list[dict[str, object]]:
-    """Fraction of exact components holding a returned configuration, by component size.
+def found_components(answer: MethodTarget, truth: Truth) -> np.ndarray:
+    """(C,) whether each exact component holds a returned configuration.
 
     A returned configuration belongs to the exact component of its nearest exact point.
     """
+    assert truth.point_component is not None and truth.size is not None
+    found = np.zeros(len(truth.size), dtype=bool)
+    if len(answer.returned):
+        n = truth.membership_joints  # iiwa: no periodic joint
+        nearest = cKDTree(truth.points[:, :n]).query(answer.returned[:, :n])[1]
+        found[truth.point_component[nearest]] = True
+    return found
+
+
+def recall_by_size(answers: list[MethodTarget], truths: list[Truth]) -> list[dict[str, object]]:
+    """Fraction of exact components holding a returned configuration, by component size."""
     edges = truths[0].size_edges
     found_by_bucket = [[0, 0] for _ in edges[:-1]]
     for answer, truth in zip(answers, truths, strict=True):
-        assert truth.point_component is not None and truth.size is not None
-        found = np.zeros(len(truth.size), dtype=bool)
-        if len(answer.returned):
-            n = truth.membership_joints  # iiwa: no periodic joint
-            nearest = cKDTree(truth.points[:, :n]).query(answer.returned[:, :n])[1]
-            found[truth.point_component[nearest]] = True
+        assert truth.size is not None
+        found = found_components(answer, truth)
         bucket = np.digitize(truth.size, edges[1:-1])
         for b in range(len(found_by_bucket)):
             found_by_bucket[b][0] += int(found[bucket == b].sum())
@@ -324,6 +331,17 @@ def recall_by_size(answers: list[MethodTarget], truths: list[Truth]) -> list[dic
         }
         for (hits, total), low, high in zip(found_by_bucket, edges[:-1], edges[1:], strict=True)
     ]
+
+
+def missed_components(answers: list[MethodTarget], truths: list[Truth]) -> list[dict[str, object]]:
+    """Targets where an exact component above the smallest size bucket holds no answer."""
+    missed = []
+    for index, (answer, truth) in enumerate(zip(answers, truths, strict=True)):
+        assert truth.size is not None
+        lost = ~found_components(answer, truth) & (truth.size >= truth.size_edges[1])
+        if lost.any():
+            missed.append({"index": index, "sizes": np.round(truth.size[lost], 3).tolist()})
+    return missed
 
 
 def distance_from_base_m(model: ServedModel, q_targets: np.ndarray) -> np.ndarray:
@@ -383,6 +401,8 @@ def evaluate(
         },
     }
     answers = methods["FM + DLS"]
+    if truths[0].size is not None:
+        report["missed_component_targets"] = missed_components(answers, truths)
     if answers[0].labels is not None:
         report["wrong_count_targets"] = [
             {
@@ -419,10 +439,17 @@ def _recall_lines(methods: dict[str, dict[str, Any]], size_name: str) -> list[st
 
 def _listed_targets(report: dict[str, Any]) -> list[str]:
     boundary = report["near_boundary"]
+    served = boundary["FM + DLS"]
+    count = served.get("component_count") or {}
+    coverage = served.get("coverage_rad") or {}
     lines = [
         "",
         f"Near-boundary targets (outer 10 % of the reach): {boundary['targets']}, indices "
-        f"{boundary['indices']}.",
+        f"{boundary['indices']}. There the service (FM + DLS) keeps "
+        f"{_cell(served['keep_rate'])} of its samples, gets the count right on "
+        f"{_cell(count.get('right'))} of the targets (too many {_cell(count.get('too_many'))}, "
+        f"too few {_cell(count.get('too_few'))}) and covers the exact SMM to p95 "
+        f"{_cell(coverage.get('p95'))} rad.",
     ]
     wrong = report.get("wrong_count_targets")
     if wrong is not None:
@@ -433,6 +460,21 @@ def _listed_targets(report: dict[str, Any]) -> list[str]:
         lines.append(
             f"Targets with the wrong component count (returned for exact): {len(wrong)}"
             + (f": {listed}{more}." if wrong else ".")
+        )
+    missed = report.get("missed_component_targets")
+    if missed is not None:
+        edges = report["methods"]["FM + DLS"]["recall_by_size"]
+        smallest = edges[1]["size"].split("-")[0] if len(edges) > 1 else "0"
+        near = set(boundary["indices"])
+        listed = ", ".join(
+            f"{m['index']}{'*' if m['index'] in near else ''} ({', '.join(map(str, m['sizes']))})"
+            for m in missed[:40]
+        )
+        more = f", and {len(missed) - 40} more" if len(missed) > 40 else ""
+        lines.append(
+            f"Targets where the service missed an exact component of {report.get('component_size')}"
+            f" at least {smallest} (the missed sizes; * near the boundary): {len(missed)}"
+            + (f": {listed}{more}." if missed else ".")
         )
     return lines
 
@@ -550,6 +592,9 @@ def main() -> None:
     parser.add_argument(
         "--table-2", action="store_true", help="print Table 2 of every report in --out; no run"
     )
+    parser.add_argument(
+        "--markdown-only", action="store_true", help="rewrite the .md from the model's .json"
+    )
     args = parser.parse_args()
     if args.table_2:
         reports = {p.stem: json.loads(p.read_text()) for p in sorted(args.out.glob("*.json"))}
@@ -557,6 +602,10 @@ def main() -> None:
         return
     if args.model is None:
         parser.error("--model is required (or --table-2)")
+    if args.markdown_only:
+        saved = json.loads((args.out / f"{args.model}.json").read_text())
+        (args.out / f"{args.model}.md").write_text(markdown(args.model, saved))
+        return
     model = load_model(REPO_MODELS_DIR / args.model, threads=0)
     report = evaluate(model, args.targets, args.seed, args.num_samples)
     args.out.mkdir(parents=True, exist_ok=True)
