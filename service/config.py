@@ -22,6 +22,13 @@ class Settings(BaseSettings):
     models_dir: Path = Field(REPO_MODELS_DIR, description="Directory of <model-id>/ folders.")
     host: str = Field("127.0.0.1", description="Interface uvicorn binds to.")
     port: int = Field(8000, ge=1, le=65535)
+    workers: int = Field(
+        1,
+        ge=1,
+        description="Server processes (`smm-serve` only), each loading every model. The "
+        "limits below and /metrics are per process; one process already uses every core "
+        "through onnxruntime's threads, so more only helps on machines with many cores.",
+    )
     max_num_samples: int = Field(
         10_000, ge=1, description="Largest num_samples a request may ask for (413 beyond)."
     )
@@ -29,7 +36,7 @@ class Settings(BaseSettings):
         0,
         ge=0,
         description="onnxruntime intra-op threads per session; 0 shares the cores among the "
-        "max_in_flight computations (cores // max_in_flight, at least 1).",
+        "computations that may run at once (cores // (workers * max_in_flight), at least 1).",
     )
     log_level: LogLevel = Field(
         "info", description="Level of the service's JSON logs and of uvicorn's."
@@ -84,7 +91,7 @@ class Settings(BaseSettings):
         """onnx_threads, or the cores shared among the computations that may run at once."""
         if self.onnx_threads:
             return self.onnx_threads
-        return max(1, (os.cpu_count() or 1) // self.max_in_flight)
+        return max(1, (os.cpu_count() or 1) // (self.workers * self.max_in_flight))
 
     api_key: SecretStr | None = Field(
         None,

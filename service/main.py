@@ -6,6 +6,7 @@ import logging
 import math
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
+from typing import Any
 
 import uvicorn
 from fastapi import FastAPI, Request
@@ -163,15 +164,22 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 def serve() -> None:
     """Console entry point `smm-serve`: run uvicorn with the settings from the environment.
 
-    On SIGTERM uvicorn stops accepting connections and waits up to
-    SMM_SHUTDOWN_DRAIN_S for the requests in flight to finish.
+    It binds SMM_HOST:SMM_PORT and runs SMM_WORKERS processes; with more than one, each
+    worker builds its own app from the same environment. uvicorn's own access log is
+    off: the service writes one JSON line per request, with its request id. On SIGTERM
+    uvicorn stops accepting connections and waits up to SMM_SHUTDOWN_DRAIN_S for the
+    requests in flight to finish. This is the container's command (Dockerfile).
     """
     settings = Settings()
-    uvicorn.run(
-        create_app(settings),
-        host=settings.host,
-        port=settings.port,
-        log_level=settings.log_level,
-        access_log=False,  # the service writes its own JSON access log, with request ids
-        timeout_graceful_shutdown=math.ceil(settings.shutdown_drain_s),
-    )
+    options: dict[str, Any] = {
+        "host": settings.host,
+        "port": settings.port,
+        "log_level": settings.log_level,
+        "access_log": False,
+        "timeout_graceful_shutdown": math.ceil(settings.shutdown_drain_s),
+    }
+    if settings.workers == 1:
+        uvicorn.run(create_app(settings), **options)
+    else:
+        # Worker processes import the app by name: an app object cannot be shared.
+        uvicorn.run("service.main:create_app", factory=True, workers=settings.workers, **options)
