@@ -1,23 +1,41 @@
-# The SMM service: FastAPI + onnxruntime, bundled models, no torch.
+# The SMM service: FastAPI + onnxruntime and the bundled models. No torch, no build tools,
+# no pip (nor its cache) in the final image; runs as uid 10001. Every setting is an SMM_
+# environment variable (service/config.py), e.g. docker run -e SMM_WORKERS=2.
+# tools/container_test.py builds and runs this file (.ci/run runs it).
+
+# Build stage: the service and its run-time dependencies, at the versions of
+# constraints.txt (the README's install uses the same file), into a venv; then pip and
+# setuptools leave the venv, and so do the dependencies' own test suites (65 MB).
 FROM python:3.11-slim AS build
 WORKDIR /src
-COPY pyproject.toml README.md ./
+COPY constraints.txt pyproject.toml README.md ./
 COPY service ./service
-COPY training ./training
 RUN python -m venv /opt/venv \
-    && /opt/venv/bin/pip install --no-cache-dir . \
+    && /opt/venv/bin/pip install --no-cache-dir --disable-pip-version-check \
+        --constraint constraints.txt . \
+    && /opt/venv/bin/pip uninstall --yes --disable-pip-version-check pip setuptools \
+    && find /opt/venv -depth -type d -name tests -exec rm -rf {} + \
     && /opt/venv/bin/python -c "import importlib.util as u; assert u.find_spec('torch') is None"
 
+# Final stage: the base image, the venv and the models; nothing else from the build.
 FROM python:3.11-slim
-RUN useradd --create-home --uid 10001 smm
+RUN useradd --system --uid 10001 --no-create-home --shell /usr/sbin/nologin smm
 COPY --from=build /opt/venv /opt/venv
 WORKDIR /app
+# Root-owned and read-only to the service; their sha256 is checked against the manifests
+# at start-up, and /readyz answers 503 naming any model that fails.
 COPY models ./models
 ENV PATH=/opt/venv/bin:$PATH \
     PYTHONUNBUFFERED=1 \
-    SMM_MODELS_DIR=/app/models
+    PYTHONDONTWRITEBYTECODE=1 \
+    SMM_MODELS_DIR=/app/models \
+    SMM_HOST=0.0.0.0 \
+    SMM_PORT=8000
 USER 10001
 EXPOSE 8000
-HEALTHCHECK --interval=30s --timeout=5s --start-period=20s --retries=3 \
-    CMD ["python", "-c", "import urllib.request; urllib.request.urlopen('http://127.0.0.1:8000/healthz', timeout=4)"]
-CMD ["uvicorn", "service.main:create_app", "--factory", "--host", "0.0.0.0", "--port", "8000"]
+# Asks /healthz on SMM_PORT, so a port set at `docker run` keeps the check right.
+HEALTHCHECK --interval=30s --timeout=5s --start-period=30s --retries=3 \
+    CMD ["python", "-m", "service.healthcheck"]
+# smm-serve: uvicorn with SMM_PORT, SMM_WORKERS, one JSON access log (uvicorn's own is off)
+# and a graceful shutdown that drains requests in flight for SMM_SHUTDOWN_DRAIN_S.
+CMD ["smm-serve"]

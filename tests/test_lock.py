@@ -1,0 +1,57 @@
+"""One lock for every install: constraints.txt is current, and every install uses it.
+
+The README's two set-up commands, `.ci/run` and the Dockerfile all pass constraints.txt
+to pip, so the container runs the versions the tests ran. The file must pin exactly the
+dependency closure installed here (`python -m tools.lock` regenerates it), and every pin
+must satisfy what pyproject.toml asks.
+"""
+
+import re
+import tomllib
+from pathlib import Path
+
+from packaging.requirements import Requirement
+from packaging.utils import canonicalize_name
+
+from tools import lock
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def setup_commands() -> list[str]:
+    """The shell commands of the README's "Set up" section."""
+    readme = (ROOT / "README.md").read_text()
+    section = readme.split("\n## Set up\n", 1)[1].split("\n## ", 1)[0]
+    return re.findall(r"```sh\n(.*?)\n```", section, flags=re.DOTALL)
+
+
+def test_constraints_pin_exactly_the_installed_closure() -> None:
+    stale = lock.differences(lock.read(), lock.closure())
+    assert not stale, "constraints.txt is stale; run .venv/bin/python -m tools.lock:\n" + "\n".join(
+        stale
+    )
+
+
+def test_every_dependency_is_pinned_within_what_pyproject_asks() -> None:
+    pins = lock.read()
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    declared = project["dependencies"] + [
+        d for extra in project["optional-dependencies"].values() for d in extra
+    ]
+    for line in declared:
+        requirement = Requirement(line)
+        pinned = pins.get(canonicalize_name(requirement.name))
+        assert pinned is not None, f"{requirement.name} is not in constraints.txt"
+        assert requirement.specifier.contains(pinned, prereleases=True), (line, pinned)
+
+
+def test_readme_ci_and_dockerfile_install_with_the_constraints() -> None:
+    commands = setup_commands()
+    assert len(commands) == 2, "the README starts with exactly two set-up commands"
+    for command in commands:
+        assert "pip install -c constraints.txt -e " in command, command
+    serve, test = commands
+    assert serve.endswith(".venv/bin/smm-serve")
+    ci = (ROOT / ".ci" / "run").read_text()
+    assert test.replace("pip install -c", "pip install -q -c") in ci
+    assert "--constraint constraints.txt" in (ROOT / "Dockerfile").read_text()
