@@ -7,6 +7,7 @@ of uvicorn's own, and stop on SIGTERM through the app's shutdown.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import signal
@@ -30,6 +31,21 @@ def worker_processes(pid: int) -> list[int]:
         for child in text.split()
         if b"spawn_main" in Path(f"/proc/{child}/cmdline").read_bytes()
     ]
+
+
+def stop(server: subprocess.Popen[bytes]) -> None:
+    """SIGTERM, so the supervisor stops its workers; SIGKILL to all of them if it hangs."""
+    if server.poll() is not None:
+        return
+    workers = worker_processes(server.pid)
+    server.send_signal(signal.SIGTERM)
+    try:
+        server.wait(timeout=60)
+    except subprocess.TimeoutExpired:
+        for pid in [*workers, server.pid]:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
+        server.wait()
 
 
 def test_smm_serve_with_two_workers_from_the_environment(tmp_path: Path) -> None:
@@ -67,9 +83,7 @@ def test_smm_serve_with_two_workers_from_the_environment(tmp_path: Path) -> None
             server.send_signal(signal.SIGTERM)
             assert server.wait(timeout=60) in (0, -signal.SIGTERM)
         finally:
-            if server.poll() is None:
-                server.kill()
-                server.wait()
+            stop(server)
     text = log_path.read_text()
     assert text.count('"message": "request"') >= 5  # readiness polls and the four answers
     assert 'HTTP/1.1" 200' not in text  # uvicorn's own access log is off
