@@ -11,6 +11,8 @@ is the arm angle psi. For every psi there are 8 configurations: the shoulder twi
 (q1 + pi, -q2), the elbow twin (q3 + pi, -q4) and the wrist twin (q5 + pi, -q6, q7 + pi).
 Sweeping psi around the circle for each of the 8 branches gives the whole unconstrained
 fibre of the pose (8 closed loops); the joint limits cut it into the feasible components.
+For a position alone the same IK, swept over the end-effector axis as well, gives the
+4-D fibre (`position_smm`).
 
 Derivation (standard DH, a = 0): the unit vector S->E is z_2 = (c1 s2, s1 s2, c2); in
 frame 2, E->W is z_4 = (-c3 s4, -s3 s4, c4); and R_47 = R_04^T R has third column
@@ -22,6 +24,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
 D_M = np.array([0.360, 0.0, 0.420, 0.0, 0.400, 0.0, 0.081])  # seed Table 1; a = 0
 ALPHA_RAD = np.radians([-90.0, 90.0, 90.0, -90.0, -90.0, 90.0, 0.0])
@@ -240,10 +245,6 @@ def position_smm(
     `num_points` nodes are drawn with the sphere's area weight and given q7 uniform in
     its range.
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-    from scipy.spatial import cKDTree
-
     n_azimuth, n_polar, n_psi = grid_steps, grid_steps // 2, grid_steps
     azimuth = np.linspace(-np.pi, np.pi, n_azimuth, endpoint=False)
     polar = (np.arange(n_polar) + 0.5) * np.pi / n_polar
