@@ -16,18 +16,11 @@ import time
 import httpx
 import pytest
 
+from tests.server.bodies import POSE
 from tests.service.test_observability import metric
 from tools.local_server import LocalServer
 
-SLOW = {
-    "robot": "iiwa14",
-    "task": "pose",
-    "target": {
-        "position": [0.5, 0.1, 0.6],
-        "orientation": {"w": 0.0, "x": 1.0, "y": 0.0, "z": 0.0},
-    },
-    "num_samples": 4000,
-}
+SLOW = {**POSE, "num_samples": 4000}
 
 
 def test_sigterm_lets_the_request_in_flight_finish() -> None:

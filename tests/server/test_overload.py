@@ -16,19 +16,12 @@ import time
 
 import httpx
 
+from tests.server.bodies import PLANAR
+from tests.server.bodies import POSE as IIWA
 from tests.service.test_observability import metric
 from tools.local_server import LocalServer
 
 BURST = 30
-PLANAR = {"robot": "planar3r", "task": "position", "target": {"position": [1.2, 0.4]}}
-IIWA = {
-    "robot": "iiwa14",
-    "task": "pose",
-    "target": {
-        "position": [0.5, 0.1, 0.6],
-        "orientation": {"w": 0.0, "x": 1.0, "y": 0.0, "z": 0.0},
-    },
-}
 
 
 def sequential_latencies_s(url: str, count: int) -> list[float]:

@@ -15,23 +15,13 @@ from typing import Any
 
 import httpx
 
+from tests.server.bodies import PLANAR, POSE, POSITION
 from tools.local_server import LocalServer
 
 SOAK_BOUND_BYTES = 48 * 2**20  # 48 MiB over the warmed-up RSS
 REQUESTS = 150
 CLIENTS = 4
 SIZES = (50, 300, 1000)
-
-PLANAR = {"robot": "planar3r", "task": "position", "target": {"position": [1.2, 0.4]}}
-POSE = {
-    "robot": "iiwa14",
-    "task": "pose",
-    "target": {
-        "position": [0.5, 0.1, 0.6],
-        "orientation": {"w": 0.0, "x": 1.0, "y": 0.0, "z": 0.0},
-    },
-}
-POSITION = {"robot": "iiwa14", "task": "position", "target": {"position": [0.5, 0.0, 0.6]}}
 
 
 def requests() -> list[tuple[str, Any]]:
