@@ -8,7 +8,7 @@ from pathlib import Path
 from pydantic import Field, SecretStr
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
-from service.logs import LogLevel
+from service.observability.logs import LogLevel
 
 REPO_MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
 

@@ -15,19 +15,19 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from service.admission import Admission
 from service.api import health, metrics, robots, smm
-from service.auth import ApiKeyMiddleware
+from service.api.schemas import SmmRequest
 from service.config import Settings
 from service.errors import OverloadedError, RequestFieldError, SmmError
-from service.http_limits import RequestLimitsMiddleware
-from service.logs import configure_logging, log_event
-from service.metrics import Metrics
-from service.openapi import served_openapi
-from service.registry import Registry
-from service.request_context import RequestContextMiddleware
-from service.schemas import SmmRequest
-from service.validation import explain
+from service.http.admission import Admission
+from service.http.auth import ApiKeyMiddleware
+from service.http.limits import RequestLimitsMiddleware
+from service.http.openapi import served_openapi
+from service.http.request_context import RequestContextMiddleware
+from service.http.validation import explain
+from service.models.registry import Registry
+from service.observability.logs import configure_logging, log_event
+from service.observability.metrics import Metrics
 
 # (method, path) of every route that reads a JSON body: the body limit and the content
 # type apply to these (a test checks the set against the OpenAPI document).

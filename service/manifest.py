@@ -1,6 +1,6 @@
 """The model manifest: what `models/<model-id>/manifest.json` records.
 
-One schema, written by `training.export` and read by `service.registry`. It holds
+One schema, written by `training.export` and read by `service.models.registry`. It holds
 everything needed to use a model (joints, task, condition layout, normalisation,
 defaults) and to trust it (training budget, measured quality, sha256 of every file).
 """

@@ -10,7 +10,7 @@ from fastapi.testclient import TestClient
 
 from service.config import REPO_MODELS_DIR, Settings
 from service.main import create_app
-from service.registry import ServedModel, load_model
+from service.models.registry import ServedModel, load_model
 
 PLANAR3R_DIR = REPO_MODELS_DIR / "planar3r-position"
 

@@ -9,7 +9,7 @@ What it checks, over HTTP on 127.0.0.1 against the image's CMD (run with
   models/, each loaded and verified (sha256 against its manifest) at start-up;
 - POST /smm for every bundled model: every returned configuration reaches the target
   within the requested tolerance by a forward kinematics independent of the image (the
-  planar 3R's closed form; the iiwa14's DH table, tests/iiwa14_dh.py), lies within the
+  planar 3R's closed form; the iiwa14's DH table, tests/support/iiwa14_dh.py), lies within the
   joint limits, and the configuration the target was made from is close to an answer;
 - settings reach the process from the environment (`docker run -e`): SMM_PORT,
   SMM_API_KEY (401 without the key, 200 with it) and SMM_MAX_NUM_SAMPLES (413 beyond);
@@ -59,8 +59,8 @@ import httpx
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from tests.iiwa14_dh import LIMITS_RAD as IIWA14_LIMITS_RAD
-from tests.iiwa14_dh import iiwa14_pose, rotation_angle_rad
+from tests.support.iiwa14_dh import LIMITS_RAD as IIWA14_LIMITS_RAD
+from tests.support.iiwa14_dh import iiwa14_pose, rotation_angle_rad
 from tools.local_server import LOOPBACK, free_port
 
 ROOT = Path(__file__).resolve().parent.parent

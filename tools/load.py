@@ -34,7 +34,7 @@ from scipy.spatial.transform import Rotation
 
 from service.config import REPO_MODELS_DIR
 from service.manifest import KINEMATICS_FILE, MANIFEST_FILE, Manifest
-from service.onnx_models import OnnxKinematics, open_session
+from service.models.sessions import OnnxKinematics, open_session
 from tools.local_server import LocalServer
 
 TARGETS_PER_MODEL = 64

@@ -28,9 +28,9 @@ from service.manifest import (
     TaskSpec,
     TrainingRecord,
 )
-from service.onnx_models import FLOW_INPUTS, FLOW_OUTPUT, KINEMATICS_INPUT, KINEMATICS_OUTPUTS
+from service.models.registry import load_model, sha256_of
+from service.models.sessions import FLOW_INPUTS, FLOW_OUTPUT, KINEMATICS_INPUT, KINEMATICS_OUTPUTS
 from service.pipeline.targets import condition_names
-from service.registry import load_model, sha256_of
 from training.config import TrainConfig
 from training.data import FlowData
 from training.defaults import serving_defaults

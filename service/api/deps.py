@@ -6,10 +6,10 @@ from typing import Annotated
 
 from fastapi import Depends, Request
 
-from service.admission import Admission
 from service.config import Settings
-from service.metrics import Metrics
-from service.registry import Registry
+from service.http.admission import Admission
+from service.models.registry import Registry
+from service.observability.metrics import Metrics
 
 
 def get_registry(request: Request) -> Registry:

@@ -5,7 +5,7 @@ from __future__ import annotations
 from fastapi import APIRouter, Request
 from fastapi.responses import JSONResponse
 
-from service.schemas import FailedModelOut, Liveness, Readiness
+from service.api.schemas import FailedModelOut, Liveness, Readiness
 
 router = APIRouter(tags=["health"])
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 from fastapi import APIRouter
 
 from service.api.deps import RegistryDep
-from service.registry import ServedModel
-from service.schemas import RobotModel, RobotsResponse, error_responses
+from service.api.schemas import RobotModel, RobotsResponse, error_responses
+from service.models.registry import ServedModel
 
 router = APIRouter(prefix="/robots", tags=["robots"])
 

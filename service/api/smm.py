@@ -8,26 +8,18 @@ from fastapi import APIRouter, Request, Response
 from starlette.concurrency import run_in_threadpool
 
 from service.api.deps import AdmissionDep, MetricsDep, RegistryDep, SettingsDep
-from service.errors import (
-    DeadlineExceededError,
-    LimitExceededError,
-    OverloadedError,
-    RequestFieldError,
-)
-from service.metrics import Metrics
-from service.pipeline.components import ComponentSummary
-from service.pipeline.deadline import Deadline
-from service.pipeline.run import Query, SmmResult, reference_array, run
-from service.pipeline.targets import validate_target
-from service.registry import ServedModel
-from service.schemas import (
+from service.api.schemas import (
     ComponentOut,
     Counts,
     SmmRequest,
     SmmResponse,
-    Timings,
     error_responses,
 )
+from service.errors import DeadlineExceededError, LimitExceededError, OverloadedError
+from service.models.registry import ServedModel
+from service.pipeline.deadline import Deadline
+from service.pipeline.run import run
+from service.pipeline.types import ComponentSummary, Query, SmmResult
 
 router = APIRouter(prefix="/smm", tags=["smm"])
 
@@ -38,37 +30,21 @@ def to_query(body: SmmRequest, model: ServedModel, max_num_samples: int) -> Quer
     Every check runs here, before the request waits for or takes a computation slot:
     the shape checks first (422), then the server's limit on the work asked for (413).
     """
-    manifest = model.manifest
-    defaults = manifest.defaults
-    orientation, tolerance = body.target.orientation, body.tolerance
-    orientation_wxyz = None if orientation is None else orientation.wxyz()
-    validate_target(manifest.task, body.target.position, orientation_wxyz)
-    if tolerance.orientation is not None and not manifest.task.orientation:
-        raise RequestFieldError(
-            ("body", "tolerance", "orientation"),
-            "tolerance.orientation applies only to the pose task",
-        )
-    num_samples = defaults.num_samples if body.num_samples is None else body.num_samples
-    query = Query(
+    orientation = body.target.orientation
+    query = Query.for_model(
+        model.manifest,
         position_m=body.target.position,
-        orientation_wxyz=orientation_wxyz,
-        num_samples=num_samples,
+        orientation_wxyz=None if orientation is None else orientation.wxyz(),
+        num_samples=body.num_samples,
         seed=body.seed,
-        tolerance_position_m=(
-            defaults.tolerance_position_m if tolerance.position is None else tolerance.position
-        ),
-        tolerance_orientation_rad=(
-            defaults.tolerance_orientation_rad
-            if tolerance.orientation is None
-            else tolerance.orientation
-        ),
+        tolerance_position_m=body.tolerance.position,
+        tolerance_orientation_rad=body.tolerance.orientation,
         reference_rad=body.reference_configuration,
         max_configurations_per_component=body.max_configurations_per_component,
     )
-    reference_array(query, manifest.joints.count)
-    if num_samples > max_num_samples:
+    if query.num_samples > max_num_samples:
         raise LimitExceededError(
-            f"num_samples must be at most {max_num_samples} on this server, got {num_samples}"
+            f"num_samples must be at most {max_num_samples} on this server, got {query.num_samples}"
         )
     return query
 
@@ -91,7 +67,6 @@ def _component_out(index: int, summary: ComponentSummary) -> ComponentOut:
 
 def to_response(model: ServedModel, result: SmmResult) -> SmmResponse:
     manifest = model.manifest
-    t = result.timings
     return SmmResponse(
         robot=manifest.robot,
         task=manifest.task.name,
@@ -101,14 +76,7 @@ def to_response(model: ServedModel, result: SmmResult) -> SmmResponse:
         status="ok" if result.components else "no_solution",
         counts=Counts(**vars(result.counts)),
         components=[_component_out(i, s) for i, s in enumerate(result.components)],
-        timings_ms=Timings(
-            encode=t.encode_ms,
-            sample=t.sample_ms,
-            correct=t.correct_ms,
-            accept=t.accept_ms,
-            cluster=t.cluster_ms,
-            total=t.total_ms,
-        ),
+        timings_ms=result.timings.as_dict(),
     )
 
 
@@ -116,26 +84,6 @@ def answer(model: ServedModel, query: Query, deadline: Deadline) -> tuple[bytes,
     """Run the pipeline and encode the JSON answer (in a worker thread: both are CPU work)."""
     result = run(model, query, deadline)
     return to_response(model, result).model_dump_json().encode(), result
-
-
-def _observe(metrics: Metrics, model: ServedModel, result: SmmResult) -> None:
-    t, counts = result.timings, result.counts
-    metrics.observe_pipeline(
-        model.manifest.model_id,
-        {
-            "encode": t.encode_ms,
-            "sample": t.sample_ms,
-            "correct": t.correct_ms,
-            "accept": t.accept_ms,
-            "cluster": t.cluster_ms,
-            "total": t.total_ms,
-        },
-        {
-            "accepted": counts.accepted,
-            "rejected_tolerance": counts.rejected_tolerance,
-            "rejected_joint_limits": counts.rejected_joint_limits,
-        },
-    )
 
 
 @router.post(
@@ -168,5 +116,5 @@ async def post_smm(
     except DeadlineExceededError:
         metrics.rejected.labels("deadline").inc()
         raise
-    _observe(metrics, model, result)
+    metrics.observe_pipeline(model.manifest.model_id, result.timings, result.counts)
     return Response(content=content, media_type="application/json")

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from service.pipeline.types import Acceptance, BoolArray, Correction, FloatArray
+from service.pipeline.arrays import BoolArray, FloatArray
+from service.pipeline.types import Acceptance, Correction
 
 
 def accept(

@@ -7,26 +7,12 @@ still cover the whole component.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
+from service.pipeline.arrays import BoolArray, FloatArray
 from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.joint_space import joint_distance, wrap_to_pi
-from service.pipeline.types import BoolArray, Component, FloatArray
-
-
-@dataclass(frozen=True)
-class ComponentSummary:
-    size: int
-    representative_rad: FloatArray  # (n,) the member nearest the component's mean
-    configurations_rad: FloatArray  # (k, n) all members, or a covering subset when capped
-    joint_min_rad: FloatArray  # (n,)
-    joint_max_rad: FloatArray  # (n,)
-    max_position_error_m: float
-    max_orientation_error_rad: float
-    distance_to_reference_rad: float | None
-    nearest_to_reference_rad: FloatArray | None  # (n,)
+from service.pipeline.types import Component, ComponentSummary
 
 
 def joint_mean(q_rad: FloatArray, periodic: BoolArray) -> FloatArray:

@@ -9,11 +9,12 @@ from __future__ import annotations
 import numpy as np
 
 from service.manifest import TaskSpec
+from service.pipeline.arrays import BoolArray, FloatArray
 from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.joint_space import wrap_periodic
 from service.pipeline.rotations import rotation_error
 from service.pipeline.targets import Target
-from service.pipeline.types import BoolArray, Correction, FloatArray, Kinematics, KinematicsResult
+from service.pipeline.types import Correction, Kinematics, KinematicsResult
 
 
 def dls_step(

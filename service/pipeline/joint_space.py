@@ -8,11 +8,12 @@ merge components that are really separate.
 
 from __future__ import annotations
 
-import numpy as np
-from numpy.typing import NDArray
+from dataclasses import dataclass
 
-FloatArray = NDArray[np.float64]
-BoolArray = NDArray[np.bool_]
+import numpy as np
+from scipy.spatial import cKDTree
+
+from service.pipeline.arrays import BoolArray, FloatArray
 
 TWO_PI = 2.0 * np.pi
 
@@ -37,3 +38,37 @@ def joint_distance(q_a_rad: FloatArray, q_b_rad: FloatArray, periodic: BoolArray
     """Joint-metric distance (...,) in rad: sqrt of the sum of squared joint differences."""
     dq_rad = joint_difference(q_a_rad, q_b_rad, periodic)
     return np.sqrt(np.sum(dq_rad * dq_rad, axis=-1))
+
+
+@dataclass(frozen=True)
+class JointBox:
+    """Coordinates in which a KD-tree's metric is the joint metric: toroidal on periodic joints.
+
+    Periodic joints map onto [0, 2 pi) with a periodic box; limited joints are shifted into
+    a box `margin_rad` wider than the points' span, so two points are never closer across
+    that box's edge than `margin_rad`: neighbours up to that distance are exact.
+    """
+
+    box_rad: FloatArray  # (n,) the KD-tree's boxsize
+    shift_rad: FloatArray  # (n,) subtracted from limited joints
+    periodic: BoolArray  # (n,)
+
+    @classmethod
+    def covering(cls, q_rad: FloatArray, periodic: BoolArray, margin_rad: float) -> JointBox:
+        """The box for configurations q_rad (N, n) and any others inside their span."""
+        lowest = q_rad.min(axis=0)  # (n,)
+        span = q_rad.max(axis=0) - lowest
+        return cls(
+            box_rad=np.where(periodic, TWO_PI, span + margin_rad),
+            shift_rad=np.where(periodic, 0.0, lowest),
+            periodic=periodic,
+        )
+
+    def points(self, q_rad: FloatArray) -> FloatArray:
+        """q_rad (N, n) in box coordinates (N, n), each in [0, box)."""
+        points = np.where(self.periodic, np.mod(q_rad, TWO_PI), q_rad - self.shift_rad)
+        return np.where(points >= self.box_rad, points - self.box_rad, points)  # mod rounds up
+
+    def tree(self, q_rad: FloatArray) -> cKDTree:
+        """A KD-tree over q_rad (N, n) whose distances are joint-metric distances."""
+        return cKDTree(self.points(q_rad), boxsize=self.box_rad)

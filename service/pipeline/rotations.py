@@ -3,10 +3,9 @@
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-FloatArray = NDArray[np.float64]
+from service.pipeline.arrays import FloatArray
 
 
 def quaternion_to_matrix(w: float, x: float, y: float, z: float) -> FloatArray:

@@ -7,21 +7,21 @@ q_{k+1} = q_k + dt * v(q_k, t_k, x); then back to radians.
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import NDArray
 
 from service.manifest import AffineNormalisation
+from service.pipeline.arrays import BoolArray, Float32Array, FloatArray
 from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.joint_space import wrap_periodic
-from service.pipeline.types import BoolArray, FloatArray, VelocityField
+from service.pipeline.types import VelocityField
 
 
 def euler_integrate(
     velocity: VelocityField,
-    q_0: NDArray[np.float32],  # (N, n)
-    condition: NDArray[np.float32],  # (N, c)
+    q_0: Float32Array,  # (N, n)
+    condition: Float32Array,  # (N, c)
     steps: int,
     deadline: Deadline = NO_DEADLINE,
-) -> NDArray[np.float32]:  # (N, n)
+) -> Float32Array:  # (N, n)
     """Integrate dq/dt = v(q, t, x) over t in [0, 1] with `steps` explicit Euler steps."""
     dt = np.float32(1.0 / steps)
     q_t = q_0
@@ -35,7 +35,7 @@ def euler_integrate(
 
 def sample_configurations(
     velocity: VelocityField,
-    condition: NDArray[np.float32],  # (c,)
+    condition: Float32Array,  # (c,)
     num_samples: int,
     steps: int,
     joint_normalisation: AffineNormalisation,

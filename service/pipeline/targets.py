@@ -9,13 +9,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
 from service.errors import RequestFieldError
 from service.manifest import ConditionSpec, TaskSpec
+from service.pipeline.arrays import Float32Array, FloatArray
 from service.pipeline.rotations import quaternion_to_matrix, rotation_6d
-
-FloatArray = NDArray[np.float64]
 
 AXIS_NAMES = ("x", "y", "z")
 # A quaternion whose norm is within this of 1 is normalised; anything else is refused,
@@ -29,7 +27,7 @@ class Target:
 
     position_m: FloatArray  # (m_p,) the constrained position axes only
     rotation: FloatArray | None  # (3, 3), None for a position task
-    condition: NDArray[np.float32]  # (c,) normalised, as the flow expects
+    condition: Float32Array  # (c,) normalised, as the flow expects
 
 
 def condition_names(task: TaskSpec) -> list[str]:
@@ -56,7 +54,10 @@ def validate_target(
     position_m: list[float],
     orientation_wxyz: tuple[float, float, float, float] | None,
 ) -> None:
-    """Check the target's shape against the task; RequestFieldError names the field."""
+    """Check the target's shape against the task; RequestFieldError names the field.
+
+    `Query.for_model` calls it, so every query the stages see has passed it.
+    """
     expected = len(task.position_axes)
     if len(position_m) != expected:
         axes = ", ".join(AXIS_NAMES[a] for a in task.position_axes)
@@ -93,8 +94,7 @@ def encode_target(
     position_m: list[float],
     orientation_wxyz: tuple[float, float, float, float] | None,
 ) -> Target:
-    """Check the target's shape against the task and build the normalised condition."""
-    validate_target(task, position_m, orientation_wxyz)
+    """The target (already checked by `validate_target`) and its normalised condition."""
     rotation = None if orientation_wxyz is None else quaternion_to_matrix(*orientation_wxyz)
     position = np.asarray(position_m, dtype=np.float64)
     features = condition_features(

@@ -1,15 +1,33 @@
-"""Small typed containers passed between the pipeline stages, and the two model interfaces."""
+"""The pipeline's vocabulary: what goes in (`Query`), what each stage hands the next, what
+comes out (`SmmResult`), and the model interfaces the stages call (Protocols).
+
+Read in data-flow order: Query -> Target (targets.py) -> samples -> Correction ->
+Acceptance -> Component -> ComponentSummary -> SmmResult. The loaded models
+(`service.models`) implement `SmmModel`; the pipeline never imports them.
+"""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Literal, Protocol, get_args
 
 import numpy as np
-from numpy.typing import NDArray
 
-FloatArray = NDArray[np.float64]
-BoolArray = NDArray[np.bool_]
+from service.errors import RequestFieldError
+from service.manifest import Manifest
+from service.pipeline.arrays import BoolArray, Float32Array, FloatArray
+from service.pipeline.targets import validate_target
+
+# The stages in the order run() calls them; timings, metrics and the response use these.
+Stage = Literal["encode", "sample", "correct", "accept", "cluster"]
+STAGES: tuple[Stage, ...] = get_args(Stage)
+# What a response times: every stage, and the whole run.
+TimedSpan = Literal[Stage, "total"]
+TIMED_SPANS: tuple[TimedSpan, ...] = (*STAGES, "total")
+
+
+# -- the models the stages call ------------------------------------------------------------
 
 
 class VelocityField(Protocol):
@@ -17,10 +35,10 @@ class VelocityField(Protocol):
 
     def __call__(
         self,
-        q_t: NDArray[np.float32],  # (B, n)
-        t: NDArray[np.float32],  # (B, 1)
-        condition: NDArray[np.float32],  # (B, c)
-    ) -> NDArray[np.float32]:  # (B, n)
+        q_t: Float32Array,  # (B, n)
+        t: Float32Array,  # (B, 1)
+        condition: Float32Array,  # (B, c)
+    ) -> Float32Array:  # (B, n)
         ...
 
 
@@ -36,6 +54,94 @@ class KinematicsResult:
 class Kinematics(Protocol):
     def __call__(self, q_rad: FloatArray) -> KinematicsResult:  # q_rad (B, n), float64
         ...
+
+
+class SmmModel(Protocol):
+    """What the pipeline needs of a served model: its manifest, flow and kinematics."""
+
+    @property
+    def manifest(self) -> Manifest: ...
+
+    @property
+    def velocity(self) -> VelocityField: ...
+
+    @property
+    def kinematics(self) -> Kinematics: ...
+
+
+# -- in: one query -----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Query:
+    """One target's request, checked against its model, with the model's defaults filled in.
+
+    Build it with `Query.for_model`, the one constructor every caller uses (the route,
+    the evaluation, the tests): a Query is valid for its model by construction, so the
+    stages check nothing again.
+    """
+
+    position_m: list[float]  # (m_p,) the task's constrained position axes
+    orientation_wxyz: tuple[float, float, float, float] | None  # pose task only
+    num_samples: int
+    seed: int
+    tolerance_position_m: float
+    tolerance_orientation_rad: float
+    reference_rad: FloatArray | None  # (n,)
+    max_configurations_per_component: int | None
+
+    @classmethod
+    def for_model(
+        cls,
+        manifest: Manifest,
+        *,
+        position_m: Sequence[float],
+        orientation_wxyz: tuple[float, float, float, float] | None = None,
+        num_samples: int | None = None,
+        seed: int = 0,
+        tolerance_position_m: float | None = None,
+        tolerance_orientation_rad: float | None = None,
+        reference_rad: Sequence[float] | None = None,
+        max_configurations_per_component: int | None = None,
+    ) -> Query:
+        """Check the request's shape against the model (RequestFieldError names the field)
+        and fill every option left as None from the model's defaults."""
+        task, defaults = manifest.task, manifest.defaults
+        validate_target(task, list(position_m), orientation_wxyz)
+        if tolerance_orientation_rad is not None and not task.orientation:
+            raise RequestFieldError(
+                ("body", "tolerance", "orientation"),
+                "tolerance.orientation applies only to the pose task",
+            )
+        if reference_rad is not None and len(reference_rad) != manifest.joints.count:
+            raise RequestFieldError(
+                ("body", "reference_configuration"),
+                f"reference_configuration must have {manifest.joints.count} values (one per "
+                f"joint), got {len(reference_rad)}",
+            )
+        return cls(
+            position_m=list(position_m),
+            orientation_wxyz=orientation_wxyz,
+            num_samples=defaults.num_samples if num_samples is None else num_samples,
+            seed=seed,
+            tolerance_position_m=(
+                defaults.tolerance_position_m
+                if tolerance_position_m is None
+                else tolerance_position_m
+            ),
+            tolerance_orientation_rad=(
+                defaults.tolerance_orientation_rad
+                if tolerance_orientation_rad is None
+                else tolerance_orientation_rad
+            ),
+            reference_rad=(
+                None if reference_rad is None else np.asarray(reference_rad, dtype=np.float64)
+            ),
+            max_configurations_per_component=max_configurations_per_component,
+        )
+
+
+# -- between the stages ------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
@@ -61,7 +167,7 @@ class Acceptance:
 
 @dataclass(frozen=True)
 class Component:
-    """One connected component of the accepted configurations (an SMM piece)."""
+    """Stage 5 output: one connected component of the accepted configurations (an SMM piece)."""
 
     q_rad: FloatArray  # (k, n) every member
     position_error_m: FloatArray  # (k,)
@@ -69,7 +175,25 @@ class Component:
 
 
 @dataclass(frozen=True)
-class Counts:
+class ComponentSummary:
+    """A component as the response describes it."""
+
+    size: int
+    representative_rad: FloatArray  # (n,) the member nearest the component's mean
+    configurations_rad: FloatArray  # (k, n) all members, or a covering subset when capped
+    joint_min_rad: FloatArray  # (n,)
+    joint_max_rad: FloatArray  # (n,)
+    max_position_error_m: float
+    max_orientation_error_rad: float
+    distance_to_reference_rad: float | None
+    nearest_to_reference_rad: FloatArray | None  # (n,)
+
+
+# -- out: the result ---------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class SampleCounts:
     """Where every sample went: sampled = accepted + rejected_tolerance + rejected_joint_limits."""
 
     sampled: int
@@ -78,7 +202,7 @@ class Counts:
     rejected_joint_limits: int  # within tolerance but outside the joint limits
 
     @classmethod
-    def of(cls, acceptance: Acceptance) -> Counts:
+    def of(cls, acceptance: Acceptance) -> SampleCounts:
         tolerance = acceptance.within_tolerance
         return cls(
             sampled=len(tolerance),
@@ -90,9 +214,22 @@ class Counts:
 
 @dataclass(frozen=True)
 class StageTimings:
-    encode_ms: float
-    sample_ms: float
-    correct_ms: float
-    accept_ms: float
-    cluster_ms: float
+    """Wall time of each stage, in `STAGES` order, and of the whole run, in ms."""
+
+    stage_ms: dict[Stage, float]
     total_ms: float
+
+    def as_dict(self) -> dict[TimedSpan, float]:
+        """{"encode": ..., ..., "cluster": ..., "total": ...} in ms, keys as `TIMED_SPANS`."""
+        spans: dict[TimedSpan, float] = {stage: self.stage_ms[stage] for stage in STAGES}
+        spans["total"] = self.total_ms
+        return spans
+
+
+@dataclass(frozen=True)
+class SmmResult:
+    """The answer to one Query: every sample accounted for, the components in order."""
+
+    counts: SampleCounts
+    components: list[ComponentSummary]  # by distance to the reference when given, else size
+    timings: StageTimings

@@ -15,7 +15,7 @@ from typing import Any
 
 import httpx
 
-from tests.server.bodies import PLANAR, POSE, POSITION
+from tests.support.bodies import PLANAR, POSE, POSITION
 from tools.local_server import LocalServer
 
 SOAK_BOUND_BYTES = 48 * 2**20  # 48 MiB over the warmed-up RSS

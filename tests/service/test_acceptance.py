@@ -3,7 +3,7 @@
 import numpy as np
 
 from service.pipeline.acceptance import accept
-from service.pipeline.types import Correction, Counts
+from service.pipeline.types import Correction, SampleCounts
 
 
 def test_masks_and_counts() -> None:
@@ -21,7 +21,7 @@ def test_masks_and_counts() -> None:
     # Joint 1 is periodic (3.0 passes); joint 2 is limited to +-2 (2.5 fails).
     assert acceptance.within_limits.tolist() == [True, False, True, True, False]
     assert acceptance.accepted.tolist() == [True, False, True, False, False]
-    counts = Counts.of(acceptance)
+    counts = SampleCounts.of(acceptance)
     assert (
         counts.sampled,
         counts.accepted,

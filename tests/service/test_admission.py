@@ -7,8 +7,8 @@ import time
 
 import pytest
 
-from service.admission import Admission
 from service.errors import OverloadedError
+from service.http.admission import Admission
 
 
 async def hold(admission: Admission, release: asyncio.Event, entered: list[int], i: int) -> None:

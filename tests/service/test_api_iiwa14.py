@@ -1,7 +1,7 @@
 """POST /smm for the iiwa14 pose (r=1) and position (r=4) models, over HTTP.
 
 Every returned configuration is re-checked with the tests' own DH forward kinematics
-(tests/iiwa14_dh.py): it must reach the target within the tolerance and lie within
+(tests/support/iiwa14_dh.py): it must reach the target within the tolerance and lie within
 the paper's joint limits, and every sample must be accounted for. Shape errors name the
 field; an unreachable target is `no_solution`; components are ordered by their distance
 to a reference configuration, each reporting its nearest member.
@@ -16,7 +16,7 @@ import pytest
 from fastapi.testclient import TestClient
 from scipy.spatial.transform import Rotation
 
-from tests.iiwa14_dh import LIMITS_RAD, iiwa14_pose, rotation_angle_rad
+from tests.support.iiwa14_dh import LIMITS_RAD, iiwa14_pose, rotation_angle_rad
 
 TASKS = ("pose", "position")
 

@@ -14,7 +14,7 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
-from tests.bad_inputs import POSE, BadInput, catalogue
+from tests.support.bad_inputs import POSE, BadInput, catalogue
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "bad-inputs.md"
 MAX_NUM_SAMPLES = 5000  # the session client's limit (tests/conftest.py)

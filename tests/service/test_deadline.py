@@ -6,10 +6,11 @@ import numpy as np
 import pytest
 
 from service.errors import DeadlineExceededError
+from service.models.registry import ServedModel
 from service.pipeline.deadline import NO_DEADLINE, Deadline
-from service.pipeline.run import Query, run
+from service.pipeline.run import run
 from service.pipeline.sampling import euler_integrate
-from service.registry import ServedModel
+from service.pipeline.types import Query
 
 
 def test_check_passes_before_and_raises_after_naming_the_stage() -> None:
@@ -38,16 +39,7 @@ def test_integration_stops_one_step_after_the_deadline() -> None:
 
 
 def test_an_expired_deadline_stops_a_real_query_before_any_work(planar3r: ServedModel) -> None:
-    query = Query(
-        position_m=[0.5, 0.0],
-        orientation_wxyz=None,
-        num_samples=100,
-        seed=0,
-        tolerance_position_m=1e-6,
-        tolerance_orientation_rad=1e-6,
-        reference_rad=None,
-        max_configurations_per_component=None,
-    )
+    query = Query.for_model(planar3r.manifest, position_m=[0.5, 0.0], num_samples=100)
     expired = Deadline(budget_s=1.0, expires_at_s=time.monotonic() - 1.0)
     with pytest.raises(DeadlineExceededError, match="'sample'"):
         run(planar3r, query, expired)

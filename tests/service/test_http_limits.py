@@ -16,7 +16,7 @@ from typing import Any
 from fastapi.testclient import TestClient
 
 from service.config import REPO_MODELS_DIR
-from service.http_limits import RequestLimitsMiddleware, is_json_content_type
+from service.http.limits import RequestLimitsMiddleware, is_json_content_type
 from service.main import API_PATHS, JSON_BODY_ROUTES
 from tests.conftest import make_client
 

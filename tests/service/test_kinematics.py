@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from service.registry import ServedModel
+from service.models.registry import ServedModel
 from training.evaluate.planar3r import planar3r_jacobian, planar3r_position
 
 

@@ -15,7 +15,7 @@ import re
 
 from fastapi.testclient import TestClient
 
-from service.logs import LOGGER_NAME, REQUEST_ID, JsonFormatter
+from service.observability.logs import LOGGER_NAME, REQUEST_ID, JsonFormatter
 
 BODY = {
     "robot": "planar3r",

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from service.registry import ServedModel
+from service.models.registry import ServedModel
 from training.evaluate.planar3r import (
     check,
     closed_form_smm,

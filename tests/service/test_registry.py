@@ -11,7 +11,7 @@ import pytest
 
 from service.config import REPO_MODELS_DIR
 from service.errors import ModelUnavailableError, ModelVerificationError, UnknownModelError
-from service.registry import Registry, load_model
+from service.models.registry import Registry, load_model
 from tests.conftest import PLANAR3R_DIR, make_client
 
 

@@ -3,8 +3,8 @@
 import numpy as np
 
 from service.manifest import AffineNormalisation
+from service.models.registry import ServedModel
 from service.pipeline.sampling import euler_integrate, sample_configurations
-from service.registry import ServedModel
 
 Q_1 = np.array([[0.3, -0.7]], dtype=np.float32)
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from service.manifest import Manifest
-from service.registry import sha256_of
+from service.models.registry import sha256_of
 from tests.conftest import make_client
 from training.evaluate.planar3r import planar3r_position
 

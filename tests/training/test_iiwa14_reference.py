@@ -1,6 +1,6 @@
 """training.evaluate.iiwa14_kinematics (S-R-S IK ground truth) and the component matcher.
 
-The IK's configurations are checked by the tests' own DH FK (tests/iiwa14_dh.py) to
+The IK's configurations are checked by the tests' own DH FK (tests/support/iiwa14_dh.py) to
 1e-9 on all 8 branches; the configuration that made a target must lie on its exact SMM;
 each feasible component stays within the limits and is continuous. The matcher is
 checked on answers built from the ground truth itself: exact, merged and missed cases.
@@ -13,9 +13,8 @@ import pytest
 from scipy.spatial import cKDTree
 
 from service.pipeline.components import summarise_all
-from service.pipeline.run import SmmResult
-from service.pipeline.types import Component, Counts, StageTimings
-from tests.iiwa14_dh import LIMITS_RAD, iiwa14_pose, rotation_angle_rad
+from service.pipeline.types import Component, SampleCounts, SmmResult, StageTimings
+from tests.support.iiwa14_dh import LIMITS_RAD, iiwa14_pose, rotation_angle_rad
 from training.evaluate.iiwa14 import match_components
 from training.evaluate.iiwa14_kinematics import (
     BRANCHES,
@@ -86,10 +85,10 @@ def _answer(pieces: list[np.ndarray]) -> SmmResult:
     ]
     accepted = sum(len(q) for q in pieces)
     return SmmResult(
-        counts=Counts(sampled=accepted, accepted=accepted, rejected_tolerance=0,
-                      rejected_joint_limits=0),
+        counts=SampleCounts(sampled=accepted, accepted=accepted, rejected_tolerance=0,
+                            rejected_joint_limits=0),
         components=summarise_all(components, np.zeros(7, dtype=bool), None, None),
-        timings=StageTimings(0, 0, 0, 0, 0, 0),
+        timings=StageTimings(stage_ms={}, total_ms=0.0),
     )  # fmt: skip
 
 

@@ -1,6 +1,6 @@
 """models/robots/iiwa14.urdf as read by training.kinematics: equals the paper's DH table.
 
-FK is checked against the tests' own DH evaluation (tests/iiwa14_dh.py) in float64, the
+FK is checked against the tests' own DH evaluation (tests/support/iiwa14_dh.py) in float64, the
 geometric Jacobian against central finite differences of that DH FK, and the joint
 limits against the paper's degrees. Raw pytorch-kinematics (float32 origins) is ~1e-8 m
 off; `load_chain` must be exact.
@@ -14,7 +14,7 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from service.config import REPO_MODELS_DIR
-from tests.iiwa14_dh import LIMITS_RAD, iiwa14_pose
+from tests.support.iiwa14_dh import LIMITS_RAD, iiwa14_pose
 from training.kinematics import ForwardKinematics, joint_spec, load_chain
 
 URDF = REPO_MODELS_DIR / "robots" / "iiwa14.urdf"

@@ -11,9 +11,9 @@ import pytest
 from scipy.spatial import cKDTree
 
 from service.config import REPO_MODELS_DIR
+from service.models.registry import ServedModel, load_model
 from service.pipeline.joint_space import joint_distance
-from service.registry import ServedModel, load_model
-from tests.iiwa14_dh import iiwa14_pose, rotation_angle_rad
+from tests.support.iiwa14_dh import iiwa14_pose, rotation_angle_rad
 from training.evaluate.iiwa14_kinematics import BRANCHES, inverse_kinematics
 from training.evaluate.ode_baseline import CLOSURE_RAD, trace_smm
 from training.evaluate.planar3r import closed_form_smm, planar3r_position

@@ -13,8 +13,8 @@ from __future__ import annotations
 import numpy as np
 
 from service.config import REPO_MODELS_DIR
+from service.models.registry import ServedModel, load_model
 from service.pipeline.joint_space import joint_distance
-from service.registry import ServedModel, load_model
 from training.evaluate.plots import count_accuracy_by_distance
 from training.evaluate.report import (
     MethodTarget,

@@ -10,12 +10,12 @@ from __future__ import annotations
 import numpy as np
 
 from service.config import REPO_MODELS_DIR
+from service.models.registry import ServedModel, load_model
 from service.pipeline.acceptance import accept
 from service.pipeline.correction import task_error_norms
 from service.pipeline.targets import Target
 from service.pipeline.types import Correction
-from service.registry import ServedModel, load_model
-from tests.iiwa14_dh import LIMITS_RAD, iiwa14_pose, rotation_angle_rad
+from tests.support.iiwa14_dh import LIMITS_RAD, iiwa14_pose, rotation_angle_rad
 from training.evaluate.planar3r import planar3r_position
 from training.evaluate.restart_dls import random_restart_dls
 from training.kinematics import load_chain

@@ -24,8 +24,8 @@ from scipy.spatial import cKDTree
 
 from service.config import REPO_MODELS_DIR
 from service.manifest import SamplerSpec
+from service.models.registry import ServedModel, load_model
 from service.pipeline.run import Query, SmmResult, run
-from service.registry import ServedModel, load_model
 from training.evaluate.iiwa14_kinematics import (
     LIMITS_RAD,
     ReferenceComponent,
@@ -104,7 +104,7 @@ def check(model: ServedModel, num_targets: int, seed: int, num_samples: int) -> 
     returned = violations = accounting = accepted = sampled = 0
     for i, target in enumerate(targets.pose):
         result = run(model, query(target, pose_task, num_samples, seed=i))
-        timings.append(vars(result.timings))
+        timings.append({f"{k}_ms": v for k, v in result.timings.as_dict().items()})
         counts.append(len(result.components))
         if pose_task:
             matches.append(match_components(result, pose_smm(target[:3, 3], target[:3, :3])))

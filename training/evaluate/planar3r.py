@@ -22,9 +22,9 @@ import numpy as np
 
 from service.config import REPO_MODELS_DIR
 from service.manifest import SamplerSpec
+from service.models.registry import ServedModel, load_model
 from service.pipeline.joint_space import joint_distance, wrap_to_pi
 from service.pipeline.run import Query, run
-from service.registry import ServedModel, load_model
 from training.evaluate.quality import returned_configurations
 
 LINK_M = 1.0
@@ -123,7 +123,7 @@ def check(model: ServedModel, num_targets: int = 50, seed: int = 2) -> CheckRepo
         result = run(model, query(target, seed=i))
         accepted += result.counts.accepted
         sampled += result.counts.sampled
-        timings.append(vars(result.timings))
+        timings.append({f"{k}_ms": v for k, v in result.timings.as_dict().items()})
         rho = float(np.linalg.norm(target))
         expected = expected_component_count(rho)
         if len(result.components) == expected:

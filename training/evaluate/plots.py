@@ -21,7 +21,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from service.config import REPO_MODELS_DIR
-from service.registry import ServedModel, load_model
+from service.models.registry import ServedModel, load_model
 from training.evaluate.report import distance_from_base_m, flow_target, ground_truth
 
 PLOTS_DIR = Path(__file__).resolve().parents[2] / "docs" / "plots"

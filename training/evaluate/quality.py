@@ -15,12 +15,12 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from service.manifest import Quality, RawError
+from service.models.registry import ServedModel
 from service.pipeline.acceptance import accept
 from service.pipeline.correction import correct, task_error_norms
 from service.pipeline.run import SmmResult
 from service.pipeline.sampling import sample_configurations
 from service.pipeline.targets import encode_target
-from service.registry import ServedModel
 
 PAPER_SAMPLER_STEPS = 100
 

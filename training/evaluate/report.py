@@ -29,6 +29,7 @@ import pytorch_kinematics as pk
 from scipy.spatial import cKDTree
 
 from service.config import REPO_MODELS_DIR
+from service.models.registry import ServedModel, load_model
 from service.pipeline.acceptance import accept
 from service.pipeline.clustering import component_labels
 from service.pipeline.correction import task_error_norms
@@ -37,7 +38,6 @@ from service.pipeline.run import Query, run
 from service.pipeline.sampling import sample_configurations
 from service.pipeline.targets import Target, encode_target
 from service.pipeline.types import Correction
-from service.registry import ServedModel, load_model
 from training.evaluate.iiwa14_kinematics import MIN_SHARE, SHOULDER_M, pose_smm, position_smm
 from training.evaluate.ode_baseline import trace_smm
 from training.evaluate.planar3r import closed_form_smm, expected_component_count
@@ -172,8 +172,9 @@ def flow_target(
         manifest.joint_normalisation, periodic, np.random.default_rng(seed),
     )  # fmt: skip
     raw_p, raw_o = task_error_norms(model.kinematics(q_raw), target, manifest.task)
-    query = Query(position, wxyz, num_samples, seed, manifest.defaults.tolerance_position_m,
-                  manifest.defaults.tolerance_orientation_rad, None, None)  # fmt: skip
+    query = Query.for_model(
+        manifest, position_m=position, orientation_wxyz=wxyz, num_samples=num_samples, seed=seed
+    )
     result = run(model, query)
     returned = [c.configurations_rad for c in result.components]
     q = np.concatenate(returned) if returned else np.zeros((0, manifest.joints.count))
@@ -183,7 +184,7 @@ def flow_target(
         if len(q)
         else (q[:, 0], q[:, 0])
     )
-    stages = {k.removesuffix("_ms"): v for k, v in vars(result.timings).items()}
+    stages: dict[str, float] = {str(k): v for k, v in result.timings.as_dict().items()}
     return MethodTarget(raw_p, raw_o, q, p, o, labels, num_samples, stages["total"], stages)
 
 

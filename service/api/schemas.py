@@ -6,6 +6,8 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from service.pipeline.types import TimedSpan
+
 # JSON has no NaN or infinity; refuse them where a parser lets them through.
 Finite = Annotated[float, Field(allow_inf_nan=False)]
 
@@ -94,15 +96,6 @@ class ComponentOut(BaseModel):
     nearest_to_reference: list[float] | None
 
 
-class Timings(BaseModel):
-    encode: float
-    sample: float
-    correct: float
-    accept: float
-    cluster: float
-    total: float
-
-
 class SmmResponse(BaseModel):
     robot: str
     task: str
@@ -112,7 +105,9 @@ class SmmResponse(BaseModel):
     status: Literal["ok", "no_solution"]
     counts: Counts
     components: list[ComponentOut]
-    timings_ms: Timings
+    timings_ms: dict[TimedSpan, float] = Field(
+        description="Wall time in ms of each pipeline stage, in order, and of the whole run."
+    )
 
 
 class RobotModel(BaseModel):

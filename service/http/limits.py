@@ -17,7 +17,7 @@ from email.message import Message as MimeMessage
 from starlette.datastructures import Headers
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from service.asgi import send_json_error
+from service.http.asgi import send_json_error
 
 UNLIMITED_PATHS = frozenset({"/healthz", "/readyz", "/metrics"})
 

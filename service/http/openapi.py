@@ -13,7 +13,7 @@ from typing import Any
 from fastapi import FastAPI
 from fastapi.openapi.utils import get_openapi
 
-from service.registry import Registry
+from service.models.registry import Registry
 
 
 def served_openapi(app: FastAPI) -> dict[str, Any]:

@@ -1,6 +1,6 @@
 """Structured logs: one JSON object per line on stderr, each with the current request id.
 
-The request id lives in a context variable set per request by `service.request_context`;
+The request id lives in a context variable set per request by `service.http.request_context`;
 it follows the request into the worker thread that runs the pipeline, so every line a
 request causes carries its id.
 """

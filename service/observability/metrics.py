@@ -20,9 +20,10 @@ from prometheus_client import (
 )
 from prometheus_client.exposition import CONTENT_TYPE_PLAIN_0_0_4, choose_encoder, generate_latest
 
+from service.pipeline.types import SampleCounts, StageTimings
+
 LATENCY_BUCKETS_S = (0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0, 30.0, 60.0)
 RATIO_BUCKETS = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 0.95, 0.99, 1.0)
-STAGES = ("encode", "sample", "correct", "accept", "cluster", "total")
 REJECTION_REASONS = ("queue_full", "queue_timeout", "open_requests", "deadline")
 SAMPLE_OUTCOMES = ("accepted", "rejected_tolerance", "rejected_joint_limits")
 
@@ -110,17 +111,15 @@ class Metrics:
         self.requests.labels(route, method, model, str(status)).inc()
         self.request_duration.labels(route, model).observe(duration_s)
 
-    def observe_pipeline(
-        self, model: str, stage_ms: dict[str, float], outcomes: dict[str, int]
-    ) -> None:
-        """Stage timings (ms, keys from STAGES) and sample outcomes of one answered query."""
-        for stage, ms in stage_ms.items():
-            self.stage_duration.labels(model, stage).observe(ms / 1e3)
+    def observe_pipeline(self, model: str, timings: StageTimings, counts: SampleCounts) -> None:
+        """Stage timings (labelled by `TIMED_SPANS`) and sample outcomes of one answered query."""
+        for span, ms in timings.as_dict().items():
+            self.stage_duration.labels(model, span).observe(ms / 1e3)
+        outcomes = {outcome: getattr(counts, outcome) for outcome in SAMPLE_OUTCOMES}
         for outcome, count in outcomes.items():
             self.samples.labels(model, outcome).inc(count)
-        sampled = sum(outcomes.values())
-        if sampled:
-            self.accepted_ratio.labels(model).observe(outcomes["accepted"] / sampled)
+        if counts.sampled:
+            self.accepted_ratio.labels(model).observe(counts.accepted / counts.sampled)
 
     def exposition(self, accept_header: str | None) -> tuple[bytes, str]:
         """The registry in the text format the scraper asks for (Accept), and its content type."""

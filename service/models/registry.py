@@ -19,7 +19,7 @@ from pydantic import ValidationError
 
 from service.errors import ModelUnavailableError, ModelVerificationError, UnknownModelError
 from service.manifest import FLOW_FILE, KINEMATICS_FILE, MANIFEST_FILE, Manifest
-from service.onnx_models import OnnxKinematics, OnnxVelocityField, open_session
+from service.models.sessions import OnnxKinematics, OnnxVelocityField, open_session
 
 
 def sha256_of(path: Path) -> str:

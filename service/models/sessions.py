@@ -1,4 +1,4 @@
-"""The two exported networks behind the pipeline's interfaces, run with onnxruntime.
+"""The two exported networks behind the pipeline's Protocols, run with onnxruntime.
 
 flow.onnx:       (q_t (B, n) f32, t (B, 1) f32, condition (B, c) f32) -> velocity (B, n) f32
 kinematics.onnx: q (B, n) f64 -> position (B, 3), rotation (B, 3, 3), jacobian (B, 6, n), f64
@@ -10,9 +10,9 @@ from pathlib import Path
 
 import numpy as np
 import onnxruntime as ort
-from numpy.typing import NDArray
 
-from service.pipeline.types import FloatArray, KinematicsResult
+from service.pipeline.arrays import Float32Array, FloatArray
+from service.pipeline.types import KinematicsResult
 
 FLOW_INPUTS = ("q_t", "t", "condition")
 FLOW_OUTPUT = "velocity"
@@ -33,10 +33,10 @@ class OnnxVelocityField:
 
     def __call__(
         self,
-        q_t: NDArray[np.float32],  # (B, n)
-        t: NDArray[np.float32],  # (B, 1)
-        condition: NDArray[np.float32],  # (B, c)
-    ) -> NDArray[np.float32]:  # (B, n)
+        q_t: Float32Array,  # (B, n)
+        t: Float32Array,  # (B, 1)
+        condition: Float32Array,  # (B, c)
+    ) -> Float32Array:  # (B, n)
         feeds = dict(zip(FLOW_INPUTS, (q_t, t, condition), strict=True))
         (velocity,) = self._session.run([FLOW_OUTPUT], feeds)
         return np.asarray(velocity, dtype=np.float32)

@@ -18,9 +18,9 @@ from typing import Any
 from starlette.datastructures import Headers, MutableHeaders
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from service.asgi import send_json_error
-from service.logs import REQUEST_ID, log_event
-from service.metrics import Metrics
+from service.http.asgi import send_json_error
+from service.observability.logs import REQUEST_ID, log_event
+from service.observability.metrics import Metrics
 
 REQUEST_ID_HEADER = "X-Request-ID"
 _SANE_ID = re.compile(r"[A-Za-z0-9._:-]{1,128}")

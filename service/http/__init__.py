@@ -1,0 +1,3 @@
+"""The HTTP edge: ASGI middlewares (limits, API key, request context), admission control,
+validation messages, exception handlers and the served OpenAPI document.
+"""

@@ -1,0 +1,1 @@
+"""Structured logs and Prometheus metrics: what an operator sees of the service."""
