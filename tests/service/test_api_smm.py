@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from training.evaluate.planar3r import planar3r_position
+from training.evaluate.references.planar3r import planar3r_position
 
 
 def smm(client: TestClient, **overrides: Any) -> Any:

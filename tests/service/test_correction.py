@@ -7,7 +7,7 @@ from service.models.registry import ServedModel
 from service.pipeline.correction import correct, dls_step
 from service.pipeline.targets import Target
 from service.pipeline.types import KinematicsResult
-from training.evaluate.planar3r import planar3r_jacobian, planar3r_position
+from training.evaluate.references.planar3r import planar3r_jacobian, planar3r_position
 
 POSITION_2D = TaskSpec(name="position", position_axes=[0, 1], orientation=False)
 PERIODIC = np.array([True, True, True])

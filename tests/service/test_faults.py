@@ -23,7 +23,7 @@ from onnx import TensorProto, helper
 
 from service.config import REPO_MODELS_DIR
 from tests.conftest import PLANAR3R_DIR, make_client
-from training.evaluate.planar3r import planar3r_position
+from training.evaluate.references.planar3r import planar3r_position
 
 IIWA_BODY = {
     "robot": "iiwa14",

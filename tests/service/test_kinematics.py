@@ -3,7 +3,7 @@
 import numpy as np
 
 from service.models.registry import ServedModel
-from training.evaluate.planar3r import planar3r_jacobian, planar3r_position
+from training.evaluate.references.planar3r import planar3r_jacobian, planar3r_position
 
 
 def test_forward_kinematics_matches_the_closed_form(planar3r: ServedModel) -> None:

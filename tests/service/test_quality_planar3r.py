@@ -3,8 +3,8 @@
 import numpy as np
 
 from service.models.registry import ServedModel
-from training.evaluate.planar3r import (
-    check,
+from training.evaluate.planar3r import check
+from training.evaluate.references.planar3r import (
     closed_form_smm,
     expected_component_count,
     planar3r_position,

@@ -10,7 +10,7 @@ import numpy as np
 from service.manifest import Manifest
 from service.models.registry import sha256_of
 from tests.conftest import make_client
-from training.evaluate.planar3r import planar3r_position
+from training.evaluate.references.planar3r import planar3r_position
 
 
 def test_tiny_model_trains_exports_and_is_served(tmp_path: Path) -> None:

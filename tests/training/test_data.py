@@ -12,7 +12,7 @@ from training.data import (
     joint_normalisation,
     sobol_configurations,
 )
-from training.evaluate.planar3r import planar3r_position
+from training.evaluate.references.planar3r import planar3r_position
 from training.kinematics import ForwardKinematics, joint_spec, load_chain
 from training.robots import robot_spec
 

@@ -1,4 +1,4 @@
-"""training.evaluate.iiwa14_kinematics (S-R-S IK ground truth) and the component matcher.
+"""training.evaluate.references.iiwa14 (S-R-S IK ground truth) and the component matcher.
 
 The IK's configurations are checked by the tests' own DH FK (tests/support/iiwa14_dh.py) to
 1e-9 on all 8 branches; the configuration that made a target must lie on its exact SMM;
@@ -16,7 +16,7 @@ from service.pipeline.components import summarise_all
 from service.pipeline.types import Component, SampleCounts, SmmResult, StageTimings
 from tests.support.iiwa14_dh import LIMITS_RAD, iiwa14_pose, rotation_angle_rad
 from training.evaluate.iiwa14 import match_components
-from training.evaluate.iiwa14_kinematics import (
+from training.evaluate.references.iiwa14 import (
     BRANCHES,
     inverse_kinematics,
     pose_smm,

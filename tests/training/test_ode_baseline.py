@@ -14,9 +14,9 @@ from service.config import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
 from service.pipeline.joint_space import joint_distance
 from tests.support.iiwa14_dh import iiwa14_pose, rotation_angle_rad
-from training.evaluate.iiwa14_kinematics import BRANCHES, inverse_kinematics
 from training.evaluate.ode_baseline import CLOSURE_RAD, trace_smm
-from training.evaluate.planar3r import closed_form_smm, planar3r_position
+from training.evaluate.references.iiwa14 import BRANCHES, inverse_kinematics
+from training.evaluate.references.planar3r import closed_form_smm, planar3r_position
 
 
 def test_planar_trace_closes_on_the_closed_form_loop(planar3r: ServedModel) -> None:

@@ -16,7 +16,7 @@ from service.pipeline.correction import task_error_norms
 from service.pipeline.targets import Target
 from service.pipeline.types import Correction
 from tests.support.iiwa14_dh import LIMITS_RAD, iiwa14_pose, rotation_angle_rad
-from training.evaluate.planar3r import planar3r_position
+from training.evaluate.references.planar3r import planar3r_position
 from training.evaluate.restart_dls import random_restart_dls
 from training.kinematics import load_chain
 

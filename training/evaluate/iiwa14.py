@@ -26,7 +26,9 @@ from service.config import REPO_MODELS_DIR
 from service.manifest import SamplerSpec
 from service.models.registry import ServedModel, load_model
 from service.pipeline.run import Query, SmmResult, run
-from training.evaluate.iiwa14_kinematics import (
+from training.evaluate.planar3r import with_defaults
+from training.evaluate.quality import orientation_wxyz, returned_configurations
+from training.evaluate.references.iiwa14 import (
     LIMITS_RAD,
     ReferenceComponent,
     dh_pose,
@@ -34,8 +36,6 @@ from training.evaluate.iiwa14_kinematics import (
     position_smm,
     rotation_angle_rad,
 )
-from training.evaluate.planar3r import with_defaults
-from training.evaluate.quality import orientation_wxyz, returned_configurations
 
 REACH_M = 1.2  # the paper's L for the iiwa
 TOLERANCE = 1e-6  # m and rad, the service's defaults

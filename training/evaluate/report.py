@@ -38,10 +38,10 @@ from service.pipeline.run import Query, run
 from service.pipeline.sampling import sample_configurations
 from service.pipeline.targets import Target, encode_target
 from service.pipeline.types import Correction
-from training.evaluate.iiwa14_kinematics import MIN_SHARE, SHOULDER_M, pose_smm, position_smm
 from training.evaluate.ode_baseline import trace_smm
-from training.evaluate.planar3r import closed_form_smm, expected_component_count
 from training.evaluate.quality import orientation_wxyz
+from training.evaluate.references.iiwa14 import MIN_SHARE, SHOULDER_M, pose_smm, position_smm
+from training.evaluate.references.planar3r import closed_form_smm, expected_component_count
 from training.evaluate.restart_dls import random_restart_dls
 from training.kinematics import load_chain
 from training.robots import robot_spec
