@@ -31,6 +31,7 @@ from service.manifest import (
 from service.models.registry import load_model, sha256_of
 from service.models.sessions import FLOW_INPUTS, FLOW_OUTPUT, KINEMATICS_INPUT, KINEMATICS_OUTPUTS
 from service.pipeline.targets import condition_names
+from training.checkpoint import TrainResult
 from training.config import TrainConfig
 from training.data import FlowData
 from training.defaults import serving_defaults
@@ -38,7 +39,6 @@ from training.evaluate.quality import measure_quality
 from training.kinematics import ForwardKinematics
 from training.model import VelocityField
 from training.robots import RobotSpec
-from training.train import TrainResult
 
 # float32 network: velocities reach a few hundred near t = 1, where float32 rounding
 # differences between torch and onnxruntime are ~1e-6 relative; compare like np.allclose.

@@ -1,43 +1,25 @@
-"""Train the flow, keep the best-validation checkpoint, export it: the `smm-train` CLI.
+"""The training loop: conditional flow matching over (q, FK(q)) pairs, best validation kept.
 
-    smm-train --robot planar3r --task position --samples 1000000 --epochs 60
-
-writes models/<robot>-<task>/ (flow.onnx, kinematics.onnx, manifest.json); the
-checkpoint and the training log go to runs/<robot>-<task>/ (not in git).
+`train()` runs the epochs; with a run directory it writes `last.pt` after every epoch
+(checkpoint.py), so a run that is stopped continues with `resume=True` to the same
+weights. The command line is `training/cli.py`.
 """
 
 from __future__ import annotations
 
-import argparse
 import copy
-import json
 import math
-import shlex
-import shutil
-import sys
 import time
-from dataclasses import dataclass, fields, replace
 from pathlib import Path
 
 import torch
 from tqdm import tqdm
 
-from service.config import REPO_MODELS_DIR
-from training.config import TrainConfig, preset
-from training.data import FlowData, build_flow_data
+from training.checkpoint import LAST_FILE, RunState, TrainResult, load_state, save_state
+from training.config import TrainConfig
+from training.data import FlowData
 from training.flow import cfm_loss
-from training.kinematics import ForwardKinematics, joint_spec, load_chain
 from training.model import VelocityField
-from training.robots import robot_spec
-
-
-@dataclass(frozen=True)
-class TrainResult:
-    model: VelocityField  # best-validation weights
-    best_validation_loss: float
-    best_epoch: int
-    history: list[dict[str, float]]
-    wall_time_s: float
 
 
 def build_model(config: TrainConfig, data: FlowData) -> VelocityField:
@@ -91,7 +73,7 @@ def train_one_epoch(
 
 
 @torch.no_grad()
-def evaluate(
+def validation_loss(
     model: VelocityField,
     q_1: torch.Tensor,
     condition: torch.Tensor,
@@ -108,7 +90,14 @@ def evaluate(
     return total / q_1.shape[0]
 
 
-def train(config: TrainConfig, data: FlowData) -> TrainResult:
+def train(
+    config: TrainConfig, data: FlowData, run_dir: Path | None = None, resume: bool = False
+) -> TrainResult:
+    """Train `config.epochs` epochs on `data`; return the best-validation weights.
+
+    With `run_dir`, the state after each epoch goes to `run_dir/last.pt`; with `resume`,
+    training continues from there (ValueError if it was written with other settings).
+    """
     torch.manual_seed(config.seed)
     generator = torch.Generator().manual_seed(config.seed)
     device = torch.device(config.device)
@@ -128,148 +117,78 @@ def train(config: TrainConfig, data: FlowData) -> TrainResult:
     scheduler = torch.optim.lr_scheduler.CosineAnnealingLR(
         optimizer, T_max=config.epochs * steps_per_epoch
     )
+    first_epoch, elapsed_s = 0, 0.0
     best_loss, best_epoch, best_state = math.inf, -1, copy.deepcopy(model.state_dict())
     history: list[dict[str, float]] = []
-    start = time.perf_counter()
-    with tqdm(total=config.epochs * steps_per_epoch, unit="batch", mininterval=2.0) as progress:
-        for epoch in range(config.epochs):
+    last_path = None if run_dir is None else run_dir / LAST_FILE
+    if run_dir is not None:
+        run_dir.mkdir(parents=True, exist_ok=True)
+    if resume:
+        if last_path is None or not last_path.is_file():
+            raise ValueError(f"nothing to resume: {last_path} does not exist")
+        state = load_state(last_path, config)
+        model.load_state_dict(state.model)
+        optimizer.load_state_dict(state.optimizer)
+        scheduler.load_state_dict(state.scheduler)
+        generator.set_state(state.generator)
+        first_epoch, elapsed_s = state.next_epoch, state.wall_time_s
+        best_loss, best_epoch, best_state = (
+            state.best_validation_loss,
+            state.best_epoch,
+            state.best_model,
+        )
+        history = state.history
+
+    session_start = time.perf_counter()
+    with tqdm(
+        total=config.epochs * steps_per_epoch,
+        initial=first_epoch * steps_per_epoch,
+        unit="batch",
+        mininterval=2.0,
+    ) as progress:
+        for epoch in range(first_epoch, config.epochs):
             train_loss = train_one_epoch(
-                model,
-                q_train,
-                c_train,
-                optimizer,
-                scheduler,
-                config.batch_size,
-                generator,
-                progress,
+                model=model,
+                q_1=q_train,
+                condition=c_train,
+                optimizer=optimizer,
+                scheduler=scheduler,
+                batch_size=config.batch_size,
+                generator=generator,
+                progress=progress,
             )
-            val_loss = evaluate(model, q_val, c_val, q_0_val, t_val)
-            history.append({"epoch": epoch, "train_loss": train_loss, "val_loss": val_loss})
+            val_loss = validation_loss(model, q_val, c_val, q_0_val, t_val)
+            history.append(
+                {"epoch": epoch, "train_loss": train_loss, "validation_loss": val_loss}
+            )
             if val_loss < best_loss:
                 best_loss, best_epoch = val_loss, epoch
                 best_state = copy.deepcopy(model.state_dict())
-            progress.set_postfix(epoch=epoch, train=f"{train_loss:.4f}", val=f"{val_loss:.4f}")
+            progress.set_postfix(
+                epoch=epoch, train=f"{train_loss:.4f}", validation=f"{val_loss:.4f}"
+            )
+            if last_path is not None:
+                save_state(
+                    last_path,
+                    RunState(
+                        config=config,
+                        next_epoch=epoch + 1,
+                        model=model.state_dict(),
+                        optimizer=optimizer.state_dict(),
+                        scheduler=scheduler.state_dict(),
+                        generator=generator.get_state(),
+                        best_validation_loss=best_loss,
+                        best_epoch=best_epoch,
+                        best_model=best_state,
+                        history=history,
+                        wall_time_s=elapsed_s + time.perf_counter() - session_start,
+                    ),
+                )
     model.load_state_dict(best_state)
     return TrainResult(
         model=model.cpu().eval(),
         best_validation_loss=best_loss,
         best_epoch=best_epoch,
         history=history,
-        wall_time_s=time.perf_counter() - start,
+        wall_time_s=elapsed_s + time.perf_counter() - session_start,
     )
-
-
-def parse_args(argv: list[str]) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(
-        prog="smm-train", description="Train, export and measure one SMM model."
-    )
-    parser.add_argument("--robot", required=True, help="robot name, e.g. planar3r")
-    parser.add_argument("--task", required=True, help="task name, e.g. position")
-    defaults = TrainConfig()
-    for f in fields(TrainConfig):
-        if f.name not in ("robot", "task"):
-            flag = f"--{f.name.replace('_', '-')}"
-            parser.add_argument(flag, type=type(getattr(defaults, f.name)), default=None)
-    parser.add_argument("--models-dir", type=Path, default=REPO_MODELS_DIR)
-    parser.add_argument("--runs-dir", type=Path, default=Path("runs"))
-    parser.add_argument(
-        "--from-checkpoint",
-        type=Path,
-        default=None,
-        help="skip training: re-export a best.pt written by an earlier run (its budget and "
-        "provenance are kept) with the current serving defaults, and re-measure quality",
-    )
-    return parser.parse_args(argv)
-
-
-def config_from_args(args: argparse.Namespace) -> TrainConfig:
-    config = preset(args.robot, args.task)
-    overrides = {
-        f.name: getattr(args, f.name)
-        for f in fields(TrainConfig)
-        if f.name not in ("robot", "task") and getattr(args, f.name) is not None
-    }
-    return replace(config, **overrides)
-
-
-def load_checkpoint(path: Path, data: FlowData) -> tuple[TrainConfig, TrainResult, str]:
-    checkpoint = torch.load(path, map_location="cpu", weights_only=False)
-    config = TrainConfig(**checkpoint["config"])
-    model = build_model(config, data)
-    model.load_state_dict(checkpoint["state_dict"])
-    result = TrainResult(
-        model=model.eval(),
-        best_validation_loss=checkpoint["best_validation_loss"],
-        best_epoch=checkpoint["best_epoch"],
-        history=[],
-        wall_time_s=checkpoint["wall_time_s"],
-    )
-    return config, result, checkpoint["command"]
-
-
-def main(argv: list[str] | None = None) -> None:
-    from training.export import export_model  # torch.onnx is slow to import; only here
-
-    argv = sys.argv[1:] if argv is None else argv
-    args = parse_args(argv)
-    config = config_from_args(args)
-    if args.from_checkpoint is not None:
-        # The data (and so the normalisation) follows from the checkpoint's own config.
-        config = TrainConfig(**torch.load(args.from_checkpoint, weights_only=False)["config"])
-    if config.threads:
-        torch.set_num_threads(config.threads)
-    models_dir: Path = args.models_dir
-    robot = robot_spec(config.robot)
-    task = robot.task(config.task)
-    model_id = f"{robot.name}-{task.name}"
-    urdf_path = models_dir / robot.urdf
-    if not urdf_path.exists():  # a models dir outside the repo gets its own copy of the URDF
-        urdf_path.parent.mkdir(parents=True, exist_ok=True)
-        shutil.copyfile(REPO_MODELS_DIR / robot.urdf, urdf_path)
-    chain = load_chain(urdf_path, robot.end_effector_link)
-    fk = ForwardKinematics(chain)
-    joints = joint_spec(chain)
-
-    print(f"[{model_id}] labelling {config.samples} configurations with pytorch-kinematics")
-    data = build_flow_data(fk, joints, task, config.samples, config.seed)
-    if args.from_checkpoint is not None:
-        config, result, command = load_checkpoint(args.from_checkpoint, data)
-    else:
-        print(f"[{model_id}] training {config.epochs} epochs on {config.device}")
-        result = train(config, data)
-        command = shlex.join(["smm-train", *argv])
-        run_dir = args.runs_dir / model_id
-        run_dir.mkdir(parents=True, exist_ok=True)
-        torch.save(
-            {
-                "state_dict": result.model.state_dict(),
-                "best_validation_loss": result.best_validation_loss,
-                "best_epoch": result.best_epoch,
-                "wall_time_s": result.wall_time_s,
-                "config": config.as_dict(),
-                "command": command,
-            },
-            run_dir / "best.pt",
-        )
-        (run_dir / "history.json").write_text(json.dumps(result.history, indent=1))
-    print(
-        f"[{model_id}] best validation loss {result.best_validation_loss:.5f} "
-        f"at epoch {result.best_epoch}, {result.wall_time_s:.0f} s; exporting"
-    )
-    manifest = export_model(
-        model_dir=models_dir / model_id,
-        models_dir=models_dir,
-        robot=robot,
-        task=task,
-        joints=joints,
-        fk=fk,
-        data=data,
-        config=config,
-        result=result,
-        command=command,
-    )
-    print(json.dumps(manifest.model_dump(include={"quality"}), indent=1))
-
-
-if __name__ == "__main__":
-    main()

@@ -16,7 +16,7 @@ from training.evaluate.references.planar3r import planar3r_position
 def test_tiny_model_trains_exports_and_is_served(tmp_path: Path) -> None:
     models, runs = tmp_path / "models", tmp_path / "runs"
     command = [
-        sys.executable, "-m", "training.train",
+        sys.executable, "-m", "training.cli",
         "--robot", "planar3r", "--task", "position",
         "--samples", "4000", "--epochs", "2",
         "--eval-targets", "4", "--eval-samples-per-target", "200",

@@ -1,0 +1,136 @@
+"""What a training run keeps on disk (runs/<model-id>/, never in git), and the trained result.
+
+- `best.pt`: the best-validation weights with their provenance; `smm-train
+  --from-checkpoint` re-exports it without training.
+- `last.pt`: everything needed to go on after the last finished epoch (weights, optimiser,
+  schedule, random generator, best so far, history, wall time); `smm-train --resume`
+  continues from it and ends with the same weights as a run that was never stopped.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from training.config import TrainConfig
+from training.model import VelocityField
+
+BEST_FILE = "best.pt"
+LAST_FILE = "last.pt"
+HISTORY_FILE = "history.json"
+# Settings a resumed run may change: where and how fast it runs, and the measurement after.
+CHANGEABLE_ON_RESUME = frozenset(
+    {"device", "threads", "eval_targets", "eval_samples_per_target", "eval_seed"}
+)
+
+
+@dataclass(frozen=True)
+class TrainResult:
+    """A trained flow and the record of how it was trained."""
+
+    model: VelocityField  # best-validation weights
+    best_validation_loss: float
+    best_epoch: int
+    history: list[dict[str, float]]  # per epoch: epoch, train_loss, validation_loss
+    wall_time_s: float
+
+
+@dataclass(frozen=True)
+class BestCheckpoint:
+    """best.pt: the weights to export, the config that made them, and the command."""
+
+    config: TrainConfig
+    state_dict: dict[str, torch.Tensor]
+    best_validation_loss: float
+    best_epoch: int
+    wall_time_s: float
+    command: str
+
+    def result(self, model: VelocityField) -> TrainResult:
+        """`model` (built from `config`) with these weights, as a TrainResult."""
+        model.load_state_dict(self.state_dict)
+        return TrainResult(
+            model=model.eval(),
+            best_validation_loss=self.best_validation_loss,
+            best_epoch=self.best_epoch,
+            history=[],
+            wall_time_s=self.wall_time_s,
+        )
+
+
+def _atomic_save(payload: dict[str, Any], path: Path) -> None:
+    """Write `path` whole or not at all: a run killed mid-write keeps its previous file."""
+    partial = path.with_name(path.name + ".partial")
+    torch.save(payload, partial)
+    os.replace(partial, path)
+
+
+def save_best(path: Path, result: TrainResult, config: TrainConfig, command: str) -> None:
+    _atomic_save(
+        {
+            "state_dict": result.model.state_dict(),
+            "best_validation_loss": result.best_validation_loss,
+            "best_epoch": result.best_epoch,
+            "wall_time_s": result.wall_time_s,
+            "config": config.as_dict(),
+            "command": command,
+        },
+        path,
+    )
+
+
+def load_best(path: Path) -> BestCheckpoint:
+    checkpoint = torch.load(path, map_location="cpu", weights_only=False)
+    return BestCheckpoint(
+        config=TrainConfig(**checkpoint["config"]),
+        state_dict=checkpoint["state_dict"],
+        best_validation_loss=checkpoint["best_validation_loss"],
+        best_epoch=checkpoint["best_epoch"],
+        wall_time_s=checkpoint["wall_time_s"],
+        command=checkpoint["command"],
+    )
+
+
+@dataclass
+class RunState:
+    """last.pt: a run after `next_epoch` finished epochs, enough to continue it exactly."""
+
+    config: TrainConfig
+    next_epoch: int
+    model: dict[str, torch.Tensor]
+    optimizer: dict[str, Any]
+    scheduler: dict[str, Any]
+    generator: torch.Tensor  # torch.Generator.get_state()
+    best_validation_loss: float
+    best_epoch: int
+    best_model: dict[str, torch.Tensor]
+    history: list[dict[str, float]]
+    wall_time_s: float  # training time so far, over every session
+
+
+def save_state(path: Path, state: RunState) -> None:
+    payload = {f.name: getattr(state, f.name) for f in fields(RunState)}
+    payload["config"] = state.config.as_dict()
+    _atomic_save(payload, path)
+
+
+def load_state(path: Path, config: TrainConfig) -> RunState:
+    """The run state in `path`; ValueError naming the fields when it was made by another config."""
+    payload = torch.load(path, map_location="cpu", weights_only=False)
+    saved = TrainConfig(**payload["config"])
+    differing = [
+        f"{f.name} ({getattr(saved, f.name)!r} there, {getattr(config, f.name)!r} now)"
+        for f in fields(TrainConfig)
+        if f.name not in CHANGEABLE_ON_RESUME and getattr(saved, f.name) != getattr(config, f.name)
+    ]
+    if differing:
+        raise ValueError(
+            f"{path} was written by a run with other settings: {', '.join(differing)}; "
+            "resume with the same flags, or start afresh without --resume"
+        )
+    payload["config"] = config
+    return RunState(**payload)
