@@ -8,9 +8,8 @@ from pathlib import Path
 from pydantic import Field, SecretStr
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+from service.manifest import REPO_MODELS_DIR
 from service.observability.logs import LogLevel
-
-REPO_MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
 
 
 class Settings(BaseSettings):

@@ -7,12 +7,15 @@ defaults) and to trust it (training budget, measured quality, sha256 of every fi
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+# The bundled models: models/<model-id>/ beside service/ and training/ in the repository.
+REPO_MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
 MANIFEST_FILE = "manifest.json"
 FLOW_FILE = "flow.onnx"
 KINEMATICS_FILE = "kinematics.onnx"

@@ -8,8 +8,9 @@ from pathlib import Path
 import pytest
 from fastapi.testclient import TestClient
 
-from service.config import REPO_MODELS_DIR, Settings
+from service.config import Settings
 from service.main import create_app
+from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
 
 PLANAR3R_DIR = REPO_MODELS_DIR / "planar3r-position"

@@ -32,8 +32,7 @@ import httpx
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from service.config import REPO_MODELS_DIR
-from service.manifest import KINEMATICS_FILE, MANIFEST_FILE, Manifest
+from service.manifest import KINEMATICS_FILE, MANIFEST_FILE, REPO_MODELS_DIR, Manifest
 from service.models.sessions import OnnxKinematics, open_session
 from tools.local_server import LocalServer
 

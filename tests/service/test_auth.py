@@ -12,8 +12,9 @@ from collections.abc import Iterator
 import pytest
 from fastapi.testclient import TestClient
 
-from service.config import REPO_MODELS_DIR, Settings
+from service.config import Settings
 from service.http.auth import API_KEY_HEADER
+from service.manifest import REPO_MODELS_DIR
 from tests.conftest import make_client
 
 KEY = "s3cret-key-for-tests"

@@ -21,7 +21,7 @@ import numpy as np
 import onnx
 from onnx import TensorProto, helper
 
-from service.config import REPO_MODELS_DIR
+from service.manifest import REPO_MODELS_DIR
 from tests.conftest import PLANAR3R_DIR, make_client
 from training.evaluate.references.planar3r import planar3r_position
 

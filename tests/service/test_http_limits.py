@@ -15,9 +15,9 @@ from typing import Any
 
 from fastapi.testclient import TestClient
 
-from service.config import REPO_MODELS_DIR
 from service.http.limits import RequestLimitsMiddleware, is_json_content_type
 from service.main import API_PATHS, JSON_BODY_ROUTES
+from service.manifest import REPO_MODELS_DIR
 from tests.conftest import make_client
 
 BODY = {"robot": "planar3r", "task": "position", "target": {"position": [0.5, 0.0]}}

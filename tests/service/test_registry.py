@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from service.config import REPO_MODELS_DIR
 from service.errors import ModelUnavailableError, ModelVerificationError, UnknownModelError
+from service.manifest import REPO_MODELS_DIR
 from service.models.registry import Registry, load_model
 from tests.conftest import PLANAR3R_DIR, make_client
 

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import torch
 
-from service.config import REPO_MODELS_DIR
+from service.manifest import REPO_MODELS_DIR
 from training.data import (
     build_flow_data,
     end_effector_poses,

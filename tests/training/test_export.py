@@ -5,7 +5,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from service.config import REPO_MODELS_DIR
+from service.manifest import REPO_MODELS_DIR
 from training.export import (
     ExportParityError,
     check_flow_parity,

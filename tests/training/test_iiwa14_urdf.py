@@ -13,7 +13,7 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from service.config import REPO_MODELS_DIR
+from service.manifest import REPO_MODELS_DIR
 from tests.support.iiwa14_dh import LIMITS_RAD, iiwa14_pose
 from training.kinematics import ForwardKinematics, joint_spec, load_chain
 
