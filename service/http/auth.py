@@ -14,9 +14,9 @@ from starlette.datastructures import Headers
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 from service.http.asgi import send_json_error
+from service.http.paths import OPEN_PATHS
 
 API_KEY_HEADER = "X-API-Key"
-OPEN_PATHS = frozenset({"/healthz", "/readyz", "/metrics"})
 UNAUTHORIZED_MESSAGE = (
     f"missing or wrong API key: send it in the {API_KEY_HEADER} header "
     "(or Authorization: Bearer <key>); only /healthz, /readyz and /metrics are open"

@@ -18,8 +18,7 @@ from starlette.datastructures import Headers
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from service.http.asgi import send_json_error
-
-UNLIMITED_PATHS = frozenset({"/healthz", "/readyz", "/metrics"})
+from service.http.paths import OPEN_PATHS
 
 
 def is_json_content_type(value: str) -> bool:
@@ -53,7 +52,7 @@ class RequestLimitsMiddleware:
         self.open_requests = 0
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] != "http" or scope["path"] in UNLIMITED_PATHS:
+        if scope["type"] != "http" or scope["path"] in OPEN_PATHS:
             await self.app(scope, receive, send)
             return
         if self.open_requests >= self.max_open_requests:

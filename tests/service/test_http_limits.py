@@ -16,7 +16,7 @@ from typing import Any
 from fastapi.testclient import TestClient
 
 from service.http.limits import RequestLimitsMiddleware, is_json_content_type
-from service.main import API_PATHS, JSON_BODY_ROUTES
+from service.http.paths import API_PATHS, JSON_BODY_ROUTES
 from service.manifest import REPO_MODELS_DIR
 from tests.conftest import make_client
 

@@ -1,0 +1,79 @@
+"""Exception handlers: every error the service answers, in FastAPI's `{"detail": ...}` shape.
+
+Domain exceptions (`service/errors.py`) carry their own status; a request field error
+takes the shape of FastAPI's validation errors, so clients parse one format; validation
+errors name their field and what it allows; an unparseable body says why.
+"""
+
+from __future__ import annotations
+
+import math
+
+from fastapi import FastAPI, Request
+from fastapi.encoders import jsonable_encoder
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from starlette.exceptions import HTTPException as StarletteHTTPException
+
+from service.api.schemas import SmmRequest
+from service.config import Settings
+from service.errors import OverloadedError, RequestFieldError, SmmError
+from service.http.validation import explain
+
+
+def _error_response(request: Request, error: Exception) -> JSONResponse:
+    assert isinstance(error, SmmError)
+    if isinstance(error, RequestFieldError):
+        # The same shape as FastAPI's own validation errors, so clients parse one format.
+        detail: object = [
+            {"loc": list(error.location), "msg": error.message, "type": "value_error"}
+        ]
+    else:
+        detail = str(error)
+    headers = None
+    if isinstance(error, OverloadedError):
+        headers = {"Retry-After": str(error.retry_after_s)}
+    return JSONResponse({"detail": detail}, status_code=error.status_code, headers=headers)
+
+
+def _json_safe(value: object) -> object:
+    """Non-finite floats (which JSON cannot carry) become strings; containers recurse."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return str(value)
+    if isinstance(value, dict):
+        return {key: _json_safe(item) for key, item in value.items()}
+    if isinstance(value, list | tuple):
+        return [_json_safe(item) for item in value]
+    return value
+
+
+def _validation_error_response(request: Request, error: Exception) -> JSONResponse:
+    # Each message names its field and what the field allows. FastAPI's default handler
+    # also echoes the offending input, which fails to serialise (a 500) when that input
+    # is NaN or infinity: made JSON-safe here.
+    assert isinstance(error, RequestValidationError)
+    settings: Settings = request.app.state.settings
+    limits = {"num_samples": f"<= {settings.max_num_samples} (this server's limit)"}
+    schema = SmmRequest.model_json_schema()
+    errors = [explain(e, schema, limits) for e in jsonable_encoder(error.errors())]
+    return JSONResponse({"detail": _json_safe(errors)}, status_code=422)
+
+
+def _http_error_response(request: Request, error: Exception) -> JSONResponse:
+    # FastAPI answers a body that is JSON-shaped but unparseable (an integer of more than
+    # Python's 4300 digits) with a bare "There was an error parsing the body": say why.
+    assert isinstance(error, StarletteHTTPException)
+    detail = error.detail
+    if error.status_code == 400 and error.__cause__ is not None:
+        reason = str(error.__cause__).split(";")[0]
+        detail = (
+            f"body: could not be parsed ({reason}); allowed: a JSON object, numbers of at "
+            "most 4300 digits"
+        )
+    return JSONResponse({"detail": detail}, status_code=error.status_code, headers=error.headers)
+
+
+def install_exception_handlers(app: FastAPI) -> None:
+    app.add_exception_handler(SmmError, _error_response)
+    app.add_exception_handler(RequestValidationError, _validation_error_response)
+    app.add_exception_handler(StarletteHTTPException, _http_error_response)
