@@ -5,23 +5,23 @@ from __future__ import annotations
 from fastapi import APIRouter, Request
 from fastapi.responses import JSONResponse
 
-from service.api.schemas import FailedModelOut, Liveness, Readiness
+from service.api.schemas import FailedModelOut, LivenessResponse, ReadinessResponse
 
 router = APIRouter(tags=["health"])
 
 
-@router.get("/healthz", response_model=Liveness)
-async def healthz() -> Liveness:
+@router.get("/healthz", response_model=LivenessResponse)
+async def healthz() -> LivenessResponse:
     """The process is alive (and its event loop answers)."""
-    return Liveness(status="alive")
+    return LivenessResponse(status="alive")
 
 
 @router.get(
     "/readyz",
-    response_model=Readiness,
+    response_model=ReadinessResponse,
     responses={
         503: {
-            "model": Readiness,
+            "model": ReadinessResponse,
             "description": "Not ready: loading, draining, or a "
             "model failed verification (named in `failed`).",
         }
@@ -31,11 +31,11 @@ async def readyz(request: Request) -> JSONResponse:
     """Ready when every model found was loaded and verified, and the server is not draining."""
     registry = getattr(request.app.state, "registry", None)
     if registry is None:
-        answer = Readiness(status="loading", models=[], failed=[])
+        answer = ReadinessResponse(status="loading", models=[], failed=[])
     else:
         draining = getattr(request.app.state, "draining", False)
         status = "draining" if draining else ("ready" if registry.ready else "not_ready")
-        answer = Readiness(
+        answer = ReadinessResponse(
             status=status,
             models=[m.reference for m in registry.all()],
             failed=[FailedModelOut(name=f.name, reason=f.reason) for f in registry.failed],

@@ -5,15 +5,15 @@ from __future__ import annotations
 from fastapi import APIRouter
 
 from service.api.deps import RegistryDep
-from service.api.schemas import RobotModel, RobotsResponse, error_responses
+from service.api.schemas import RobotOut, RobotsResponse, error_responses
 from service.models.registry import ServedModel
 
 router = APIRouter(prefix="/robots", tags=["robots"])
 
 
-def describe(model: ServedModel) -> RobotModel:
+def describe(model: ServedModel) -> RobotOut:
     manifest = model.manifest
-    return RobotModel(
+    return RobotOut(
         robot=manifest.robot,
         task=manifest.task.name,
         model=model.reference,

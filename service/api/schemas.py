@@ -1,4 +1,9 @@
-"""Request and response models of the HTTP contract (see README)."""
+"""Request and response models of the HTTP contract (see README).
+
+Names follow one rule: a whole body ends in `Request` or `Response`, a part of one in `In`
+(inside a request) or `Out` (inside a response), so no wire model shares a name with the
+pipeline's types (`Target`, `SampleCounts`, ...).
+"""
 
 from __future__ import annotations
 
@@ -18,7 +23,7 @@ class _Request(BaseModel):
     model_config = ConfigDict(extra="forbid", strict=True)
 
 
-class Quaternion(_Request):
+class QuaternionIn(_Request):
     """Unit quaternion w + xi + yj + zk, fields named so the order is never ambiguous."""
 
     w: Finite
@@ -30,7 +35,7 @@ class Quaternion(_Request):
         return (self.w, self.x, self.y, self.z)
 
 
-class Target(_Request):
+class TargetIn(_Request):
     position: list[Finite] = Field(
         min_length=1,
         max_length=3,
@@ -38,12 +43,12 @@ class Target(_Request):
         "axis (2 for a planar arm, 3 in space).",
         examples=[[0.5, 0.0]],
     )
-    orientation: Quaternion | None = Field(
+    orientation: QuaternionIn | None = Field(
         None, description="Required for the pose task, refused for the position task."
     )
 
 
-class Tolerance(_Request):
+class ToleranceIn(_Request):
     position: Annotated[float, Field(gt=0.0, le=0.1, allow_inf_nan=False)] | None = Field(
         None, description="Largest accepted position error in metres (default: the model's)."
     )
@@ -57,12 +62,12 @@ class Tolerance(_Request):
 class SmmRequest(_Request):
     robot: str = Field(examples=["planar3r"])
     task: str = Field(examples=["position"])
-    target: Target
+    target: TargetIn
     num_samples: int | None = Field(
         None, ge=1, description="Flow samples to draw (default: the model's; 413 above the limit)."
     )
     seed: int = Field(0, ge=0, le=2**63 - 1, description="The same seed gives the same answer.")
-    tolerance: Tolerance = Field(default_factory=Tolerance)
+    tolerance: ToleranceIn = Field(default_factory=ToleranceIn)
     reference_configuration: list[Finite] | None = Field(
         None,
         description="Joint angles in radians (model joint order); components are then ordered "
@@ -76,7 +81,7 @@ class SmmRequest(_Request):
     )
 
 
-class Counts(BaseModel):
+class CountsOut(BaseModel):
     sampled: int
     accepted: int
     rejected_tolerance: int
@@ -103,14 +108,14 @@ class SmmResponse(BaseModel):
     joint_names: list[str]
     redundancy: int
     status: Literal["ok", "no_solution"]
-    counts: Counts
+    counts: CountsOut
     components: list[ComponentOut]
     timings_ms: dict[TimedSpan, float] = Field(
         description="Wall time in ms of each pipeline stage, in order, and of the whole run."
     )
 
 
-class RobotModel(BaseModel):
+class RobotOut(BaseModel):
     robot: str
     task: str
     model: str
@@ -127,16 +132,16 @@ class RobotModel(BaseModel):
 
 
 class RobotsResponse(BaseModel):
-    models: list[RobotModel]
+    models: list[RobotOut]
 
 
-class ErrorMessage(BaseModel):
+class ErrorResponse(BaseModel):
     """Every error but a malformed body's (422) is `{"detail": "<what, and what is allowed>"}`."""
 
     detail: str
 
 
-class Liveness(BaseModel):
+class LivenessResponse(BaseModel):
     status: Literal["alive"]
 
 
@@ -145,7 +150,7 @@ class FailedModelOut(BaseModel):
     reason: str = Field(description="Why it failed verification, naming the file.")
 
 
-class Readiness(BaseModel):
+class ReadinessResponse(BaseModel):
     status: Literal["ready", "not_ready", "loading", "draining"] = Field(
         description="ready: every model found was loaded and verified (200); otherwise 503."
     )
@@ -168,7 +173,7 @@ def error_responses(*statuses: int) -> dict[int | str, dict[str, Any]]:
     }
     responses: dict[int | str, dict[str, Any]] = {}
     for status in statuses:
-        responses[status] = {"model": ErrorMessage, "description": meaning[status]}
+        responses[status] = {"model": ErrorResponse, "description": meaning[status]}
     if 503 in responses:
         responses[503]["headers"] = {
             "Retry-After": {

@@ -10,7 +10,7 @@ from starlette.concurrency import run_in_threadpool
 from service.api.deps import AdmissionDep, MetricsDep, RegistryDep, SettingsDep
 from service.api.schemas import (
     ComponentOut,
-    Counts,
+    CountsOut,
     SmmRequest,
     SmmResponse,
     error_responses,
@@ -74,7 +74,7 @@ def to_response(model: ServedModel, result: SmmResult) -> SmmResponse:
         joint_names=manifest.joints.names,
         redundancy=manifest.redundancy,
         status="ok" if result.components else "no_solution",
-        counts=Counts(**vars(result.counts)),
+        counts=CountsOut(**vars(result.counts)),
         components=[_component_out(i, s) for i, s in enumerate(result.components)],
         timings_ms=result.timings.as_dict(),
     )
