@@ -3,17 +3,13 @@
 from __future__ import annotations
 
 from collections.abc import Iterator
-from pathlib import Path
 
 import pytest
 from fastapi.testclient import TestClient
 
-from service.config import Settings
-from service.main import create_app
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
-
-PLANAR3R_DIR = REPO_MODELS_DIR / "planar3r-position"
+from tests.support.app import PLANAR3R_DIR, make_client
 
 
 def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
@@ -26,10 +22,6 @@ def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
 @pytest.fixture(scope="session")
 def planar3r() -> ServedModel:
     return load_model(PLANAR3R_DIR, threads=0)
-
-
-def make_client(models_dir: Path, **settings: object) -> TestClient:
-    return TestClient(create_app(Settings(models_dir=models_dir, **settings)))  # type: ignore[arg-type]
 
 
 @pytest.fixture(scope="session")

@@ -16,8 +16,8 @@ import time
 import httpx
 import pytest
 
-from tests.service.test_observability import metric
 from tests.support.bodies import POSE
+from tests.support.metrics import metric
 from tools.local_server import LocalServer
 
 SLOW = {**POSE, "num_samples": 4000}

@@ -14,8 +14,7 @@ import httpx
 import pytest
 
 from tests.server.conftest import FUZZ_MAX_NUM_SAMPLES
-from tests.service.test_bad_inputs import check_answer
-from tests.support.bad_inputs import BadInput, catalogue
+from tests.support.bad_inputs import BadInput, catalogue, check_answer
 from tools.local_server import LocalServer
 
 CATALOGUE = catalogue(FUZZ_MAX_NUM_SAMPLES, max_body_bytes=65_536)

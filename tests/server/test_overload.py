@@ -16,9 +16,9 @@ import time
 
 import httpx
 
-from tests.service.test_observability import metric
 from tests.support.bodies import PLANAR
 from tests.support.bodies import POSE as IIWA
+from tests.support.metrics import metric
 from tools.local_server import LocalServer
 
 BURST = 30

@@ -22,7 +22,7 @@ import onnx
 from onnx import TensorProto, helper
 
 from service.manifest import REPO_MODELS_DIR
-from tests.conftest import PLANAR3R_DIR, make_client
+from tests.support.app import PLANAR3R_DIR, make_client
 from training.evaluate.references.planar3r import planar3r_position
 
 IIWA_BODY = {

@@ -10,7 +10,7 @@ import shutil
 from pathlib import Path
 
 from service.manifest import REPO_MODELS_DIR
-from tests.conftest import make_client
+from tests.support.app import make_client
 
 
 def test_requests_are_answered_from_memory_only(tmp_path: Path) -> None:

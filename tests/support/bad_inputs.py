@@ -2,7 +2,7 @@
 
 Each entry: the request, the status it must get, the field its message must name and
 an excerpt of what the message must say is allowed. Shared by the in-process test
-(tests/service/test_bad_inputs.py) and the real-server one (tests/server).
+(tests/service/api/test_bad_inputs.py) and the real-server one (tests/server).
 """
 
 from __future__ import annotations
@@ -11,20 +11,10 @@ import json
 from dataclasses import dataclass, field
 from typing import Any
 
-PLANAR: dict[str, Any] = {
-    "robot": "planar3r",
-    "task": "position",
-    "target": {"position": [0.5, 0.0]},
-}
-POSE: dict[str, Any] = {
-    "robot": "iiwa14",
-    "task": "pose",
-    "target": {
-        "position": [0.5, 0.1, 0.6],
-        "orientation": {"w": 0.0, "x": 1.0, "y": 0.0, "z": 0.0},
-    },
-    "num_samples": 50,
-}
+from tests.support import bodies
+
+PLANAR = bodies.PLANAR
+POSE: dict[str, Any] = {**bodies.POSE, "num_samples": 50}
 JSON = {"content-type": "application/json"}
 
 
@@ -402,3 +392,15 @@ def catalogue(max_num_samples: int, max_body_bytes: int) -> list[BadInput]:
             planar(reference_configuration=[0.0] * (max_body_bytes // 4)),
         ),
     ]
+
+
+def messages(answer: dict[str, Any]) -> list[str]:
+    """The message(s) of an error answer: 422 lists errors, every other status one detail."""
+    detail = answer["detail"]
+    return [e["msg"] for e in detail] if isinstance(detail, list) else [detail]
+
+
+def check_answer(bad: BadInput, status: int, answer: dict[str, Any]) -> None:
+    assert status == bad.status, answer
+    texts = messages(answer)
+    assert any(bad.field_name in text and bad.allowed in text for text in texts), texts

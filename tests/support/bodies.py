@@ -1,4 +1,4 @@
-"""Valid POST /smm bodies, one per served model, shared by the real-server tests."""
+"""Valid POST /smm bodies, one per served model, shared by the tests."""
 
 from __future__ import annotations
 

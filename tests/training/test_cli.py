@@ -9,7 +9,7 @@ import numpy as np
 
 from service.manifest import Manifest
 from service.models.registry import sha256_of
-from tests.conftest import make_client
+from tests.support.app import make_client
 from training.evaluate.references.planar3r import planar3r_position
 
 

@@ -12,7 +12,7 @@ import pytest
 from service.errors import ModelUnavailableError, ModelVerificationError, UnknownModelError
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import Registry, load_model
-from tests.conftest import PLANAR3R_DIR, make_client
+from tests.support.app import PLANAR3R_DIR, make_client
 
 
 def copy_models(tmp_path: Path) -> Path:

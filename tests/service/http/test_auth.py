@@ -15,7 +15,7 @@ from fastapi.testclient import TestClient
 from service.config import Settings
 from service.http.auth import API_KEY_HEADER
 from service.manifest import REPO_MODELS_DIR
-from tests.conftest import make_client
+from tests.support.app import make_client
 
 KEY = "s3cret-key-for-tests"
 BODY = {

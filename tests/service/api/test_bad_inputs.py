@@ -14,24 +14,12 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
-from tests.support.bad_inputs import POSE, BadInput, catalogue
+from tests.support.bad_inputs import POSE, BadInput, catalogue, check_answer
 
-DOC = Path(__file__).resolve().parents[2] / "docs" / "bad-inputs.md"
+DOC = Path(__file__).resolve().parents[3] / "docs" / "bad-inputs.md"
 MAX_NUM_SAMPLES = 5000  # the session client's limit (tests/conftest.py)
 MAX_BODY_BYTES = 65_536  # the default
 CATALOGUE = catalogue(MAX_NUM_SAMPLES, MAX_BODY_BYTES)
-
-
-def messages(answer: dict[str, Any]) -> list[str]:
-    """The message(s) of an error answer: 422 lists errors, every other status one detail."""
-    detail = answer["detail"]
-    return [e["msg"] for e in detail] if isinstance(detail, list) else [detail]
-
-
-def check_answer(bad: BadInput, status: int, answer: dict[str, Any]) -> None:
-    assert status == bad.status, answer
-    texts = messages(answer)
-    assert any(bad.field_name in text and bad.allowed in text for text in texts), texts
 
 
 def send(client: Any, bad: BadInput) -> Any:

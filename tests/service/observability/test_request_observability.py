@@ -16,6 +16,7 @@ import re
 from fastapi.testclient import TestClient
 
 from service.observability.logs import LOGGER_NAME, REQUEST_ID, JsonFormatter
+from tests.support.metrics import metric
 
 BODY = {
     "robot": "planar3r",
@@ -23,18 +24,6 @@ BODY = {
     "target": {"position": [0.5, 0.0]},
     "num_samples": 400,
 }
-
-
-def metric(text: str, name: str, **labels: str) -> float:
-    """The value of one sample of the exposition, by name and exact labels."""
-    for line in text.splitlines():
-        match = re.fullmatch(r"([a-z_]+)(?:\{(.*)\})? (\S+)", line)
-        if match is None or match.group(1) != name:
-            continue
-        found = dict(re.findall(r'(\w+)="([^"]*)"', match.group(2) or ""))
-        if found == labels:
-            return float(match.group(3))
-    raise KeyError(f"{name}{labels} not in the exposition")
 
 
 def test_request_ids_are_echoed_generated_or_replaced(client: TestClient) -> None:

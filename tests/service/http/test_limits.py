@@ -18,7 +18,7 @@ from fastapi.testclient import TestClient
 from service.http.limits import RequestLimitsMiddleware, is_json_content_type
 from service.http.paths import API_PATHS, JSON_BODY_ROUTES
 from service.manifest import REPO_MODELS_DIR
-from tests.conftest import make_client
+from tests.support.app import make_client
 
 BODY = {"robot": "planar3r", "task": "position", "target": {"position": [0.5, 0.0]}}
 
