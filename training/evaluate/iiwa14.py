@@ -20,14 +20,16 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial import cKDTree
 
-from service.config import REPO_MODELS_DIR
-from service.manifest import SamplerSpec
+from service.manifest import REPO_MODELS_DIR, SamplerSpec
 from service.models.registry import ServedModel, load_model
-from service.pipeline.run import Query, SmmResult, run
-from training.evaluate.planar3r import with_defaults
-from training.evaluate.quality import orientation_wxyz, returned_configurations
+from service.pipeline.run import run
+from service.pipeline.types import Query
+from training.evaluate.metrics import (
+    match_components,
+    match_summary,
+    median_stage_ms,
+)
 from training.evaluate.references.iiwa14 import (
     LIMITS_RAD,
     ReferenceComponent,
@@ -36,6 +38,8 @@ from training.evaluate.references.iiwa14 import (
     position_smm,
     rotation_angle_rad,
 )
+from training.evaluate.served import orientation_wxyz, returned_configurations, with_defaults
+from training.evaluate.targets import uniform_configurations
 
 REACH_M = 1.2  # the paper's L for the iiwa
 TOLERANCE = 1e-6  # m and rad, the service's defaults
@@ -48,20 +52,22 @@ class Targets:
 
 
 def held_out_targets(count: int, seed: int) -> Targets:
-    q = np.random.default_rng(seed).uniform(-LIMITS_RAD, LIMITS_RAD, (count, 7))
+    """Targets made by this module's own DH FK (independent of the URDF and the export)."""
+    q = uniform_configurations(-LIMITS_RAD, LIMITS_RAD, count, seed)
     return Targets(q_rad=q, pose=dh_pose(q))
 
 
-def query(pose: np.ndarray, orientation: bool, num_samples: int, seed: int) -> Query:
-    return Query(
+def query(model: ServedModel, pose: np.ndarray, num_samples: int, seed: int) -> Query:
+    """The query for a target pose (4, 4): its orientation too when the task is the pose."""
+    orientation = model.manifest.task.orientation
+    return Query.for_model(
+        model.manifest,
         position_m=pose[:3, 3].tolist(),
         orientation_wxyz=orientation_wxyz(pose[:3, :3]) if orientation else None,
         num_samples=num_samples,
         seed=seed,
         tolerance_position_m=TOLERANCE,
-        tolerance_orientation_rad=TOLERANCE,
-        reference_rad=None,
-        max_configurations_per_component=None,
+        tolerance_orientation_rad=TOLERANCE if orientation else None,
     )
 
 
@@ -98,13 +104,13 @@ def check(model: ServedModel, num_targets: int, seed: int, num_samples: int) -> 
     """Run every held-out target through the pipeline and re-check each answer by DH FK."""
     pose_task = model.manifest.task.orientation
     targets = held_out_targets(num_targets, seed)
-    run(model, query(targets.pose[0], pose_task, num_samples, seed=-1 % 2**31))  # warm-up
+    run(model, query(model, targets.pose[0], num_samples, seed=-1 % 2**31))  # warm-up
     no_solution, counts, timings, matches = [], [], [], []
     position_errors, orientation_errors = [np.zeros(0)], [np.zeros(0)]
     returned = violations = accounting = accepted = sampled = 0
     for i, target in enumerate(targets.pose):
-        result = run(model, query(target, pose_task, num_samples, seed=i))
-        timings.append({f"{k}_ms": v for k, v in result.timings.as_dict().items()})
+        result = run(model, query(model, target, num_samples, seed=i))
+        timings.append({str(k): v for k, v in result.timings.as_dict().items()})
         counts.append(len(result.components))
         if pose_task:
             matches.append(match_components(result, pose_smm(target[:3, 3], target[:3, :3])))
@@ -147,70 +153,10 @@ def check(model: ServedModel, num_targets: int, seed: int, num_samples: int) -> 
         components_mean=float(np.mean(counts)),
         components_median=float(np.median(counts)),
         components_max=int(np.max(counts)),
-        median_total_ms=float(np.median([t["total_ms"] for t in timings])),
-        median_stage_ms={
-            key.removesuffix("_ms"): round(float(np.median([t[key] for t in timings])), 2)
-            for key in timings[0]
-        },
+        median_total_ms=float(np.median([t["total"] for t in timings])),
+        median_stage_ms=median_stage_ms(timings),
         peak_rss_mib=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
-        **(_match_summary(matches) if matches else {}),
-    )
-
-
-def _match_summary(matches: list[ComponentMatch]) -> dict[str, float]:
-    return {
-        "reference_components_mean": float(np.mean([m.reference for m in matches])),
-        "recall": sum(m.found for m in matches) / sum(m.reference for m in matches),
-        "merged_per_target": float(np.mean([m.merged for m in matches])),
-        "split_per_target": float(np.mean([m.split for m in matches])),
-        "count_right": float(np.mean([m.returned == m.reference for m in matches])),
-    }
-
-
-@dataclass(frozen=True)
-class ComponentMatch:
-    """Returned components against the exact ones of a pose (S-R-S IK ground truth).
-
-    Each returned configuration is labelled with the reference component of its nearest
-    reference point (joint metric: Euclidean, no iiwa joint is periodic).
-    """
-
-    reference: int  # feasible components of the exact SMM
-    returned: int
-    found: int  # reference components holding at least one returned configuration
-    merged: int  # returned components whose members lie on two or more reference ones
-    split: int  # reference components spread over two or more returned ones
-    missed_arc_rad: list[float]  # arc lengths of the reference components not found
-    coverage_p95_rad: float  # over reference points: distance to the nearest returned one
-
-    @property
-    def exact(self) -> bool:
-        return self.returned == self.reference == self.found and not self.merged + self.split
-
-
-def match_components(result: SmmResult, reference: list[ReferenceComponent]) -> ComponentMatch:
-    points = np.concatenate([c.q_rad for c in reference])  # (P, 7)
-    owner = np.concatenate([np.full(len(c.q_rad), i) for i, c in enumerate(reference)])
-    tree = cKDTree(points)
-    labels = [owner[tree.query(c.configurations_rad)[1]] for c in result.components]
-    touched = [set(label.tolist()) for label in labels]
-    holders = np.zeros(len(reference), dtype=int)
-    for members in touched:
-        holders[list(members)] += 1
-    returned = returned_configurations(result, 7)
-    coverage_p95 = (
-        float(np.percentile(cKDTree(returned).query(points)[0], 95)) if len(returned) else np.inf
-    )
-    return ComponentMatch(
-        reference=len(reference),
-        returned=len(result.components),
-        found=int((holders > 0).sum()),
-        merged=sum(len(members) > 1 for members in touched),
-        split=int((holders > 1).sum()),
-        missed_arc_rad=[
-            round(c.arc_length_rad, 3) for c, h in zip(reference, holders, strict=True) if not h
-        ],
-        coverage_p95_rad=coverage_p95,
+        **(match_summary(matches) if matches else {}),
     )
 
 
@@ -218,7 +164,7 @@ def pose_sweep_row(
     model: ServedModel, targets: Targets, references: list[list[ReferenceComponent]], n: int
 ) -> dict[str, object]:
     matches = [
-        match_components(run(model, query(pose, True, n, seed=i)), references[i])
+        match_components(run(model, query(model, pose, n, seed=i)), references[i])
         for i, pose in enumerate(targets.pose)
     ]
     defaults = model.manifest.defaults
@@ -240,10 +186,9 @@ def component_counts(
     model: ServedModel, targets: Targets, num_samples: int, seed: int = 0
 ) -> np.ndarray:
     """(T,) number of components returned per target."""
-    pose_task = model.manifest.task.orientation
     return np.array(
         [
-            len(run(model, query(t, pose_task, num_samples, seed=seed + i)).components)
+            len(run(model, query(model, t, num_samples, seed=seed + i)).components)
             for i, t in enumerate(targets.pose)
         ]
     )

@@ -15,22 +15,24 @@ from __future__ import annotations
 import argparse
 import json
 import resource
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from service.config import REPO_MODELS_DIR
-from service.manifest import SamplerSpec
+from service.manifest import REPO_MODELS_DIR, SamplerSpec
 from service.models.registry import ServedModel, load_model
 from service.pipeline.joint_space import joint_distance
-from service.pipeline.run import Query, run
-from training.evaluate.quality import returned_configurations
+from service.pipeline.run import run
+from service.pipeline.types import Query
+from training.evaluate.metrics import median_stage_ms
 from training.evaluate.references.planar3r import (
     closed_form_smm,
     expected_component_count,
     planar3r_position,
 )
+from training.evaluate.served import returned_configurations, with_defaults
+from training.evaluate.targets import planar_targets_by_distance
 
 
 @dataclass(frozen=True)
@@ -48,27 +50,16 @@ class CheckReport:
     peak_rss_mib: float  # of this process (model loaded, all queries run)
 
 
-def query(position: np.ndarray, num_samples: int = 1000, seed: int = 0) -> Query:
-    return Query(
+def query(
+    model: ServedModel, position: np.ndarray, num_samples: int = 1000, seed: int = 0
+) -> Query:
+    return Query.for_model(
+        model.manifest,
         position_m=position.tolist(),
-        orientation_wxyz=None,
         num_samples=num_samples,
         seed=seed,
         tolerance_position_m=1e-6,
-        tolerance_orientation_rad=1e-6,
-        reference_rad=None,
-        max_configurations_per_component=None,
     )
-
-
-def random_targets(count: int, seed: int) -> np.ndarray:
-    """(count, 2) targets, half at rho in (0.05, 0.95), half in (1.05, 2.95), random bearing."""
-    rng = np.random.default_rng(seed)
-    inner = rng.uniform(0.05, 0.95, count // 2)
-    outer = rng.uniform(1.05, 2.95, count - count // 2)
-    rho = np.concatenate([inner, outer])
-    bearing = rng.uniform(-np.pi, np.pi, count)
-    return rho[:, None] * np.stack([np.cos(bearing), np.sin(bearing)], axis=1)
 
 
 def check(model: ServedModel, num_targets: int = 50, seed: int = 2) -> CheckReport:
@@ -76,12 +67,12 @@ def check(model: ServedModel, num_targets: int = 50, seed: int = 2) -> CheckRepo
     periodic = np.asarray(model.manifest.joints.periodic)
     correct, wrong, fk_errors = 0, [], [np.zeros(0)]
     accepted, sampled, timings = 0, 0, []
-    run(model, query(np.array([2.0, 0.0])))  # warm-up: first-call allocations in onnxruntime
-    for i, target in enumerate(random_targets(num_targets, seed)):
-        result = run(model, query(target, seed=i))
+    run(model, query(model, np.array([2.0, 0.0])))  # warm-up: first-call allocations in onnxruntime
+    for i, target in enumerate(planar_targets_by_distance(num_targets, seed)):
+        result = run(model, query(model, target, seed=i))
         accepted += result.counts.accepted
         sampled += result.counts.sampled
-        timings.append({f"{k}_ms": v for k, v in result.timings.as_dict().items()})
+        timings.append({str(k): v for k, v in result.timings.as_dict().items()})
         rho = float(np.linalg.norm(target))
         expected = expected_component_count(rho)
         if len(result.components) == expected:
@@ -91,7 +82,7 @@ def check(model: ServedModel, num_targets: int = 50, seed: int = 2) -> CheckRepo
         q = returned_configurations(result, 3)
         fk_errors.append(np.linalg.norm(planar3r_position(q) - target, axis=1))
     target = np.array([2.0, 0.0])
-    q = returned_configurations(run(model, query(target)), 3)
+    q = returned_configurations(run(model, query(model, target)), 3)
     truth = np.concatenate(closed_form_smm(target))
     nearest = np.array([joint_distance(q, p, periodic).min() for p in truth])
     return CheckReport(
@@ -103,19 +94,10 @@ def check(model: ServedModel, num_targets: int = 50, seed: int = 2) -> CheckRepo
         coverage_max_rad=float(nearest.max()),
         coverage_within_0_1=float(np.mean(nearest <= 0.1)),
         keep_rate=accepted / sampled,
-        median_total_ms=float(np.median([t["total_ms"] for t in timings])),
-        median_stage_ms={
-            key.removesuffix("_ms"): round(float(np.median([t[key] for t in timings])), 2)
-            for key in timings[0]
-        },
+        median_total_ms=float(np.median([t["total"] for t in timings])),
+        median_stage_ms=median_stage_ms(timings),
         peak_rss_mib=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
     )
-
-
-def with_defaults(model: ServedModel, **changes: object) -> ServedModel:
-    """The same model with some serving defaults changed (for measuring candidates)."""
-    defaults = model.manifest.defaults.model_copy(update=changes)
-    return replace(model, manifest=model.manifest.model_copy(update={"defaults": defaults}))
 
 
 def sweep(model: ServedModel, num_targets: int) -> list[dict[str, object]]:

@@ -20,9 +20,11 @@ matplotlib.use("Agg")  # files only, no display
 import matplotlib.pyplot as plt
 import numpy as np
 
-from service.config import REPO_MODELS_DIR
+from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
-from training.evaluate.report import distance_from_base_m, flow_target, ground_truth
+from training.evaluate.methods import flow_target
+from training.evaluate.targets import distance_from_base_m
+from training.evaluate.truth import ground_truth
 
 PLOTS_DIR = Path(__file__).resolve().parents[2] / "docs" / "plots"
 

@@ -9,45 +9,18 @@ the default tolerances.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from service.manifest import Quality, RawError
 from service.models.registry import ServedModel
 from service.pipeline.acceptance import accept
 from service.pipeline.correction import correct, task_error_norms
-from service.pipeline.run import SmmResult
 from service.pipeline.sampling import sample_configurations
 from service.pipeline.targets import encode_target
+from training.evaluate.served import orientation_wxyz
+from training.evaluate.targets import held_out_targets
 
 PAPER_SAMPLER_STEPS = 100
-
-
-@dataclass(frozen=True)
-class HeldOutTargets:
-    q_rad: np.ndarray  # (T, n) the configurations whose FK made the targets
-    position_m: np.ndarray  # (T, 3)
-    rotation: np.ndarray  # (T, 3, 3)
-
-
-def held_out_targets(served: ServedModel, count: int, seed: int) -> HeldOutTargets:
-    lower, upper, _ = served.manifest.joints.arrays()
-    q = np.random.default_rng(seed).uniform(lower, upper, size=(count, len(lower)))
-    fk = served.kinematics(q)
-    return HeldOutTargets(q_rad=q, position_m=fk.position_m, rotation=fk.rotation)
-
-
-def returned_configurations(result: SmmResult, num_joints: int) -> np.ndarray:
-    """(K, n) every configuration a pipeline answer returned, all components together."""
-    listed = [c.configurations_rad for c in result.components]
-    return np.concatenate(listed) if listed else np.zeros((0, num_joints))
-
-
-def orientation_wxyz(rotation: np.ndarray) -> tuple[float, float, float, float]:
-    x, y, z, w = Rotation.from_matrix(rotation).as_quat()
-    return (float(w), float(x), float(y), float(z))
 
 
 def summarise_raw(

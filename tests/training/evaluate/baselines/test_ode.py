@@ -1,4 +1,4 @@
-"""training.evaluate.ode_baseline: the paper's null-space RK5 trace closes and stays on the fibre.
+"""training.evaluate.baselines.ode: the paper's null-space RK5 trace closes and stays on the fibre.
 
 Checked against the planar closed form (FK and the closed-form SMM) and, for the iiwa14
 pose, against the tests' DH FK and the S-R-S IK loops; an r > 1 task is refused.
@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from service.config import REPO_MODELS_DIR
+from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
 from service.pipeline.joint_space import joint_distance
 from tests.support.iiwa14_dh import iiwa14_pose, rotation_angle_rad
-from training.evaluate.ode_baseline import CLOSURE_RAD, trace_smm
+from training.evaluate.baselines.ode import CLOSURE_RAD, trace_smm
 from training.evaluate.references.iiwa14 import BRANCHES, inverse_kinematics
 from training.evaluate.references.planar3r import closed_form_smm, planar3r_position
 

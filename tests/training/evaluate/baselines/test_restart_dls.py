@@ -1,4 +1,4 @@
-"""training.evaluate.restart_dls: the random-restart DLS baseline finds exact solutions.
+"""training.evaluate.baselines.restart_dls: the random-restart DLS baseline finds exact solutions.
 
 Its accepted solutions (the service's own acceptance) are checked by independent FK:
 the closed form for the planar arm, the tests' DH table for the iiwa pose; a fixed seed
@@ -9,15 +9,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from service.config import REPO_MODELS_DIR
+from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
 from service.pipeline.acceptance import accept
 from service.pipeline.correction import task_error_norms
 from service.pipeline.targets import Target
 from service.pipeline.types import Correction
 from tests.support.iiwa14_dh import LIMITS_RAD, iiwa14_pose, rotation_angle_rad
+from training.evaluate.baselines.restart_dls import random_restart_dls
 from training.evaluate.references.planar3r import planar3r_position
-from training.evaluate.restart_dls import random_restart_dls
 from training.kinematics import load_chain
 
 

@@ -1,9 +1,10 @@
-"""training.evaluate.references.iiwa14 (S-R-S IK ground truth) and the component matcher.
+"""references.iiwa14: the S-R-S IK ground truth of the iiwa14.
 
 The IK's configurations are checked by the tests' own DH FK (tests/support/iiwa14_dh.py) to
 1e-9 on all 8 branches; the configuration that made a target must lie on its exact SMM;
-each feasible component stays within the limits and is continuous. The matcher is
-checked on answers built from the ground truth itself: exact, merged and missed cases.
+each feasible component stays within the limits and is continuous; the 4-D position SMM
+is exact and feasible, q7 does not move the position, and a feasible walk along the
+position fibre stays in one component.
 """
 
 from __future__ import annotations
@@ -12,10 +13,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from service.pipeline.components import summarise_all
-from service.pipeline.types import Component, SampleCounts, SmmResult, StageTimings
 from tests.support.iiwa14_dh import LIMITS_RAD, iiwa14_pose, rotation_angle_rad
-from training.evaluate.iiwa14 import match_components
 from training.evaluate.references.iiwa14 import (
     BRANCHES,
     inverse_kinematics,
@@ -74,43 +72,6 @@ def test_components_are_feasible_continuous_and_exact() -> None:
             assert component.arc_length_rad == pytest.approx(steps.sum(), rel=1e-9, abs=0.2)
             reached = iiwa14_pose(component.q_rad)
             assert np.abs(reached[:, :3, 3] - pose[:3, 3]).max() < 1e-9
-
-
-def _answer(pieces: list[np.ndarray]) -> SmmResult:
-    components = [
-        Component(
-            q_rad=q, position_error_m=np.zeros(len(q)), orientation_error_rad=np.zeros(len(q))
-        )
-        for q in pieces
-    ]
-    accepted = sum(len(q) for q in pieces)
-    return SmmResult(
-        counts=SampleCounts(sampled=accepted, accepted=accepted, rejected_tolerance=0,
-                            rejected_joint_limits=0),
-        components=summarise_all(components, np.zeros(7, dtype=bool), None, None),
-        timings=StageTimings(stage_ms={}, total_ms=0.0),
-    )  # fmt: skip
-
-
-def test_matcher_recognises_exact_merged_and_missed_components() -> None:
-    _, poses = _targets(1, seed=3)
-    reference = pose_smm(poses[0][:3, 3], poses[0][:3, :3])
-    assert len(reference) >= 3
-    every = [c.q_rad[::5] for c in reference]
-
-    exact = match_components(_answer(every), reference)
-    assert exact.exact and exact.found == len(reference) and exact.coverage_p95_rad < 0.05
-
-    merged = match_components(_answer([np.concatenate(every[:2]), *every[2:]]), reference)
-    assert merged.merged == 1 and merged.returned == len(reference) - 1 and not merged.exact
-
-    missed = match_components(_answer(every[1:]), reference)
-    assert missed.found == len(reference) - 1
-    assert missed.missed_arc_rad == [round(reference[0].arc_length_rad, 3)]
-
-    halves = np.array_split(every[0], 2)
-    split = match_components(_answer([*halves, *every[1:]]), reference)
-    assert split.split == 1 and not split.exact
 
 
 def test_position_smm_points_are_exact_feasible_and_q7_does_not_move_the_position() -> None:

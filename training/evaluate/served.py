@@ -1,0 +1,32 @@
+"""Asking the served model as a client would: queries for a target, candidate defaults,
+and the configurations an answer returned."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from service.models.registry import ServedModel
+from service.pipeline.arrays import FloatArray
+from service.pipeline.types import SmmResult
+
+
+def with_defaults(model: ServedModel, **changes: object) -> ServedModel:
+    """The same model with some serving defaults changed (for measuring candidates)."""
+    defaults = model.manifest.defaults.model_copy(update=changes)
+    return replace(model, manifest=model.manifest.model_copy(update={"defaults": defaults}))
+
+
+def returned_configurations(result: SmmResult, num_joints: int) -> FloatArray:
+    """(K, n) every configuration a pipeline answer returned, all components together."""
+    listed = [c.configurations_rad for c in result.components]
+    return np.concatenate(listed) if listed else np.zeros((0, num_joints))
+
+
+def orientation_wxyz(rotation: FloatArray) -> tuple[float, float, float, float]:
+    """The unit quaternion {w, x, y, z} of a rotation matrix (3, 3), as a request sends it."""
+    x, y, z, w = Rotation.from_matrix(rotation).as_quat()
+    return (float(w), float(x), float(y), float(z))
+

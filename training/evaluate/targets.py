@@ -1,0 +1,64 @@
+"""Held-out targets: every way the evaluation draws them, in one place.
+
+A target is the forward kinematics of a configuration drawn uniformly within the joint
+limits, with a seed distinct from training's, so every target is reachable and the
+configuration that made it is known. The planar 3R's checks draw by distance from the
+base instead, to cover both of its regimes (two components inside rho = 1, one beyond).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from service.pipeline.arrays import FloatArray
+from service.pipeline.types import SmmModel
+from training.evaluate.references.iiwa14 import SHOULDER_M
+
+
+def uniform_configurations(
+    lower_rad: FloatArray,  # (n,)
+    upper_rad: FloatArray,  # (n,)
+    count: int,
+    seed: int,
+) -> FloatArray:  # (count, n)
+    """Configurations uniform in the box of the limits, from a fresh generator."""
+    return np.random.default_rng(seed).uniform(lower_rad, upper_rad, (count, len(lower_rad)))
+
+
+@dataclass(frozen=True)
+class HeldOutTargets:
+    q_rad: FloatArray  # (T, n) the configurations whose FK made the targets
+    position_m: FloatArray  # (T, 3)
+    rotation: FloatArray  # (T, 3, 3)
+
+
+def held_out_targets(model: SmmModel, count: int, seed: int) -> HeldOutTargets:
+    """`count` targets: the model's own FK of configurations uniform in its limits."""
+    lower_rad, upper_rad, _ = model.manifest.joints.arrays()
+    q_rad = uniform_configurations(lower_rad, upper_rad, count, seed)
+    fk = model.kinematics(q_rad)
+    return HeldOutTargets(q_rad=q_rad, position_m=fk.position_m, rotation=fk.rotation)
+
+
+def planar_targets_by_distance(count: int, seed: int) -> FloatArray:  # (count, 2) m
+    """Half at rho in (0.05, 0.95), half in (1.05, 2.95), random bearing (planar 3R)."""
+    rng = np.random.default_rng(seed)
+    inner = rng.uniform(0.05, 0.95, count // 2)
+    outer = rng.uniform(1.05, 2.95, count - count // 2)
+    rho = np.concatenate([inner, outer])
+    bearing = rng.uniform(-np.pi, np.pi, count)
+    return rho[:, None] * np.stack([np.cos(bearing), np.sin(bearing)], axis=1)
+
+
+def distance_from_base_m(model: SmmModel, q_targets: FloatArray) -> FloatArray:
+    """(T,) distance of each target from the arm's base point (the iiwa's shoulder)."""
+    base = SHOULDER_M if model.manifest.robot == "iiwa14" else np.zeros(3)
+    return np.linalg.norm(model.kinematics(q_targets).position_m - base, axis=1)
+
+
+def near_boundary(model: SmmModel, q_targets: FloatArray) -> np.ndarray:
+    """(T,) targets in the outer 10 % of the reach from the base point."""
+    distance = distance_from_base_m(model, q_targets)
+    return distance >= 0.9 * distance.max()

@@ -1,0 +1,54 @@
+"""Exact ground truth per target, from the references: every exact configuration of the
+SMM within the limits, and (iiwa) the component of each and each component's size."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from service.pipeline.types import SmmModel
+from training.evaluate.references.iiwa14 import MIN_SHARE, pose_smm, position_smm
+from training.evaluate.references.planar3r import closed_form_smm, expected_component_count
+
+# Recall of exact components is reported per size bucket: small pieces are expected
+# to be missed more often at a fixed number of samples. Size is the arc length of a
+# 1-D component and the share of the fibre of a 4-D one.
+ARC_BUCKETS_RAD = (0.0, 0.5, 2.0, np.inf)
+SHARE_BUCKETS = (0.0, MIN_SHARE, 0.1, np.inf)
+
+@dataclass(frozen=True)
+class Truth:
+    points: np.ndarray  # (P, n) exact configurations within the limits
+    count: int  # number of feasible components (4-D: those of at least MIN_SHARE)
+    # Component of each point, each component's size and the size buckets (iiwa only).
+    point_component: np.ndarray | None = None  # (P,)
+    size: np.ndarray | None = None  # (C,) arc length in rad (1-D) or share of the fibre (4-D)
+    size_edges: tuple[float, ...] = ARC_BUCKETS_RAD
+    # Joints that decide membership: the 4-D fibre is q1..q6's fibre times any q7.
+    membership_joints: int = 7  # the first this many joints
+
+
+def ground_truth(model: SmmModel, q_target: np.ndarray, seed: int) -> Truth:
+    fk = model.kinematics(q_target[None])
+    position, rotation = fk.position_m[0], fk.rotation[0]
+    if model.manifest.robot == "planar3r":
+        components = closed_form_smm(position[:2], phi_step_rad=0.002)
+        count = expected_component_count(float(np.linalg.norm(position[:2])))
+        return Truth(np.concatenate(components), count)
+    if model.manifest.task.orientation:
+        exact = pose_smm(position, rotation)
+        return Truth(
+            np.concatenate([c.q_rad for c in exact]),
+            len(exact),
+            np.concatenate([np.full(len(c.q_rad), i) for i, c in enumerate(exact)]),
+            np.array([c.arc_length_rad for c in exact]),
+        )
+    fibre = position_smm(position, seed=seed)
+    if fibre.count == 0:
+        # At the edge of the workspace (arm straight) the fibre is thinner than the grid
+        # and no node lands on it: the generating configuration stands for it.
+        return Truth(q_target[None], 1, np.zeros(1, int), np.ones(1), SHARE_BUCKETS, 6)
+    return Truth(fibre.q_rad, fibre.count, fibre.component, fibre.share, SHARE_BUCKETS, 6)
+
+
