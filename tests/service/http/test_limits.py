@@ -1,4 +1,4 @@
-"""http_limits: bodies are bounded and JSON, open requests are capped with a prompt 503.
+"""http.limits: bodies are bounded and JSON, open requests are capped with a prompt 503.
 
 The body limit holds for a chunked body that declares no length (cut off while being
 read, never buffered beyond the limit); the cap on open requests answers 503 with

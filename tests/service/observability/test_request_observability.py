@@ -16,6 +16,7 @@ import re
 from fastapi.testclient import TestClient
 
 from service.observability.logs import LOGGER_NAME, REQUEST_ID, JsonFormatter
+from service.pipeline.types import TIMED_SPANS
 from tests.support.metrics import metric
 
 BODY = {
@@ -87,7 +88,7 @@ def test_metrics_count_what_was_served(client: TestClient) -> None:
         metric(text, "smm_http_requests_total", route="/smm", method="POST", model="", status="404")
         >= 1
     )
-    for stage in ("encode", "sample", "correct", "accept", "cluster", "total"):
+    for stage in TIMED_SPANS:
         assert (
             metric(
                 text,
