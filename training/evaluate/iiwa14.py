@@ -38,23 +38,16 @@ from training.evaluate.references.iiwa14 import (
     position_smm,
     rotation_angle_rad,
 )
-from training.evaluate.served import orientation_wxyz, returned_configurations, with_defaults
-from training.evaluate.targets import uniform_configurations
+from training.evaluate.served import (
+    orientation_wxyz,
+    returned_configurations,
+    stage_times_ms,
+    with_defaults,
+)
+from training.evaluate.targets import DhTargets, dh_targets
 
 REACH_M = 1.2  # the paper's L for the iiwa
 TOLERANCE = 1e-6  # m and rad, the service's defaults
-
-
-@dataclass(frozen=True)
-class Targets:
-    q_rad: np.ndarray  # (T, 7) the configurations whose FK made the targets
-    pose: np.ndarray  # (T, 4, 4)
-
-
-def held_out_targets(count: int, seed: int) -> Targets:
-    """Targets made by this module's own DH FK (independent of the URDF and the export)."""
-    q = uniform_configurations(-LIMITS_RAD, LIMITS_RAD, count, seed)
-    return Targets(q_rad=q, pose=dh_pose(q))
 
 
 def query(model: ServedModel, pose: np.ndarray, num_samples: int, seed: int) -> Query:
@@ -103,14 +96,14 @@ class CheckReport:
 def check(model: ServedModel, num_targets: int, seed: int, num_samples: int) -> CheckReport:
     """Run every held-out target through the pipeline and re-check each answer by DH FK."""
     pose_task = model.manifest.task.orientation
-    targets = held_out_targets(num_targets, seed)
+    targets = dh_targets(num_targets, seed)
     run(model, query(model, targets.pose[0], num_samples, seed=-1 % 2**31))  # warm-up
     no_solution, counts, timings, matches = [], [], [], []
     position_errors, orientation_errors = [np.zeros(0)], [np.zeros(0)]
     returned = violations = accounting = accepted = sampled = 0
     for i, target in enumerate(targets.pose):
         result = run(model, query(model, target, num_samples, seed=i))
-        timings.append({str(k): v for k, v in result.timings.as_dict().items()})
+        timings.append(stage_times_ms(result))
         counts.append(len(result.components))
         if pose_task:
             matches.append(match_components(result, pose_smm(target[:3, 3], target[:3, :3])))
@@ -161,7 +154,7 @@ def check(model: ServedModel, num_targets: int, seed: int, num_samples: int) -> 
 
 
 def pose_sweep_row(
-    model: ServedModel, targets: Targets, references: list[list[ReferenceComponent]], n: int
+    model: ServedModel, targets: DhTargets, references: list[list[ReferenceComponent]], n: int
 ) -> dict[str, object]:
     matches = [
         match_components(run(model, query(model, pose, n, seed=i)), references[i])
@@ -183,7 +176,7 @@ def pose_sweep_row(
 
 
 def component_counts(
-    model: ServedModel, targets: Targets, num_samples: int, seed: int = 0
+    model: ServedModel, targets: DhTargets, num_samples: int, seed: int = 0
 ) -> np.ndarray:
     """(T,) number of components returned per target."""
     return np.array(
@@ -211,7 +204,7 @@ def sweep(
         rows.append(row)
         print(json.dumps(row), flush=True)
 
-    targets = held_out_targets(num_targets, seed)
+    targets = dh_targets(num_targets, seed)
     pose_task = model.manifest.task.orientation
     sampler_and_correction: list[tuple[int | None, int | None]] = [
         (steps, None) for steps in (10, 20, 50)

@@ -19,22 +19,22 @@ from service.pipeline.targets import Target, encode_target
 from service.pipeline.types import Correction, Query
 from training.evaluate.baselines.ode import trace_smm
 from training.evaluate.baselines.restart_dls import random_restart_dls
-from training.evaluate.served import orientation_wxyz
+from training.evaluate.served import orientation_wxyz, stage_times_ms
 
 
 @dataclass
 class MethodTarget:
     """One method's answer to one target."""
 
-    raw_position_m: np.ndarray
-    raw_orientation_rad: np.ndarray
+    raw_position_m: np.ndarray  # (S,) task-space error of every raw sample
+    raw_orientation_rad: np.ndarray  # (S,) zeros when the task has no orientation
     returned: np.ndarray  # (K, n) accepted configurations
-    returned_position_m: np.ndarray
-    returned_orientation_rad: np.ndarray
+    returned_position_m: np.ndarray  # (K,)
+    returned_orientation_rad: np.ndarray  # (K,)
     labels: np.ndarray | None  # (K,) component of each, None for the ODE trace
-    sampled: int
+    sampled: int  # samples drawn (the denominator of the keep rate)
     time_ms: float
-    stage_ms: dict[str, float] | None = None
+    stage_ms: dict[str, float] | None = None  # per timed span (the pipeline only)
 
 
 def flow_target(
@@ -64,8 +64,22 @@ def flow_target(
         if len(q)
         else (q[:, 0], q[:, 0])
     )
-    stages: dict[str, float] = {str(k): v for k, v in result.timings.as_dict().items()}
+    stages = stage_times_ms(result)
     return MethodTarget(raw_p, raw_o, q, p, o, labels, num_samples, stages["total"], stages)
+
+
+def raw_samples_target(answer: MethodTarget) -> MethodTarget:
+    """The flow alone (FM): the service's raw samples, none returned, timed by its sampler."""
+    return MethodTarget(
+        raw_position_m=answer.raw_position_m,
+        raw_orientation_rad=answer.raw_orientation_rad,
+        returned=np.zeros((0, answer.returned.shape[1])),
+        returned_position_m=answer.raw_position_m,
+        returned_orientation_rad=answer.raw_orientation_rad,
+        labels=None,
+        sampled=answer.sampled,
+        time_ms=answer.stage_ms["sample"] if answer.stage_ms else float("nan"),
+    )
 
 
 def reference_target(model: ServedModel, q_target: np.ndarray) -> tuple[Target, np.ndarray]:

@@ -76,10 +76,7 @@ def summarise(
         "median_time_ms": float(np.median([a.time_ms for a in answers])),
     }
     if answers[0].stage_ms is not None:
-        summary["median_stage_ms"] = {
-            k: round(float(np.median([a.stage_ms[k] for a in answers if a.stage_ms])), 2)
-            for k in answers[0].stage_ms
-        }
+        summary["median_stage_ms"] = median_stage_ms([a.stage_ms for a in answers if a.stage_ms])
     if answers[0].labels is None:
         return summary
     coverage = [

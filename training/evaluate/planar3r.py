@@ -31,7 +31,7 @@ from training.evaluate.references.planar3r import (
     expected_component_count,
     planar3r_position,
 )
-from training.evaluate.served import returned_configurations, with_defaults
+from training.evaluate.served import returned_configurations, stage_times_ms, with_defaults
 from training.evaluate.targets import planar_targets_by_distance
 
 
@@ -72,7 +72,7 @@ def check(model: ServedModel, num_targets: int = 50, seed: int = 2) -> CheckRepo
         result = run(model, query(model, target, seed=i))
         accepted += result.counts.accepted
         sampled += result.counts.sampled
-        timings.append({str(k): v for k, v in result.timings.as_dict().items()})
+        timings.append(stage_times_ms(result))
         rho = float(np.linalg.norm(target))
         expected = expected_component_count(rho)
         if len(result.components) == expected:

@@ -23,7 +23,7 @@ import numpy as np
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
 from training.evaluate.methods import flow_target
-from training.evaluate.targets import distance_from_base_m
+from training.evaluate.targets import distance_from_base_m, uniform_configurations
 from training.evaluate.truth import ground_truth
 
 PLOTS_DIR = Path(__file__).resolve().parents[2] / "docs" / "plots"
@@ -91,7 +91,7 @@ def count_accuracy_plot(models: list[ServedModel], num_targets: int, path: Path)
     figure, axis = plt.subplots(figsize=(6, 3.2))
     for model in models:
         lower, upper, _ = model.manifest.joints.arrays()
-        q_targets = np.random.default_rng(11).uniform(lower, upper, (num_targets, len(lower)))
+        q_targets = uniform_configurations(lower, upper, num_targets, seed=11)
         right, distance = [], []
         for i, q in enumerate(q_targets):
             truth = ground_truth(model, q, seed=i)
@@ -127,7 +127,7 @@ def main() -> None:
     pairwise_projection(pose, np.array([0.3, 0.6, 0.0, -1.2, 0.0, 0.9, 0.0]),
                         args.out / "iiwa14-pose-projections.png")  # fmt: skip
     lower, upper, _ = position.manifest.joints.arrays()
-    q_targets = np.random.default_rng(12).uniform(lower, upper, (args.targets, len(lower)))
+    q_targets = uniform_configurations(lower, upper, args.targets, seed=12)
     fk_error_histogram(position, q_targets, args.out / "iiwa14-position-fk-error.png")
     count_accuracy_plot(
         [planar, pose, position], args.targets, args.out / "count-accuracy-by-distance.png"

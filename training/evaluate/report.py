@@ -25,7 +25,13 @@ import numpy as np
 
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
-from training.evaluate.methods import MethodTarget, flow_target, ode_target, restart_target
+from training.evaluate.methods import (
+    MethodTarget,
+    flow_target,
+    ode_target,
+    raw_samples_target,
+    restart_target,
+)
 from training.evaluate.metrics import missed_components, summarise
 from training.evaluate.rendering import markdown, table_2
 from training.evaluate.targets import near_boundary, uniform_configurations
@@ -53,11 +59,7 @@ def evaluate(
     for i, q in enumerate(q_targets):
         answer = flow_target(model, q, num_samples, seed=i)
         methods["FM + DLS"].append(answer)
-        methods["FM"].append(MethodTarget(
-            answer.raw_position_m, answer.raw_orientation_rad, np.zeros((0, len(q))),
-            answer.raw_position_m, answer.raw_orientation_rad, None, num_samples,
-            answer.stage_ms["sample"] if answer.stage_ms else float("nan"),
-        ))  # fmt: skip
+        methods["FM"].append(raw_samples_target(answer))
         methods["random-restart DLS"].append(restart_target(model, chain, q, num_samples, seed=i))
         if one_dimensional:
             methods["ODE"].append(ode_target(model, q))

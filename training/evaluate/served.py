@@ -25,6 +25,11 @@ def returned_configurations(result: SmmResult, num_joints: int) -> FloatArray:
     return np.concatenate(listed) if listed else np.zeros((0, num_joints))
 
 
+def stage_times_ms(result: SmmResult) -> dict[str, float]:
+    """Wall time of each timed span of an answer (`StageTimings.as_dict()`), in ms."""
+    return {str(span): ms for span, ms in result.timings.as_dict().items()}
+
+
 def orientation_wxyz(rotation: FloatArray) -> tuple[float, float, float, float]:
     """The unit quaternion {w, x, y, z} of a rotation matrix (3, 3), as a request sends it."""
     x, y, z, w = Rotation.from_matrix(rotation).as_quat()

@@ -3,7 +3,9 @@
 A target is the forward kinematics of a configuration drawn uniformly within the joint
 limits, with a seed distinct from training's, so every target is reachable and the
 configuration that made it is known. The planar 3R's checks draw by distance from the
-base instead, to cover both of its regimes (two components inside rho = 1, one beyond).
+base instead, to cover both of its regimes (two components inside rho = 1, one beyond),
+and the iiwa14 acceptance check makes its targets with the paper's DH table rather than
+the model's own kinematics, so that the check shares no code with the export.
 """
 
 from __future__ import annotations
@@ -14,7 +16,7 @@ import numpy as np
 
 from service.pipeline.arrays import FloatArray
 from service.pipeline.types import SmmModel
-from training.evaluate.references.iiwa14 import SHOULDER_M
+from training.evaluate.references.iiwa14 import LIMITS_RAD, SHOULDER_M, dh_pose
 
 
 def uniform_configurations(
@@ -40,6 +42,18 @@ def held_out_targets(model: SmmModel, count: int, seed: int) -> HeldOutTargets:
     q_rad = uniform_configurations(lower_rad, upper_rad, count, seed)
     fk = model.kinematics(q_rad)
     return HeldOutTargets(q_rad=q_rad, position_m=fk.position_m, rotation=fk.rotation)
+
+
+@dataclass(frozen=True)
+class DhTargets:
+    q_rad: FloatArray  # (T, 7) the configurations whose FK made the targets
+    pose: FloatArray  # (T, 4, 4) by the paper's DH table
+
+
+def dh_targets(count: int, seed: int) -> DhTargets:
+    """iiwa14 targets made by the DH FK of the references (independent of URDF and export)."""
+    q_rad = uniform_configurations(-LIMITS_RAD, LIMITS_RAD, count, seed)
+    return DhTargets(q_rad=q_rad, pose=dh_pose(q_rad))
 
 
 def planar_targets_by_distance(count: int, seed: int) -> FloatArray:  # (count, 2) m

@@ -17,6 +17,7 @@ from training.evaluate.references.planar3r import closed_form_smm, expected_comp
 ARC_BUCKETS_RAD = (0.0, 0.5, 2.0, np.inf)
 SHARE_BUCKETS = (0.0, MIN_SHARE, 0.1, np.inf)
 
+
 @dataclass(frozen=True)
 class Truth:
     points: np.ndarray  # (P, n) exact configurations within the limits
@@ -30,25 +31,32 @@ class Truth:
 
 
 def ground_truth(model: SmmModel, q_target: np.ndarray, seed: int) -> Truth:
+    """The exact SMM of the target made by q_target (n,); `seed` drives the 4-D grid only."""
     fk = model.kinematics(q_target[None])
     position, rotation = fk.position_m[0], fk.rotation[0]
     if model.manifest.robot == "planar3r":
         components = closed_form_smm(position[:2], phi_step_rad=0.002)
         count = expected_component_count(float(np.linalg.norm(position[:2])))
-        return Truth(np.concatenate(components), count)
+        return Truth(points=np.concatenate(components), count=count)
     if model.manifest.task.orientation:
         exact = pose_smm(position, rotation)
         return Truth(
-            np.concatenate([c.q_rad for c in exact]),
-            len(exact),
-            np.concatenate([np.full(len(c.q_rad), i) for i, c in enumerate(exact)]),
-            np.array([c.arc_length_rad for c in exact]),
+            points=np.concatenate([c.q_rad for c in exact]),
+            count=len(exact),
+            point_component=np.concatenate([np.full(len(c.q_rad), i) for i, c in enumerate(exact)]),
+            size=np.array([c.arc_length_rad for c in exact]),
         )
     fibre = position_smm(position, seed=seed)
     if fibre.count == 0:
         # At the edge of the workspace (arm straight) the fibre is thinner than the grid
         # and no node lands on it: the generating configuration stands for it.
-        return Truth(q_target[None], 1, np.zeros(1, int), np.ones(1), SHARE_BUCKETS, 6)
-    return Truth(fibre.q_rad, fibre.count, fibre.component, fibre.share, SHARE_BUCKETS, 6)
+        return Truth(
+            points=q_target[None], count=1, point_component=np.zeros(1, int), size=np.ones(1),
+            size_edges=SHARE_BUCKETS, membership_joints=6,
+        )  # fmt: skip
+    return Truth(
+        points=fibre.q_rad, count=fibre.count, point_component=fibre.component,
+        size=fibre.share, size_edges=SHARE_BUCKETS, membership_joints=6,
+    )  # fmt: skip
 
 
