@@ -1,6 +1,8 @@
 """metrics: the measures against ground truth.
 
-The toroidal nearest distance equals a brute-force joint-metric search; recall by size
+The toroidal nearest distance equals a brute-force joint-metric search, wraps across the
+seam of a periodic joint and not of a limited one; errors are in the paper's units (% of
+the reach and of pi) with mm and degrees beside them; stage medians are per span; recall by size
 counts the exact components that hold a returned configuration; the iiwa pose matcher
 recognises exact, merged, split and missed components on answers built from the ground
 truth itself.
@@ -9,6 +11,7 @@ truth itself.
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from service.pipeline.components import summarise_all
 from service.pipeline.joint_space import joint_distance
@@ -16,7 +19,9 @@ from service.pipeline.types import Component, SampleCounts, SmmResult, StageTimi
 from tests.support.iiwa14_dh import LIMITS_RAD, iiwa14_pose
 from training.evaluate.methods import MethodTarget
 from training.evaluate.metrics import (
+    errors_in_units,
     match_components,
+    median_stage_ms,
     missed_components,
     nearest_distance,
     recall_by_size,
@@ -40,6 +45,35 @@ def test_nearest_distance_equals_brute_force_on_mixed_joints() -> None:
     )
     np.testing.assert_allclose(near_seam, 2 * np.pi - 6.2, atol=1e-12)
     assert np.isinf(nearest_distance(query, np.zeros((0, 3)), periodic)).all()
+
+
+def test_nearest_distance_wraps_a_periodic_joint_and_not_a_limited_one() -> None:
+    query, data = np.array([[3.1, 3.1]]), np.array([[-3.1, 0.0], [0.0, -3.1]])
+    wrapped_first = nearest_distance(query, data, np.array([True, False]))
+    np.testing.assert_allclose(wrapped_first, np.hypot(2 * np.pi - 6.2, 3.1), atol=1e-12)
+    limited = nearest_distance(query, data, np.array([False, False]))
+    np.testing.assert_allclose(limited, np.hypot(6.2, 3.1), atol=1e-12)
+
+
+def test_errors_are_in_percent_of_reach_and_of_pi_beside_mm_and_degrees() -> None:
+    position_error_m = np.array([0.001, 0.003])  # mean 2 mm
+    orientation_error_rad = np.array([np.pi / 100, np.pi / 100])  # 1 % of pi, 1.8 degrees
+    pose = errors_in_units(position_error_m, orientation_error_rad, reach_m=2.0, pose=True)
+    assert pose["e_p_pct"] == pytest.approx(0.1) and pose["mm"] == pytest.approx(2.0)
+    assert pose["e_o_pct"] == pytest.approx(1.0) and pose["deg"] == pytest.approx(1.8)
+    assert pose["e_pct"] == pytest.approx(0.55)  # the mean of the two
+    position = errors_in_units(position_error_m, orientation_error_rad, reach_m=2.0, pose=False)
+    assert position["e_o_pct"] is None and position["deg"] is None
+    assert position["e_pct"] == position["e_p_pct"]
+    empty = errors_in_units(np.zeros(0), np.zeros(0), reach_m=2.0, pose=True)
+    assert set(empty.values()) == {None}
+
+
+def test_median_stage_ms_is_the_median_per_span_to_a_hundredth() -> None:
+    timings = [{"sample": 1.0, "total": 3.0}, {"sample": 2.0, "total": 9.0},
+               {"sample": 10.004, "total": 4.0}]  # fmt: skip
+    assert median_stage_ms(timings) == {"sample": 2.0, "total": 4.0}
+    assert median_stage_ms(timings[2:]) == {"sample": 10.0, "total": 4.0}
 
 
 def test_recall_by_size_counts_components_holding_an_answer() -> None:

@@ -6,13 +6,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from service.manifest import REPO_MODELS_DIR
-from service.models.registry import load_model
+from service.models.registry import ServedModel
 from training.evaluate.truth import ground_truth
 
 
-def test_position_ground_truth_has_components_and_stands_in_at_the_workspace_edge() -> None:
-    model = load_model(REPO_MODELS_DIR / "iiwa14-position", threads=1)
+def test_position_ground_truth_has_components_and_stands_in_at_the_workspace_edge(
+    iiwa14_position_model: ServedModel,
+) -> None:
+    model = iiwa14_position_model
     inside = ground_truth(model, np.array([0.3, 0.8, 0.2, -1.2, 0.4, 0.9, 0.1]), seed=0)
     assert inside.count >= 1 and inside.size is not None and len(inside.points) > 1000
     # The arm straight out: the target is at full reach, the fibre is thinner than any

@@ -33,11 +33,6 @@ def test_planar_trace_closes_on_the_closed_form_loop(planar3r: ServedModel) -> N
     assert np.linalg.norm(wrapped) < CLOSURE_RAD
 
 
-@pytest.fixture(scope="module")
-def iiwa14_pose_model() -> ServedModel:
-    return load_model(REPO_MODELS_DIR / "iiwa14-pose", threads=0)
-
-
 def test_iiwa_trace_closes_on_an_exact_ik_loop(iiwa14_pose_model: ServedModel) -> None:
     q_start = np.array([0.3, 0.6, 0.0, -1.2, 0.0, 0.9, 0.0])
     trace = trace_smm(iiwa14_pose_model.kinematics, iiwa14_pose_model.manifest.task, q_start)
