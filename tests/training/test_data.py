@@ -1,4 +1,4 @@
-"""data and kinematics: URDF joints, Sobol points in the limits, FK labels vs the closed form."""
+"""data: Sobol points in the limits, FK labels vs the closed form, normalised training pairs."""
 
 import math
 
@@ -21,13 +21,6 @@ PLANAR = robot_spec("planar3r")
 
 def planar_fk() -> ForwardKinematics:
     return ForwardKinematics(load_chain(REPO_MODELS_DIR / PLANAR.urdf, PLANAR.end_effector_link))
-
-
-def test_continuous_joints_are_periodic_with_limits_pi() -> None:
-    joints = joint_spec(planar_fk().chain)
-    assert joints.names == ["joint1", "joint2", "joint3"]
-    assert joints.periodic == [True, True, True]
-    assert joints.lower_rad == [-math.pi] * 3 and joints.upper_rad == [math.pi] * 3
 
 
 def test_sobol_configurations_fill_the_limits_deterministically() -> None:

@@ -1,12 +1,16 @@
-"""models/robots/iiwa14.urdf as read by training.kinematics: equals the paper's DH table.
+"""kinematics: URDF joints become the manifest's joint spec, and the iiwa14 URDF
+(models/robots/iiwa14.urdf) as read by `load_chain` equals the paper's DH table.
 
-FK is checked against the tests' own DH evaluation (tests/support/iiwa14_dh.py) in float64, the
+The planar 3R's continuous joints are periodic with limits pi. For the iiwa14, FK is checked
+against the tests' own DH evaluation (tests/support/iiwa14_dh.py) in float64, the
 geometric Jacobian against central finite differences of that DH FK, and the joint
 limits against the paper's degrees. Raw pytorch-kinematics (float32 origins) is ~1e-8 m
 off; `load_chain` must be exact.
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 import pytest
@@ -16,8 +20,10 @@ from scipy.spatial.transform import Rotation
 from service.manifest import REPO_MODELS_DIR
 from tests.support.iiwa14_dh import LIMITS_RAD, iiwa14_pose
 from training.kinematics import ForwardKinematics, joint_spec, load_chain
+from training.robots import robot_spec
 
 URDF = REPO_MODELS_DIR / "robots" / "iiwa14.urdf"
+PLANAR = robot_spec("planar3r")
 
 
 @pytest.fixture(scope="module")
@@ -27,6 +33,14 @@ def fk() -> ForwardKinematics:
 
 def _configurations(count: int, seed: int) -> np.ndarray:
     return np.random.default_rng(seed).uniform(-LIMITS_RAD, LIMITS_RAD, (count, 7))
+
+
+def test_continuous_joints_are_periodic_with_limits_pi() -> None:
+    chain = load_chain(REPO_MODELS_DIR / PLANAR.urdf, PLANAR.end_effector_link)
+    joints = joint_spec(chain)
+    assert joints.names == ["joint1", "joint2", "joint3"]
+    assert joints.periodic == [True, True, True]
+    assert joints.lower_rad == [-math.pi] * 3 and joints.upper_rad == [math.pi] * 3
 
 
 def test_forward_kinematics_equals_the_dh_table(fk: ForwardKinematics) -> None:
