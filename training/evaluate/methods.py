@@ -36,6 +36,11 @@ class MethodTarget:
     time_ms: float
     stage_ms: dict[str, float] | None = None  # per timed span (the pipeline only)
 
+    @property
+    def component_count(self) -> int | None:
+        """How many components the method returned; None when it labels none (the ODE)."""
+        return None if self.labels is None else int(self.labels.max(initial=-1)) + 1
+
 
 def flow_target(
     model: ServedModel, q_target: np.ndarray, num_samples: int, seed: int

@@ -100,9 +100,7 @@ def summarise(
     if truths[0].size is not None:
         summary["recall_by_size"] = recall_by_size(answers, truths)
     if answers[0].labels is not None:
-        counts = np.array(
-            [int(a.labels.max(initial=-1)) + 1 for a in answers if a.labels is not None]
-        )
+        counts = np.array([a.component_count for a in answers if a.component_count is not None])
         expected = np.array([t.count for t in truths])
         summary["component_count"] = {
             "right": float(np.mean(counts == expected)),
@@ -158,6 +156,17 @@ def missed_components(answers: list[MethodTarget], truths: list[Truth]) -> list[
         if lost.any():
             missed.append({"index": index, "sizes": np.round(truth.size[lost], 3).tolist()})
     return missed
+
+
+def wrong_count_targets(
+    answers: list[MethodTarget], truths: list[Truth]
+) -> list[dict[str, object]]:
+    """Targets where the method returned another number of components than the exact one."""
+    return [
+        {"index": index, "expected": truth.count, "returned": answer.component_count}
+        for index, (answer, truth) in enumerate(zip(answers, truths, strict=True))
+        if answer.component_count is not None and answer.component_count != truth.count
+    ]
 
 
 def match_summary(matches: list[ComponentMatch]) -> dict[str, float]:

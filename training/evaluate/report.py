@@ -32,7 +32,7 @@ from training.evaluate.methods import (
     raw_samples_target,
     restart_target,
 )
-from training.evaluate.metrics import missed_components, summarise
+from training.evaluate.metrics import missed_components, summarise, wrong_count_targets
 from training.evaluate.rendering import markdown, table_2
 from training.evaluate.targets import near_boundary, uniform_configurations
 from training.evaluate.truth import ground_truth
@@ -42,9 +42,10 @@ from training.robots import robot_spec
 REPORTS_DIR = Path(__file__).resolve().parents[2] / "docs" / "reports"
 
 
-def evaluate(
+def build_report(
     model: ServedModel, num_targets: int, seed: int, num_samples: int
 ) -> dict[str, object]:
+    """Every method on `num_targets` held-out targets (seed), measured against ground truth."""
     manifest = model.manifest
     lower, upper, _ = manifest.joints.arrays()
     q_targets = uniform_configurations(lower, upper, num_targets, seed)
@@ -86,15 +87,7 @@ def evaluate(
     if truths[0].size is not None:
         report["missed_component_targets"] = missed_components(answers, truths)
     if answers[0].labels is not None:
-        report["wrong_count_targets"] = [
-            {
-                "index": i,
-                "expected": t.count,
-                "returned": int(a.labels.max(initial=-1)) + 1 if a.labels is not None else 0,
-            }
-            for i, (a, t) in enumerate(zip(answers, truths, strict=True))
-            if a.labels is not None and int(a.labels.max(initial=-1)) + 1 != t.count
-        ]
+        report["wrong_count_targets"] = wrong_count_targets(answers, truths)
     return report
 
 
@@ -125,7 +118,7 @@ def main() -> None:
         (args.out / f"{args.model}.md").write_text(markdown(args.model, saved))
         return
     model = load_model(REPO_MODELS_DIR / args.model, threads=0)
-    report = evaluate(model, args.targets, args.seed, args.num_samples)
+    report = build_report(model, args.targets, args.seed, args.num_samples)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / f"{args.model}.json").write_text(json.dumps(report, indent=1) + "\n")
     (args.out / f"{args.model}.md").write_text(markdown(args.model, report))

@@ -3,7 +3,8 @@
 The toroidal nearest distance equals a brute-force joint-metric search, wraps across the
 seam of a periodic joint and not of a limited one; errors are in the paper's units (% of
 the reach and of pi) with mm and degrees beside them; stage medians are per span; recall by size
-counts the exact components that hold a returned configuration; the iiwa pose matcher
+counts the exact components that hold a returned configuration; the wrong-count list names
+the targets whose returned component count is not the exact one; the iiwa pose matcher
 recognises exact, merged, split and missed components on answers built from the ground
 truth itself.
 """
@@ -25,6 +26,7 @@ from training.evaluate.metrics import (
     missed_components,
     nearest_distance,
     recall_by_size,
+    wrong_count_targets,
 )
 from training.evaluate.references.iiwa14 import (
     pose_smm,
@@ -95,6 +97,24 @@ def test_recall_by_size_counts_components_holding_an_answer() -> None:
     assert [b["recall"] for b in buckets] == [1.0, 0.0, 1.0]
     # The 1.0 rad component is missed; the 0.3 rad one is below the listed sizes anyway.
     assert missed_components([answer], [truth]) == [{"index": 0, "sizes": [1.0]}]
+
+
+def test_wrong_count_targets_lists_each_target_whose_count_is_not_the_exact_one() -> None:
+    def answer(labels: np.ndarray | None) -> MethodTarget:
+        k = 0 if labels is None else len(labels)
+        return MethodTarget(
+            np.zeros(3), np.zeros(3), np.zeros((k, 3)), np.zeros(k), np.zeros(k), labels, 4, 1.0
+        )
+
+    truth = Truth(points=np.zeros((1, 3)), count=2)
+    answers = [answer(np.array([0, 1, 1])), answer(np.array([0, 0])), answer(np.array([], int))]
+    assert [a.component_count for a in answers] == [2, 1, 0]
+    assert wrong_count_targets(answers, [truth] * 3) == [
+        {"index": 1, "expected": 2, "returned": 1},
+        {"index": 2, "expected": 2, "returned": 0},
+    ]
+    assert answer(None).component_count is None  # the ODE trace labels no component
+    assert wrong_count_targets([answer(None)], [truth]) == []
 
 
 def _targets(count: int, seed: int) -> tuple[np.ndarray, np.ndarray]:

@@ -6,11 +6,11 @@ from __future__ import annotations
 
 from service.models.registry import ServedModel
 from training.evaluate.rendering import markdown
-from training.evaluate.report import evaluate
+from training.evaluate.report import build_report
 
 
 def test_small_planar_report_meets_the_closed_form(planar3r: ServedModel) -> None:
-    report = evaluate(planar3r, num_targets=3, seed=1, num_samples=400)
+    report = build_report(planar3r, num_targets=3, seed=1, num_samples=400)
     methods = report["methods"]
     assert isinstance(methods, dict)
     served = methods["FM + DLS"]
