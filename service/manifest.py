@@ -101,6 +101,28 @@ class SamplerSpec(_Strict):
     steps: int = Field(ge=1)
 
 
+class ConnectivitySpec(_Strict):
+    """Stage 5 parameters: the projected local planner, its roadmap and r = 1 tracing."""
+
+    # Projected local planner (OMPL ProjectedStateSpace: delta 0.05, lambda 2, tol 1e-4).
+    delta_rad: float = Field(gt=0)
+    lambda_: float = Field(gt=1)
+    projection_tolerance: float = Field(gt=0)
+    # Roadmap candidate edges.
+    neighbours: int = Field(ge=1)
+    radius_rad: float = Field(gt=0)
+    bridge_radius_rad: float = Field(gt=0)
+    bridge_pairs: int = Field(ge=0)
+    bridge_lambda: float = Field(gt=1)
+    # r = 1 tracing.
+    trace_step_rad: float = Field(gt=0)
+    trace_max_steps: int = Field(ge=1)
+    seed_spacing_rad: float = Field(gt=0)
+    path_spacing_rad: float = Field(gt=0)
+    # sigma_min(J) below this on the fibre: the target is near a singular value.
+    singular_sigma: float = Field(ge=0)
+
+
 class Defaults(_Strict):
     """Serving defaults, chosen by measurement; `reasons` says why each has its value."""
 
@@ -108,7 +130,7 @@ class Defaults(_Strict):
     sampler: SamplerSpec
     correction_steps: int = Field(ge=0)
     damping: float = Field(gt=0)
-    cluster_radius_rad: float = Field(gt=0)
+    connectivity: ConnectivitySpec
     tolerance_position_m: float = Field(gt=0)
     tolerance_orientation_rad: float = Field(gt=0)
     reasons: dict[str, str]

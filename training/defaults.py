@@ -6,7 +6,41 @@ the figures quoted here.
 
 from __future__ import annotations
 
-from service.manifest import Defaults, SamplerSpec
+from service.manifest import ConnectivitySpec, Defaults, SamplerSpec
+
+# Stage 5 (service/pipeline/connectivity.py). The tracing step h and seed spacing decide
+# how many lockstep continuation steps a 1-D fibre takes (about the largest gap between
+# seeds / 2h) and the meeting distance 1.1 h, which must stay below the closest approach
+# of two distinct curves (0.28 rad seen on the iiwa pose): h = 0.15. The path spacing is
+# the contract's 0.05 rad. The local planner's delta is OMPL's 0.05 scaled up to 0.3 for
+# the 4-D fibre, whose edges are long at N = 1000 (lambda and the projection tolerance
+# are OMPL's). sigma_min 5e-3 is where Guri & Kantor and Clark & Xie call J singular.
+_TRACE = {
+    "trace_step_rad": 0.15,
+    "trace_max_steps": 200,
+    "seed_spacing_rad": 1.0,
+    "path_spacing_rad": 0.05,
+    "singular_sigma": 5e-3,
+}
+_PLANNER = {
+    "delta_rad": 0.1,
+    "lambda_": 2.0,
+    "projection_tolerance": 1e-4,
+    "neighbours": 8,
+    "radius_rad": 1.5,
+    "bridge_radius_rad": 3.0,
+    "bridge_pairs": 3,
+    "bridge_lambda": 3.0,
+}
+CONNECTIVITY_PLANAR3R = ConnectivitySpec(**_TRACE, **_PLANNER)
+CONNECTIVITY_IIWA14_POSE = ConnectivitySpec(**_TRACE, **_PLANNER)
+CONNECTIVITY_IIWA14_POSITION = ConnectivitySpec(**_TRACE, **{**_PLANNER, "delta_rad": 0.3})
+CONNECTIVITY_REASON = (
+    "components decided on the fibre (DESIGN.md stage 5): r = 1 traced whole by "
+    "continuation (h 0.15 rad, paths at 0.05 rad), r > 1 a roadmap of edges checked by "
+    "the projected local planner (OMPL's lambda 2 and tolerance 1e-4; delta 0.1 rad, "
+    "0.3 rad for the 4-D fibre); the figures are in docs/reports"
+)
 
 SERVING_DEFAULTS: dict[str, Defaults] = {
     "planar3r-position": Defaults(
@@ -14,7 +48,7 @@ SERVING_DEFAULTS: dict[str, Defaults] = {
         sampler=SamplerSpec(method="euler", steps=20),
         correction_steps=3,
         damping=1e-3,
-        cluster_radius_rad=0.4,
+        connectivity=CONNECTIVITY_PLANAR3R,
         tolerance_position_m=1e-6,
         tolerance_orientation_rad=1e-6,
         reasons={
@@ -26,9 +60,7 @@ SERVING_DEFAULTS: dict[str, Defaults] = {
             "correction_steps": "the paper's 3 DLS steps: keep rate 99.76 %; 5 steps reach "
             "99.95 % for +8 ms per target",
             "damping": "the paper's lambda = 1e-3 (seed Table 4)",
-            "cluster_radius_rad": "200/200 closed-form counts for radii 0.3, 0.4 and 0.7 at 20 "
-            "steps (50/50 from 0.2 to 0.5); the paper's 1.0 merges the two loops near rho = 1 "
-            "(49/50); 0.4 sits inside the plateau",
+            "connectivity": CONNECTIVITY_REASON,
             "tolerance": "micrometre-exact answers for planners (DESIGN.md)",
         },
     ),
@@ -39,7 +71,7 @@ SERVING_DEFAULTS: dict[str, Defaults] = {
         sampler=SamplerSpec(method="euler", steps=20),
         correction_steps=6,
         damping=1e-3,
-        cluster_radius_rad=0.3,
+        connectivity=CONNECTIVITY_IIWA14_POSE,
         tolerance_position_m=1e-6,
         tolerance_orientation_rad=1e-6,
         reasons={
@@ -51,10 +83,7 @@ SERVING_DEFAULTS: dict[str, Defaults] = {
             "without a solution; 5 keep 67.0 %, 6 keep 69.0 % and answered 40/40, 8 and 12 "
             "add under 1.5 points for +40 % correction time",
             "damping": "the paper's lambda = 1e-3 (seed Table 4)",
-            "cluster_radius_rad": "a merge (two true components reported as one) promises a "
-            "self-motion path that does not exist, a split only hides one: at 0.3 rad 0.075 "
-            "merges and 8.9 splits per target; 0.5 rad merges 1.1 per target, 1.0 rad 1.6; "
-            "0.1 and 0.2 rad split more (16.7, 13.3) and merge no less than 0.05",
+            "connectivity": CONNECTIVITY_REASON,
             "tolerance": "micrometre- and microradian-exact answers for planners (DESIGN.md)",
         },
     ),
@@ -64,7 +93,7 @@ SERVING_DEFAULTS: dict[str, Defaults] = {
         sampler=SamplerSpec(method="euler", steps=20),
         correction_steps=5,
         damping=1e-3,
-        cluster_radius_rad=2.5,
+        connectivity=CONNECTIVITY_IIWA14_POSITION,
         tolerance_position_m=1e-6,
         tolerance_orientation_rad=1e-6,
         reasons={
@@ -76,11 +105,7 @@ SERVING_DEFAULTS: dict[str, Defaults] = {
             "correction_steps": "keep rate 85.4 % at the paper's 3 DLS steps, 90.8 % at 5, "
             "91.0 % at 8 and 12 (all targets answered at every setting)",
             "damping": "the paper's lambda = 1e-3 (seed Table 4)",
-            "cluster_radius_rad": "4-D components at N = 1000 need a wide radius: the mean "
-            "count is 372 at 1.0 rad (mostly lone samples), 37 at 1.5, 6.5 at 2.0, 3.5 at "
-            "2.5, 2.3 at 3.0; the count agrees between two seeds for 3 %, 13 %, 37 %, 73 %, "
-            "87 % of targets. Gaps of 2.98-3.9 rad separate groups of samples in some "
-            "targets, so 3.0 would join some of them; 2.5 is the widest radius below them",
+            "connectivity": CONNECTIVITY_REASON,
             "tolerance": "micrometre-exact answers for planners (DESIGN.md)",
         },
     ),

@@ -158,9 +158,7 @@ def train(
                 progress=progress,
             )
             val_loss = validation_loss(model, q_val, c_val, q_0_val, t_val)
-            history.append(
-                {"epoch": epoch, "train_loss": train_loss, "validation_loss": val_loss}
-            )
+            history.append({"epoch": epoch, "train_loss": train_loss, "validation_loss": val_loss})
             if val_loss < best_loss:
                 best_loss, best_epoch = val_loss, epoch
                 best_state = copy.deepcopy(model.state_dict())

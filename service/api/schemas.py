@@ -79,6 +79,11 @@ class SmmRequest(_Request):
         description="Cap on configurations returned per component (a covering subset by "
         "farthest-point sampling); `size` still counts every member. Default: all.",
     )
+    include_paths: bool = Field(
+        True,
+        description="For a 1-D self-motion (redundancy 1), return each component's ordered "
+        "`path`; false keeps answers small (`arc_length_rad` and `closed` stay).",
+    )
 
 
 class CountsOut(BaseModel):
@@ -99,6 +104,35 @@ class ComponentOut(BaseModel):
     max_orientation_error: float = Field(description="radians; 0 for a position task")
     distance_to_reference: float | None = Field(description="joint metric, radians")
     nearest_to_reference: list[float] | None
+    arc_length_rad: float | None = Field(
+        description="Redundancy 1: the component's length along the fibre (joint metric); "
+        "null otherwise."
+    )
+    closed: bool | None = Field(
+        description="Redundancy 1: true when the component is a whole loop inside the limits "
+        "(the path's last point joins its first); false when its ends are at joint limits."
+    )
+    path: list[list[float]] | None = Field(
+        description="Redundancy 1: the whole component, configurations in order along the "
+        "curve, consecutive ones at most 0.05 rad apart, every one within tolerance and "
+        "inside the limits. Null for redundancy above 1 or when include_paths is false."
+    )
+
+
+class StructureOut(BaseModel):
+    near_singular: bool = Field(
+        description="The target is near a singular value of the kinematics (the Jacobian "
+        "nearly loses rank on the fibre, or a curve could not be traced through): "
+        "components may touch there, so their number may be ambiguous. Every returned "
+        "configuration is still exact and inside the limits."
+    )
+    min_singular_value: float | None = Field(
+        description="Smallest singular value of the task Jacobian seen on the fibre."
+    )
+    traced: bool = Field(
+        description="Components were decided by tracing the fibre whole (redundancy 1); "
+        "otherwise by a roadmap whose edges were checked on the fibre."
+    )
 
 
 class SmmResponse(BaseModel):
@@ -110,6 +144,7 @@ class SmmResponse(BaseModel):
     status: Literal["ok", "no_solution"]
     counts: CountsOut
     components: list[ComponentOut]
+    structure: StructureOut
     timings_ms: dict[TimedSpan, float] = Field(
         description="Wall time in ms of each pipeline stage, in order, and of the whole run."
     )

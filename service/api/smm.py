@@ -13,6 +13,7 @@ from service.api.schemas import (
     CountsOut,
     SmmRequest,
     SmmResponse,
+    StructureOut,
     error_responses,
 )
 from service.errors import DeadlineExceededError, LimitExceededError, OverloadedError
@@ -41,6 +42,7 @@ def to_query(body: SmmRequest, model: ServedModel, max_num_samples: int) -> Quer
         tolerance_orientation_rad=body.tolerance.orientation,
         reference_rad=body.reference_configuration,
         max_configurations_per_component=body.max_configurations_per_component,
+        include_paths=body.include_paths,
     )
     if query.num_samples > max_num_samples:
         raise LimitExceededError(
@@ -62,6 +64,9 @@ def _component_out(index: int, summary: ComponentSummary) -> ComponentOut:
         max_orientation_error=summary.max_orientation_error_rad,
         distance_to_reference=summary.distance_to_reference_rad,
         nearest_to_reference=None if nearest is None else nearest.tolist(),
+        arc_length_rad=summary.arc_length_rad,
+        closed=summary.closed,
+        path=None if summary.path is None else summary.path.q_rad.tolist(),
     )
 
 
@@ -76,6 +81,7 @@ def to_response(model: ServedModel, result: SmmResult) -> SmmResponse:
         status="ok" if result.components else "no_solution",
         counts=CountsOut(**vars(result.counts)),
         components=[_component_out(i, s) for i, s in enumerate(result.components)],
+        structure=StructureOut(**vars(result.structure)),
         timings_ms=result.timings.as_dict(),
     )
 

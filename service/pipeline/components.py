@@ -1,6 +1,7 @@
 """Describe each component for the response: representative, bounds, errors, reference distance.
 
-Every member counts in `size`; when the client caps the configurations returned per
+Every accepted member counts in `size` (a 1-D component found only by tracing has size
+0 and is described by its path); when the client caps the configurations returned per
 component, the ones returned are chosen by farthest-point sampling so that they
 still cover the whole component.
 """
@@ -34,7 +35,7 @@ def farthest_point_subset(
     chosen = [start]
     distance = joint_distance(q_rad, q_rad[start], periodic)  # (k,)
     for _ in range(count - 1):
-        deadline.check("cluster")
+        deadline.check("summarise")
         nxt = int(np.argmax(distance))
         chosen.append(nxt)
         distance = np.minimum(distance, joint_distance(q_rad, q_rad[nxt], periodic))
@@ -46,33 +47,48 @@ def summarise(
     periodic: BoolArray,
     reference_rad: FloatArray | None,
     max_configurations: int | None,
+    include_path: bool,
     deadline: Deadline = NO_DEADLINE,
 ) -> ComponentSummary:
+    """The response's view of a component; bounds, errors and the reference distance cover
+    its samples and (r = 1) every point of its path."""
     q = component.q_rad  # (k, n)
-    centre = joint_mean(q, periodic)
-    representative = int(np.argmin(joint_distance(q, centre, periodic)))
+    path = component.path
+    every = q if path is None else np.concatenate([q, path.q_rad])  # (k + P, n)
+    position_error = component.position_error_m
+    orientation_error = component.orientation_error_rad
+    if path is not None:
+        position_error = np.concatenate([position_error, path.position_error_m])
+        orientation_error = np.concatenate([orientation_error, path.orientation_error_rad])
+    # The representative is a sample when there is one, else the path point nearest the mean.
+    pool = q if len(q) else every
+    centre = joint_mean(pool, periodic)
+    representative = int(np.argmin(joint_distance(pool, centre, periodic)))
     configurations = (
         q
-        if max_configurations is None
+        if max_configurations is None or not len(q)
         else farthest_point_subset(q, periodic, representative, max_configurations, deadline)
     )
     distance_to_reference = None
     nearest = None
     if reference_rad is not None:
-        distances = joint_distance(q, reference_rad, periodic)  # (k,)
+        distances = joint_distance(every, reference_rad, periodic)  # (k + P,)
         best = int(np.argmin(distances))
         distance_to_reference = float(distances[best])
-        nearest = q[best]
+        nearest = every[best]
     return ComponentSummary(
         size=len(q),
-        representative_rad=q[representative],
+        representative_rad=pool[representative],
         configurations_rad=configurations,
-        joint_min_rad=q.min(axis=0),
-        joint_max_rad=q.max(axis=0),
-        max_position_error_m=float(component.position_error_m.max()),
-        max_orientation_error_rad=float(component.orientation_error_rad.max()),
+        joint_min_rad=every.min(axis=0),
+        joint_max_rad=every.max(axis=0),
+        max_position_error_m=float(position_error.max()),
+        max_orientation_error_rad=float(orientation_error.max()),
         distance_to_reference_rad=distance_to_reference,
         nearest_to_reference_rad=nearest,
+        arc_length_rad=None if path is None else path.arc_length_rad,
+        closed=None if path is None else path.closed,
+        path=path if include_path else None,
     )
 
 
@@ -81,14 +97,17 @@ def summarise_all(
     periodic: BoolArray,
     reference_rad: FloatArray | None,
     max_configurations: int | None,
+    include_paths: bool,
     deadline: Deadline = NO_DEADLINE,
 ) -> list[ComponentSummary]:
-    """Summaries ordered by distance to the reference when given, else by size (largest first)."""
+    """Summaries ordered by distance to the reference when given, else by size (largest first,
+    then the longest path)."""
     if reference_rad is not None:
         reference_rad = np.where(periodic, wrap_to_pi(reference_rad), reference_rad)
     summaries = [
-        summarise(c, periodic, reference_rad, max_configurations, deadline) for c in components
+        summarise(c, periodic, reference_rad, max_configurations, include_paths, deadline)
+        for c in components
     ]
     if reference_rad is not None:
         return sorted(summaries, key=lambda s: (s.distance_to_reference_rad, -s.size))
-    return sorted(summaries, key=lambda s: -s.size)
+    return sorted(summaries, key=lambda s: (-s.size, -(s.arc_length_rad or 0.0)))

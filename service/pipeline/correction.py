@@ -94,20 +94,23 @@ def correct(
         np.where(finite, 0.0, np.inf) if task.orientation else np.zeros(num_samples)
     )
     q_out = np.full_like(q_rad, np.nan)
+    m = len(task.position_axes) + (3 if task.orientation else 0)
+    jacobian_out = np.full((num_samples, m, q_rad.shape[1]), np.nan)
     if not finite.any():  # nothing to correct (and the kinematics needs a non-empty batch)
-        return Correction(q_out, position_error_m, orientation_error_rad)
+        return Correction(q_out, position_error_m, orientation_error_rad, jacobian_out)
 
     q = q_rad[finite]
     for _ in range(steps):
         deadline.check("correct")
         error, jacobian = task_error(kinematics(q), target, task)
         q = wrap_periodic(q + dls_step(jacobian, error, damping), periodic)
-    position_error_m[finite], orientation_error_rad[finite] = task_error_norms(
-        kinematics(q), target, task
-    )
+    fk = kinematics(q)
+    position_error_m[finite], orientation_error_rad[finite] = task_error_norms(fk, target, task)
+    jacobian_out[finite] = task_error(fk, target, task)[1]
     q_out[finite] = q
     return Correction(
         q_rad=q_out,
         position_error_m=position_error_m,
         orientation_error_rad=orientation_error_rad,
+        jacobian=jacobian_out,
     )

@@ -1,4 +1,4 @@
-"""One query through the pipeline: target -> sample -> correct -> accept -> cluster.
+"""One query through the pipeline: target -> sample -> correct -> accept -> connect -> components.
 
 Each stage is timed under its name in `STAGES`; the result accounts for every sample
 (see `SampleCounts`).
@@ -13,10 +13,11 @@ from contextlib import contextmanager
 import numpy as np
 
 from service.pipeline.acceptance import accept
-from service.pipeline.clustering import group_components
 from service.pipeline.components import summarise_all
+from service.pipeline.connectivity import connect
 from service.pipeline.correction import correct
 from service.pipeline.deadline import NO_DEADLINE, Deadline
+from service.pipeline.fibre import Fibre
 from service.pipeline.sampling import sample_configurations
 from service.pipeline.targets import encode_target
 from service.pipeline.types import Query, SampleCounts, SmmModel, SmmResult, Stage, StageTimings
@@ -84,22 +85,37 @@ def run(model: SmmModel, query: Query, deadline: Deadline = NO_DEADLINE) -> SmmR
             upper_rad=upper_rad,
             periodic=periodic,
         )
-    with watch.stage("cluster"):
-        components = group_components(
+    with watch.stage("connect"):
+        connection = connect(
+            fibre=Fibre(
+                target=target,
+                task=manifest.task,
+                kinematics=model.kinematics,
+                damping=defaults.damping,
+            ),
             correction=correction,
-            accepted=acceptance.accepted,
+            acceptance=acceptance,
+            lower_rad=lower_rad,
+            upper_rad=upper_rad,
             periodic=periodic,
-            radius_rad=defaults.cluster_radius_rad,
+            spec=defaults.connectivity,
+            tolerance_position_m=query.tolerance_position_m,
+            tolerance_orientation_rad=query.tolerance_orientation_rad,
             deadline=deadline,
         )
+    with watch.stage("summarise"):
         summaries = summarise_all(
-            components=components,
+            components=connection.components,
             periodic=periodic,
             reference_rad=query.reference_rad,
             max_configurations=query.max_configurations_per_component,
+            include_paths=query.include_paths,
             deadline=deadline,
         )
 
     return SmmResult(
-        counts=SampleCounts.of(acceptance), components=summaries, timings=watch.timings()
+        counts=SampleCounts.of(acceptance),
+        components=summaries,
+        structure=connection.structure,
+        timings=watch.timings(),
     )

@@ -20,7 +20,7 @@ from service.pipeline.arrays import BoolArray, Float32Array, FloatArray
 from service.pipeline.targets import validate_target
 
 # The stages in the order run() calls them; timings, metrics and the response use these.
-Stage = Literal["encode", "sample", "correct", "accept", "cluster"]
+Stage = Literal["encode", "sample", "correct", "accept", "connect", "summarise"]
 STAGES: tuple[Stage, ...] = get_args(Stage)
 # What a response times: every stage, and the whole run.
 TimedSpan = Literal[Stage, "total"]
@@ -89,6 +89,7 @@ class Query:
     tolerance_orientation_rad: float
     reference_rad: FloatArray | None  # (n,)
     max_configurations_per_component: int | None
+    include_paths: bool  # r = 1: return each component's ordered path
 
     @classmethod
     def for_model(
@@ -103,6 +104,7 @@ class Query:
         tolerance_orientation_rad: float | None = None,
         reference_rad: Sequence[float] | None = None,
         max_configurations_per_component: int | None = None,
+        include_paths: bool = True,
     ) -> Query:
         """Check the request's shape against the model (RequestFieldError names the field)
         and fill every option left as None from the model's defaults."""
@@ -138,6 +140,7 @@ class Query:
                 None if reference_rad is None else np.asarray(reference_rad, dtype=np.float64)
             ),
             max_configurations_per_component=max_configurations_per_component,
+            include_paths=include_paths,
         )
 
 
@@ -151,6 +154,7 @@ class Correction:
     q_rad: FloatArray  # (N, n); periodic joints wrapped to (-pi, pi]
     position_error_m: FloatArray  # (N,) inf where the sample was not finite
     orientation_error_rad: FloatArray  # (N,) zeros for a position task
+    jacobian: FloatArray  # (N, m, n) task Jacobian at q_rad (NaN where not finite)
 
 
 @dataclass(frozen=True)
@@ -166,12 +170,37 @@ class Acceptance:
 
 
 @dataclass(frozen=True)
-class Component:
-    """Stage 5 output: one connected component of the accepted configurations (an SMM piece)."""
+class ComponentPath:
+    """A 1-D component whole: its configurations in order along the curve."""
 
-    q_rad: FloatArray  # (k, n) every member
+    q_rad: FloatArray  # (P, n) consecutive points at most the path spacing apart
+    position_error_m: FloatArray  # (P,)
+    orientation_error_rad: FloatArray  # (P,)
+    closed: bool  # a whole loop inside the limits: the last point joins the first
+    arc_length_rad: float  # joint-metric length of the path (with the closing gap if closed)
+
+
+@dataclass(frozen=True)
+class Component:
+    """Stage 5 output: one connected component of the fibre within the limits (an SMM).
+
+    `q_rad` holds the accepted samples on it (none for a 1-D component that only the
+    tracing found); `path` is the whole component in order (r = 1 only).
+    """
+
+    q_rad: FloatArray  # (k, n) every accepted member
     position_error_m: FloatArray  # (k,)
     orientation_error_rad: FloatArray  # (k,)
+    path: ComponentPath | None = None
+
+
+@dataclass(frozen=True)
+class FibreStructure:
+    """How sure the component structure is: near a singular value it may be ambiguous."""
+
+    near_singular: bool  # sigma_min(J) small on the fibre, or a curve not traced through
+    min_singular_value: float | None  # smallest sigma_min(J) seen on the fibre
+    traced: bool  # r = 1: components come from tracing the fibre whole
 
 
 @dataclass(frozen=True)
@@ -187,6 +216,9 @@ class ComponentSummary:
     max_orientation_error_rad: float
     distance_to_reference_rad: float | None
     nearest_to_reference_rad: FloatArray | None  # (n,)
+    arc_length_rad: float | None  # r = 1: the component's length along the fibre
+    closed: bool | None  # r = 1: a whole loop inside the limits
+    path: ComponentPath | None  # r = 1, when the query asked for paths
 
 
 # -- out: the result ---------------------------------------------------------------------------
@@ -220,7 +252,7 @@ class StageTimings:
     total_ms: float
 
     def as_dict(self) -> dict[TimedSpan, float]:
-        """{"encode": ..., ..., "cluster": ..., "total": ...} in ms, keys as `TIMED_SPANS`."""
+        """{"encode": ..., ..., "summarise": ..., "total": ...} in ms, keys as `TIMED_SPANS`."""
         spans: dict[TimedSpan, float] = {stage: self.stage_ms[stage] for stage in STAGES}
         spans["total"] = self.total_ms
         return spans
@@ -232,4 +264,5 @@ class SmmResult:
 
     counts: SampleCounts
     components: list[ComponentSummary]  # by distance to the reference when given, else size
+    structure: FibreStructure
     timings: StageTimings

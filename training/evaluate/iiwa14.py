@@ -164,7 +164,7 @@ def pose_sweep_row(
     return {
         "num_samples": n,
         "sampler_steps": defaults.sampler.steps,
-        "cluster_radius_rad": defaults.cluster_radius_rad,
+        "trace_step_rad": defaults.connectivity.trace_step_rad,
         "exact_components": round(float(np.mean([m.exact for m in matches])), 3),
         "count_right": round(float(np.mean([m.returned == m.reference for m in matches])), 3),
         "recall": round(sum(m.found for m in matches) / sum(m.reference for m in matches), 4),
@@ -173,6 +173,12 @@ def pose_sweep_row(
         "coverage_p95_rad": round(float(np.median([m.coverage_p95_rad for m in matches])), 3),
         "longest_missed_arc_rad": max((a for m in matches for a in m.missed_arc_rad), default=0),
     }
+
+
+def with_connectivity(model: ServedModel, **changes: object) -> ServedModel:
+    """The model with some connect-stage parameters changed."""
+    spec = model.manifest.defaults.connectivity.model_copy(update=changes)
+    return with_defaults(model, connectivity=spec)
 
 
 def component_counts(
@@ -192,7 +198,7 @@ def sweep(
 ) -> list[dict[str, object]]:
     """Candidate serving defaults, measured.
 
-    Sampler steps: keep rate, answered targets and time. Cluster radius and num_samples:
+    Sampler steps: keep rate, answered targets and time. Connect-stage step and num_samples:
     for the pose task, against the exact components of each target (S-R-S IK): found,
     merged, split; for the position task against the exact count of components of at
     least MIN_SHARE of the fibre (grid reference), with the count's stability under
@@ -233,8 +239,8 @@ def sweep(
         )
     if pose_task:
         references = [pose_smm(p[:3, 3], p[:3, :3]) for p in targets.pose]
-        for radius in (0.1, 0.2, 0.3, 0.5, 1.0):
-            emit(pose_sweep_row(with_defaults(model, cluster_radius_rad=radius), targets,
+        for step in (0.1, 0.15, 0.2):
+            emit(pose_sweep_row(with_connectivity(model, trace_step_rad=step), targets,
                                 references, 1000))  # fmt: skip
         for n in (500, 2000, 4000):
             emit(pose_sweep_row(model, targets, references, n))
@@ -242,13 +248,13 @@ def sweep(
     # 4-D components are sparse at N = 1000 (nearest neighbours ~0.8 rad apart): against
     # the exact components of the grid reference, with the count's seed stability beside.
     expected = np.array([position_smm(p[:3, 3], seed=i).count for i, p in enumerate(targets.pose)])
-    for radius in (1.0, 1.5, 2.0, 2.5, 3.0):
-        candidate = with_defaults(model, cluster_radius_rad=radius)
+    for delta in (0.1, 0.2, 0.3):
+        candidate = with_connectivity(model, delta_rad=delta)
         base = component_counts(candidate, targets, 1000, seed=0)
         reseeded = component_counts(candidate, targets, 1000, seed=10_000)
         emit(
             {
-                "cluster_radius_rad": radius,
+                "delta_rad": delta,
                 "components_mean": round(float(base.mean()), 2),
                 "exact_components_mean": round(float(expected.mean()), 2),
                 "count_right": round(float(np.mean(base == expected)), 3),
@@ -271,7 +277,7 @@ def main() -> None:
     parser.add_argument("--num-samples", type=int, default=1000)
     parser.add_argument("--sweep", action="store_true", help="measure candidate defaults")
     parser.add_argument(
-        "--radius-only", action="store_true", help="with --sweep: only the cluster radius"
+        "--radius-only", action="store_true", help="with --sweep: only the connect-stage parameters"
     )
     args = parser.parse_args()
     model = load_model(

@@ -1,22 +1,33 @@
 """One method's answer to one target, as the report measures it: the service (flow +
-DLS), the flow's raw samples, random-restart DLS and the ODE trace."""
+DLS), the flow's raw samples, random-restart DLS and the ODE trace.
+
+What a method returned is every configuration it hands a client: each component's
+configurations and, for a 1-D SMM, the points of its ordered path, all labelled with
+the component's index (a component that only the tracing found, with no accepted
+sample, still counts through its path). The service and random-restart DLS decide
+components with the same connect stage (`service.pipeline.connectivity.connect`).
+"""
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass, field
 
 import numpy as np
 import pytorch_kinematics as pk
 
 from service.models.registry import ServedModel
 from service.pipeline.acceptance import accept
-from service.pipeline.clustering import component_labels
-from service.pipeline.correction import task_error_norms
+from service.pipeline.arrays import BoolArray, FloatArray
+from service.pipeline.connectivity import connect
+from service.pipeline.correction import task_error, task_error_norms
+from service.pipeline.fibre import Fibre
+from service.pipeline.joint_space import joint_distance, wrap_periodic
 from service.pipeline.run import run
 from service.pipeline.sampling import sample_configurations
 from service.pipeline.targets import Target, encode_target
-from service.pipeline.types import Correction, Query
+from service.pipeline.types import ComponentPath, Correction, Query
 from training.evaluate.baselines.ode import trace_smm
 from training.evaluate.baselines.restart_dls import random_restart_dls
 from training.evaluate.served import orientation_wxyz, stage_times_ms
@@ -28,18 +39,81 @@ class MethodTarget:
 
     raw_position_m: np.ndarray  # (S,) task-space error of every raw sample
     raw_orientation_rad: np.ndarray  # (S,) zeros when the task has no orientation
-    returned: np.ndarray  # (K, n) accepted configurations
+    returned: np.ndarray  # (K, n) returned configurations: members and path points
     returned_position_m: np.ndarray  # (K,)
     returned_orientation_rad: np.ndarray  # (K,)
     labels: np.ndarray | None  # (K,) component of each, None for the ODE trace
     sampled: int  # samples drawn (the denominator of the keep rate)
     time_ms: float
-    stage_ms: dict[str, float] | None = None  # per timed span (the pipeline only)
+    stage_ms: dict[str, float] | None = None  # per timed span (the pipeline, the restarts)
+    on_path: np.ndarray | None = None  # (K,) which returned rows are path points
+    # (component index, its path), r = 1 only, in the order of the labels.
+    paths: list[tuple[int, ComponentPath]] = field(default_factory=list)
+    path_max_gap_rad: float | None = None  # largest step along any path (None: no path)
+    near_singular: bool | None = None  # the connect stage's verdict (None: no connect stage)
 
     @property
     def component_count(self) -> int | None:
         """How many components the method returned; None when it labels none (the ODE)."""
         return None if self.labels is None else int(self.labels.max(initial=-1)) + 1
+
+    @property
+    def path_points(self) -> int:
+        return 0 if self.on_path is None else int(self.on_path.sum())
+
+    @property
+    def kept(self) -> int:
+        """Returned configurations that are accepted samples (path points left out)."""
+        return len(self.returned) - self.path_points
+
+
+def path_max_gap_rad(paths: Sequence[ComponentPath], periodic: BoolArray) -> float | None:
+    """Largest joint-metric step between consecutive points of any path (last -> first too
+    when the path is closed); None when there is no path."""
+    gaps = [0.0]
+    for path in paths:
+        q = path.q_rad
+        if len(q) > 1:
+            gaps.append(float(joint_distance(q[1:], q[:-1], periodic).max()))
+            if path.closed:
+                gaps.append(float(joint_distance(q[-1], q[0], periodic)))
+    return max(gaps) if paths else None
+
+
+@dataclass(frozen=True)
+class Returned:
+    """Every configuration of an answer's components, labelled by component."""
+
+    q_rad: FloatArray  # (K, n)
+    labels: np.ndarray  # (K,) component index
+    on_path: BoolArray  # (K,) a path point (not an accepted sample)
+    paths: list[tuple[int, ComponentPath]]
+
+
+def returned_points(
+    components: Sequence[tuple[FloatArray, ComponentPath | None]], num_joints: int
+) -> Returned:
+    """Each component's (configurations (k, n), path) as one labelled array: its
+    configurations, then its path points, labelled with the component's index."""
+    blocks: list[FloatArray] = [np.zeros((0, num_joints))]
+    labels: list[np.ndarray] = [np.zeros(0, int)]
+    on_path: list[BoolArray] = [np.zeros(0, bool)]
+    paths: list[tuple[int, ComponentPath]] = []
+    for index, (q, path) in enumerate(components):
+        pieces = [q] if path is None else [q, path.q_rad]
+        for piece, is_path in zip(pieces, (False, True), strict=False):
+            blocks.append(piece)
+            labels.append(np.full(len(piece), index))
+            on_path.append(np.full(len(piece), is_path))
+        if path is not None:
+            paths.append((index, path))
+    return Returned(np.concatenate(blocks), np.concatenate(labels), np.concatenate(on_path), paths)
+
+
+def _errors(model: ServedModel, q: FloatArray, target: Target) -> tuple[FloatArray, FloatArray]:
+    if not len(q):
+        return np.zeros(0), np.zeros(0)
+    return task_error_norms(model.kinematics(q), target, model.manifest.task)
 
 
 def flow_target(
@@ -58,19 +132,21 @@ def flow_target(
     )  # fmt: skip
     raw_p, raw_o = task_error_norms(model.kinematics(q_raw), target, manifest.task)
     query = Query.for_model(
-        manifest, position_m=position, orientation_wxyz=wxyz, num_samples=num_samples, seed=seed
-    )
+        manifest, position_m=position, orientation_wxyz=wxyz, num_samples=num_samples,
+        seed=seed, include_paths=True,
+    )  # fmt: skip
     result = run(model, query)
-    returned = [c.configurations_rad for c in result.components]
-    q = np.concatenate(returned) if returned else np.zeros((0, manifest.joints.count))
-    labels = np.concatenate([np.full(len(r), i) for i, r in enumerate(returned)] or [np.zeros(0)])
-    p, o = (
-        task_error_norms(model.kinematics(q), target, manifest.task)
-        if len(q)
-        else (q[:, 0], q[:, 0])
+    returned = returned_points(
+        [(c.configurations_rad, c.path) for c in result.components], manifest.joints.count
     )
+    p, o = _errors(model, returned.q_rad, target)
     stages = stage_times_ms(result)
-    return MethodTarget(raw_p, raw_o, q, p, o, labels, num_samples, stages["total"], stages)
+    return MethodTarget(
+        raw_p, raw_o, returned.q_rad, p, o, returned.labels, num_samples, stages["total"],
+        stages, returned.on_path, returned.paths,
+        path_max_gap_rad([path for _, path in returned.paths], periodic),
+        result.structure.near_singular,
+    )  # fmt: skip
 
 
 def raw_samples_target(answer: MethodTarget) -> MethodTarget:
@@ -99,24 +175,47 @@ def reference_target(model: ServedModel, q_target: np.ndarray) -> tuple[Target, 
 def restart_target(
     model: ServedModel, chain: pk.SerialChain, q_target: np.ndarray, num_samples: int, seed: int
 ) -> MethodTarget:
-    manifest = model.manifest
+    """Random-restart DLS, judged by the service's acceptance and grouped by its connect
+    stage (the model's connectivity defaults); its time includes accept and connect."""
+    manifest, defaults = model.manifest, model.manifest.defaults
     target, position_m = reference_target(model, q_target)
     solutions = random_restart_dls(
         chain, manifest.joints, manifest.task, position_m, target.rotation, num_samples, seed
     )
-    q = solutions.q_rad
     lower, upper, periodic = manifest.joints.arrays()
-    raw_p, raw_o = task_error_norms(model.kinematics(q), target, manifest.task)
+    q = wrap_periodic(solutions.q_rad.astype(np.float64), periodic)
+    fk = model.kinematics(q)
+    raw_p, raw_o = task_error_norms(fk, target, manifest.task)
+    jacobian = task_error(fk, target, manifest.task)[1]
     start = time.perf_counter()
-    kept = accept(
-        Correction(q, raw_p, raw_o), manifest.defaults.tolerance_position_m,
-        manifest.defaults.tolerance_orientation_rad, lower, upper, periodic,
-    ).accepted  # fmt: skip
-    labels = component_labels(q[kept], periodic, manifest.defaults.cluster_radius_rad)
-    elapsed = solutions.wall_time_ms + (time.perf_counter() - start) * 1e3
-    return MethodTarget(
-        raw_p, raw_o, q[kept], raw_p[kept], raw_o[kept], labels, num_samples, elapsed
+    correction = Correction(q, raw_p, raw_o, jacobian)
+    acceptance = accept(
+        correction, defaults.tolerance_position_m, defaults.tolerance_orientation_rad,
+        lower, upper, periodic,
+    )  # fmt: skip
+    accepted_s = time.perf_counter()
+    connection = connect(
+        Fibre(target, manifest.task, model.kinematics, defaults.damping), correction,
+        acceptance, lower, upper, periodic, defaults.connectivity,
+        defaults.tolerance_position_m, defaults.tolerance_orientation_rad,
+    )  # fmt: skip
+    connected_s = time.perf_counter()
+    returned = returned_points(
+        [(c.q_rad, c.path) for c in connection.components], manifest.joints.count
     )
+    p, o = _errors(model, returned.q_rad, target)
+    stages = {
+        "solve": solutions.wall_time_ms,
+        "accept": (accepted_s - start) * 1e3,
+        "connect": (connected_s - accepted_s) * 1e3,
+        "total": solutions.wall_time_ms + (connected_s - start) * 1e3,
+    }
+    return MethodTarget(
+        raw_p, raw_o, returned.q_rad, p, o, returned.labels, num_samples, stages["total"],
+        stages, returned.on_path, returned.paths,
+        path_max_gap_rad([path for _, path in returned.paths], periodic),
+        connection.structure.near_singular,
+    )  # fmt: skip
 
 
 def ode_target(model: ServedModel, q_target: np.ndarray) -> MethodTarget:
@@ -125,5 +224,3 @@ def ode_target(model: ServedModel, q_target: np.ndarray) -> MethodTarget:
     target, _ = reference_target(model, q_target)
     p, o = task_error_norms(model.kinematics(trace.q_rad), target, manifest.task)
     return MethodTarget(p, o, trace.q_rad, p, o, None, len(trace.q_rad), trace.wall_time_ms)
-
-

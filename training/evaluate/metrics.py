@@ -1,6 +1,7 @@
 """The measures of an answer against exact ground truth: errors in the paper's units,
-coverage and precision on the joint metric, exact components found, counts, and the
-component matching of the iiwa pose checks; stage-time medians."""
+coverage and precision on the joint metric, exact components found, splits, merges and
+counts, the checks of the returned paths (r = 1), and the component matching of the
+iiwa pose checks; stage-time medians and 95th percentiles."""
 
 from __future__ import annotations
 
@@ -15,8 +16,7 @@ from service.pipeline.joint_space import JointBox
 from service.pipeline.types import SmmResult
 from training.evaluate.methods import MethodTarget
 from training.evaluate.references.iiwa14 import ReferenceComponent
-from training.evaluate.served import returned_configurations
-from training.evaluate.truth import Truth
+from training.evaluate.truth import SHARE_BUCKETS, Truth
 
 COVERAGE_RADIUS_RAD = 0.1  # an exact point is covered when an answer lies this close
 
@@ -46,11 +46,118 @@ def errors_in_units(
     }
 
 
+COUNT_RIGHT_DEFINITION = (
+    "A target's count is right when the number of returned components equals the exact "
+    "count, no returned component is a merge (its configurations lie on two or more exact "
+    "components) and no exact component is split (spread over two or more returned "
+    "components). Each returned configuration, accepted sample or path point, belongs to "
+    "the exact component of its nearest exact point. For the 4-D fibre only exact "
+    "components of at least 1 % of the fibre count, as in the exact count: a returned "
+    "component lying only on smaller ones is extra small, neither counted nor a split. "
+    "Without exact component labels (planar 3R) the count alone is compared with the "
+    "closed form."
+)
+
+
+@dataclass(frozen=True)
+class Agreement:
+    """A method's components against the exact ones on one target (`COUNT_RIGHT_DEFINITION`).
+
+    splits, merges and extra_small are None without exact component labels (planar 3R).
+    """
+
+    returned: int  # returned components, extra-small ones left out
+    expected: int  # the exact count (Truth.count)
+    splits: int | None  # counted exact components spread over 2+ returned components
+    merges: int | None  # returned components lying on 2+ counted exact components
+    extra_small: int | None  # returned components lying only on uncounted exact ones
+
+    @property
+    def right(self) -> bool:
+        """The count is right: as many components as the exact count, no merge, no split."""
+        return self.returned == self.expected and not self.splits and not self.merges
+
+
+def counted_components(truth: Truth) -> BoolArray:
+    """(C,) the exact components Truth.count counts: every one of a 1-D SMM, those of at
+    least MIN_SHARE (size_edges[1]) of a 4-D fibre."""
+    assert truth.size is not None
+    if truth.size_edges == SHARE_BUCKETS:
+        return np.asarray(truth.size >= truth.size_edges[1])
+    return np.ones(len(truth.size), dtype=bool)
+
+
+def exact_labels(returned: FloatArray, truth: Truth) -> np.ndarray:
+    """(K,) the exact component of each returned configuration: that of its nearest exact
+    point on the membership joints (iiwa: no periodic joint, Euclidean)."""
+    assert truth.point_component is not None
+    if not len(returned):
+        return np.zeros(0, int)
+    n = truth.membership_joints
+    nearest = cKDTree(truth.points[:, :n]).query(returned[:, :n])[1]
+    return np.asarray(truth.point_component[nearest])
+
+
+def component_agreement(answer: MethodTarget, truth: Truth) -> Agreement | None:
+    """Splits, merges and the count of one answer (`COUNT_RIGHT_DEFINITION`); None when
+    the method labels no component (the ODE trace)."""
+    if answer.component_count is None or answer.labels is None:
+        return None
+    count = answer.component_count
+    if truth.point_component is None or truth.size is None:
+        return Agreement(count, truth.count, None, None, None)
+    counted = counted_components(truth)
+    exact = exact_labels(answer.returned, truth)
+    touched = [np.unique(exact[answer.labels == j]) for j in range(count)]
+    holders = np.zeros(len(counted), dtype=int)
+    for members in touched:
+        holders[members[counted[members]]] += 1
+    extra_small = sum(int(len(m) > 0 and not counted[m].any()) for m in touched)
+    return Agreement(
+        returned=count - extra_small,
+        expected=truth.count,
+        splits=int(((holders > 1) & counted).sum()),
+        merges=sum(int(counted[m].sum() > 1) for m in touched),
+        extra_small=extra_small,
+    )
+
+
+def path_checks(
+    answers: list[MethodTarget], lower: FloatArray, upper: FloatArray, periodic: BoolArray
+) -> dict[str, float | int | None]:
+    """The returned paths (r = 1): points per target, the largest step along any path,
+    points outside the limits, the largest task errors on them."""
+    with_paths = [a for a in answers if a.on_path is not None]
+    points = np.concatenate(
+        [np.zeros((0, len(lower)))] + [a.returned[a.on_path] for a in with_paths]
+    )
+    position = np.concatenate(
+        [np.zeros(0)] + [a.returned_position_m[a.on_path] for a in with_paths]
+    )
+    orientation = np.concatenate(
+        [np.zeros(0)] + [a.returned_orientation_rad[a.on_path] for a in with_paths]
+    )
+    gaps = [a.path_max_gap_rad for a in answers if a.path_max_gap_rad is not None]
+    outside = (~(periodic | ((points >= lower) & (points <= upper)))).any(axis=1)
+    return {
+        "path_points_mean": float(np.mean([a.path_points for a in answers])),
+        "path_max_gap_rad": max(gaps) if gaps else None,
+        "path_points_outside_limits": int(outside.sum()),
+        "path_max_position_error_m": float(position.max()) if len(position) else None,
+        "path_max_orientation_error_rad": float(orientation.max()) if len(orientation) else None,
+    }
+
+
 def summarise(
     model: ServedModel, answers: list[MethodTarget], truths: list[Truth]
 ) -> dict[str, object]:
+    """One method over the targets: errors, keep rate, limits, time (per stage: median and
+    p95), coverage and precision, components (splits, merges, count right) and paths."""
+    if not answers:
+        return {}
     manifest = model.manifest
     reach, pose = manifest.reach_m, manifest.task.orientation
+    one_dimensional = manifest.joints.count - manifest.task.dimension == 1
     lower, upper, periodic = manifest.joints.arrays()
     cat = np.concatenate
     raw = errors_in_units(
@@ -71,12 +178,17 @@ def summarise(
     summary: dict[str, object] = {
         "raw": raw,
         "returned": returned,
-        "keep_rate": sum(len(a.returned) for a in answers) / sum(a.sampled for a in answers),
+        "keep_rate": sum(a.kept for a in answers) / sum(a.sampled for a in answers),
         "limit_violations": int(sum(o.sum() for o in outside)),
         "median_time_ms": float(np.median([a.time_ms for a in answers])),
     }
-    if answers[0].stage_ms is not None:
-        summary["median_stage_ms"] = median_stage_ms([a.stage_ms for a in answers if a.stage_ms])
+    timed = [a.stage_ms for a in answers if a.stage_ms]
+    if timed:
+        summary["median_stage_ms"] = median_stage_ms(timed)
+        summary["p95_stage_ms"] = p95_stage_ms(timed)
+    singular = [a.near_singular for a in answers if a.near_singular is not None]
+    if singular:
+        summary["near_singular_targets"] = float(np.mean(singular))
     if answers[0].labels is None:
         return summary
     coverage = [
@@ -99,16 +211,26 @@ def summarise(
     )  # fmt: skip
     if truths[0].size is not None:
         summary["recall_by_size"] = recall_by_size(answers, truths)
-    if answers[0].labels is not None:
-        counts = np.array([a.component_count for a in answers if a.component_count is not None])
-        expected = np.array([t.count for t in truths])
-        summary["component_count"] = {
-            "right": float(np.mean(counts == expected)),
-            "too_many": float(np.mean(counts > expected)),
-            "too_few": float(np.mean(counts < expected)),
-            "expected_mean": float(expected.mean()),
-            "returned_mean": float(counts.mean()),
-        }
+    agreements = [
+        g
+        for g in (component_agreement(a, t) for a, t in zip(answers, truths, strict=True))
+        if g is not None
+    ]
+    counts = np.array([g.returned for g in agreements])
+    expected = np.array([g.expected for g in agreements])
+    summary["component_count"] = {
+        "right": float(np.mean([g.right for g in agreements])),
+        "too_many": float(np.mean(counts > expected)),
+        "too_few": float(np.mean(counts < expected)),
+        "expected_mean": float(expected.mean()),
+        "returned_mean": float(counts.mean()),
+    }
+    if agreements[0].splits is not None:
+        summary["splits_per_target"] = float(np.mean([g.splits for g in agreements]))
+        summary["merges_per_target"] = float(np.mean([g.merges for g in agreements]))
+        summary["extra_small_per_target"] = float(np.mean([g.extra_small for g in agreements]))
+    if one_dimensional and any(a.on_path is not None for a in answers):
+        summary.update(path_checks(answers, lower, upper, periodic))
     return summary
 
 
@@ -119,10 +241,7 @@ def found_components(answer: MethodTarget, truth: Truth) -> np.ndarray:
     """
     assert truth.point_component is not None and truth.size is not None
     found = np.zeros(len(truth.size), dtype=bool)
-    if len(answer.returned):
-        n = truth.membership_joints  # iiwa: no periodic joint
-        nearest = cKDTree(truth.points[:, :n]).query(answer.returned[:, :n])[1]
-        found[truth.point_component[nearest]] = True
+    found[exact_labels(answer.returned, truth)] = True
     return found
 
 
@@ -161,12 +280,23 @@ def missed_components(answers: list[MethodTarget], truths: list[Truth]) -> list[
 def wrong_count_targets(
     answers: list[MethodTarget], truths: list[Truth]
 ) -> list[dict[str, object]]:
-    """Targets where the method returned another number of components than the exact one."""
-    return [
-        {"index": index, "expected": truth.count, "returned": answer.component_count}
-        for index, (answer, truth) in enumerate(zip(answers, truths, strict=True))
-        if answer.component_count is not None and answer.component_count != truth.count
-    ]
+    """Targets whose count is not right (`COUNT_RIGHT_DEFINITION`): returned components
+    (extra-small ones left out) against the exact count, with splits and merges when the
+    ground truth labels its components."""
+    wrong: list[dict[str, object]] = []
+    for index, (answer, truth) in enumerate(zip(answers, truths, strict=True)):
+        agreement = component_agreement(answer, truth)
+        if agreement is None or agreement.right:
+            continue
+        entry: dict[str, object] = {
+            "index": index,
+            "expected": agreement.expected,
+            "returned": agreement.returned,
+        }
+        if agreement.splits is not None:
+            entry.update(splits=agreement.splits, merges=agreement.merges)
+        wrong.append(entry)
+    return wrong
 
 
 def match_summary(matches: list[ComponentMatch]) -> dict[str, float]:
@@ -201,15 +331,22 @@ class ComponentMatch:
 
 
 def match_components(result: SmmResult, reference: list[ReferenceComponent]) -> ComponentMatch:
+    """Each returned component's configurations and path points against the reference."""
     points = np.concatenate([c.q_rad for c in reference])  # (P, 7)
     owner = np.concatenate([np.full(len(c.q_rad), i) for i, c in enumerate(reference)])
     tree = cKDTree(points)
-    labels = [owner[tree.query(c.configurations_rad)[1]] for c in result.components]
+    members = [
+        c.configurations_rad
+        if c.path is None
+        else np.concatenate([c.configurations_rad, c.path.q_rad])
+        for c in result.components
+    ]
+    labels = [owner[tree.query(q)[1]] if len(q) else np.zeros(0, int) for q in members]
     touched = [set(label.tolist()) for label in labels]
     holders = np.zeros(len(reference), dtype=int)
-    for members in touched:
-        holders[list(members)] += 1
-    returned = returned_configurations(result, 7)
+    for touched_by_one in touched:
+        holders[list(touched_by_one)] += 1
+    returned = np.concatenate([np.zeros((0, 7)), *members])
     coverage_p95 = (
         float(np.percentile(cKDTree(returned).query(points)[0], 95)) if len(returned) else np.inf
     )
@@ -217,7 +354,7 @@ def match_components(result: SmmResult, reference: list[ReferenceComponent]) -> 
         reference=len(reference),
         returned=len(result.components),
         found=int((holders > 0).sum()),
-        merged=sum(len(members) > 1 for members in touched),
+        merged=sum(len(m) > 1 for m in touched),
         split=int((holders > 1).sum()),
         missed_arc_rad=[
             round(c.arc_length_rad, 3) for c, h in zip(reference, holders, strict=True) if not h
@@ -228,6 +365,11 @@ def match_components(result: SmmResult, reference: list[ReferenceComponent]) -> 
 
 def median_stage_ms(timings: list[dict[str, float]]) -> dict[str, float]:
     """Median over targets of each timed span (keys of `StageTimings.as_dict()`), 0.01 ms."""
+    return {span: round(float(np.median([t[span] for t in timings])), 2) for span in timings[0]}
+
+
+def p95_stage_ms(timings: list[dict[str, float]]) -> dict[str, float]:
+    """95th percentile over targets of each timed span (linear interpolation), 0.01 ms."""
     return {
-        span: round(float(np.median([t[span] for t in timings])), 2) for span in timings[0]
+        span: round(float(np.percentile([t[span] for t in timings], 95)), 2) for span in timings[0]
     }

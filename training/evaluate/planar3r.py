@@ -101,25 +101,21 @@ def check(model: ServedModel, num_targets: int = 50, seed: int = 2) -> CheckRepo
 
 
 def sweep(model: ServedModel, num_targets: int) -> list[dict[str, object]]:
-    """Count accuracy, coverage, keep rate and time for candidate sampler steps and radii."""
+    """Count accuracy, coverage, keep rate and time for candidate sampler steps."""
     rows: list[dict[str, object]] = []
     for steps in (5, 10, 20, 50, 100):
-        for radius in (0.2, 0.3, 0.5, 1.0):
-            candidate = with_defaults(
-                model, sampler=SamplerSpec(method="euler", steps=steps), cluster_radius_rad=radius
-            )
-            report = check(candidate, num_targets)
-            rows.append(
-                {
-                    "sampler_steps": steps,
-                    "cluster_radius_rad": radius,
-                    "count_correct": f"{report.count_correct}/{report.targets}",
-                    "coverage_max_rad": round(report.coverage_max_rad, 4),
-                    "keep_rate": round(report.keep_rate, 4),
-                    "median_total_ms": round(report.median_total_ms, 1),
-                }
-            )
-            print(rows[-1], flush=True)
+        candidate = with_defaults(model, sampler=SamplerSpec(method="euler", steps=steps))
+        report = check(candidate, num_targets)
+        rows.append(
+            {
+                "sampler_steps": steps,
+                "count_correct": f"{report.count_correct}/{report.targets}",
+                "coverage_max_rad": round(report.coverage_max_rad, 4),
+                "keep_rate": round(report.keep_rate, 4),
+                "median_total_ms": round(report.median_total_ms, 1),
+            }
+        )
+        print(rows[-1], flush=True)
     return rows
 
 
@@ -130,9 +126,7 @@ def main() -> None:
     parser.add_argument("--model-dir", default=str(REPO_MODELS_DIR / "planar3r-position"))
     parser.add_argument("--targets", type=int, default=50)
     parser.add_argument("--seed", type=int, default=2, help="seed of the random targets")
-    parser.add_argument(
-        "--sweep", action="store_true", help="measure candidate sampler steps x cluster radii"
-    )
+    parser.add_argument("--sweep", action="store_true", help="measure candidate sampler steps")
     args = parser.parse_args()
     model = load_model(Path(args.model_dir), threads=0)
     if args.sweep:

@@ -1,9 +1,13 @@
 """Figures of the evaluation (PNG into docs/plots/), like the paper's Figs. 3-6 and more.
 
 - pairwise joint projections of the service's answer against the exact SMM, for a planar
-  3R target and an iiwa14 pose target;
+  3R target and an iiwa14 pose target: each returned component in its own colour (a
+  split shows as two colours on one exact curve, a merge as one colour on two), each
+  returned path (r = 1) drawn as a line through its ordered points;
 - FK-error histograms before and after correction for the 4-D case (iiwa14 position);
-- component-count accuracy against distance from the base (every model).
+- count-right accuracy against distance from the base (every model; count right as
+  `metrics.COUNT_RIGHT_DEFINITION`: the count, and no split or merge where the ground
+  truth labels its components).
 
     python -m training.evaluate.plots --targets 100
 """
@@ -22,7 +26,9 @@ import numpy as np
 
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
-from training.evaluate.methods import flow_target
+from service.pipeline.arrays import BoolArray, FloatArray
+from training.evaluate.methods import MethodTarget, flow_target
+from training.evaluate.metrics import component_agreement
 from training.evaluate.targets import distance_from_base_m, uniform_configurations
 from training.evaluate.truth import ground_truth
 
@@ -40,10 +46,50 @@ def count_accuracy_by_distance(
         return hits / totals, totals
 
 
+def path_segments(q_rad: FloatArray, closed: bool, periodic: BoolArray) -> list[FloatArray]:
+    """The ordered path (P, n) as polylines to draw: closed loops come back to their first
+    point, and a line breaks where a periodic joint wraps (a step of more than pi)."""
+    if closed and len(q_rad) > 1:
+        q_rad = np.concatenate([q_rad, q_rad[:1]])
+    if len(q_rad) < 2:
+        return [q_rad]
+    step = np.abs(np.diff(q_rad, axis=0))  # (P - 1, n)
+    wraps = np.flatnonzero(np.any(periodic & (step > np.pi), axis=1)) + 1
+    return [piece for piece in np.split(q_rad, wraps) if len(piece)]
+
+
+def component_colours(count: int) -> list[tuple[float, float, float, float]]:
+    """A distinct colour per returned component (tab10, then tab20, then a hue wheel)."""
+    if count <= 10:
+        return [plt.get_cmap("tab10")(i) for i in range(count)]
+    if count <= 20:
+        return [plt.get_cmap("tab20")(i) for i in range(count)]
+    return [plt.get_cmap("hsv")(i / count) for i in range(count)]
+
+
+def draw_components(
+    axis: plt.Axes, answer: MethodTarget, col: int, row: int, periodic: BoolArray
+) -> None:
+    """The answer's components on one joint pair: samples as dots, paths as lines."""
+    count = answer.component_count or 0
+    colours = component_colours(count)
+    labels = answer.labels if answer.labels is not None else np.zeros(len(answer.returned), int)
+    on_path = answer.on_path if answer.on_path is not None else np.zeros(len(labels), bool)
+    for index in range(count):
+        members = answer.returned[(labels == index) & ~on_path]
+        axis.scatter(members[:, col], members[:, row], s=3, color=colours[index],
+                     label=f"component {index + 1}" if index < 8 else None)  # fmt: skip
+    for index, path in answer.paths:
+        for piece in path_segments(path.q_rad[:, [col, row]], path.closed, periodic[[col, row]]):
+            axis.plot(piece[:, 0], piece[:, 1], "-", lw=0.9, color=colours[index])
+
+
 def pairwise_projection(model: ServedModel, q_target: np.ndarray, path: Path) -> None:
-    """Lower-triangle grid of joint pairs: exact SMM (grey) and returned configurations."""
+    """Lower-triangle grid of joint pairs: exact SMM (grey) and the returned components,
+    one colour each (paths as lines for r = 1)."""
     truth = ground_truth(model, q_target, seed=0).points
     answer = flow_target(model, q_target, model.manifest.defaults.num_samples, seed=0)
+    _, _, periodic = model.manifest.joints.arrays()
     n = q_target.shape[0]
     figure, axes = plt.subplots(n - 1, n - 1, figsize=(2.2 * (n - 1), 2.2 * (n - 1)))
     axes = np.atleast_2d(axes)
@@ -53,14 +99,18 @@ def pairwise_projection(model: ServedModel, q_target: np.ndarray, path: Path) ->
             if col >= row:
                 axis.axis("off")
                 continue
-            axis.scatter(truth[:, col], truth[:, row], s=1, c="0.7", label="exact SMM")
-            axis.scatter(answer.returned[:, col], answer.returned[:, row], s=2, c="tab:blue",
-                         label="returned")  # fmt: skip
+            axis.scatter(truth[:, col], truth[:, row], s=1, c="0.8", label="exact SMM")
+            draw_components(axis, answer, col, row, periodic)
             axis.set_xlabel(f"q{col + 1} (rad)", fontsize=7)
             axis.set_ylabel(f"q{row + 1} (rad)", fontsize=7)
             axis.tick_params(labelsize=6)
-    axes[0, 0].legend(fontsize=6, loc="best")
-    figure.suptitle(f"{model.reference}: returned configurations vs the exact SMM", fontsize=9)
+    axes[0, 0].legend(fontsize=5, loc="best", markerscale=2)
+    paths = " and paths (lines)" if answer.paths else ""
+    figure.suptitle(
+        f"{model.reference}: {answer.component_count} returned components\n"
+        f"one colour each (samples{paths}); the exact SMM in grey",
+        fontsize=8,
+    )
     figure.tight_layout()
     figure.savefig(path, dpi=110)
     plt.close(figure)
@@ -87,7 +137,7 @@ def fk_error_histogram(model: ServedModel, q_targets: np.ndarray, path: Path) ->
 
 
 def count_accuracy_plot(models: list[ServedModel], num_targets: int, path: Path) -> None:
-    """Fraction of targets with the exact component count, by distance from the base."""
+    """Fraction of targets whose count is right (`COUNT_RIGHT_DEFINITION`), by distance."""
     figure, axis = plt.subplots(figsize=(6, 3.2))
     for model in models:
         lower, upper, _ = model.manifest.joints.arrays()
@@ -96,15 +146,15 @@ def count_accuracy_plot(models: list[ServedModel], num_targets: int, path: Path)
         for i, q in enumerate(q_targets):
             truth = ground_truth(model, q, seed=i)
             answer = flow_target(model, q, model.manifest.defaults.num_samples, seed=i)
-            count = 0 if answer.labels is None else int(answer.labels.max(initial=-1)) + 1
-            right.append(count == truth.count)
+            agreement = component_agreement(answer, truth)
+            right.append(agreement is not None and agreement.right)
             distance.append(distance_from_base_m(model, q[None])[0] / model.manifest.reach_m)
         edges = np.linspace(0.0, max(distance) + 1e-9, 9)
         fraction, totals = count_accuracy_by_distance(np.array(distance), np.array(right), edges)
         centres = (edges[:-1] + edges[1:]) / 2
         axis.plot(centres[totals > 0], fraction[totals > 0], "o-", label=model.reference)
     axis.set_xlabel("distance from the base (shoulder for the iiwa) / reach L")
-    axis.set_ylabel("targets with the exact count")
+    axis.set_ylabel("targets with the count right")
     axis.set_ylim(-0.05, 1.05)
     axis.legend(fontsize=8)
     figure.tight_layout()

@@ -1,11 +1,12 @@
 """The report as Markdown: errors beside the paper's Table 2, components against ground
-truth, exact components found by size, and the targets the service got wrong."""
+truth (count right, splits, merges), the connect stage's time, the returned paths
+(r = 1), exact components found by size, and the targets the service got wrong."""
 
 from __future__ import annotations
 
 from typing import Any
 
-from training.evaluate.metrics import COVERAGE_RADIUS_RAD
+from training.evaluate.metrics import COUNT_RIGHT_DEFINITION, COVERAGE_RADIUS_RAD
 
 PAPER_TABLE_2: dict[
     str, dict[str, tuple[float | None, ...]]
@@ -26,7 +27,6 @@ PAPER_TABLE_2: dict[
         "FM + DLS": (0.0013, None, 0.0013, None),
     },
 }
-
 
 
 def _cell(value: object) -> str:
@@ -50,28 +50,35 @@ def _recall_lines(methods: dict[str, dict[str, Any]], size_name: str) -> list[st
     return ["", f"Exact components found, by {size_name}:", "", *_table(header, rows)]
 
 
+def _wrong_count(entry: dict[str, Any]) -> str:
+    text = f"{entry['returned']} for {entry['expected']}"
+    if "splits" in entry:
+        text += f", {entry['splits']} split, {entry['merges']} merged"
+    return text
+
+
 def _listed_targets(report: dict[str, Any]) -> list[str]:
     boundary = report["near_boundary"]
-    served = boundary["FM + DLS"]
+    served = boundary.get("FM + DLS") or {}
     count = served.get("component_count") or {}
     coverage = served.get("coverage_rad") or {}
     lines = [
         "",
         f"Near-boundary targets (outer 10 % of the reach): {boundary['targets']}, indices "
         f"{boundary['indices']}. There the service (FM + DLS) keeps "
-        f"{_cell(served['keep_rate'])} of its samples, gets the count right on "
+        f"{_cell(served.get('keep_rate'))} of its samples, gets the count right on "
         f"{_cell(count.get('right'))} of the targets (too many {_cell(count.get('too_many'))}, "
         f"too few {_cell(count.get('too_few'))}) and covers the exact SMM to p95 "
         f"{_cell(coverage.get('p95'))} rad.",
     ]
     wrong = report.get("wrong_count_targets")
     if wrong is not None:
-        listed = ", ".join(
-            f"{w['index']} ({w['returned']} for {w['expected']})" for w in wrong[:40]
-        )
+        listed = ", ".join(f"{w['index']} ({_wrong_count(w)})" for w in wrong[:40])
         more = f", and {len(wrong) - 40} more" if len(wrong) > 40 else ""
         lines.append(
-            f"Targets with the wrong component count (returned for exact): {len(wrong)}"
+            "Targets whose count is not right (returned for exact"
+            + (", splits, merges" if any("splits" in w for w in wrong) else "")
+            + f"): {len(wrong)}"
             + (f": {listed}{more}." if wrong else ".")
         )
     missed = report.get("missed_component_targets")
@@ -113,8 +120,10 @@ def markdown(model_id: str, report: dict[str, Any]) -> str:
         coverage, precision = summary["coverage_rad"], summary.get("precision_rad") or {}
         component_rows.append(
             [name, count.get("right"), count.get("too_many"), count.get("too_few"),
-             coverage["mean"], coverage["p95"], coverage[f"within_{COVERAGE_RADIUS_RAD}"],
-             precision.get("p95"), summary["limit_violations"]]
+             summary.get("splits_per_target"), summary.get("merges_per_target"),
+             summary.get("extra_small_per_target"), coverage["mean"], coverage["p95"],
+             coverage[f"within_{COVERAGE_RADIUS_RAD}"], precision.get("p95"),
+             summary["limit_violations"]]
         )  # fmt: skip
     lines = [
         f"# {model_id}: evaluation against ground truth",
@@ -144,6 +153,9 @@ def markdown(model_id: str, report: dict[str, Any]) -> str:
                 "count right",
                 "too many",
                 "too few",
+                "splits / target",
+                "merges / target",
+                "extra small / target",
                 "coverage mean rad",
                 "coverage p95 rad",
                 f"within {COVERAGE_RADIUS_RAD} rad",
@@ -152,14 +164,62 @@ def markdown(model_id: str, report: dict[str, Any]) -> str:
             ],
             component_rows,
         ),
+        *_stage_lines(methods),
+        *_path_lines(methods),
         *_recall_lines(methods, report.get("component_size", "size")),
         *_listed_targets(report),
         "",
         "Errors: the FM and ODE rows are over every raw sample or trace point, the others over "
-        "returned (accepted) configurations. The paper's numbers are from one target, on kept "
-        "samples only.",
+        "returned configurations (accepted samples and, for a 1-D SMM, the points of each "
+        "component's path). The paper's numbers are from one target, on kept samples only.",
+        "",
+        "Count right: " + report.get("count_right_definition", COUNT_RIGHT_DEFINITION),
     ]
     return "\n".join(lines) + "\n"
+
+
+def _stage_lines(methods: dict[str, dict[str, Any]]) -> list[str]:
+    rows = []
+    for name, summary in methods.items():
+        median, p95 = summary.get("median_stage_ms") or {}, summary.get("p95_stage_ms") or {}
+        if "connect" in median:
+            rows.append(
+                [name, median["connect"], p95.get("connect"), median.get("total"),
+                 p95.get("total"), summary.get("near_singular_targets")]
+            )  # fmt: skip
+    if not rows:
+        return []
+    header = ["method", "connect median ms", "connect p95 ms", "total median ms",
+              "total p95 ms", "near-singular targets"]  # fmt: skip
+    return [
+        "",
+        "The connect stage (components decided on the fibre), over the targets; near-singular: "
+        "the fraction of targets the connect stage flags as near a singular value:",
+        "",
+        *_table(header, rows),
+    ]
+
+
+def _path_lines(methods: dict[str, dict[str, Any]]) -> list[str]:
+    rows = [
+        [name, summary["path_points_mean"], summary["path_max_gap_rad"],
+         summary["path_points_outside_limits"], summary["path_max_position_error_m"],
+         summary["path_max_orientation_error_rad"]]
+        for name, summary in methods.items()
+        if "path_points_mean" in summary
+    ]  # fmt: skip
+    if not rows:
+        return []
+    header = ["method", "path points / target", "max gap rad", "points outside limits",
+              "max position error m", "max orientation error rad"]  # fmt: skip
+    return [
+        "",
+        "Returned paths (r = 1): the largest joint-metric step between consecutive points "
+        "(closing step of a loop included) over every path, and every path point checked "
+        "against the limits and the target:",
+        "",
+        *_table(header, rows),
+    ]
 
 
 def _method_errors(name: str, summary: dict[str, Any]) -> dict[str, Any]:
@@ -182,14 +242,17 @@ def table_2(reports: dict[str, dict[str, Any]]) -> str:
             count = summary.get("component_count")
             if count is not None:
                 coverage = summary["coverage_rad"]
+                median = summary.get("median_stage_ms") or {}
+                p95 = summary.get("p95_stage_ms") or {}
                 component_rows.append([model_id, name, count["expected_mean"],
                     count["returned_mean"], count["right"], count["too_many"], count["too_few"],
-                    coverage["p95"], coverage[f"within_{COVERAGE_RADIUS_RAD}"]])  # fmt: skip
+                    summary.get("splits_per_target"), summary.get("merges_per_target"),
+                    coverage["p95"], coverage[f"within_{COVERAGE_RADIUS_RAD}"],
+                    median.get("connect"), p95.get("connect")])  # fmt: skip
     header = ["model", "method", "e_p %", "e_o %", "e %", "median ms",
               "paper e_p %", "paper e_o %", "paper e %", "paper ms"]  # fmt: skip
     component_header = ["model", "method", "exact components", "returned", "count right",
-                        "too many", "too few", "coverage p95 rad",
-                        f"within {COVERAGE_RADIUS_RAD} rad"]  # fmt: skip
+                        "too many", "too few", "splits / target", "merges / target",
+                        "coverage p95 rad", f"within {COVERAGE_RADIUS_RAD} rad",
+                        "connect median ms", "connect p95 ms"]  # fmt: skip
     return "\n".join([*_table(header, rows), "", *_table(component_header, component_rows)])
-
-

@@ -2,13 +2,13 @@
 
 Targets: the FK of configurations uniform in the joint limits (fixed seed). Ground truth:
 the planar closed form, the iiwa14 S-R-S IK (pose: exact components; position: dense
-exact points of the 4-D SMM, no component labels). Methods, each with the same number
+exact points of the 4-D SMM with their components). Methods, each with the same number
 of samples per target:
 
 - FM: the flow's raw samples (default sampler), all of them;
 - FM + DLS: the service's pipeline with its defaults (what a client gets);
 - random-restart DLS: pytorch-kinematics PseudoInverseIK from uniform restarts, judged
-  by the same acceptance and clustered with the same radius;
+  by the same acceptance and grouped by the same connect stage (its time includes both);
 - ODE (1-D SMMs only): the paper's null-space RK5 trace from the generating configuration.
 
     python -m training.evaluate.report --model iiwa14-pose --targets 200   # -> docs/reports/
@@ -32,7 +32,12 @@ from training.evaluate.methods import (
     raw_samples_target,
     restart_target,
 )
-from training.evaluate.metrics import missed_components, summarise, wrong_count_targets
+from training.evaluate.metrics import (
+    COUNT_RIGHT_DEFINITION,
+    missed_components,
+    summarise,
+    wrong_count_targets,
+)
 from training.evaluate.rendering import markdown, table_2
 from training.evaluate.targets import near_boundary, uniform_configurations
 from training.evaluate.truth import ground_truth
@@ -73,6 +78,7 @@ def build_report(
         "defaults": manifest.defaults.model_dump(exclude={"reasons"}),
         "methods": {name: summarise(model, answers, truths) for name, answers in methods.items()},
         "component_size": "arc length (rad)" if one_dimensional else "share of the fibre",
+        "count_right_definition": COUNT_RIGHT_DEFINITION,
         "near_boundary": {
             "targets": int(boundary.sum()),
             "indices": np.flatnonzero(boundary).tolist(),

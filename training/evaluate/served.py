@@ -34,4 +34,3 @@ def orientation_wxyz(rotation: FloatArray) -> tuple[float, float, float, float]:
     """The unit quaternion {w, x, y, z} of a rotation matrix (3, 3), as a request sends it."""
     x, y, z, w = Rotation.from_matrix(rotation).as_quat()
     return (float(w), float(x), float(y), float(z))
-

@@ -58,5 +58,3 @@ def ground_truth(model: SmmModel, q_target: np.ndarray, seed: int) -> Truth:
         points=fibre.q_rad, count=fibre.count, point_component=fibre.component,
         size=fibre.share, size_edges=SHARE_BUCKETS, membership_joints=6,
     )  # fmt: skip
-
-

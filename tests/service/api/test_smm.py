@@ -54,7 +54,8 @@ def test_every_returned_configuration_reaches_the_target_and_is_counted(client: 
     assert sum(c["size"] for c in answer["components"]) == counts["accepted"] == len(q)
     for component in answer["components"]:
         assert component["max_position_error"] <= 1e-6
-        members = np.array(component["configurations"])
+        # Bounds cover every member and every point of the component's path.
+        members = np.array(component["configurations"] + component["path"])
         np.testing.assert_allclose(members.min(0), component["joint_min"])
         np.testing.assert_allclose(members.max(0), component["joint_max"])
         assert component["representative"] in component["configurations"]
@@ -63,7 +64,8 @@ def test_every_returned_configuration_reaches_the_target_and_is_counted(client: 
         "sample",
         "correct",
         "accept",
-        "cluster",
+        "connect",
+        "summarise",
         "total",
     }
 

@@ -124,7 +124,8 @@ def test_components_are_ordered_by_distance_to_the_reference(client: TestClient,
     distances = [c["distance_to_reference"] for c in components]
     assert distances == sorted(distances)
     for component in components:
-        members = np.array(component["configurations"])
+        # The nearest point of the component: among its members and its path (pose, r = 1).
+        members = np.array(component["configurations"] + (component["path"] or []))
         member_distances = np.linalg.norm(members - reference, axis=1)  # no periodic joints
         nearest = members[np.argmin(member_distances)]
         np.testing.assert_allclose(component["nearest_to_reference"], nearest)

@@ -12,6 +12,7 @@ def test_masks_and_counts() -> None:
         q_rad=q,
         position_error_m=np.array([1e-9, 1e-9, 1e-9, 1e-3, np.inf]),
         orientation_error_rad=np.zeros(5),
+        jacobian=np.full((5, 1, 2), np.nan),  # acceptance does not read it
     )
     periodic = np.array([True, False])
     acceptance = accept(
@@ -36,6 +37,7 @@ def test_orientation_tolerance_applies() -> None:
         q_rad=np.zeros((2, 1)),
         position_error_m=np.zeros(2),
         orientation_error_rad=np.array([1e-7, 1e-5]),
+        jacobian=np.full((2, 1, 1), np.nan),  # acceptance does not read it
     )
     acceptance = accept(
         correction, 1e-6, 1e-6, np.array([-1.0]), np.array([1.0]), np.array([False])

@@ -56,8 +56,7 @@ def test_given_options_are_kept_and_the_reference_becomes_an_array() -> None:
             PLANAR,
             {"position_m": [0.5, 0.0, 0.1]},
             ("body", "target", "position"),
-            "target.position must have 2 values (x, y) for the position task of this robot, "
-            "got 3",
+            "target.position must have 2 values (x, y) for the position task of this robot, got 3",
         ),
         (
             PLANAR,
@@ -95,11 +94,14 @@ def test_a_request_the_model_cannot_take_names_its_field(
 
 
 def test_stage_timings_list_every_stage_in_order_then_the_total() -> None:
-    assert STAGES == ("encode", "sample", "correct", "accept", "cluster")
+    assert STAGES == ("encode", "sample", "correct", "accept", "connect", "summarise")
     timings = StageTimings(
-        stage_ms={"cluster": 5.0, "encode": 1.0, "sample": 2.0, "correct": 3.0, "accept": 4.0},
-        total_ms=16.0,
-    )
+        stage_ms={
+            "summarise": 6.0, "connect": 5.0, "encode": 1.0, "sample": 2.0, "correct": 3.0,
+            "accept": 4.0,
+        },
+        total_ms=22.0,
+    )  # fmt: skip
     spans = timings.as_dict()
     assert tuple(spans) == TIMED_SPANS == (*STAGES, "total")
-    assert list(spans.values()) == [1.0, 2.0, 3.0, 4.0, 5.0, 16.0]
+    assert list(spans.values()) == [1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 22.0]

@@ -1,27 +1,69 @@
 """methods: each method's answer to one target, as the report measures it.
 
-The service's answer (FM + DLS) returns exact, labelled configurations and the flow's raw
-samples beside them; the FM row is those raw samples alone; random-restart DLS keeps only
-accepted solutions; the ODE trace stays on the fibre and has no component labels.
+The service's answer (FM + DLS) returns exact, labelled configurations, each component's
+path points among them, and the flow's raw samples beside them; the FM row is those raw
+samples alone; random-restart DLS keeps only accepted solutions and groups them with the
+service's connect stage; the ODE trace stays on the fibre and has no component labels.
+The path gap measure wraps a periodic joint and closes a loop.
 """
 
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel
+from service.pipeline.joint_space import joint_distance
+from service.pipeline.types import ComponentPath
 from training.evaluate.methods import (
     flow_target,
     ode_target,
+    path_max_gap_rad,
     raw_samples_target,
     reference_target,
     restart_target,
+    returned_points,
 )
 from training.kinematics import load_chain
 from training.robots import robot_spec
 
-Q_TARGET_RAD = np.array([0.4, 2.2, 1.1])  # planar 3R, rho about 1.5 m: one component
+Q_TARGET_RAD = np.array([0.4, 2.2, 1.1])  # planar 3R, rho about 0.87 m: two loops
+
+
+def _path(q: list[list[float]], closed: bool) -> ComponentPath:
+    points = np.array(q)
+    zeros = np.zeros(len(points))
+    return ComponentPath(points, zeros, zeros, closed, arc_length_rad=0.0)
+
+
+def test_path_gap_wraps_a_periodic_joint_and_closes_a_loop() -> None:
+    periodic = np.array([True, False])
+    open_path = _path([[3.1, 0.0], [-3.1, 0.0], [-3.0, 0.0]], closed=False)
+    # Across the seam 3.1 -> -3.1 is 2 pi - 6.2 = 0.083 rad; the largest step is 0.1.
+    assert path_max_gap_rad([open_path], periodic) == pytest.approx(0.1)
+    # Closed, the step back from -3.0 to 3.1 counts too: 2 pi - 6.1 = 0.183 rad.
+    loop = _path([[3.1, 0.0], [-3.1, 0.0], [-3.0, 0.0]], closed=True)
+    assert path_max_gap_rad([loop], periodic) == pytest.approx(2 * np.pi - 6.1)
+    # Not periodic, the seam is a jump of 6.2 rad.
+    assert path_max_gap_rad([open_path], np.array([False, False])) == pytest.approx(6.2)
+    # Over several paths, the largest; none at all: None.
+    far = _path([[0.0, 0.0], [0.0, 0.5]], closed=False)
+    assert path_max_gap_rad([open_path, far], periodic) == pytest.approx(0.5)
+    assert path_max_gap_rad([], periodic) is None
+
+
+def test_returned_points_label_path_points_so_a_size_0_component_counts() -> None:
+    samples = np.ones((2, 2))
+    returned = returned_points(
+        [(samples, None), (np.zeros((0, 2)), _path([[0.0, 0.0], [0.1, 0.0]], closed=False))],
+        num_joints=2,
+    )
+    np.testing.assert_array_equal(returned.labels, [0, 0, 1, 1])
+    np.testing.assert_array_equal(returned.on_path, [False, False, True, True])
+    assert returned.q_rad.shape == (4, 2) and [i for i, _ in returned.paths] == [1]
+    empty = returned_points([], num_joints=3)
+    assert empty.q_rad.shape == (0, 3) and len(empty.labels) == len(empty.on_path) == 0
 
 
 def test_the_service_answer_is_exact_labelled_and_the_fm_row_is_its_raw_samples(
@@ -33,6 +75,16 @@ def test_the_service_answer_is_exact_labelled_and_the_fm_row_is_its_raw_samples(
     assert len(answer.labels) == len(answer.returned) == len(answer.returned_position_m)
     assert answer.returned_position_m.max() <= planar3r.manifest.defaults.tolerance_position_m
     assert answer.stage_ms is not None and answer.time_ms == answer.stage_ms["total"]
+    assert "connect" in answer.stage_ms and "cluster" not in answer.stage_ms
+    # r = 1: every component comes with its path, whose points are returned and labelled.
+    assert answer.on_path is not None and answer.path_points > 0
+    assert answer.component_count == 2 and len(answer.paths) == 2
+    for index, path in answer.paths:
+        np.testing.assert_array_equal(answer.returned[answer.on_path & (answer.labels == index)],
+                                      path.q_rad)  # fmt: skip
+    assert answer.kept + answer.path_points == len(answer.returned) and answer.kept <= 300
+    assert answer.path_max_gap_rad is not None and answer.path_max_gap_rad < 0.2
+    assert answer.near_singular is False
 
     flow_only = raw_samples_target(answer)
     assert flow_only.returned.shape == (0, 3) and flow_only.labels is None
@@ -51,3 +103,25 @@ def test_the_baselines_return_configurations_on_the_target(planar3r: ServedModel
     trace = ode_target(planar3r, Q_TARGET_RAD)
     assert trace.labels is None and trace.sampled == len(trace.returned) > 10
     assert trace.returned_position_m.max() < 1e-6
+
+
+def test_restart_components_come_from_the_connect_stage(planar3r: ServedModel) -> None:
+    robot = robot_spec(planar3r.manifest.robot)
+    chain = load_chain(REPO_MODELS_DIR / robot.urdf, robot.end_effector_link)
+    restart = restart_target(planar3r, chain, Q_TARGET_RAD, 100, seed=0)
+    _, _, periodic = planar3r.manifest.joints.arrays()
+    spacing = planar3r.manifest.defaults.connectivity.path_spacing_rad
+    assert restart.labels is not None and restart.on_path is not None
+    # The two loops traced whole, each with its path; every accepted solution lies on
+    # the path of its own component (within the path spacing), as connect assigns it.
+    assert restart.component_count == 2 and [i for i, _ in restart.paths] == [0, 1]
+    kept, kept_labels = restart.returned[~restart.on_path], restart.labels[~restart.on_path]
+    assert len(kept) > 0
+    for q, label in zip(kept, kept_labels, strict=True):
+        distance = [joint_distance(path.q_rad, q, periodic).min() for _, path in restart.paths]
+        assert distance[label] <= spacing and int(np.argmin(distance)) == label
+    # Its time includes accept and connect.
+    stages = restart.stage_ms
+    assert stages is not None and stages["connect"] > 0
+    assert restart.time_ms == pytest.approx(stages["solve"] + stages["accept"] + stages["connect"])
+    assert restart.near_singular is False

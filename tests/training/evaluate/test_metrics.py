@@ -2,11 +2,14 @@
 
 The toroidal nearest distance equals a brute-force joint-metric search, wraps across the
 seam of a periodic joint and not of a limited one; errors are in the paper's units (% of
-the reach and of pi) with mm and degrees beside them; stage medians are per span; recall by size
-counts the exact components that hold a returned configuration; the wrong-count list names
-the targets whose returned component count is not the exact one; the iiwa pose matcher
-recognises exact, merged, split and missed components on answers built from the ground
-truth itself.
+the reach and of pi) with mm and degrees beside them; stage medians and 95th percentiles
+are per span; recall by size counts the exact components that hold a returned
+configuration; splits, merges and extra-small components are counted as
+COUNT_RIGHT_DEFINITION says (only exact components of at least 1 % of a 4-D fibre count),
+and count right needs the count, no split and no merge; the wrong-count list names the
+targets whose count is not right; the summary checks the returned paths; the iiwa pose
+matcher recognises exact, merged, split and missed components on answers built from the
+ground truth itself, path points included.
 """
 
 from __future__ import annotations
@@ -14,24 +17,36 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from service.models.registry import ServedModel
 from service.pipeline.components import summarise_all
 from service.pipeline.joint_space import joint_distance
-from service.pipeline.types import Component, SampleCounts, SmmResult, StageTimings
+from service.pipeline.types import (
+    Component,
+    ComponentPath,
+    FibreStructure,
+    SampleCounts,
+    SmmResult,
+    StageTimings,
+)
 from tests.support.iiwa14_dh import LIMITS_RAD, iiwa14_pose
 from training.evaluate.methods import MethodTarget
 from training.evaluate.metrics import (
+    Agreement,
+    component_agreement,
     errors_in_units,
     match_components,
     median_stage_ms,
     missed_components,
     nearest_distance,
+    p95_stage_ms,
     recall_by_size,
+    summarise,
     wrong_count_targets,
 )
 from training.evaluate.references.iiwa14 import (
     pose_smm,
 )
-from training.evaluate.truth import Truth
+from training.evaluate.truth import SHARE_BUCKETS, Truth
 
 
 def test_nearest_distance_equals_brute_force_on_mixed_joints() -> None:
@@ -78,6 +93,17 @@ def test_median_stage_ms_is_the_median_per_span_to_a_hundredth() -> None:
     assert median_stage_ms(timings[2:]) == {"sample": 10.0, "total": 4.0}
 
 
+def test_p95_stage_ms_is_the_95th_percentile_per_span() -> None:
+    # connect 0, 5, ..., 100 ms over 21 targets: the 95th percentile is 95 ms; a slow
+    # tail in one span does not move another's.
+    timings = [{"connect": 5.0 * i, "total": 10.0} for i in range(21)]
+    timings[-1]["total"] = 1000.0
+    assert p95_stage_ms(timings) == {"connect": 95.0, "total": 10.0}
+    assert p95_stage_ms(timings[:1]) == {"connect": 0.0, "total": 10.0}
+    # Between two targets: linear interpolation, to a hundredth.
+    assert p95_stage_ms([{"connect": 1.0}, {"connect": 2.0}]) == {"connect": 1.95}
+
+
 def test_recall_by_size_counts_components_holding_an_answer() -> None:
     pieces = [np.full((5, 7), 0.0), np.full((5, 7), 1.0), np.full((5, 7), 2.0)]
     for i, piece in enumerate(pieces):
@@ -122,18 +148,28 @@ def _targets(count: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
     return q, iiwa14_pose(q)
 
 
-def _answer(pieces: list[np.ndarray]) -> SmmResult:
+def _answer(pieces: list[np.ndarray], paths: list[np.ndarray] | None = None) -> SmmResult:
+    """Components with the given members and (optionally) the given paths."""
+    paths = paths or []
     components = [
         Component(
             q_rad=q, position_error_m=np.zeros(len(q)), orientation_error_rad=np.zeros(len(q))
         )
         for q in pieces
-    ]
+    ] + [
+        Component(
+            q_rad=np.zeros((0, 7)), position_error_m=np.zeros(0),
+            orientation_error_rad=np.zeros(0),
+            path=ComponentPath(q, np.zeros(len(q)), np.zeros(len(q)), False, 0.0),
+        )
+        for q in paths
+    ]  # fmt: skip
     accepted = sum(len(q) for q in pieces)
     return SmmResult(
         counts=SampleCounts(sampled=accepted, accepted=accepted, rejected_tolerance=0,
                             rejected_joint_limits=0),
-        components=summarise_all(components, np.zeros(7, dtype=bool), None, None),
+        components=summarise_all(components, np.zeros(7, dtype=bool), None, None, True),
+        structure=FibreStructure(near_singular=False, min_singular_value=None, traced=True),
         timings=StageTimings(stage_ms={}, total_ms=0.0),
     )  # fmt: skip
 
@@ -157,3 +193,118 @@ def test_matcher_recognises_exact_merged_and_missed_components() -> None:
     halves = np.array_split(every[0], 2)
     split = match_components(_answer([*halves, *every[1:]]), reference)
     assert split.split == 1 and not split.exact
+
+    # A component found by tracing alone (no accepted sample) is found through its path.
+    traced = match_components(_answer(every[1:], paths=[reference[0].q_rad]), reference)
+    assert traced.exact and traced.returned == len(reference)
+
+
+def _exact_truth(sizes: list[float], count: int, four_d: bool) -> Truth:
+    """Exact components at q1 = 0, 1, 2, ...: five points each along q1, the rest 0."""
+    points = np.zeros((5 * len(sizes), 7))
+    points[:, 0] = np.repeat(np.arange(len(sizes)), 5) + np.tile(
+        np.linspace(0.0, 0.1, 5), len(sizes)
+    )
+    if not four_d:
+        return Truth(points, count, np.repeat(np.arange(len(sizes)), 5), np.array(sizes))
+    return Truth(points, count, np.repeat(np.arange(len(sizes)), 5), np.array(sizes),
+                 size_edges=SHARE_BUCKETS, membership_joints=6)  # fmt: skip
+
+
+def _on(groups: list[list[int]], on_path: np.ndarray | None = None) -> MethodTarget:
+    """Returned component j: one configuration on each exact component in groups[j]."""
+    returned = np.zeros((sum(len(g) for g in groups), 7))
+    returned[:, 0] = np.concatenate([g for g in groups if g] or [[]]) + 0.05
+    returned[:, 6] = 2.0  # q7 does not decide membership in the 4-D fibre
+    labels = np.concatenate([np.full(len(g), j) for j, g in enumerate(groups)])
+    k = len(returned)
+    return MethodTarget(np.zeros(k), np.zeros(k), returned, np.zeros(k), np.zeros(k), labels,
+                        k, 1.0, on_path=on_path)  # fmt: skip
+
+
+# Two exact components above 1 % of the fibre (A, B), two below (C, D): the count is 2.
+FOUR_D = _exact_truth([0.6, 0.39, 0.005, 0.005], count=2, four_d=True)
+
+
+@pytest.mark.parametrize(
+    ("groups", "expected"),
+    [
+        ([[0], [1]], Agreement(2, 2, splits=0, merges=0, extra_small=0)),
+        ([[0], [0], [1]], Agreement(3, 2, splits=1, merges=0, extra_small=0)),
+        ([[0, 1]], Agreement(1, 2, splits=0, merges=1, extra_small=0)),
+        # A returned component only on a small exact one is extra small, not counted.
+        ([[0], [1], [2]], Agreement(2, 2, splits=0, merges=0, extra_small=1)),
+        # A small exact component beside a counted one is no merge ...
+        ([[0, 2], [1]], Agreement(2, 2, splits=0, merges=0, extra_small=0)),
+        # ... nor is a small exact component spread over two returned ones a split.
+        ([[0], [1], [2], [2]], Agreement(2, 2, splits=0, merges=0, extra_small=2)),
+        ([[0], [1, 2], [1]], Agreement(3, 2, splits=1, merges=0, extra_small=0)),
+        ([[0], [2, 3]], Agreement(1, 2, splits=0, merges=0, extra_small=1)),
+    ],
+)
+def test_splits_merges_and_extra_small_components_of_a_4d_fibre(
+    groups: list[list[int]], expected: Agreement
+) -> None:
+    assert component_agreement(_on(groups), FOUR_D) == expected
+
+
+def test_count_right_needs_the_count_and_no_split_and_no_merge() -> None:
+    assert component_agreement(_on([[0], [1]]), FOUR_D).right  # type: ignore[union-attr]
+    assert component_agreement(_on([[0], [1], [2]]), FOUR_D).right  # type: ignore[union-attr]
+    # The right number of components, but one lies on A and B (a merge) and B is
+    # spread over both (a split): not right.
+    wrong = component_agreement(_on([[0, 1], [1]]), FOUR_D)
+    assert wrong == Agreement(2, 2, splits=1, merges=1, extra_small=0) and not wrong.right
+    # 1-D (arc-length buckets): every exact component counts, however short.
+    one_d = _exact_truth([3.0, 1.0, 0.1, 0.1], count=4, four_d=False)
+    assert component_agreement(_on([[0], [1], [2], [3]]), one_d).right  # type: ignore[union-attr]
+    short_merged = component_agreement(_on([[0], [1], [2, 3]]), one_d)
+    assert short_merged == Agreement(3, 4, splits=0, merges=1, extra_small=0)
+    # No exact component labels (planar 3R): the count alone, against the closed form.
+    planar = Truth(points=np.zeros((1, 7)), count=2)
+    assert component_agreement(_on([[0], [0]]), planar) == Agreement(2, 2, None, None, None)
+    assert component_agreement(_on([[0], [0]]), planar).right  # type: ignore[union-attr]
+    # The ODE trace labels no component.
+    ode = MethodTarget(np.zeros(1), np.zeros(1), np.zeros((1, 7)), np.zeros(1), np.zeros(1),
+                       None, 1, 1.0)  # fmt: skip
+    assert component_agreement(ode, FOUR_D) is None
+
+
+def test_a_component_only_its_path_returned_still_counts() -> None:
+    # Component 1 holds no accepted sample: only path points, on exact component B.
+    answer = _on([[0], [1, 1]], on_path=np.array([False, True, True]))
+    assert component_agreement(answer, FOUR_D) == Agreement(2, 2, 0, 0, 0)
+    assert answer.kept == 1 and answer.path_points == 2
+
+
+def test_wrong_count_targets_names_splits_and_merges() -> None:
+    answers = [_on([[0], [1]]), _on([[0], [0], [1]]), _on([[0, 1], [1]])]
+    assert wrong_count_targets(answers, [FOUR_D] * 3) == [
+        {"index": 1, "expected": 2, "returned": 3, "splits": 1, "merges": 0},
+        {"index": 2, "expected": 2, "returned": 2, "splits": 1, "merges": 1},
+    ]
+
+
+def test_summary_counts_splits_times_and_checks_the_paths(iiwa14_pose_model: ServedModel) -> None:
+    truth = _exact_truth([1.0, 3.0], count=2, four_d=False)
+    right = _on([[0, 0, 0], [1]], on_path=np.array([False, True, True, False]))
+    right.returned[2, 1] = 2.5  # a path point past q2's 120 degree limit
+    right.returned_position_m = np.array([0.0, 1e-7, 2e-7, 0.0])
+    right.returned_orientation_rad = np.array([0.0, 0.0, 3e-7, 0.0])
+    right.sampled, right.path_max_gap_rad, right.near_singular = 10, 0.3, False
+    right.stage_ms = {"connect": 1.0, "total": 2.0}
+    split = _on([[0], [0], [1]], on_path=np.zeros(3, dtype=bool))
+    split.sampled, split.near_singular = 10, True
+    split.stage_ms = {"connect": 3.0, "total": 4.0}
+    summary = summarise(iiwa14_pose_model, [right, split], [truth, truth])
+    assert summary["component_count"]["right"] == 0.5  # type: ignore[index]
+    assert summary["splits_per_target"] == 0.5 and summary["merges_per_target"] == 0.0
+    assert summary["extra_small_per_target"] == 0.0
+    assert summary["keep_rate"] == (2 + 3) / 20  # path points are not kept samples
+    assert summary["limit_violations"] == 1 and summary["path_points_outside_limits"] == 1
+    assert summary["path_points_mean"] == 1.0 and summary["path_max_gap_rad"] == 0.3
+    assert summary["path_max_position_error_m"] == 2e-7
+    assert summary["path_max_orientation_error_rad"] == 3e-7
+    assert summary["near_singular_targets"] == 0.5
+    assert summary["median_stage_ms"] == {"connect": 2.0, "total": 3.0}
+    assert summary["p95_stage_ms"] == {"connect": 2.9, "total": 3.9}

@@ -1,5 +1,6 @@
 """report: a small planar report finds the closed-form component counts, returns exact
-configurations within the limits, covers the closed-form SMM and writes both tables.
+configurations within the limits, covers the closed-form SMM, checks the returned paths,
+times the connect stage (median and p95, the restarts' too) and writes every table.
 """
 
 from __future__ import annotations
@@ -18,7 +19,19 @@ def test_small_planar_report_meets_the_closed_form(planar3r: ServedModel) -> Non
     assert served["limit_violations"] == 0
     assert served["component_count"]["right"] == 1.0
     assert served["coverage_rad"]["p95"] < 0.1
+    assert 0.9 < served["keep_rate"] <= 1.0  # path points are not counted as kept
+    spacing = planar3r.manifest.defaults.connectivity.path_spacing_rad
+    assert served["path_points_mean"] > 0 and served["path_max_gap_rad"] <= 2 * spacing
+    assert served["path_points_outside_limits"] == 0
+    assert served["path_max_position_error_m"] <= planar3r.manifest.defaults.tolerance_position_m
+    assert served["near_singular_targets"] == 0.0
+    for name in ("FM + DLS", "random-restart DLS"):
+        median, p95 = methods[name]["median_stage_ms"], methods[name]["p95_stage_ms"]
+        assert 0 < median["connect"] <= p95["connect"]
+    assert "cluster" not in served["median_stage_ms"]
     assert methods["FM"]["raw"]["mm"] > 1.0  # the raw flow is millimetres off
     assert methods["ODE"]["raw"]["mm"] < 1e-6  # RK5 drift only
+    assert report["wrong_count_targets"] == []
     text = markdown("planar3r-position", report)
     assert "| FM + DLS |" in text and "| random-restart DLS |" in text and "count right" in text
+    assert "connect p95 ms" in text and "max gap rad" in text and "Count right: " in text

@@ -20,10 +20,10 @@ from training.evaluate.served import (
 
 def test_with_defaults_changes_only_the_named_defaults_of_a_copy(planar3r: ServedModel) -> None:
     before = planar3r.manifest.defaults
-    candidate = with_defaults(planar3r, cluster_radius_rad=0.77)
-    assert candidate.manifest.defaults.cluster_radius_rad == 0.77
-    assert candidate.manifest.defaults.model_copy(update={"cluster_radius_rad": 0.0}) == (
-        before.model_copy(update={"cluster_radius_rad": 0.0})
+    candidate = with_defaults(planar3r, correction_steps=17)
+    assert candidate.manifest.defaults.correction_steps == 17
+    assert candidate.manifest.defaults.model_copy(update={"correction_steps": 0}) == (
+        before.model_copy(update={"correction_steps": 0})
     )
     assert planar3r.manifest.defaults == before  # the served model is untouched
 
@@ -34,7 +34,9 @@ def test_returned_configurations_and_stage_times_of_an_answer(planar3r: ServedMo
     q_rad = returned_configurations(result, 3)
     assert q_rad.shape == (result.counts.accepted, 3)
     times_ms = stage_times_ms(result)
-    assert set(times_ms) == {"encode", "sample", "correct", "accept", "cluster", "total"}
+    assert set(times_ms) == {
+        "encode", "sample", "correct", "accept", "connect", "summarise", "total"
+    }  # fmt: skip
     assert all(isinstance(span, str) and ms >= 0.0 for span, ms in times_ms.items())
     unreachable = Query.for_model(planar3r.manifest, position_m=[9.0, 0.0], num_samples=50, seed=0)
     assert returned_configurations(run(planar3r, unreachable), 3).shape == (0, 3)

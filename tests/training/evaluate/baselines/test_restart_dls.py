@@ -33,7 +33,8 @@ def _accepted(
     )
     position_error, orientation_error = task_error_norms(model.kinematics(q), target, manifest.task)
     lower, upper, periodic = manifest.joints.arrays()
-    correction = Correction(q, position_error, orientation_error)
+    unused_jacobian = np.full((len(q), 1, q.shape[1]), np.nan)  # acceptance does not read it
+    correction = Correction(q, position_error, orientation_error, unused_jacobian)
     return q[accept(correction, 1e-6, 1e-6, lower, upper, periodic).accepted]
 
 

@@ -1,5 +1,4 @@
-"""references.planar3r: the closed-form SMM lies on the fibre and has the closed-form count.
-"""
+"""references.planar3r: the closed-form SMM lies on the fibre and has the closed-form count."""
 
 from __future__ import annotations
 

@@ -1,0 +1,84 @@
+"""The projected local planner: is there a path on the fibre, inside the limits, from a to b?
+
+The check of constrained sampling-based planning (OMPL's ProjectedStateSpace,
+`discreteGeodesic`; Kingston, Moll and Kavraki): from a, repeatedly step `delta` along
+the joint-space segment toward b (the shorter way round only on periodic joints; a
+limited joint never crosses its +-pi seam), project the step onto the fibre with Newton
+(float64) and accept it only if the projection converged, stayed inside the limits, did
+not jump (a step no longer than lambda x delta), made progress toward b and the path so
+far is no longer than lambda x the chord. The edge holds when b is reached. A failed
+edge is evidence that a and b lie on different components, so candidate edges may be
+long without merging what is separate. All edges advance in lockstep: one batched
+kinematics call per Newton iteration for every edge still walking.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from service.pipeline.arrays import BoolArray, FloatArray
+from service.pipeline.deadline import NO_DEADLINE, Deadline
+from service.pipeline.fibre import Fibre, project
+from service.pipeline.joint_space import joint_difference
+
+
+@dataclass(frozen=True)
+class PlannerSettings:
+    delta_rad: float  # step along the segment (OMPL: 0.05)
+    lambda_: float  # largest step and path length, in delta and chord units (OMPL: 2)
+    projection_tolerance: float  # |e| a projected step must reach (OMPL: 1e-4)
+    projection_iterations: int = 2  # Newton steps per projected step
+
+
+def edges_on_fibre(
+    fibre: Fibre,
+    q_from_rad: FloatArray,  # (E, n) on the fibre
+    q_to_rad: FloatArray,  # (E, n) on the fibre
+    lower_rad: FloatArray,  # (n,)
+    upper_rad: FloatArray,  # (n,)
+    periodic: BoolArray,  # (n,)
+    settings: PlannerSettings,
+    lambda_: float | None = None,  # overrides settings.lambda_
+    deadline: Deadline = NO_DEADLINE,
+) -> BoolArray:  # (E,) True where a path on the fibre joins the two ends
+    """Walk every edge on the fibre in lockstep; True for the edges that reach their end."""
+    num_edges = len(q_from_rad)
+    reached = np.zeros(num_edges, dtype=bool)
+    if num_edges == 0:
+        return reached
+    stretch = settings.lambda_ if lambda_ is None else lambda_
+    delta = settings.delta_rad
+    goal = q_from_rad + joint_difference(q_to_rad, q_from_rad, periodic)  # (E, n) unwrapped
+    chord = np.linalg.norm(goal - q_from_rad, axis=1)  # (E,)
+    q = q_from_rad.copy()
+    travelled = np.zeros(num_edges)
+    walking = np.ones(num_edges, dtype=bool)
+    max_steps = int(np.ceil(stretch * chord.max() / delta)) + 2
+    for _ in range(max_steps):
+        remaining = goal - q  # (E, n)
+        distance = np.linalg.norm(remaining, axis=1)
+        arrived = walking & (distance <= delta)
+        reached |= arrived
+        walking &= ~arrived
+        if not walking.any():
+            break
+        deadline.check("connect")
+        index = np.flatnonzero(walking)
+        step = q[index] + delta * remaining[index] / distance[index, None]
+        projected = project(fibre, step, settings.projection_iterations)
+        q_new = projected.q_rad  # (A, n)
+        moved = np.linalg.norm(q_new - q[index], axis=1)
+        inside = np.all(periodic | ((q_new >= lower_rad) & (q_new <= upper_rad)), axis=1)
+        ok = (
+            (projected.error_norm <= settings.projection_tolerance)
+            & inside
+            & (moved <= stretch * delta)
+            & (np.linalg.norm(goal[index] - q_new, axis=1) < distance[index])
+            & (travelled[index] + moved <= stretch * chord[index])
+        )
+        walking[index[~ok]] = False
+        q[index[ok]] = q_new[ok]
+        travelled[index[ok]] += moved[ok]
+    return reached

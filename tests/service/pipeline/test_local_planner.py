@@ -1,0 +1,67 @@
+"""local_planner: an edge holds when a path on the fibre joins its ends inside the limits,
+and fails between different components however close (planar 3R closed form)."""
+
+import numpy as np
+
+from service.models.registry import ServedModel
+from service.pipeline.local_planner import PlannerSettings, edges_on_fibre
+from tests.service.pipeline.fibre_support import planar_fibre
+from training.evaluate.references.planar3r import closed_form_smm
+
+SETTINGS = PlannerSettings(delta_rad=0.05, lambda_=2.0, projection_tolerance=1e-4)
+PERIODIC = np.ones(3, dtype=bool)
+LOWER, UPPER = np.full(3, -np.pi), np.full(3, np.pi)
+
+
+def test_points_of_one_loop_join_and_of_two_loops_do_not(planar3r: ServedModel) -> None:
+    target = np.array([0.99, 0.0])  # just inside rho = 1: two loops, 0.34 rad apart at most
+    loop_a, loop_b = closed_form_smm(target, phi_step_rad=0.001)
+    fibre = planar_fibre(planar3r, target)
+    # Along one loop: pairs about 0.3 and 1 rad apart (joint metric) join.
+    same = edges_on_fibre(
+        fibre, loop_a[[0, 0]], loop_a[[150, 500]], LOWER, UPPER, PERIODIC, SETTINGS
+    )
+    assert same.tolist() == [True, True]
+    # Across the loops: the nearest pairs, closer than points that do join, fail.
+    a, b = loop_a[::5], loop_b[::5]
+    d = np.linalg.norm(np.angle(np.exp(1j * (a[:, None, :] - b[None, :, :]))), axis=2)
+    i, j = np.unravel_index(np.argsort(d, axis=None)[:5], d.shape)  # (A, B) joint metric
+    assert d[i, j].max() < 0.4
+    across = edges_on_fibre(fibre, a[i], b[j], LOWER, UPPER, PERIODIC, SETTINGS)
+    assert not across.any()
+
+
+def test_an_edge_fails_when_the_path_leaves_the_limits(planar3r: ServedModel) -> None:
+    target = np.array([1.5, 0.5])
+    (loop,) = closed_form_smm(target, phi_step_rad=0.001)
+    fibre = planar_fibre(planar3r, target)
+    # A stretch of the loop over which one joint rises and falls again: a limit just under
+    # its peak leaves both ends inside but cuts the only path between them.
+    joint, before, peak, after = _bump(loop)
+    a, b = loop[before], loop[after]
+    q = np.unwrap(loop[:, joint])
+    limited = np.ones(3, dtype=bool)
+    limited[joint] = False
+    upper = UPPER.copy()
+    upper[joint] = loop[peak, joint] - 0.005
+    assert loop[before, joint] < upper[joint] and loop[after, joint] < upper[joint]
+    assert q[peak] - 0.005 > max(q[before], q[after])
+    free = edges_on_fibre(fibre, a[None], b[None], LOWER, UPPER, PERIODIC, SETTINGS)
+    blocked = edges_on_fibre(fibre, a[None], b[None], LOWER, upper, limited, SETTINGS)
+    assert free.tolist() == [True]
+    assert blocked.tolist() == [False]
+
+
+def _bump(loop: np.ndarray) -> tuple[int, int, int, int]:
+    """(joint, before, peak, after): a local maximum of a joint along the loop, inside
+    (-3, 3), with the joint 0.05 rad lower at `before` and `after` within 400 points."""
+    for joint in range(3):
+        q = loop[:, joint]
+        for peak in range(400, len(q) - 400):
+            window = q[peak - 400 : peak + 401]
+            if abs(q[peak]) < 3.0 and q[peak] == window.max() and np.ptp(window) < 1.0:
+                before = peak - int(np.argmax(q[peak::-1] < q[peak] - 0.05))
+                after = peak + int(np.argmax(q[peak:] < q[peak] - 0.05))
+                if before < peak < after:
+                    return joint, before, peak, after
+    raise AssertionError("no bump found")
