@@ -17,15 +17,33 @@ def quaternion_to_matrix(w: float, x: float, y: float, z: float) -> FloatArray:
 def rotation_log(rotation: FloatArray) -> FloatArray:
     """Rotation vector (B, 3) (axis * angle, rad) of rotation matrices (B, 3, 3).
 
-    A row that is no rotation at all (non-finite, or a non-positive determinant, as a
-    faulty network may produce) gets a NaN vector instead of failing the whole batch.
+    Below 150 degrees (every correction and connect step near the fibre) the vector is
+    read off the skew part, (theta / sin theta) vee((R - R^T) / 2), a few array
+    operations; larger angles, where sin theta loses the axis, go through scipy. A row
+    that is no rotation at all (non-finite, or a non-positive determinant, as a faulty
+    network may produce) gets a NaN vector instead of failing the whole batch.
     """
     rotvec = np.full((rotation.shape[0], 3), np.nan)
     valid = np.all(np.isfinite(rotation), axis=(1, 2))  # (B,)
     with np.errstate(over="ignore", invalid="ignore"):
         valid[valid] = np.linalg.det(rotation[valid]) > 0.0
-    if valid.any():
-        rotvec[valid] = Rotation.from_matrix(rotation[valid]).as_rotvec()
+    if not valid.any():
+        return rotvec
+    r = rotation[valid]  # (V, 3, 3)
+    sin_axis = 0.5 * np.stack(
+        [r[:, 2, 1] - r[:, 1, 2], r[:, 0, 2] - r[:, 2, 0], r[:, 1, 0] - r[:, 0, 1]], axis=1
+    )  # (V, 3) = sin(theta) * axis
+    sin = np.linalg.norm(sin_axis, axis=1)
+    cos = 0.5 * (np.trace(r, axis1=1, axis2=2) - 1.0)
+    angle = np.arctan2(sin, cos)
+    # theta / sin(theta), with its series 1 + theta^2 / 6 where sin(theta) vanishes.
+    with np.errstate(divide="ignore", invalid="ignore"):
+        scale = np.where(sin > 1e-8, angle / sin, 1.0 + angle * angle / 6.0)
+    out = sin_axis * scale[:, None]
+    wide = cos < np.cos(np.radians(150.0))
+    if wide.any():
+        out[wide] = Rotation.from_matrix(r[wide]).as_rotvec()
+    rotvec[valid] = out
     return rotvec
 
 

@@ -89,6 +89,7 @@ def trace_fibre(
     sigma = [smallest_singular_value(start.jacobian)]
     loops, complete, traced_sigma = _walk(fibre, seeds, tangent0, settings, deadline)
     sigma.append(traced_sigma)
+    loops = _refine_near_limits(fibre, loops, lower_rad, upper_rad, periodic, settings)
     pieces = []
     for loop, closed in loops:
         pieces.extend(_cut_by_limits(loop, closed, lower_rad, upper_rad, periodic))
@@ -149,7 +150,7 @@ def _walk(
     tangent = np.repeat(tangent0, 2, axis=0) * np.tile([1.0, -1.0], num_seeds)[:, None]
     step_rad = np.full(len(fronts), h)  # (F,)
     alive = np.ones(len(fronts), dtype=bool)
-    sigma: list[FloatArray] = []
+    jacobians: list[FloatArray] = []  # (A, m, n) per step: sigma_min once at the end
     for _ in range(settings.max_steps):
         if not alive.any():
             break
@@ -168,7 +169,7 @@ def _walk(
             & (step < 2.0 * h_i)  # no jump
             & (turn > 0.5)  # the tangent turned by under 60 degrees
         )
-        sigma.append(smallest_singular_value(corrected.jacobian[moved]))
+        jacobians.append(corrected.jacobian[moved])
         retry = index[~moved]
         step_rad[retry] *= 0.5
         alive[retry[step_rad[retry] < h / 16]] = False  # gave up: its curve stays open
@@ -180,7 +181,7 @@ def _walk(
             fronts[front].points.append(point)
         _meet(q, previous, tangent, step_rad, alive, fronts)
     loops = _chain(seeds, fronts)
-    all_sigma = np.concatenate(sigma) if sigma else np.zeros(0)
+    all_sigma = smallest_singular_value(np.concatenate(jacobians)) if jacobians else np.zeros(0)
     # A front that gave up but was met by another leaves its curve closed all the same.
     return loops, all(closed for _, closed in loops), all_sigma
 
@@ -284,6 +285,85 @@ def to_window(q_rad: FloatArray, window_low: FloatArray) -> FloatArray:
     return window_low + np.mod(q_rad - window_low, TWO_PI)
 
 
+def _refine_near_limits(
+    fibre: Fibre,
+    loops: list[tuple[FloatArray, bool]],
+    lower_rad: FloatArray,
+    upper_rad: FloatArray,
+    periodic: BoolArray,
+    settings: TraceSettings,
+    rounds: int = 3,
+    pieces: int = 4,
+) -> list[tuple[FloatArray, bool]]:
+    """Curves with points added where a step may pass through the limits unseen.
+
+    A component shorter than a step can lie between two traced points that are both
+    outside the limits. Where the chord of a step, widened by how far a curve bends in
+    a step, meets the limit box, the step is split into `pieces` projected points; a
+    few rounds find components down to about h / pieces**rounds long.
+    """
+    low = _window_low(lower_rad, upper_rad, periodic)
+    margin = 0.25 * settings.step_rad  # a curve bends off its chord by ~kappa h^2 / 8
+    for _ in range(rounds):
+        candidates = []  # (loop, index of the step's first point)
+        for k, (loop, closed) in enumerate(loops):
+            ends = np.concatenate([loop, loop[:1]]) if closed else loop
+            a = to_window(ends[:-1], low)  # (S, n)
+            b = a + _torus_difference(ends[1:], ends[:-1])
+            inside_a = np.all(periodic | ((a >= lower_rad) & (a <= upper_rad)), axis=1)
+            inside_b = np.all(periodic | ((b >= lower_rad) & (b <= upper_rad)), axis=1)
+            meets = _chord_meets_box(a, b, lower_rad - margin, upper_rad + margin, periodic)
+            for step in np.flatnonzero(meets & ~inside_a & ~inside_b):
+                candidates.append((k, int(step)))
+        if not candidates:
+            break
+        starts, steps = [], []
+        for k, step in candidates:
+            loop, closed = loops[k]
+            following = loop[(step + 1) % len(loop)]
+            starts.append(loop[step])
+            steps.append(_torus_difference(following, loop[step]))
+        start, delta = np.asarray(starts), np.asarray(steps)  # (C, n)
+        fraction = np.arange(1, pieces) / pieces  # (pieces - 1,)
+        guess = start[:, None, :] + fraction[None, :, None] * delta[:, None, :]  # (C, p-1, n)
+        direction = np.repeat(delta / np.linalg.norm(delta, axis=1, keepdims=True), pieces - 1, 0)
+        projected = project(fibre, guess.reshape(-1, start.shape[1]), 2, tangent=direction)
+        new = projected.q_rad.reshape(guess.shape)
+        ok = (projected.error_norm < 1e-6).reshape(len(candidates), pieces - 1).all(axis=1)
+        inserts: dict[int, list[tuple[int, FloatArray]]] = {}
+        for c, (k, step) in enumerate(candidates):
+            if ok[c]:
+                inserts.setdefault(k, []).append((step, new[c]))
+        for k, added in inserts.items():
+            loop, closed = loops[k]
+            parts, previous = [], 0
+            for step, points in sorted(added, key=lambda item: item[0]):
+                parts.extend([loop[previous : step + 1], points])
+                previous = step + 1
+            parts.append(loop[previous:])
+            loops[k] = (_unwrap(np.concatenate(parts)), closed)
+    return loops
+
+
+def _chord_meets_box(
+    a: FloatArray, b: FloatArray, lower: FloatArray, upper: FloatArray, periodic: BoolArray
+) -> BoolArray:  # (S,)
+    """Whether each segment a -> b (S, n) passes through the box (slab test, limited joints)."""
+    d = b - a
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t1 = (lower - a) / d
+        t2 = (upper - a) / d
+    entry = np.where(
+        d == 0, np.where((a >= lower) & (a <= upper), -np.inf, np.inf), np.minimum(t1, t2)
+    )
+    leave = np.where(
+        d == 0, np.where((a >= lower) & (a <= upper), np.inf, -np.inf), np.maximum(t1, t2)
+    )
+    entry = np.where(periodic, -np.inf, entry).max(axis=1)
+    leave = np.where(periodic, np.inf, leave).min(axis=1)
+    return (entry <= leave) & (leave >= 0.0) & (entry <= 1.0)
+
+
 @dataclass(frozen=True)
 class _Run:
     points: FloatArray  # (P, n) unwrapped, in order
@@ -347,7 +427,7 @@ def _densify(
             points = np.concatenate(
                 [points, points[-1:] + _torus_difference(points[:1], points[-1:])]
             )
-        dense = _interpolate(points, 0.8 * settings.path_spacing_rad)
+        dense = _interpolate(points, 0.9 * settings.path_spacing_rad)
         if run.closed:
             dense = dense[:-1]
         fixed = np.zeros(len(dense), dtype=bool)
