@@ -304,8 +304,9 @@ def _refine_near_limits(
     """
     low = _window_low(lower_rad, upper_rad, periodic)
     margin = 0.25 * settings.step_rad  # a curve bends off its chord by ~kappa h^2 / 8
+    loops = list(loops)
     for _ in range(rounds):
-        candidates = []  # (loop, index of the step's first point)
+        candidates: list[tuple[int, int]] = []  # (loop, index of the step's first point)
         for k, (loop, closed) in enumerate(loops):
             ends = np.concatenate([loop, loop[:1]]) if closed else loop
             a = to_window(ends[:-1], low)  # (S, n)
@@ -313,33 +314,35 @@ def _refine_near_limits(
             inside_a = np.all(periodic | ((a >= lower_rad) & (a <= upper_rad)), axis=1)
             inside_b = np.all(periodic | ((b >= lower_rad) & (b <= upper_rad)), axis=1)
             meets = _chord_meets_box(a, b, lower_rad - margin, upper_rad + margin, periodic)
-            for step in np.flatnonzero(meets & ~inside_a & ~inside_b):
-                candidates.append((k, int(step)))
+            candidates.extend(
+                (k, first) for first in np.flatnonzero(meets & ~inside_a & ~inside_b).tolist()
+            )
         if not candidates:
             break
         starts, steps = [], []
-        for k, step in candidates:
-            loop, closed = loops[k]
-            following = loop[(step + 1) % len(loop)]
-            starts.append(loop[step])
-            steps.append(_torus_difference(following, loop[step]))
+        for k, first in candidates:
+            loop = loops[k][0]
+            starts.append(loop[first])
+            steps.append(_torus_difference(loop[(first + 1) % len(loop)], loop[first]))
         start, delta = np.asarray(starts), np.asarray(steps)  # (C, n)
         fraction = np.arange(1, pieces) / pieces  # (pieces - 1,)
         guess = start[:, None, :] + fraction[None, :, None] * delta[:, None, :]  # (C, p-1, n)
         direction = np.repeat(delta / np.linalg.norm(delta, axis=1, keepdims=True), pieces - 1, 0)
         projected = project(fibre, guess.reshape(-1, start.shape[1]), 2, tangent=direction)
         new = projected.q_rad.reshape(guess.shape)
-        ok = (projected.error_norm < 1e-6).reshape(len(candidates), pieces - 1).all(axis=1)
+        converged = projected.error_norm < 1e-6
+        ok: BoolArray = converged.reshape(len(candidates), pieces - 1).all(axis=1)
         inserts: dict[int, list[tuple[int, FloatArray]]] = {}
-        for c, (k, step) in enumerate(candidates):
+        for c, (k, first) in enumerate(candidates):
             if ok[c]:
-                inserts.setdefault(k, []).append((step, new[c]))
+                inserts.setdefault(k, []).append((first, new[c]))
         for k, added in inserts.items():
             loop, closed = loops[k]
-            parts, previous = [], 0
-            for step, points in sorted(added, key=lambda item: item[0]):
-                parts.extend([loop[previous : step + 1], points])
-                previous = step + 1
+            parts: list[FloatArray] = []
+            previous = 0
+            for first, points in sorted(added, key=lambda item: item[0]):
+                parts.extend([loop[previous : first + 1], points])
+                previous = first + 1
             parts.append(loop[previous:])
             loops[k] = (_unwrap(np.concatenate(parts)), closed)
     return loops
