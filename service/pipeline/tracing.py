@@ -331,7 +331,7 @@ def _refine_near_limits(
         projected = project(fibre, guess.reshape(-1, start.shape[1]), 2, tangent=direction)
         new = projected.q_rad.reshape(guess.shape)
         converged = projected.error_norm < 1e-6
-        ok: BoolArray = converged.reshape(len(candidates), pieces - 1).all(axis=1)
+        ok = np.all(converged.reshape(len(candidates), pieces - 1), axis=1)
         inserts: dict[int, list[tuple[int, FloatArray]]] = {}
         for c, (k, first) in enumerate(candidates):
             if ok[c]:
