@@ -29,7 +29,8 @@ class PlannerSettings:
     delta_rad: float  # step along the segment (OMPL: 0.05)
     lambda_: float  # largest step and path length, in delta and chord units (OMPL: 2)
     projection_tolerance: float  # |e| a projected step must reach (OMPL: 1e-4)
-    projection_iterations: int = 2  # Newton steps per projected step
+    projection_iterations: int = 2  # Newton steps per projected step ...
+    extra_iterations: int = 3  # ... and up to this many more for a step not yet converged
 
 
 def edges_on_fibre(
@@ -68,11 +69,19 @@ def edges_on_fibre(
         index = np.flatnonzero(walking)
         step = q[index] + delta * remaining[index] / distance[index, None]
         projected = project(fibre, step, settings.projection_iterations)
-        q_new = projected.q_rad  # (A, n)
+        q_new, error_norm = projected.q_rad, projected.error_norm  # (A, n), (A,)
+        # Newton from a long step may need more iterations: only those rows get them.
+        slow = np.flatnonzero(~(error_norm <= settings.projection_tolerance))
+        for _ in range(settings.extra_iterations):
+            if not len(slow):
+                break
+            again = project(fibre, q_new[slow], 1)
+            q_new[slow], error_norm[slow] = again.q_rad, again.error_norm
+            slow = slow[~(again.error_norm <= settings.projection_tolerance)]
         moved = np.linalg.norm(q_new - q[index], axis=1)
         inside = np.all(periodic | ((q_new >= lower_rad) & (q_new <= upper_rad)), axis=1)
         ok = (
-            (projected.error_norm <= settings.projection_tolerance)
+            (error_norm <= settings.projection_tolerance)
             & inside
             & (moved <= stretch * delta)
             & (np.linalg.norm(goal[index] - q_new, axis=1) < distance[index])
