@@ -303,7 +303,6 @@ def _refine_near_limits(
     few rounds find components down to about h / pieces**rounds long.
     """
     low = _window_low(lower_rad, upper_rad, periodic)
-    margin = 0.25 * settings.step_rad  # a curve bends off its chord by ~kappa h^2 / 8
     loops = list(loops)
     for _ in range(rounds):
         candidates: list[tuple[int, int]] = []  # (loop, index of the step's first point)
@@ -313,6 +312,8 @@ def _refine_near_limits(
             b = a + _torus_difference(ends[1:], ends[:-1])
             inside_a = np.all(periodic | ((a >= lower_rad) & (a <= upper_rad)), axis=1)
             inside_b = np.all(periodic | ((b >= lower_rad) & (b <= upper_rad)), axis=1)
+            # A curve bends off its chord by ~kappa L^2 / 8: a margin of L / 4 per step.
+            margin = 0.25 * np.linalg.norm(b - a, axis=1, keepdims=True)  # (S, 1)
             meets = _chord_meets_box(a, b, lower_rad - margin, upper_rad + margin, periodic)
             candidates.extend(
                 (k, first) for first in np.flatnonzero(meets & ~inside_a & ~inside_b).tolist()
