@@ -138,10 +138,18 @@ def path_checks(
         [np.zeros(0)] + [a.returned_orientation_rad[a.on_path] for a in with_paths]
     )
     gaps = [a.path_max_gap_rad for a in answers if a.path_max_gap_rad is not None]
+    regular_gaps = [
+        a.path_max_gap_rad
+        for a in answers
+        if a.path_max_gap_rad is not None and a.near_singular is False
+    ]
     outside = (~(periodic | ((points >= lower) & (points <= upper)))).any(axis=1)
     return {
         "path_points_mean": float(np.mean([a.path_points for a in answers])),
         "path_max_gap_rad": max(gaps) if gaps else None,
+        # Near a singular point a point Newton cannot make exact is left out (and the
+        # answer flagged): the gap is bounded by the contract only on the other targets.
+        "path_max_gap_rad_not_near_singular": max(regular_gaps) if regular_gaps else None,
         "path_points_outside_limits": int(outside.sum()),
         "path_max_position_error_m": float(position.max()) if len(position) else None,
         "path_max_orientation_error_rad": float(orientation.max()) if len(orientation) else None,
@@ -229,9 +237,27 @@ def summarise(
         summary["splits_per_target"] = float(np.mean([g.splits for g in agreements]))
         summary["merges_per_target"] = float(np.mean([g.merges for g in agreements]))
         summary["extra_small_per_target"] = float(np.mean([g.extra_small for g in agreements]))
+        summary["regular_targets"] = regular_targets(answers, truths)
     if one_dimensional and any(a.on_path is not None for a in answers):
         summary.update(path_checks(answers, lower, upper, periodic))
     return summary
+
+
+def regular_targets(
+    answers: list[MethodTarget], truths: list[Truth]
+) -> dict[str, float | int] | None:
+    """Count right, splits and merges over the targets the answer did not flag as near a
+    singular value (where the issue asks for a flag, not a particular split or merge)."""
+    pairs = [(a, t) for a, t in zip(answers, truths, strict=True) if a.near_singular is False]
+    agreements = [g for g in (component_agreement(a, t) for a, t in pairs) if g is not None]
+    if not agreements or agreements[0].splits is None:
+        return None
+    return {
+        "targets": len(agreements),
+        "count_right": float(np.mean([g.right for g in agreements])),
+        "splits_per_target": float(np.mean([g.splits for g in agreements])),
+        "merges_per_target": float(np.mean([g.merges for g in agreements])),
+    }
 
 
 def found_components(answer: MethodTarget, truth: Truth) -> np.ndarray:

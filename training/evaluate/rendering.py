@@ -164,6 +164,7 @@ def markdown(model_id: str, report: dict[str, Any]) -> str:
             ],
             component_rows,
         ),
+        *_regular_lines(methods),
         *_stage_lines(methods),
         *_path_lines(methods),
         *_recall_lines(methods, report.get("component_size", "size")),
@@ -176,6 +177,25 @@ def markdown(model_id: str, report: dict[str, Any]) -> str:
         "Count right: " + report.get("count_right_definition", COUNT_RIGHT_DEFINITION),
     ]
     return "\n".join(lines) + "\n"
+
+
+def _regular_lines(methods: dict[str, dict[str, object]]) -> list[str]:
+    """The component figures again over the targets not flagged near-singular."""
+    rows = []
+    for name, summary in methods.items():
+        regular = summary.get("regular_targets")
+        if isinstance(regular, dict):
+            rows.append([name, regular["targets"], regular["count_right"],
+                         regular["splits_per_target"], regular["merges_per_target"]])  # fmt: skip
+    if not rows:
+        return []
+    return [
+        "",
+        "Over the targets the answer did not flag as near a singular value (`structure."
+        "near_singular`; there components may touch, and the answer says so):",
+        "",
+        *_table(["method", "targets", "count right", "splits / target", "merges / target"], rows),
+    ]
 
 
 def _stage_lines(methods: dict[str, dict[str, Any]]) -> list[str]:
@@ -203,6 +223,7 @@ def _stage_lines(methods: dict[str, dict[str, Any]]) -> list[str]:
 def _path_lines(methods: dict[str, dict[str, Any]]) -> list[str]:
     rows = [
         [name, summary["path_points_mean"], summary["path_max_gap_rad"],
+         summary.get("path_max_gap_rad_not_near_singular"),
          summary["path_points_outside_limits"], summary["path_max_position_error_m"],
          summary["path_max_orientation_error_rad"]]
         for name, summary in methods.items()
@@ -210,7 +231,8 @@ def _path_lines(methods: dict[str, dict[str, Any]]) -> list[str]:
     ]  # fmt: skip
     if not rows:
         return []
-    header = ["method", "path points / target", "max gap rad", "points outside limits",
+    header = ["method", "path points / target", "max gap rad",
+              "max gap rad, targets not near-singular", "points outside limits",
               "max position error m", "max orientation error rad"]  # fmt: skip
     return [
         "",

@@ -14,6 +14,8 @@ ground truth itself, path points included.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -40,6 +42,7 @@ from training.evaluate.metrics import (
     nearest_distance,
     p95_stage_ms,
     recall_by_size,
+    regular_targets,
     summarise,
     wrong_count_targets,
 )
@@ -308,3 +311,16 @@ def test_summary_counts_splits_times_and_checks_the_paths(iiwa14_pose_model: Ser
     assert summary["near_singular_targets"] == 0.5
     assert summary["median_stage_ms"] == {"connect": 2.0, "total": 3.0}
     assert summary["p95_stage_ms"] == {"connect": 2.9, "total": 3.9}
+
+
+def test_regular_targets_leave_out_the_ones_flagged_near_singular() -> None:
+    """A merge on a target the answer flagged near-singular counts in the overall figures
+    but not in the regular ones; unflagged targets count in both."""
+    right = replace(_on([[0], [1]]), near_singular=False)
+    merged_flagged = replace(_on([[0, 1]]), near_singular=True)
+    split_unflagged = replace(_on([[0], [0], [1]]), near_singular=False)
+    regular = regular_targets([right, merged_flagged, split_unflagged], [FOUR_D] * 3)
+    assert regular == {
+        "targets": 2, "count_right": 0.5, "splits_per_target": 0.5, "merges_per_target": 0.0
+    }  # fmt: skip
+    assert regular_targets([merged_flagged], [FOUR_D]) is None

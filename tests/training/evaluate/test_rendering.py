@@ -57,6 +57,7 @@ def _served_summary() -> dict[str, object]:
         extra_small_per_target=0.0,
         path_points_mean=640.0,
         path_max_gap_rad=0.0525,
+        path_max_gap_rad_not_near_singular=0.045,
         path_points_outside_limits=0,
         path_max_position_error_m=9e-7,
         path_max_orientation_error_rad=8e-7,
@@ -80,7 +81,7 @@ def test_markdown_shows_count_right_splits_merges_connect_time_and_paths() -> No
     assert "| FM + DLS | 0.75 | 0.125 | 0.125 | 0.375 | 0.0625 | 0 | 0.01 | 0.02 |" in text
     assert "| connect median ms | connect p95 ms |" in text
     assert "| FM + DLS | 12.5 | 31.2 | 40 | 80 | 0.125 |" in text
-    assert "| FM + DLS | 640 | 0.0525 | 0 | 9e-07 | 8e-07 |" in text
+    assert "| FM + DLS | 640 | 0.0525 | 0.045 | 0 | 9e-07 | 8e-07 |" in text
     assert "2 (4 for 3, 1 split, 0 merged)" in text
     assert "Count right: " + COUNT_RIGHT_DEFINITION in text
     # Table 2 carries splits, merges and the connect stage's median and p95.
