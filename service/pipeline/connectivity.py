@@ -57,9 +57,11 @@ def connect(
     """The accepted samples grouped into components decided on the fibre."""
     deadline.check("connect")
     accepted = np.flatnonzero(acceptance.accepted)  # (K,)
-    sigma = smallest_singular_value(correction.jacobian[acceptance.within_tolerance])
-    min_sigma = float(np.nanmin(sigma, initial=np.inf))
     redundancy = correction.q_rad.shape[1] - correction.jacobian.shape[1]
+    min_sigma = np.inf
+    if redundancy > 1:  # r = 1: the trace measures sigma_min along every curve instead
+        sigma = smallest_singular_value(correction.jacobian[acceptance.within_tolerance])
+        min_sigma = float(np.nanmin(sigma, initial=np.inf))
     components: list[Component] = []
     leftover = accepted
     complete = True
