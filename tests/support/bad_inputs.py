@@ -302,6 +302,13 @@ def catalogue(max_num_samples: int, max_body_bytes: int) -> list[BadInput]:
             "an integer >= 1",
             planar(max_configurations_per_component=0),
         ),
+        BadInput(
+            "include-paths-not-boolean",
+            422,
+            "include_paths",
+            "true or false",
+            planar(include_paths="yes"),
+        ),
         # Wrong types (no coercion: "0.5" and true are not numbers).
         BadInput(
             "string-number",

@@ -186,3 +186,25 @@ def test_num_samples_over_the_limit_is_413(client: TestClient) -> None:
     response = smm(client, num_samples=5001)
     assert response.status_code == 413
     assert response.json()["detail"] == "num_samples must be at most 5000 on this server, got 5001"
+
+
+def test_paths_come_ordered_and_include_paths_false_leaves_them_out(client: TestClient) -> None:
+    """Redundancy 1: each component's path is exact by the closed form, inside the limits,
+    0.05 rad apart, its arc length the sum of its steps; include_paths false drops the
+    path only, and the components are the same."""
+    target = np.array([0.5, 0.0])
+    full = smm(client, target={"position": target.tolist()}).json()
+    lean = smm(client, target={"position": target.tolist()}, include_paths=False).json()
+    assert full["structure"] == lean["structure"] and not full["structure"]["near_singular"]
+    assert full["structure"]["traced"] is True
+    for with_path, without in zip(full["components"], lean["components"], strict=True):
+        path = np.array(with_path["path"])
+        assert np.abs(planar3r_position(path) - target).max() <= 1e-6
+        steps = np.linalg.norm(np.angle(np.exp(1j * np.diff(path, axis=0))), axis=1)
+        closing = np.linalg.norm(np.angle(np.exp(1j * (path[0] - path[-1]))))
+        assert with_path["closed"] is True and max(steps.max(), closing) <= 0.05
+        assert with_path["arc_length_rad"] == pytest.approx(steps.sum() + closing)
+        assert without["path"] is None
+        assert {k: v for k, v in without.items() if k != "path"} == {
+            k: v for k, v in with_path.items() if k != "path"
+        }
