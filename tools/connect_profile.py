@@ -1,0 +1,109 @@
+"""Where the connect stage's time goes: kinematics evaluations against everything else.
+
+    python -m tools.connect_profile --model iiwa14-pose --targets 20
+
+Runs stages 1-4 on held-out targets (uniform configurations in the limits, their FK),
+then stage 5 with the model's kinematics behind a timer, and prints per target the
+connect stage's wall time, the kinematics calls and configurations evaluated inside it
+and their time; then medians. One thread, in process. Compare figures only within one
+run (the CPU differs between machines and sessions).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from service.manifest import REPO_MODELS_DIR
+from service.models.registry import load_model
+from service.pipeline.acceptance import accept
+from service.pipeline.arrays import FloatArray
+from service.pipeline.connectivity import connect
+from service.pipeline.correction import correct
+from service.pipeline.fibre import Fibre
+from service.pipeline.sampling import sample_configurations
+from service.pipeline.targets import encode_target
+from service.pipeline.types import Kinematics, KinematicsResult
+from training.evaluate.served import orientation_wxyz
+from training.evaluate.targets import uniform_configurations
+
+
+@dataclass
+class TimedKinematics:
+    inner: Kinematics
+    calls: int = 0
+    configurations: int = 0
+    seconds: float = 0.0
+
+    def __call__(self, q_rad: FloatArray) -> KinematicsResult:
+        start = time.perf_counter()
+        result = self.inner(q_rad)
+        self.seconds += time.perf_counter() - start
+        self.calls += 1
+        self.configurations += len(q_rad)
+        return result
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawTextHelpFormatter
+    )
+    parser.add_argument("--model", default="iiwa14-pose")
+    parser.add_argument("--targets", type=int, default=20)
+    parser.add_argument("--seed", type=int, default=11)
+    args = parser.parse_args()
+    model = load_model(REPO_MODELS_DIR / args.model, threads=1)
+    manifest, defaults = model.manifest, model.manifest.defaults
+    lower, upper, periodic = manifest.joints.arrays()
+    q_targets = uniform_configurations(lower, upper, args.targets, args.seed)
+    rows = []
+    for i, q in enumerate(q_targets):
+        fk = model.kinematics(q[None])
+        position = fk.position_m[0, manifest.task.position_axes].tolist()
+        wxyz = orientation_wxyz(fk.rotation[0]) if manifest.task.orientation else None
+        target = encode_target(manifest.task, manifest.condition, position, wxyz)
+        samples = sample_configurations(
+            model.velocity, target.condition, defaults.num_samples, defaults.sampler.steps,
+            manifest.joint_normalisation, periodic, np.random.default_rng(i),
+        )  # fmt: skip
+        correction = correct(
+            samples, target, manifest.task, model.kinematics, defaults.correction_steps,
+            defaults.damping, periodic,
+        )  # fmt: skip
+        acceptance = accept(
+            correction, defaults.tolerance_position_m, defaults.tolerance_orientation_rad,
+            lower, upper, periodic,
+        )  # fmt: skip
+        timed = TimedKinematics(model.kinematics)
+        fibre = Fibre(target, manifest.task, timed, defaults.damping)
+        start = time.perf_counter()
+        connection = connect(
+            fibre, correction, acceptance, lower, upper, periodic, defaults.connectivity,
+            defaults.tolerance_position_m, defaults.tolerance_orientation_rad,
+        )  # fmt: skip
+        connect_ms = (time.perf_counter() - start) * 1e3
+        rows.append(
+            {
+                "target": i,
+                "components": len(connection.components),
+                "connect_ms": round(connect_ms, 1),
+                "kinematics_ms": round(timed.seconds * 1e3, 1),
+                "kinematics_calls": timed.calls,
+                "configurations_evaluated": timed.configurations,
+            }
+        )
+        print(json.dumps(rows[-1]), flush=True)
+    summary = {
+        key: float(np.median([r[key] for r in rows]))
+        for key in ("connect_ms", "kinematics_ms", "kinematics_calls", "configurations_evaluated")
+    }
+    summary["connect_p95_ms"] = float(np.percentile([r["connect_ms"] for r in rows], 95))
+    print(json.dumps({"median": summary}))
+
+
+if __name__ == "__main__":
+    main()
