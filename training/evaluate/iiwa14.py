@@ -71,7 +71,8 @@ class CheckReport:
     num_samples: int
     ok_fraction: float  # targets answered with at least one component
     no_solution_targets: list[int]
-    returned: int  # configurations returned over all targets
+    returned: int  # configurations returned over all targets (samples and path points)
+    returned_path_points: int  # of which points of the components' paths (pose task)
     max_position_error_m: float  # worst returned configuration, by the DH FK
     max_orientation_error_rad: float  # by the DH FK (pose task; 0 otherwise)
     median_position_error_m: float
@@ -100,7 +101,7 @@ def check(model: ServedModel, num_targets: int, seed: int, num_samples: int) -> 
     run(model, query(model, targets.pose[0], num_samples, seed=-1 % 2**31))  # warm-up
     no_solution, counts, timings, matches = [], [], [], []
     position_errors, orientation_errors = [np.zeros(0)], [np.zeros(0)]
-    returned = violations = accounting = accepted = sampled = 0
+    returned = path_points = violations = accounting = accepted = sampled = 0
     for i, target in enumerate(targets.pose):
         result = run(model, query(model, target, num_samples, seed=i))
         timings.append(stage_times_ms(result))
@@ -117,12 +118,14 @@ def check(model: ServedModel, num_targets: int, seed: int, num_samples: int) -> 
             orientation_errors.append(rotation_angle_rad(reached[:, :3, :3], rotations))
         violations += int((np.abs(q) > LIMITS_RAD).any(axis=1).sum())
         returned += len(q)
+        samples = len(returned_configurations(result, 7, include_paths=False))
+        path_points += len(q) - samples
         c = result.counts
         sizes = sum(component.size for component in result.components)
         if not (
             c.sampled == num_samples
             and c.sampled == c.accepted + c.rejected_tolerance + c.rejected_joint_limits
-            and sizes == c.accepted == len(q)
+            and sizes == c.accepted == samples
         ):
             accounting += 1
         accepted += c.accepted
@@ -134,6 +137,7 @@ def check(model: ServedModel, num_targets: int, seed: int, num_samples: int) -> 
         ok_fraction=1 - len(no_solution) / num_targets,
         no_solution_targets=no_solution,
         returned=returned,
+        returned_path_points=path_points,
         max_position_error_m=float(np.concatenate(position_errors).max(initial=0.0)),
         max_orientation_error_rad=float(np.concatenate(orientation_errors).max(initial=0.0)),
         median_position_error_m=float(np.median(np.concatenate(position_errors))),

@@ -19,9 +19,14 @@ def with_defaults(model: ServedModel, **changes: object) -> ServedModel:
     return replace(model, manifest=model.manifest.model_copy(update={"defaults": defaults}))
 
 
-def returned_configurations(result: SmmResult, num_joints: int) -> FloatArray:
-    """(K, n) every configuration a pipeline answer returned, all components together."""
+def returned_configurations(
+    result: SmmResult, num_joints: int, include_paths: bool = True
+) -> FloatArray:
+    """(K, n) every configuration a pipeline answer returned, all components together: the
+    listed samples and (r = 1, unless include_paths is False) every point of each path."""
     listed = [c.configurations_rad for c in result.components]
+    if include_paths:
+        listed += [c.path.q_rad for c in result.components if c.path is not None]
     return np.concatenate(listed) if listed else np.zeros((0, num_joints))
 
 

@@ -32,7 +32,11 @@ def test_returned_configurations_and_stage_times_of_an_answer(planar3r: ServedMo
     query = Query.for_model(planar3r.manifest, position_m=[2.0, 0.0], num_samples=200, seed=0)
     result = run(planar3r, query)
     q_rad = returned_configurations(result, 3)
-    assert q_rad.shape == (result.counts.accepted, 3)
+    path_points = sum(len(c.path.q_rad) for c in result.components if c.path is not None)
+    assert path_points > 0  # the planar arm is r = 1: every component has its path
+    assert q_rad.shape == (result.counts.accepted + path_points, 3)
+    samples_only = returned_configurations(result, 3, include_paths=False)
+    assert samples_only.shape == (result.counts.accepted, 3)
     times_ms = stage_times_ms(result)
     assert set(times_ms) == {
         "encode", "sample", "correct", "accept", "connect", "summarise", "total"
