@@ -281,7 +281,7 @@ def main() -> None:
     parser.add_argument("--num-samples", type=int, default=1000)
     parser.add_argument("--sweep", action="store_true", help="measure candidate defaults")
     parser.add_argument(
-        "--radius-only", action="store_true", help="with --sweep: only the connect-stage parameters"
+        "--connect-only", action="store_true", help="with --sweep: only the connect stage"
     )
     args = parser.parse_args()
     model = load_model(
@@ -289,7 +289,7 @@ def main() -> None:
         threads=0,
     )
     if args.sweep:
-        sweep(model, args.targets, args.seed, correction_sweep=not args.radius_only)
+        sweep(model, args.targets, args.seed, correction_sweep=not args.connect_only)
     else:
         print(json.dumps(asdict(check(model, args.targets, args.seed, args.num_samples)), indent=1))
 
