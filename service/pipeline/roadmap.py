@@ -6,8 +6,8 @@ chosen so that few are checked: each node's nearest neighbours within a generous
 tested cheapest first in Boruvka rounds (each round, every component tries its shortest
 untested edge to another component, so an edge inside an already joined component is
 never paid for); then, between the components left, the few nearest pairs within a
-wider radius are tried with a larger path-length allowance. Components are the sets of
-nodes that tested edges join (union-find); a lone node is a component of its own.
+wider radius are tried with a larger path-length allowance. Components are the
+connected components of the graph of walked edges; a lone node is a component of its own.
 """
 
 from __future__ import annotations
@@ -15,7 +15,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.cluster.hierarchy import DisjointSet
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
 from service.pipeline.arrays import BoolArray, FloatArray, IntArray
 from service.pipeline.deadline import NO_DEADLINE, Deadline
@@ -47,7 +48,8 @@ def roadmap_labels(
     num_nodes = len(q_rad)
     if num_nodes == 0:
         return np.zeros(0, dtype=np.int64)
-    sets = DisjointSet(range(num_nodes))
+    joined_from: list[IntArray] = []  # the edges the planner walked, both ends
+    joined_to: list[IntArray] = []
     box = JointBox.covering(q_rad, periodic, margin_rad=2.0 * settings.bridge_radius_rad + 1.0)
     tree = box.tree(q_rad)
     points = box.points(q_rad)
@@ -57,8 +59,11 @@ def roadmap_labels(
             fibre, q_rad[a], q_rad[b], lower_rad, upper_rad, periodic, planner,
             lambda_=lambda_, deadline=deadline,
         )  # fmt: skip
-        for i, j in zip(a[joined].tolist(), b[joined].tolist(), strict=True):
-            sets.merge(i, j)
+        joined_from.append(a[joined])
+        joined_to.append(b[joined])
+
+    def roots() -> IntArray:  # (K,) the component of each node, from the edges so far
+        return _components(num_nodes, joined_from, joined_to)
 
     # Neighbour edges, Boruvka rounds: each component's shortest untested outgoing edge.
     k = min(settings.neighbours + 1, num_nodes)
@@ -71,7 +76,7 @@ def roadmap_labels(
     a, b, length = a[order], b[order], length[order]
     untested = np.ones(len(a), dtype=bool)
     while True:
-        root = _roots(sets, num_nodes)
+        root = roots()
         open_ = untested & (root[a] != root[b])
         if not open_.any():
             break
@@ -85,7 +90,7 @@ def roadmap_labels(
         check(a[chosen], b[chosen])
 
     # Bridges between the components left: the nearest pairs of each pair of components.
-    root = _roots(sets, num_nodes)
+    root = roots()
     if len(np.unique(root)) > 1 and settings.bridge_pairs > 0:
         k = min(32, num_nodes)
         distance, neighbour = tree.query(
@@ -103,11 +108,15 @@ def roadmap_labels(
         chosen = order[rank < settings.bridge_pairs]
         check(rows[chosen], cols[chosen], lambda_=settings.bridge_lambda)
 
-    return _ordered_labels(_roots(sets, num_nodes))
+    return _ordered_labels(roots())
 
 
-def _roots(sets: DisjointSet, num_nodes: int) -> IntArray:
-    return np.fromiter((sets[i] for i in range(num_nodes)), dtype=np.int64, count=num_nodes)
+def _components(num_nodes: int, starts: list[IntArray], ends: list[IntArray]) -> IntArray:
+    """(K,) connected-component label of each node of the graph with these edges."""
+    a = np.concatenate([np.zeros(0, dtype=np.int64), *starts])
+    b = np.concatenate([np.zeros(0, dtype=np.int64), *ends])
+    graph = coo_matrix((np.ones(len(a), dtype=np.int8), (a, b)), shape=(num_nodes, num_nodes))
+    return connected_components(graph, directed=False)[1].astype(np.int64)
 
 
 def _first_per(group: IntArray, index: IntArray) -> IntArray:
