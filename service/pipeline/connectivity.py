@@ -21,6 +21,7 @@ import numpy as np
 
 from service.manifest import ConnectivitySpec, TaskSpec
 from service.pipeline.arrays import BoolArray, FloatArray, IntArray
+from service.pipeline.correction import error_norms
 from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.fibre import Fibre, smallest_singular_value
 from service.pipeline.joint_space import JointBox, joint_distance
@@ -113,7 +114,6 @@ def trace_settings(spec: ConnectivitySpec) -> TraceSettings:
         max_steps=spec.trace_max_steps,
         seed_spacing_rad=spec.seed_spacing_rad,
         path_spacing_rad=spec.path_spacing_rad,
-        singular_sigma=spec.singular_sigma,
     )
 
 
@@ -150,13 +150,7 @@ def _exact_path(
     fibre) is left out rather than returned inexact; the component stays whole, and the
     caller flags the target as near-singular (the gap there may exceed the spacing).
     """
-    m_p = len(task.position_axes)
-    position_error = np.linalg.norm(piece.error[:, :m_p], axis=1)
-    orientation_error = (
-        np.linalg.norm(piece.error[:, m_p:], axis=1)
-        if task.orientation
-        else np.zeros(len(piece.error))
-    )
+    position_error, orientation_error = error_norms(piece.error, task)
     exact = (position_error <= tolerance_position_m) & (
         orientation_error <= tolerance_orientation_rad
     )

@@ -62,7 +62,11 @@ def task_error_norms(
     fk: KinematicsResult, target: Target, task: TaskSpec
 ) -> tuple[FloatArray, FloatArray]:
     """Position error (B,) in m and orientation error (B,) in rad (0 for a position task)."""
-    error, _ = task_error(fk, target, task)
+    return error_norms(task_error(fk, target, task)[0], task)
+
+
+def error_norms(error: FloatArray, task: TaskSpec) -> tuple[FloatArray, FloatArray]:
+    """|position part| (B,) in m and |rotation part| (B,) in rad of task errors (B, m)."""
     m_p = len(task.position_axes)
     position_error_m = np.linalg.norm(error[:, :m_p], axis=1)
     if not task.orientation:

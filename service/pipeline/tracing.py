@@ -38,7 +38,6 @@ class TraceSettings:
     max_steps: int  # per front; a curve longer than fronts x steps x h stays open
     seed_spacing_rad: float  # seeds are at least this far apart (torus metric)
     path_spacing_rad: float  # largest gap between consecutive path points
-    singular_sigma: float  # sigma_min(J) below this on the fibre: near a singular value
     corrector_iterations: int = 1  # per continuation step (each costs one evaluation)
     path_iterations: int = 1  # Newton steps that put each path point on the fibre ...
     path_error: float = 1e-9  # ... and more for the points whose |e| is still above this,
@@ -52,7 +51,6 @@ class TracedPiece:
     path_rad: FloatArray  # (P, n) in order along the curve, joints inside their limits
     error: FloatArray  # (P, m) task error at each path point
     closed: bool  # the path is a whole loop (its last point joins its first)
-    ends_at_limits: bool  # an open path whose both ends were refined onto a joint limit
 
 
 @dataclass(frozen=True)
@@ -445,12 +443,11 @@ def _densify(
     free = ~fixed
     # The refined limit points are already exact; projecting them again would push them
     # across their limit, so only the others are projected (along the chord normal plane).
-    projected = project(fibre, every[free], settings.path_iterations,
-                        tangent=_chord_tangents(segments)[free])  # fmt: skip
+    chord_tangent = _chord_tangents(segments)  # (P, n)
+    projected = project(fibre, every[free], settings.path_iterations, tangent=chord_tangent[free])
     q = every.copy()
     error = np.zeros((len(every), projected.error.shape[1]))
     q[free], error[free] = projected.q_rad, projected.error
-    chord_tangent = _chord_tangents(segments)
     again = np.flatnonzero(free)[~(projected.error_norm <= settings.path_error)]
     for _ in range(settings.path_extra_iterations):  # near a singular value: more Newton
         if not len(again):
@@ -475,7 +472,6 @@ def _densify(
                 path_rad=q[rows].reshape(-1, n),
                 error=error[rows],
                 closed=run.closed,
-                ends_at_limits=bool(fixed_rows[r][0] and fixed_rows[r][-1]),
             )
         )
     return pieces
