@@ -116,6 +116,28 @@ def _errors(model: ServedModel, q: FloatArray, target: Target) -> tuple[FloatArr
     return task_error_norms(model.kinematics(q), target, model.manifest.task)
 
 
+def _answered(
+    model: ServedModel,
+    target: Target,
+    raw_p: FloatArray,
+    raw_o: FloatArray,
+    components: Sequence[tuple[FloatArray, ComponentPath | None]],
+    num_samples: int,
+    stages: dict[str, float],
+    near_singular: bool,
+) -> MethodTarget:
+    """A method's components as the report measures them: every returned configuration
+    (samples and path points), its errors, the path gaps, the near-singular flag."""
+    returned = returned_points(components, model.manifest.joints.count)
+    p, o = _errors(model, returned.q_rad, target)
+    _, _, periodic = model.manifest.joints.arrays()
+    return MethodTarget(
+        raw_p, raw_o, returned.q_rad, p, o, returned.labels, num_samples, stages["total"],
+        stages, returned.on_path, returned.paths,
+        path_max_gap_rad([path for _, path in returned.paths], periodic), near_singular,
+    )  # fmt: skip
+
+
 def flow_target(
     model: ServedModel, q_target: np.ndarray, num_samples: int, seed: int
 ) -> MethodTarget:
@@ -136,16 +158,9 @@ def flow_target(
         seed=seed, include_paths=True,
     )  # fmt: skip
     result = run(model, query)
-    returned = returned_points(
-        [(c.configurations_rad, c.path) for c in result.components], manifest.joints.count
-    )
-    p, o = _errors(model, returned.q_rad, target)
-    stages = stage_times_ms(result)
-    return MethodTarget(
-        raw_p, raw_o, returned.q_rad, p, o, returned.labels, num_samples, stages["total"],
-        stages, returned.on_path, returned.paths,
-        path_max_gap_rad([path for _, path in returned.paths], periodic),
-        result.structure.near_singular,
+    return _answered(
+        model, target, raw_p, raw_o, [(c.configurations_rad, c.path) for c in result.components],
+        num_samples, stage_times_ms(result), result.structure.near_singular,
     )  # fmt: skip
 
 
@@ -200,21 +215,15 @@ def restart_target(
         defaults.tolerance_position_m, defaults.tolerance_orientation_rad,
     )  # fmt: skip
     connected_s = time.perf_counter()
-    returned = returned_points(
-        [(c.q_rad, c.path) for c in connection.components], manifest.joints.count
-    )
-    p, o = _errors(model, returned.q_rad, target)
     stages = {
         "solve": solutions.wall_time_ms,
         "accept": (accepted_s - start) * 1e3,
         "connect": (connected_s - accepted_s) * 1e3,
         "total": solutions.wall_time_ms + (connected_s - start) * 1e3,
     }
-    return MethodTarget(
-        raw_p, raw_o, returned.q_rad, p, o, returned.labels, num_samples, stages["total"],
-        stages, returned.on_path, returned.paths,
-        path_max_gap_rad([path for _, path in returned.paths], periodic),
-        connection.structure.near_singular,
+    return _answered(
+        model, target, raw_p, raw_o, [(c.q_rad, c.path) for c in connection.components],
+        num_samples, stages, connection.structure.near_singular,
     )  # fmt: skip
 
 
