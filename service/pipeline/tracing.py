@@ -29,7 +29,7 @@ from scipy.spatial import cKDTree
 from service.pipeline.arrays import BoolArray, FloatArray
 from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.fibre import Fibre, project, smallest_singular_value, unit_tangent
-from service.pipeline.joint_space import TWO_PI, wrap_to_pi
+from service.pipeline.joint_space import TWO_PI, JointBox, wrap_to_pi
 
 
 @dataclass(frozen=True)
@@ -102,8 +102,7 @@ def trace_fibre(
 
 def spread_seeds(q_rad: FloatArray, spacing_rad: float) -> FloatArray:
     """A subset (S, n) of q_rad (M, n), greedily at least `spacing_rad` apart on the torus."""
-    points = np.mod(q_rad, TWO_PI)
-    tree = cKDTree(points, boxsize=TWO_PI)
+    tree, points = _torus_tree(q_rad)
     taken = np.zeros(len(q_rad), dtype=bool)
     chosen = []
     for index in range(len(q_rad)):
@@ -112,6 +111,13 @@ def spread_seeds(q_rad: FloatArray, spacing_rad: float) -> FloatArray:
         chosen.append(index)
         taken[tree.query_ball_point(points[index], spacing_rad)] = True
     return q_rad[np.asarray(chosen)]
+
+
+def _torus_tree(q_rad: FloatArray) -> tuple[cKDTree, FloatArray]:
+    """A KD-tree over q_rad (N, n) on the joint torus (every joint a circle, as the
+    kinematics sees it) and the points it holds."""
+    box = JointBox.covering(q_rad, np.ones(q_rad.shape[1], dtype=bool), margin_rad=0.0)
+    return box.tree(q_rad), box.points(q_rad)
 
 
 def _torus_difference(a: FloatArray, b: FloatArray) -> FloatArray:
@@ -200,9 +206,8 @@ def _meet(
     directions, the chord between them runs along the curve, and they came closer in
     this step (so the two fronts leaving one seed never meet at their start).
     """
-    ends = np.mod(q, TWO_PI)
     reach = 1.1 * step_rad.max()
-    pairs = cKDTree(ends, boxsize=TWO_PI).query_pairs(reach, output_type="ndarray")
+    pairs = _torus_tree(q)[0].query_pairs(reach, output_type="ndarray")
     if len(pairs) == 0:
         return
     a, b = pairs[:, 0], pairs[:, 1]
