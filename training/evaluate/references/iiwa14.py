@@ -281,12 +281,29 @@ def position_smm(
         cols.append(after[linked])
     nodes = index[feasible]
     points6 = q6[feasible]  # (F, 6)
-    for coordinates, near in _contact_coordinates(points6, contact_rad):
-        pairs = cKDTree(coordinates).query_pairs(contact_rad, output_type="ndarray")
-        rows.append(nodes[near][pairs[:, 0]])
-        cols.append(nodes[near][pairs[:, 1]])
+    num_nodes = feasible.size
+    for coordinates, near, on_set in _contact_coordinates(points6, contact_rad, position_m):
+        # Nodes within contact_rad of each other, near the set, are one component only
+        # where the fibre really reaches the set: each is linked to the exact points of
+        # the set within contact_rad (set points are extra graph nodes, joined along
+        # the set), never to each other across a gap the fibre does not cross.
+        if on_set is None:
+            pairs = cKDTree(coordinates).query_pairs(contact_rad, output_type="ndarray")
+            rows.append(nodes[near][pairs[:, 0]])
+            cols.append(nodes[near][pairs[:, 1]])
+            continue
+        set_index = num_nodes + np.arange(len(on_set))
+        num_nodes += len(on_set)
+        tree = cKDTree(on_set)
+        for node, hits in zip(nodes[near], tree.query_ball_point(coordinates, contact_rad),
+                              strict=True):  # fmt: skip
+            rows.append(np.full(len(hits), node))
+            cols.append(set_index[np.asarray(hits, dtype=np.int64)])
+        pairs = tree.query_pairs(contact_rad, output_type="ndarray")  # along the set
+        rows.append(set_index[pairs[:, 0]])
+        cols.append(set_index[pairs[:, 1]])
     edges = np.concatenate(rows), np.concatenate(cols)
-    graph = coo_matrix((np.ones(len(edges[0])), edges), shape=(feasible.size, feasible.size))
+    graph = coo_matrix((np.ones(len(edges[0])), edges), shape=(num_nodes, num_nodes))
     _, labels = connected_components(graph, directed=False)
     _, component = np.unique(labels[nodes], return_inverse=True)  # renumber 0..C-1
     spacing_rad = float(2 * np.pi / grid_steps)
@@ -306,28 +323,109 @@ def position_smm(
 
 
 def _contact_coordinates(
-    q6_rad: np.ndarray, contact_rad: float
-) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Coordinates (and the rows they cover) in which nearby nodes are one component.
+    q6_rad: np.ndarray, contact_rad: float, position_m: np.ndarray
+) -> list[tuple[np.ndarray, np.ndarray, np.ndarray | None]]:
+    """Coordinates (and the rows they cover) in which nearby nodes are one component, with
+    the exact points of the singular set in the same coordinates (None: no set).
 
-    First q1..q6 themselves. Then each singular set the fibre crosses: at q2 = 0 only
-    q1 + q3 moves the arm, at q4 = 0 only q3 + q5, and at q6 = 0 joint 5 no longer
-    moves the end-effector position; there the fibre holds a whole segment of the
-    free combination, which joins the twin branches. Nodes near a singular set are
-    compared without that free direction. The segment between two feasible values of
-    the free direction stays within the (box) limits.
+    First q1..q6 themselves. Then each singular set: at q2 = 0 only q1 + q3 moves the
+    arm, at q4 = 0 only q3 + q5, and at q6 = 0 joint 5 no longer moves the end-effector
+    position; there the fibre holds a whole segment of the free combination, which joins
+    the twin branches. Nodes near a singular set are compared without that free
+    direction, and only with exact points of the set (`singular_set_points`): a fibre
+    that comes near a set without reaching it (the shoulder's q2 = 0 puts the elbow
+    0.42 m above the shoulder, out of reach of some targets) does not join its twins.
     """
     q = q6_rad
-    sets = [(q, np.ones(len(q), dtype=bool))]
-    reduced = {
-        1: np.stack([q[:, 0] + q[:, 2], q[:, 1], q[:, 3], q[:, 4], q[:, 5]], 1),  # shoulder
-        3: np.stack([q[:, 0], q[:, 1], q[:, 2] + q[:, 4], q[:, 3], q[:, 5]], 1),  # elbow
-        5: q[:, [0, 1, 2, 3, 5]],  # wrist: q5 is free
-    }
-    for joint, coordinates in reduced.items():
+    sets: list[tuple[np.ndarray, np.ndarray, np.ndarray | None]] = [
+        (q, np.ones(len(q), dtype=bool), None)
+    ]
+    set_points = singular_set_points(position_m)
+    for joint, exact in set_points.items():
         near = np.abs(q[:, joint]) < contact_rad
-        sets.append((coordinates[near], near))
+        sets.append((_reduced(q[near], joint), near, _reduced(exact, joint)))
     return sets
+
+
+def _reduced(q: np.ndarray, joint: int) -> np.ndarray:
+    """q1..q6 (P, 6) without the free direction of the singular set q_joint = 0."""
+    if joint == 1:  # shoulder: q1 + q3
+        return np.stack([q[:, 0] + q[:, 2], q[:, 1], q[:, 3], q[:, 4], q[:, 5]], 1)
+    if joint == 3:  # elbow: q3 + q5
+        return np.stack([q[:, 0], q[:, 1], q[:, 2] + q[:, 4], q[:, 3], q[:, 5]], 1)
+    return q[:, [0, 1, 2, 3, 5]]  # wrist: q5 is free
+
+
+def _sphere_circle(
+    centre_a: np.ndarray, radius_a: float, centre_b: np.ndarray, radius_b: float, steps: int
+) -> np.ndarray:
+    """(steps, 3) points of the circle where two spheres meet; (0, 3) when they do not."""
+    axis = centre_b - centre_a
+    distance = float(np.linalg.norm(axis))
+    if not abs(radius_a - radius_b) <= distance <= radius_a + radius_b or distance == 0.0:
+        return np.zeros((0, 3))
+    axis /= distance
+    along = (distance**2 + radius_a**2 - radius_b**2) / (2 * distance)
+    radius = np.sqrt(max(radius_a**2 - along**2, 0.0))
+    u, v = _perpendicular_basis(axis)
+    phi = np.linspace(-np.pi, np.pi, steps, endpoint=False)
+    return centre_a + along * axis + radius * (np.cos(phi)[:, None] * u + np.sin(phi)[:, None] * v)
+
+
+def singular_set_points(position_m: np.ndarray, steps: int = 720) -> dict[int, np.ndarray]:
+    """Exact q1..q6 (P, 6) on each singular set the position's fibre reaches, keyed by the
+    joint that is 0 there (1: shoulder q2, 3: elbow q4, 5: wrist q6); feasible in every
+    joint but the set's free pair (any value of the free combination fits the limits).
+
+    Shoulder (q2 = 0): the elbow is E = S + 0.42 z, so W lies on the circle where the
+    sphere of radius 0.40 about E meets the sphere of radius 0.126 about p. Elbow
+    (q4 = 0): |SW| = 0.82 (taken 1e-7 m short, where the IK is defined). Wrist (q6 = 0):
+    the end effector continues the forearm, so E lies where the sphere of radius 0.42
+    about S meets the sphere of radius 0.526 about p. Every branch's IK at those points.
+    """
+    up = np.array([0.0, 0.0, 1.0])
+    elbow_up = SHOULDER_M + UPPER_ARM_M * up
+    cases: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # joint -> (wrist W, elbow E)
+    wrist = _sphere_circle(elbow_up, FOREARM_M, position_m, WRIST_TO_EE_M, steps)
+    cases[1] = (wrist, np.broadcast_to(elbow_up, wrist.shape))
+    straight = UPPER_ARM_M + FOREARM_M - 1e-7
+    wrist = _sphere_circle(SHOULDER_M, straight, position_m, WRIST_TO_EE_M, steps)
+    cases[3] = (wrist, SHOULDER_M + UPPER_ARM_M * (wrist - SHOULDER_M) / straight)
+    elbow = _sphere_circle(SHOULDER_M, UPPER_ARM_M, position_m, FOREARM_M + WRIST_TO_EE_M, steps)
+    forearm = (position_m - elbow) / (FOREARM_M + WRIST_TO_EE_M)
+    cases[5] = (elbow + FOREARM_M * forearm, elbow)
+    free = {1: [0, 2], 3: [2, 4], 5: [4]}
+    points: dict[int, np.ndarray] = {}
+    for joint, (wrist_m, elbow_m) in cases.items():
+        if not len(wrist_m):
+            continue
+        z_axis = (position_m - wrist_m) / WRIST_TO_EE_M  # (D, 3)
+        rotation = rotations_with_z_axis(z_axis / np.linalg.norm(z_axis, axis=1, keepdims=True))
+        found = []
+        for d in range(len(wrist_m)):
+            psi = _arm_angle(wrist_m[d], elbow_m[d])
+            for branch in BRANCHES:
+                q = inverse_kinematics(position_m, rotation[d], np.array([psi]), branch)
+                if q is not None:
+                    found.append(q[0, :6])
+        if not found:
+            continue
+        q = np.asarray(found)
+        checked = np.ones(6, dtype=bool)
+        checked[free[joint]] = False
+        feasible = np.all(np.abs(q[:, checked]) <= LIMITS_RAD[:6][checked], axis=1)
+        if feasible.any():
+            points[joint] = q[feasible]
+    return points
+
+
+def _arm_angle(wrist_m: np.ndarray, elbow_m: np.ndarray) -> float:
+    """psi of `elbow_positions` that puts the elbow nearest elbow_m (for this wrist)."""
+    shoulder_to_wrist = wrist_m - SHOULDER_M
+    axis = shoulder_to_wrist / np.linalg.norm(shoulder_to_wrist)
+    u, v = _perpendicular_basis(axis)
+    radial = elbow_m - SHOULDER_M - np.dot(elbow_m - SHOULDER_M, axis) * axis
+    return float(np.arctan2(np.dot(radial, v), np.dot(radial, u)))
 
 
 def _inverse_kinematics_grid(

@@ -3,8 +3,10 @@
 The IK's configurations are checked by the tests' own DH FK (tests/support/iiwa14_dh.py) to
 1e-9 on all 8 branches; the configuration that made a target must lie on its exact SMM;
 each feasible component stays within the limits and is continuous; the 4-D position SMM
-is exact and feasible, q7 does not move the position, and a feasible walk along the
-position fibre stays in one component.
+is exact and feasible, q7 does not move the position, a feasible walk along the
+position fibre stays in one component, the exact points of the singular sets are exact,
+and a fibre that cannot reach the shoulder or elbow set (by the link lengths alone)
+keeps the sign of q2 and q4 within each component, so its twins stay apart.
 """
 
 from __future__ import annotations
@@ -19,7 +21,12 @@ from training.evaluate.references.iiwa14 import (
     inverse_kinematics,
     pose_smm,
     position_smm,
+    singular_set_points,
 )
+
+# Link lengths of the DH table, for the reach arguments (tests/support/iiwa14_dh.py).
+SHOULDER = np.array([0.0, 0.0, 0.36])
+UPPER_ARM, FOREARM, WRIST_TO_EE = 0.42, 0.40, 0.081 + 0.045
 
 
 def _targets(count: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -134,3 +141,37 @@ def test_a_feasible_walk_along_the_position_fibre_stays_in_one_component() -> No
         assert np.linalg.norm(path[:, :6] - q_target[:6], axis=1).max() > 0.5  # it moved
         nearest = cKDTree(fibre.q_rad[:, :6]).query(path[:, :6])[1]
         assert len(set(fibre.component[nearest].tolist())) == 1
+
+
+def test_singular_set_points_are_exact_and_on_their_set() -> None:
+    _, poses = _targets(20, seed=21)
+    seen: set[int] = set()
+    for pose in poses:
+        for joint, q6 in singular_set_points(pose[:3, 3]).items():
+            seen.add(joint)
+            q = np.concatenate([q6, np.zeros((len(q6), 1))], axis=1)
+            assert np.abs(iiwa14_pose(q)[:, :3, 3] - pose[:3, 3]).max() < 1e-7
+            assert np.abs(q6[:, joint]).max() < 2e-3  # on the set (q4: 1e-7 m short)
+    assert seen == {1, 3, 5}
+
+
+def test_twins_stay_apart_where_the_fibre_cannot_reach_the_shoulder_or_elbow_set() -> None:
+    # With q2 = 0 the elbow sits 0.42 m above the shoulder, so the end effector is at
+    # most 0.40 + 0.126 m from there; with q4 = 0 it is at least 0.82 - 0.126 m from
+    # the shoulder. This target violates both: no path on its fibre changes the sign of
+    # q2 or of q4, so the shoulder and elbow twins are separate components, four in all,
+    # however near q2 = 0 the fibre comes (the old contact rule joined them).
+    q = np.array([-1.8321, 0.3116, -2.7316, 1.2636, 2.7301, 1.4829, -2.7446])
+    position = iiwa14_pose(q[None])[0, :3, 3]
+    elbow_up = SHOULDER + np.array([0.0, 0.0, UPPER_ARM])
+    assert np.linalg.norm(position - elbow_up) > FOREARM + WRIST_TO_EE
+    assert np.linalg.norm(position - SHOULDER) < UPPER_ARM + FOREARM - WRIST_TO_EE
+    assert set(singular_set_points(position)) == {5}
+    fibre = position_smm(position, num_points=20_000, seed=0)
+    assert np.abs(fibre.q_rad[:, 1]).min() < 0.15  # the fibre does come near q2 = 0
+    for component in np.unique(fibre.component):
+        members = fibre.q_rad[fibre.component == component]
+        assert len(set(np.sign(members[:, 1]).tolist())) == 1
+        assert len(set(np.sign(members[:, 3]).tolist())) == 1
+    signs = {(int(np.sign(a)), int(np.sign(b))) for a, b in fibre.q_rad[:, [1, 3]]}
+    assert fibre.count == len(signs) == 4
