@@ -1,8 +1,10 @@
-"""The model manifest: what `models/<model-id>/manifest.json` records.
+"""The model's file formats: what `models/<model-id>/manifest.json` and `chain.json` record.
 
-One schema, written by `training.export` and read by `service.models.registry`. It holds
-everything needed to use a model (joints, task, condition layout, normalisation,
-defaults) and to trust it (training budget, measured quality, sha256 of every file).
+One schema per file, written by `training.export` and read by `service.models.registry`.
+The manifest holds everything needed to use a model (joints, task, condition layout,
+normalisation, defaults) and to trust it (training budget, measured quality, sha256 of
+every file). chain.json is the robot's serial chain as read from the URDF: the data of
+the numpy kinematics kernel (`service.models.chain`).
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ REPO_MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
 MANIFEST_FILE = "manifest.json"
 FLOW_FILE = "flow.onnx"
 KINEMATICS_FILE = "kinematics.onnx"
+CHAIN_FILE = "chain.json"
 
 
 class _Strict(BaseModel):
@@ -180,6 +183,67 @@ class Quality(_Strict):
     )
     targets_with_solution: float
     measured_by: str
+
+
+# A 4x4 homogeneous transform, row-major: [[R, t], [0, 0, 0, 1]].
+Transform = list[list[float]]
+# Rotation blocks of the URDF's origins are orthonormal to rounding (float64 cos and sin).
+_ORTHONORMAL_TOLERANCE = 1e-12
+
+
+def _check_transform(name: str, value: Transform) -> None:
+    matrix = np.asarray(value, dtype=np.float64)
+    if matrix.shape != (4, 4) or not np.all(np.isfinite(matrix)):
+        raise ValueError(f"{name}: not a finite 4x4 transform")
+    if not np.array_equal(matrix[3], [0.0, 0.0, 0.0, 1.0]):
+        raise ValueError(f"{name}: last row is {matrix[3].tolist()}, not [0, 0, 0, 1]")
+    rotation = matrix[:3, :3]
+    error = float(np.max(np.abs(rotation @ rotation.T - np.eye(3))))
+    if not error <= _ORTHONORMAL_TOLERANCE or np.linalg.det(rotation) < 0:
+        raise ValueError(f"{name}: rotation block is not a rotation (R R^T - I up to {error:.3g})")
+
+
+class ChainJoint(_Strict):
+    """One movable joint (revolute or continuous) of the serial chain."""
+
+    name: str
+    origin: Transform = Field(
+        description="Fixed transform from the previous joint's frame (the base frame for the "
+        "first joint) to this joint's frame at q = 0; the fixed joints between them folded in."
+    )
+    axis: list[float] = Field(description="Unit rotation axis in this joint's frame.")
+
+
+class ChainSpec(_Strict):
+    """chain.json: the serial chain from the base to the end effector, in float64.
+
+    FK(q) = origin_1 Rot(axis_1, q_1) origin_2 Rot(axis_2, q_2) ... origin_n Rot(axis_n, q_n)
+    tip, the end-effector pose in the base frame. Written at export from the URDF as read
+    by `training.kinematics.load_chain`, so it is the chain kinematics.onnx was exported
+    from.
+    """
+
+    format_version: Literal[1] = 1
+    base_link: str
+    end_effector_link: str
+    joints: list[ChainJoint] = Field(min_length=1, description="In the model's joint order.")
+    tip: Transform = Field(
+        description="Fixed transform from the last joint's frame to the end-effector link."
+    )
+
+    @model_validator(mode="after")
+    def _transforms_and_axes(self) -> ChainSpec:
+        for joint in self.joints:
+            _check_transform(f"joint {joint.name!r} origin", joint.origin)
+            axis = np.asarray(joint.axis, dtype=np.float64)
+            if axis.shape != (3,) or not abs(float(np.linalg.norm(axis)) - 1.0) <= 1e-12:
+                raise ValueError(f"joint {joint.name!r} axis {joint.axis} is not a unit 3-vector")
+        _check_transform("tip", self.tip)
+        return self
+
+    @property
+    def joint_names(self) -> list[str]:
+        return [joint.name for joint in self.joints]
 
 
 class FileRef(_Strict):

@@ -1,6 +1,8 @@
 """The URDF read by pytorch-kinematics: the one kinematics source of truth.
 
-`ForwardKinematics` is the module exported to kinematics.onnx for the service.
+`ForwardKinematics` is the module exported to kinematics.onnx for the service;
+`chain_spec` is the same chain as data, written to chain.json for the service's numpy
+kernel (`service.models.chain`).
 """
 
 from __future__ import annotations
@@ -13,7 +15,7 @@ import pytorch_kinematics as pk
 import torch
 from pytorch_kinematics.urdf_parser_py.urdf import URDF
 
-from service.manifest import JointSpec
+from service.manifest import ChainJoint, ChainSpec, JointSpec
 
 
 def load_chain(urdf_path: Path, end_effector_link: str) -> pk.SerialChain:
@@ -66,6 +68,43 @@ def _set_exact_offsets(chain: pk.SerialChain, robot: URDF) -> None:
             chain.axes[dof] = torch.from_numpy(axis / np.linalg.norm(axis))
     chain._static_offsets = offsets
     chain._serial_dof_axes = chain.axes.clone()
+
+
+def chain_spec(chain: pk.SerialChain) -> ChainSpec:
+    """The chain's frames as chain.json: fixed transforms folded up to each movable joint.
+
+    Frame f of the chain sits at world_f = world_{f-1} @ offset_f @ Rot(axis_f, q_f), with
+    no rotation for a fixed joint. The offsets from one movable joint to the next (and
+    from the last to the end effector) are multiplied here, in float64, from the chain's
+    own tensors (the exact ones `load_chain` set), so the spec is the chain pytorch-kinematics
+    evaluates. Only serial chains of revolute (and continuous) joints are supported.
+    """
+    offsets = chain._static_offsets.detach().cpu().numpy().astype(np.float64)  # (F, 4, 4)
+    parents = chain._direct_parent_idx.tolist()
+    if parents != list(range(-1, len(parents) - 1)):
+        raise ValueError(f"not a serial chain: frame parents {parents}")
+    names = chain.get_joint_parameter_names()
+    axes = chain.axes.detach().cpu().numpy().astype(np.float64)  # (n, 3)
+    joints: list[ChainJoint] = []
+    carry = np.eye(4)
+    for frame, (dof, kind) in enumerate(
+        zip(chain.joint_indices.tolist(), chain.joint_type_indices.tolist(), strict=True)
+    ):
+        carry = carry @ offsets[frame]
+        if dof < 0:
+            continue
+        if kind != 1:  # pytorch_kinematics.frame.Joint.TYPES: fixed, revolute, prismatic
+            raise ValueError(f"joint {names[dof]!r}: only revolute and continuous joints")
+        if dof != len(joints):
+            raise ValueError(f"joint {names[dof]!r} is not in chain order")
+        joints.append(ChainJoint(name=names[dof], origin=carry.tolist(), axis=axes[dof].tolist()))
+        carry = np.eye(4)
+    return ChainSpec(
+        base_link=chain.idx_to_frame[0],
+        end_effector_link=chain.idx_to_frame[len(parents) - 1],
+        joints=joints,
+        tip=carry.tolist(),
+    )
 
 
 def joint_spec(chain: pk.SerialChain) -> JointSpec:
