@@ -2,10 +2,11 @@
 
     smm-train --robot planar3r --task position --samples 1000000 --epochs 60
 
-writes models/<robot>-<task>/ (flow.onnx, kinematics.onnx, manifest.json); the
-checkpoints and the training history go to runs/<robot>-<task>/ (not in git). A stopped
-run continues with the same command and `--resume`; `--from-checkpoint runs/<id>/best.pt`
-re-exports a trained flow without training.
+writes models/<robot>-<task>/ (flow.onnx, kinematics.onnx, chain.json, manifest.json);
+the checkpoints and the training history go to runs/<robot>-<task>/ (not in git). A
+stopped run continues with the same command and `--resume`; `--from-checkpoint
+runs/<id>/best.pt` re-exports a trained flow without training; `--refresh-kinematics`
+re-exports only the kinematics (kinematics.onnx, chain.json) of an existing model.
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ from service.manifest import REPO_MODELS_DIR
 from training.checkpoint import BEST_FILE, HISTORY_FILE, load_best, save_best
 from training.config import TrainConfig, preset
 from training.data import build_flow_data
-from training.export import export_model
+from training.export import export_model, refresh_kinematics
 from training.kinematics import ForwardKinematics, joint_spec, load_chain
 from training.robots import robot_spec
 from training.train import build_model, train
@@ -57,6 +58,13 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         help="skip training: re-export a best.pt written by an earlier run (its budget and "
         "provenance are kept) with the current serving defaults, and re-measure quality",
     )
+    start.add_argument(
+        "--refresh-kinematics",
+        action="store_true",
+        help="no training, no checkpoint: re-export kinematics.onnx and chain.json of the "
+        "existing models/<robot>-<task>/ from its URDF (parity checked against "
+        "pytorch-kinematics) and rewrite only the manifest's file digests",
+    )
     return parser.parse_args(argv)
 
 
@@ -73,6 +81,12 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
 def main(argv: list[str] | None = None) -> None:
     argv = sys.argv[1:] if argv is None else argv
     args = parse_args(argv)
+    if args.refresh_kinematics:
+        robot = robot_spec(args.robot)
+        model_dir = args.models_dir / f"{robot.name}-{robot.task(args.task).name}"
+        manifest = refresh_kinematics(model_dir, args.models_dir)
+        print(f"[{manifest.model_id}] kinematics refreshed: {json.dumps(manifest.files, indent=1)}")
+        return
     config = config_from_args(args)
     best = None if args.from_checkpoint is None else load_best(args.from_checkpoint)
     if best is not None:

@@ -1,7 +1,11 @@
-"""Export a trained flow and the robot's kinematics to ONNX, check parity, write the manifest.
+"""Export a trained flow and the robot's kinematics, check parity, write the manifest.
 
-Parity is checked on random inputs: torch vs onnxruntime must agree (flow in float32,
-kinematics in float64) or the export fails loudly and nothing is left half-written.
+The kinematics go out twice from the same pytorch-kinematics chain: kinematics.onnx (the
+traced FK and Jacobian) and chain.json (the chain as data, for the service's numpy
+kernel). Parity is checked on random inputs: onnxruntime and the numpy kernel must
+reproduce torch (flow in float32, kinematics in float64) or the export fails loudly and
+nothing is left half-written. `refresh_kinematics` re-exports only the kinematics of an
+existing model directory (its flow untouched).
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ import onnxruntime as ort
 import torch
 
 from service.manifest import (
+    CHAIN_FILE,
     FLOW_FILE,
     KINEMATICS_FILE,
     MANIFEST_FILE,
@@ -28,6 +33,7 @@ from service.manifest import (
     TaskSpec,
     TrainingRecord,
 )
+from service.models.chain import SerialChainKinematics
 from service.models.registry import load_model, sha256_of
 from service.models.sessions import FLOW_INPUTS, FLOW_OUTPUT, KINEMATICS_INPUT, KINEMATICS_OUTPUTS
 from service.pipeline.targets import condition_names
@@ -36,7 +42,7 @@ from training.config import TrainConfig
 from training.data import FlowData
 from training.defaults import serving_defaults
 from training.evaluate.quality import measure_quality
-from training.kinematics import ForwardKinematics
+from training.kinematics import ForwardKinematics, chain_spec, joint_spec, load_chain
 from training.model import VelocityField
 from training.robots import RobotSpec
 
@@ -45,6 +51,7 @@ from training.robots import RobotSpec
 FLOW_PARITY_ATOL = 1e-4
 FLOW_PARITY_RTOL = 1e-5
 KINEMATICS_PARITY_ATOL = 1e-10  # float64; observed ~1e-15
+CHAIN_PARITY_ATOL = 1e-12  # float64, the same chain evaluated in another order; observed ~1e-15
 
 
 class ExportParityError(RuntimeError):
@@ -134,6 +141,32 @@ def check_kinematics_parity(fk: ForwardKinematics, path: Path, joints: JointSpec
             )
 
 
+def export_chain(fk: ForwardKinematics, path: Path, joints: JointSpec) -> None:
+    """Write the chain as chain.json; raise ExportParityError unless it reproduces `fk`."""
+    spec = chain_spec(fk.chain)
+    if spec.joint_names != joints.names:
+        raise ExportParityError(f"{path}: chain joints {spec.joint_names} are not {joints.names}")
+    path.write_text(spec.model_dump_json(indent=2) + "\n")
+    check_chain_parity(fk, path, joints)
+
+
+def check_chain_parity(fk: ForwardKinematics, path: Path, joints: JointSpec) -> None:
+    """Raise ExportParityError unless the numpy kernel on `path` reproduces pytorch-kinematics."""
+    lower, upper, _ = joints.arrays()
+    q = np.random.default_rng(0).uniform(lower, upper, size=(257, joints.count))
+    with torch.no_grad():
+        expected = [x.numpy() for x in fk(torch.from_numpy(q))]
+    answer = SerialChainKinematics.from_file(path)(q)
+    actual = (answer.position_m, answer.rotation, answer.jacobian)
+    for name, a, e in zip(KINEMATICS_OUTPUTS, actual, expected, strict=True):
+        error = float(np.max(np.abs(a - e)))
+        if not error <= CHAIN_PARITY_ATOL:
+            raise ExportParityError(
+                f"{path}: chain output {name!r} differs from pytorch-kinematics by "
+                f"{error:.3g} > {CHAIN_PARITY_ATOL}"
+            )
+
+
 def git_commit() -> str:
     try:
         return subprocess.run(
@@ -155,7 +188,7 @@ def export_model(
     result: TrainResult,
     command: str,
 ) -> Manifest:
-    """Write flow.onnx, kinematics.onnx and manifest.json into `model_dir`; measure quality.
+    """Write flow.onnx, kinematics.onnx, chain.json and manifest.json into `model_dir`; measure.
 
     Everything is written to a hidden staging directory beside `model_dir` (the registry
     skips hidden directories) and moved into place only once parity and quality are done,
@@ -166,6 +199,7 @@ def export_model(
     staging.mkdir(parents=True)
     export_flow(result.model, staging / FLOW_FILE, joints.count, data.condition.shape[1])
     export_kinematics(fk, staging / KINEMATICS_FILE, joints)
+    export_chain(fk, staging / CHAIN_FILE, joints)
     model_id = f"{robot.name}-{task.name}"
     manifest = Manifest(
         model_id=model_id,
@@ -179,7 +213,9 @@ def export_model(
         condition=ConditionSpec(
             names=condition_names(task), normalisation=data.condition_normalisation
         ),
-        files={name: sha256_of(staging / name) for name in (FLOW_FILE, KINEMATICS_FILE)},
+        files={
+            name: sha256_of(staging / name) for name in (FLOW_FILE, KINEMATICS_FILE, CHAIN_FILE)
+        },
         defaults=serving_defaults(model_id),
         training=TrainingRecord(
             command=command,
@@ -207,4 +243,48 @@ def export_model(
     manifest_path.write_text(manifest.model_dump_json(indent=2) + "\n")
     shutil.rmtree(model_dir, ignore_errors=True)
     staging.rename(model_dir)
+    return manifest
+
+
+def refresh_kinematics(model_dir: Path, models_dir: Path, threads: int = 1) -> Manifest:
+    """Re-export kinematics.onnx and chain.json of an existing model; its flow is untouched.
+
+    The chain is loaded from the URDF the manifest names, which must still have the
+    manifest's sha256 and give the manifest's joints (the flow was trained on that arm).
+    Both files are parity-checked against pytorch-kinematics, the manifest's `files`
+    digests are rewritten (chain.json added) and nothing else in it changes. The work is
+    done on a hidden copy of the directory, loaded as the service loads it, and swapped
+    in only when that succeeds.
+    """
+    manifest = Manifest.model_validate_json((model_dir / MANIFEST_FILE).read_bytes())
+    urdf_path = models_dir / manifest.urdf.path
+    if sha256_of(urdf_path) != manifest.urdf.sha256:
+        raise ExportParityError(
+            f"{urdf_path}: sha256 differs from the manifest's; the flow was trained on the "
+            "recorded URDF, so its kinematics cannot be refreshed from this one (retrain)"
+        )
+    fk = ForwardKinematics(load_chain(urdf_path, manifest.end_effector_link))
+    joints = joint_spec(fk.chain)
+    if joints != manifest.joints:
+        raise ExportParityError(f"{urdf_path}: joints {joints} differ from the manifest's")
+    staging = model_dir.with_name(f".{model_dir.name}.staging")
+    shutil.rmtree(staging, ignore_errors=True)
+    shutil.copytree(model_dir, staging)
+    try:
+        export_kinematics(fk, staging / KINEMATICS_FILE, joints)
+        export_chain(fk, staging / CHAIN_FILE, joints)
+        names = [*manifest.files, *([] if CHAIN_FILE in manifest.files else [CHAIN_FILE])]
+        manifest = manifest.model_copy(
+            update={"files": {name: sha256_of(staging / name) for name in names}}
+        )
+        (staging / MANIFEST_FILE).write_text(manifest.model_dump_json(indent=2) + "\n")
+        load_model(staging, threads=threads)  # verifies sha256 and chain.json vs kinematics.onnx
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    retired = model_dir.with_name(f".{model_dir.name}.retired")
+    shutil.rmtree(retired, ignore_errors=True)
+    model_dir.rename(retired)
+    staging.rename(model_dir)
+    shutil.rmtree(retired)
     return manifest

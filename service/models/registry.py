@@ -1,6 +1,9 @@
 """The model registry: every `models/<model-id>/manifest.json`, verified, with its ONNX sessions.
 
-A model whose files are missing or whose sha256 differs from its manifest is not
+A model's kinematics is the numpy chain kernel on its chain.json when the manifest lists
+one (checked against its kinematics.onnx at load), else kinematics.onnx itself (models
+exported before chain.json existed). A model whose files are missing, whose sha256
+differs from its manifest, or whose chain.json disagrees with its kinematics.onnx is not
 served: the registry records it by name with the reason (naming the file), /readyz
 reports it and does not claim readiness, and a request for it gets 503 saying why.
 The other models are served. A models directory with no manifest at all stops
@@ -15,11 +18,20 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 from pydantic import ValidationError
 
 from service.errors import ModelUnavailableError, ModelVerificationError, UnknownModelError
-from service.manifest import FLOW_FILE, KINEMATICS_FILE, MANIFEST_FILE, Manifest
+from service.manifest import CHAIN_FILE, FLOW_FILE, KINEMATICS_FILE, MANIFEST_FILE, Manifest
+from service.models.chain import SerialChainKinematics
 from service.models.sessions import OnnxKinematics, OnnxVelocityField, open_session
+from service.pipeline.types import Kinematics
+
+# chain.json against kinematics.onnx at load: configurations uniform in the joint limits
+# (fixed seed), and the largest difference allowed over position, rotation and Jacobian.
+# Both evaluate the same chain in float64: they agree to ~1e-15.
+CHAIN_CHECK_CONFIGURATIONS = 256
+CHAIN_CHECK_ATOL = 1e-10
 
 
 def sha256_of(path: Path) -> str:
@@ -34,7 +46,7 @@ def sha256_of(path: Path) -> str:
 class ServedModel:
     manifest: Manifest
     velocity: OnnxVelocityField
-    kinematics: OnnxKinematics
+    kinematics: Kinematics  # SerialChainKinematics (chain.json) or OnnxKinematics
     version: str  # first 12 hex digits of the sha256 over the model's file digests
 
     @property
@@ -53,6 +65,35 @@ def _verify_file(path: Path, expected_sha256: str) -> None:
         )
 
 
+def chain_difference(chain: Kinematics, reference: Kinematics, manifest: Manifest) -> float:
+    """Largest |chain - reference| over position, rotation and Jacobian, in the joint limits."""
+    lower, upper, _ = manifest.joints.arrays()
+    q = np.random.default_rng(0).uniform(
+        lower, upper, (CHAIN_CHECK_CONFIGURATIONS, manifest.joints.count)
+    )
+    a, b = chain(q), reference(q)
+    pairs = ((a.position_m, b.position_m), (a.rotation, b.rotation), (a.jacobian, b.jacobian))
+    return max(float(np.max(np.abs(x - y))) for x, y in pairs)  # NaN if either has a NaN
+
+
+def _load_chain(path: Path, manifest: Manifest, reference: Kinematics) -> SerialChainKinematics:
+    """chain.json, refused unless it has the model's joints and agrees with kinematics.onnx."""
+    chain = SerialChainKinematics.from_file(path)
+    if chain.spec.joint_names != manifest.joints.names:
+        raise ModelVerificationError(
+            f"{path}: joints {chain.spec.joint_names} differ from the manifest's "
+            f"{manifest.joints.names}"
+        )
+    difference = chain_difference(chain, reference, manifest)
+    if not difference <= CHAIN_CHECK_ATOL:
+        raise ModelVerificationError(
+            f"{path}: differs from {KINEMATICS_FILE} by {difference:.3g} (largest over position, "
+            f"rotation and Jacobian on {CHAIN_CHECK_CONFIGURATIONS} configurations in the "
+            f"limits; at most {CHAIN_CHECK_ATOL:g} allowed)"
+        )
+    return chain
+
+
 def load_model(model_dir: Path, threads: int) -> ServedModel:
     """Read, verify and open one model directory."""
     manifest_path = model_dir / MANIFEST_FILE
@@ -67,10 +108,14 @@ def load_model(model_dir: Path, threads: int) -> ServedModel:
         _verify_file(model_dir / name, expected)
     _verify_file(model_dir.parent / manifest.urdf.path, manifest.urdf.sha256)
     combined = "".join(f"{name}:{sha}\n" for name, sha in sorted(manifest.files.items()))
+    onnx_kinematics = OnnxKinematics(open_session(model_dir / KINEMATICS_FILE, threads))
+    kinematics: Kinematics = onnx_kinematics
+    if CHAIN_FILE in manifest.files:
+        kinematics = _load_chain(model_dir / CHAIN_FILE, manifest, onnx_kinematics)
     return ServedModel(
         manifest=manifest,
         velocity=OnnxVelocityField(open_session(model_dir / FLOW_FILE, threads)),
-        kinematics=OnnxKinematics(open_session(model_dir / KINEMATICS_FILE, threads)),
+        kinematics=kinematics,
         version=hashlib.sha256(combined.encode()).hexdigest()[:12],
     )
 

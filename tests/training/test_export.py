@@ -1,17 +1,43 @@
-"""export: parity between torch and onnxruntime is checked, and a mismatch fails loudly."""
+"""export: parity with torch is checked for every exported file, and a mismatch fails loudly.
 
+flow.onnx and kinematics.onnx against torch through onnxruntime; chain.json through the
+service's numpy kernel against pytorch-kinematics (1e-12), for the planar 3R and for a
+URDF with fixed joints, oblique axes and a continuous joint. `refresh_kinematics` writes
+kinematics.onnx and chain.json into an existing model directory (the flow, and the
+manifest but for its `files` digests, untouched) and the registry then serves the chain,
+equal to kinematics.onnx; it refuses a URDF that is not the one the model was trained on
+and leaves the directory as it was.
+"""
+
+import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
-from service.manifest import REPO_MODELS_DIR
+from service.manifest import (
+    CHAIN_FILE,
+    FLOW_FILE,
+    KINEMATICS_FILE,
+    MANIFEST_FILE,
+    REPO_MODELS_DIR,
+    ChainSpec,
+)
+from service.models.chain import SerialChainKinematics
+from service.models.registry import load_model, sha256_of
+from service.models.sessions import OnnxKinematics, open_session
+from tests.support.app import PLANAR3R_DIR
+from tests.support.chains import TWISTED_END_EFFECTOR, model_without_chain, write_twisted_urdf
 from training.export import (
     ExportParityError,
+    check_chain_parity,
     check_flow_parity,
     check_kinematics_parity,
+    export_chain,
     export_flow,
     export_kinematics,
+    refresh_kinematics,
 )
 from training.kinematics import ForwardKinematics, joint_spec, load_chain
 from training.model import VelocityField
@@ -40,3 +66,64 @@ def test_kinematics_export_reproduces_pytorch_kinematics_and_refuses_another_arm
     longer.write_text(URDF.read_text().replace('xyz="1 0 0"', 'xyz="1.5 0 0"', 1))
     with pytest.raises(ExportParityError, match="'position' differs from pytorch-kinematics"):
         check_kinematics_parity(ForwardKinematics(load_chain(longer, "ee")), path, joints)
+
+
+@pytest.mark.parametrize("arm", ["planar3r", "twisted"])
+def test_chain_export_reproduces_pytorch_kinematics_and_refuses_another_arm(
+    arm: str, tmp_path: Path
+) -> None:
+    if arm == "twisted":
+        urdf, end_effector = write_twisted_urdf(tmp_path), TWISTED_END_EFFECTOR
+    else:
+        urdf, end_effector = URDF, "ee"
+    fk = ForwardKinematics(load_chain(urdf, end_effector))
+    joints = joint_spec(fk.chain)
+    path = tmp_path / CHAIN_FILE
+    export_chain(fk, path, joints)  # checks parity itself
+    spec = ChainSpec.model_validate_json(path.read_text())
+    assert spec.joint_names == joints.names and spec.end_effector_link == end_effector
+    moved = json.loads(path.read_text())
+    moved["tip"][0][3] += 1e-9  # the tool a nanometre off: beyond 1e-12
+    path.write_text(json.dumps(moved))
+    with pytest.raises(
+        ExportParityError, match=r"'position' differs .* by [0-9.]+e-(09|10) > 1e-12"
+    ):
+        check_chain_parity(fk, path, joints)
+
+
+def test_refresh_writes_the_chain_the_registry_serves_and_touches_nothing_else(
+    tmp_path: Path,
+) -> None:
+    model_dir = model_without_chain(tmp_path)
+    before = json.loads((model_dir / MANIFEST_FILE).read_text())
+    flow_sha = sha256_of(model_dir / FLOW_FILE)
+    assert isinstance(load_model(model_dir, threads=1).kinematics, OnnxKinematics)
+
+    refresh_kinematics(model_dir, model_dir.parent)
+
+    after = json.loads((model_dir / MANIFEST_FILE).read_text())
+    assert {k: v for k, v in after.items() if k != "files"} == {
+        k: v for k, v in before.items() if k != "files"
+    }
+    assert list(after["files"]) == [FLOW_FILE, KINEMATICS_FILE, CHAIN_FILE]
+    assert after["files"][FLOW_FILE] == flow_sha == sha256_of(model_dir / FLOW_FILE)
+    assert sorted(p.name for p in model_dir.parent.iterdir()) == [PLANAR3R_DIR.name, "robots"]
+    served = load_model(model_dir, threads=1)  # verifies every sha256 and chain vs onnx
+    assert isinstance(served.kinematics, SerialChainKinematics)
+    onnx = OnnxKinematics(open_session(model_dir / KINEMATICS_FILE, threads=1))
+    q = np.random.default_rng(4).uniform(-np.pi, np.pi, (500, 3))
+    chain, reference = served.kinematics(q), onnx(q)
+    np.testing.assert_allclose(chain.position_m, reference.position_m, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(chain.rotation, reference.rotation, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(chain.jacobian, reference.jacobian, rtol=0, atol=1e-12)
+
+
+def test_refresh_refuses_another_urdf_and_leaves_the_model_as_it_was(tmp_path: Path) -> None:
+    model_dir = model_without_chain(tmp_path)
+    urdf = model_dir.parent / "robots" / "planar3r.urdf"
+    urdf.write_text(urdf.read_text().replace('xyz="1 0 0"', 'xyz="1.5 0 0"', 1))
+    files = {p.name: p.read_bytes() for p in model_dir.iterdir()}
+    with pytest.raises(ExportParityError, match=r"planar3r\.urdf: sha256 differs .* \(retrain\)"):
+        refresh_kinematics(model_dir, model_dir.parent)
+    assert {p.name: p.read_bytes() for p in model_dir.iterdir()} == files
+    assert sorted(p.name for p in model_dir.parent.iterdir()) == [PLANAR3R_DIR.name, "robots"]

@@ -1,14 +1,27 @@
-"""kinematics.onnx (planar 3R): FK equals the closed form, Jacobian equals finite differences."""
+"""kinematics.onnx (planar 3R): FK equals the closed form, Jacobian equals finite differences.
+
+The session is opened on the bundled model's kinematics.onnx directly: the registry serves
+its chain.json kernel (tests/service/models/test_chain.py), and kinematics.onnx is what
+that kernel is checked against at load and what models without chain.json are served by.
+"""
 
 import numpy as np
+import pytest
 
-from service.models.registry import ServedModel
+from service.manifest import KINEMATICS_FILE
+from service.models.sessions import OnnxKinematics, open_session
+from tests.support.app import PLANAR3R_DIR
 from training.evaluate.references.planar3r import planar3r_jacobian, planar3r_position
 
 
-def test_forward_kinematics_matches_the_closed_form(planar3r: ServedModel) -> None:
+@pytest.fixture(scope="module")
+def kinematics() -> OnnxKinematics:
+    return OnnxKinematics(open_session(PLANAR3R_DIR / KINEMATICS_FILE, threads=1))
+
+
+def test_forward_kinematics_matches_the_closed_form(kinematics: OnnxKinematics) -> None:
     q = np.random.default_rng(0).uniform(-np.pi, np.pi, (500, 3))
-    fk = planar3r.kinematics(q)
+    fk = kinematics(q)
     np.testing.assert_allclose(fk.position_m[:, :2], planar3r_position(q), atol=1e-12)
     np.testing.assert_allclose(fk.position_m[:, 2], 0.0, atol=1e-12)
     angle = q.sum(axis=1)
@@ -16,20 +29,20 @@ def test_forward_kinematics_matches_the_closed_form(planar3r: ServedModel) -> No
     np.testing.assert_allclose(fk.rotation[:, 1, 0], np.sin(angle), atol=1e-12)
 
 
-def test_jacobian_matches_central_finite_differences(planar3r: ServedModel) -> None:
+def test_jacobian_matches_central_finite_differences(kinematics: OnnxKinematics) -> None:
     q = np.random.default_rng(1).uniform(-np.pi, np.pi, (50, 3))
-    jacobian = planar3r.kinematics(q).jacobian  # (B, 6, 3)
+    jacobian = kinematics(q).jacobian  # (B, 6, 3)
     step = 1e-6
     for j in range(3):
         dq = np.zeros(3)
         dq[j] = step
-        forward = planar3r.kinematics(q + dq).position_m
-        backward = planar3r.kinematics(q - dq).position_m
+        forward = kinematics(q + dq).position_m
+        backward = kinematics(q - dq).position_m
         np.testing.assert_allclose(jacobian[:, :3, j], (forward - backward) / (2 * step), atol=1e-8)
     np.testing.assert_allclose(jacobian[:, :2], planar3r_jacobian(q), atol=1e-12)
     np.testing.assert_allclose(jacobian[:, 5], 1.0, atol=1e-12)  # every joint turns about z
 
 
-def test_batch_size_is_dynamic(planar3r: ServedModel) -> None:
+def test_batch_size_is_dynamic(kinematics: OnnxKinematics) -> None:
     for batch in (1, 7, 2048):
-        assert planar3r.kinematics(np.zeros((batch, 3))).jacobian.shape == (batch, 6, 3)
+        assert kinematics(np.zeros((batch, 3))).jacobian.shape == (batch, 6, 3)
