@@ -25,7 +25,8 @@ from service.errors import ModelUnavailableError, ModelVerificationError, Unknow
 from service.manifest import CHAIN_FILE, FLOW_FILE, KINEMATICS_FILE, MANIFEST_FILE, Manifest
 from service.models.chain import SerialChainKinematics
 from service.models.sessions import OnnxKinematics, OnnxVelocityField, open_session
-from service.pipeline.types import Kinematics
+from service.pipeline.coaxial import find_coaxial_sets
+from service.pipeline.types import CoaxialSet, Kinematics
 
 # chain.json against kinematics.onnx at load: configurations uniform in the joint limits
 # (fixed seed), and the largest difference allowed over position, rotation and Jacobian.
@@ -47,6 +48,7 @@ class ServedModel:
     manifest: Manifest
     velocity: OnnxVelocityField
     kinematics: Kinematics  # SerialChainKinematics (chain.json) or OnnxKinematics
+    coaxial_sets: tuple[CoaxialSet, ...]  # where the chain's twin branches meet (coaxial.py)
     version: str  # first 12 hex digits of the sha256 over the model's file digests
 
     @property
@@ -116,6 +118,7 @@ def load_model(model_dir: Path, threads: int) -> ServedModel:
         manifest=manifest,
         velocity=OnnxVelocityField(open_session(model_dir / FLOW_FILE, threads)),
         kinematics=kinematics,
+        coaxial_sets=tuple(find_coaxial_sets(kinematics, *manifest.joints.arrays())),
         version=hashlib.sha256(combined.encode()).hexdigest()[:12],
     )
 

@@ -5,7 +5,8 @@ is traced whole and cut by the limits (tracing.py); each piece is a component wi
 ordered path, and each accepted sample joins the piece it lies on. Pieces no sample hit
 are components too (size 0): they exist, and a planner may want them.
 r > 1, and any r = 1 sample that no traced piece passes through: a roadmap whose edges
-are checked by the projected local planner (roadmap.py).
+are checked by the projected local planner (roadmap.py), with nodes added on the chain's
+coaxial sets (coaxial.py), where twin branches meet, when components are left apart.
 
 Either way every accepted sample is in exactly one component, and the result says when
 the target is near a singular value of the kinematics (sigma_min(J) small on the fibre,
@@ -15,6 +16,7 @@ the structure is ambiguous.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -30,6 +32,7 @@ from service.pipeline.roadmap import RoadmapSettings, roadmap_labels
 from service.pipeline.tracing import TracedPiece, TraceSettings, trace_fibre
 from service.pipeline.types import (
     Acceptance,
+    CoaxialSet,
     Component,
     ComponentPath,
     Correction,
@@ -54,6 +57,7 @@ def connect(
     tolerance_position_m: float,
     tolerance_orientation_rad: float,
     deadline: Deadline = NO_DEADLINE,
+    coaxial_sets: Sequence[CoaxialSet] = (),
 ) -> Connection:
     """The accepted samples grouped into components decided on the fibre."""
     deadline.check("connect")
@@ -97,6 +101,7 @@ def connect(
         labels = roadmap_labels(
             fibre, correction.q_rad[leftover], lower_rad, upper_rad, periodic,
             planner_settings(spec), roadmap_settings(spec), deadline,
+            coaxial=coaxial_sets,
         )  # fmt: skip
         for label in range(labels.max() + 1):
             components.append(_component(correction, leftover[labels == label], None))

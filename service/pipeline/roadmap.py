@@ -6,23 +6,36 @@ chosen so that few are checked: each node's nearest neighbours within a generous
 tested cheapest first in Boruvka rounds (each round, every component tries its shortest
 untested edge to another component, so an edge inside an already joined component is
 never paid for); then, between the components left, the few nearest pairs within a
-wider radius are tried with a larger path-length allowance. Components are the
-connected components of the graph of walked edges; a lone node is a component of its own.
+wider radius are tried with a larger path-length allowance.
+
+Where components are still apart and the chain has coaxial sets (coaxial.py: the
+shoulder, elbow or wrist alignments where twin branches meet), nodes are added on those
+sets: the samples of each component nearest a set are projected onto it (the aligning
+joint held at its angle), and from each such point the exact straight self-motion of
+the set is laid out as a line of nodes inside the limits, its consecutive nodes joined
+(the line lies on the fibre). The bridges then run again over the enlarged roadmap.
+The added nodes only carry connectivity: they are never returned.
+
+Components are the connected components of the graph of walked edges; a lone node is a
+component of its own.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from service.pipeline.arrays import BoolArray, FloatArray, IntArray
+from service.pipeline.coaxial import slide_range
 from service.pipeline.deadline import NO_DEADLINE, Deadline
-from service.pipeline.fibre import Fibre
-from service.pipeline.joint_space import JointBox
+from service.pipeline.fibre import Fibre, project
+from service.pipeline.joint_space import JointBox, wrap_to_pi
 from service.pipeline.local_planner import PlannerSettings, edges_on_fibre
+from service.pipeline.types import CoaxialSet
 
 
 @dataclass(frozen=True)
@@ -32,6 +45,11 @@ class RoadmapSettings:
     bridge_radius_rad: float  # longest edge tried between components left apart
     bridge_pairs: int  # nearest pairs tried per pair of components
     bridge_lambda: float  # path-length allowance of a bridge edge, in chords
+    # Nodes on coaxial sets: per component and set, this many samples nearest the set ...
+    coaxial_nodes: int = 4
+    coaxial_reach_rad: float = 0.6  # ... at most this far from it in the aligning joint,
+    slide_step_rad: float = 0.3  # and the set's self-motion laid out at this spacing
+    projection_iterations: int = 3  # Newton steps per step of a walk onto a set
 
 
 def roadmap_labels(
@@ -43,72 +61,215 @@ def roadmap_labels(
     planner: PlannerSettings,
     settings: RoadmapSettings,
     deadline: Deadline = NO_DEADLINE,
+    coaxial: Sequence[CoaxialSet] = (),
 ) -> IntArray:  # (K,) component labels 0..C-1, largest component first
     """Components of q_rad joined by edges checked on the fibre."""
     num_nodes = len(q_rad)
     if num_nodes == 0:
         return np.zeros(0, dtype=np.int64)
-    joined_from: list[IntArray] = []  # the edges the planner walked, both ends
-    joined_to: list[IntArray] = []
-    box = JointBox.covering(q_rad, periodic, margin_rad=2.0 * settings.bridge_radius_rad + 1.0)
-    tree = box.tree(q_rad)
-    points = box.points(q_rad)
+    roadmap = _Roadmap(fibre, q_rad, lower_rad, upper_rad, periodic, planner, deadline)
+    roadmap.join_neighbours(settings)
+    roadmap.bridge(settings)
+    apart = len(np.unique(roadmap.roots()[:num_nodes])) > 1
+    if apart and coaxial and roadmap.add_coaxial_nodes(coaxial, num_nodes, settings):
+        roadmap.bridge(settings)
+    return _ordered_labels(roadmap.roots()[:num_nodes])
 
-    def check(a: IntArray, b: IntArray, lambda_: float | None = None) -> None:
+
+@dataclass
+class _Roadmap:
+    """Nodes on the fibre and the edges the planner walked between them (append-only)."""
+
+    fibre: Fibre
+    q_rad: FloatArray  # (N, n)
+    lower_rad: FloatArray
+    upper_rad: FloatArray
+    periodic: BoolArray
+    planner: PlannerSettings
+    deadline: Deadline
+    joined_from: list[IntArray] = field(default_factory=list)
+    joined_to: list[IntArray] = field(default_factory=list)
+    tested: set[int] = field(default_factory=set)  # a * N_max + b of every edge tried
+
+    _KEY = 1 << 32
+
+    def roots(self) -> IntArray:  # (N,) the component of each node, from the edges so far
+        return _components(len(self.q_rad), self.joined_from, self.joined_to)
+
+    def join(self, a: IntArray, b: IntArray) -> None:
+        """Record edges known to lie on the fibre (not walked by the planner)."""
+        self.joined_from.append(a)
+        self.joined_to.append(b)
+
+    def check(self, a: IntArray, b: IntArray, lambda_: float | None = None) -> None:
+        """Walk the edges a-b with the planner and keep those that reach their end."""
+        self.tested.update((np.minimum(a, b) * self._KEY + np.maximum(a, b)).tolist())
         joined = edges_on_fibre(
-            fibre, q_rad[a], q_rad[b], lower_rad, upper_rad, periodic, planner,
-            lambda_=lambda_, deadline=deadline,
+            self.fibre, self.q_rad[a], self.q_rad[b], self.lower_rad, self.upper_rad,
+            self.periodic, self.planner, lambda_=lambda_, deadline=self.deadline,
         )  # fmt: skip
-        joined_from.append(a[joined])
-        joined_to.append(b[joined])
+        self.join(a[joined], b[joined])
 
-    def roots() -> IntArray:  # (K,) the component of each node, from the edges so far
-        return _components(num_nodes, joined_from, joined_to)
+    def untested(self, a: IntArray, b: IntArray) -> BoolArray:
+        keys = np.minimum(a, b) * self._KEY + np.maximum(a, b)
+        if not self.tested:
+            return np.ones(len(a), dtype=bool)
+        return ~np.isin(keys, np.fromiter(self.tested, dtype=np.int64))
 
-    # Neighbour edges, Boruvka rounds: each component's shortest untested outgoing edge.
-    k = min(settings.neighbours + 1, num_nodes)
-    distance, neighbour = tree.query(points, k=k, distance_upper_bound=settings.radius_rad)
-    rows = np.repeat(np.arange(num_nodes), k)
-    cols, length = neighbour.ravel(), distance.ravel()
-    keep = np.isfinite(length) & (cols < num_nodes) & (rows < cols)
-    a, b, length = rows[keep], cols[keep], length[keep]
-    order = np.argsort(length, kind="stable")
-    a, b, length = a[order], b[order], length[order]
-    untested = np.ones(len(a), dtype=bool)
-    while True:
-        root = roots()
-        open_ = untested & (root[a] != root[b])
-        if not open_.any():
-            break
-        candidate = np.flatnonzero(open_)  # sorted by length
-        # First (shortest) open edge of each component, from either end.
-        chosen = np.unique(
-            np.concatenate([_first_per(root[a[candidate]], candidate),
-                            _first_per(root[b[candidate]], candidate)])
-        )  # fmt: skip
-        untested[chosen] = False
-        check(a[chosen], b[chosen])
-
-    # Bridges between the components left: the nearest pairs of each pair of components.
-    root = roots()
-    if len(np.unique(root)) > 1 and settings.bridge_pairs > 0:
-        k = min(32, num_nodes)
-        distance, neighbour = tree.query(
-            points, k=k, distance_upper_bound=settings.bridge_radius_rad
+    def _neighbours(self, k: int, radius_rad: float, margin_rad: float) -> tuple[IntArray, ...]:
+        """Every node's k nearest within radius: (rows, cols, lengths), flattened."""
+        box = JointBox.covering(self.q_rad, self.periodic, margin_rad=margin_rad)
+        points = box.points(self.q_rad)
+        k = min(k, len(self.q_rad))
+        distance, neighbour = box.tree(self.q_rad).query(
+            points, k=k, distance_upper_bound=radius_rad
         )
-        rows = np.repeat(np.arange(num_nodes), k)
-        cols, length = neighbour.ravel(), distance.ravel()
-        keep = np.isfinite(length) & (cols < num_nodes)
+        rows = np.repeat(np.arange(len(self.q_rad)), k)
+        cols, length = neighbour.reshape(-1), distance.reshape(-1)
+        keep = np.isfinite(length) & (cols < len(self.q_rad))
+        return rows[keep], cols[keep], length[keep]
+
+    def join_neighbours(self, settings: RoadmapSettings) -> None:
+        """Boruvka rounds over the neighbour edges: each component's shortest untested one."""
+        margin = 2.0 * settings.bridge_radius_rad + 1.0
+        rows, cols, length = self._neighbours(settings.neighbours + 1, settings.radius_rad, margin)
+        keep = rows < cols
+        a, b, length = rows[keep], cols[keep], length[keep]
+        order = np.argsort(length, kind="stable")
+        a, b = a[order], b[order]
+        untested = self.untested(a, b)
+        while True:
+            root = self.roots()
+            open_ = untested & (root[a] != root[b])
+            if not open_.any():
+                break
+            candidate = np.flatnonzero(open_)  # sorted by length
+            # First (shortest) open edge of each component, from either end.
+            chosen = np.unique(
+                np.concatenate([_first_per(root[a[candidate]], candidate),
+                                _first_per(root[b[candidate]], candidate)])
+            )  # fmt: skip
+            untested[chosen] = False
+            self.check(a[chosen], b[chosen])
+
+    def bridge(self, settings: RoadmapSettings) -> None:
+        """Between the components left: the nearest pairs of each pair of components.
+
+        For each component, a KD-tree over its nodes gives every node of a later
+        component its nearest node in it; per pair of components the `bridge_pairs`
+        shortest of those links are walked with the bridge's path-length allowance.
+        """
+        root = self.roots()
+        labels = np.unique(root)
+        if len(labels) == 1 or settings.bridge_pairs == 0:
+            return
+        box = JointBox.covering(
+            self.q_rad, self.periodic, margin_rad=2.0 * settings.bridge_radius_rad + 1.0
+        )
+        points = box.points(self.q_rad)
+        rows_: list[IntArray] = []
+        cols_: list[IntArray] = []
+        length_: list[FloatArray] = []
+        for label in labels[:-1]:
+            inside = np.flatnonzero(root == label)
+            later = np.flatnonzero(root > label)
+            distance, nearest = box.tree(self.q_rad[inside]).query(
+                points[later], k=1, distance_upper_bound=settings.bridge_radius_rad
+            )
+            found = np.isfinite(distance)
+            rows_.append(inside[nearest[found]])
+            cols_.append(later[found])
+            length_.append(distance[found])
+        rows, cols = np.concatenate(rows_), np.concatenate(cols_)
+        length = np.concatenate(length_)
+        keep = self.untested(rows, cols)
         rows, cols, length = rows[keep], cols[keep], length[keep]
-        keep = root[rows] < root[cols]
-        rows, cols, length = rows[keep], cols[keep], length[keep]
-        pair_key = root[rows] * num_nodes + root[cols]
+        pair_key = root[rows] * len(self.q_rad) + root[cols]
         order = np.lexsort((length, pair_key))
         rank = np.arange(len(order)) - np.searchsorted(pair_key[order], pair_key[order])
         chosen = order[rank < settings.bridge_pairs]
-        check(rows[chosen], cols[chosen], lambda_=settings.bridge_lambda)
+        self.check(rows[chosen], cols[chosen], lambda_=settings.bridge_lambda)
 
-    return _ordered_labels(roots())
+    def add_coaxial_nodes(
+        self, coaxial: Sequence[CoaxialSet], num_samples: int, settings: RoadmapSettings
+    ) -> bool:
+        """Lines of nodes along each coaxial set's self-motion, reached from the samples
+        of every component nearest the set; True when any were added."""
+        root = self.roots()
+        q = self.q_rad[:num_samples]
+        origins: list[int] = []  # a sample and the line node it was projected to
+        on_line: list[int] = []
+        for coaxial_set in coaxial:
+            self.deadline.check("connect")
+            j = coaxial_set.joint
+            gap = q[:, j] - coaxial_set.angle_rad
+            gap = np.abs(wrap_to_pi(gap) if self.periodic[j] else gap)  # (K,)
+            near = np.flatnonzero(gap <= settings.coaxial_reach_rad)
+            if not len(near):
+                continue
+            # The coaxial_nodes nearest the set in each component.
+            order = near[np.lexsort((gap[near], root[near]))]
+            rank = np.arange(len(order)) - np.searchsorted(root[order], root[order])
+            origin = order[rank < settings.coaxial_nodes]  # (O,)
+            q_set, good = self._walk_onto_set(q[origin], coaxial_set, settings)
+            if not good.any():
+                continue
+            origin, q_set = origin[good], q_set[good]
+            low, high = slide_range(coaxial_set, q_set, self.lower_rad, self.upper_rad,
+                                    self.periodic)  # fmt: skip
+            for o, point, a_low, a_high in zip(origin, q_set, low, high, strict=True):
+                # a = 0 (the point itself) and steps of at most slide_step both ways.
+                below = np.linspace(a_low, 0.0, int(np.ceil(-a_low / settings.slide_step_rad)) + 1)
+                above = np.linspace(0.0, a_high, int(np.ceil(a_high / settings.slide_step_rad)) + 1)
+                a = np.concatenate([below, above[1:]])  # (L,) increasing, holds 0
+                line = point[None] + a[:, None] * coaxial_set.slide[None]  # (L, n)
+                first = len(self.q_rad)
+                self.q_rad = np.concatenate([self.q_rad, line])
+                index = np.arange(first, first + len(line))
+                self.join(index[:-1], index[1:])  # the line lies on the fibre
+                origins.append(int(o))
+                on_line.append(int(index[np.argmin(np.abs(a))]))
+        if origins:  # each sample reached its set along a walked path
+            self.join(np.asarray(origins), np.asarray(on_line))
+        return bool(origins)
+
+    def _walk_onto_set(
+        self, q_rad: FloatArray, coaxial_set: CoaxialSet, settings: RoadmapSettings
+    ) -> tuple[FloatArray, BoolArray]:  # (O, n) on the set, (O,) reached it
+        """Walk each configuration (O, n) along the fibre onto the set: the aligning joint
+        moved in steps of at most `slide_step_rad / 3` toward the set's angle and held
+        there while Newton puts the others back on the fibre; a walk fails where a step
+        does not converge, leaves the limits or jumps (moves farther than lambda x the
+        step's own chord allows, as the local planner's steps)."""
+        j = coaxial_set.joint
+        start = q_rad[:, j]
+        gap = coaxial_set.angle_rad - start
+        if self.periodic[j]:
+            gap = wrap_to_pi(gap)
+        step_rad = settings.slide_step_rad / 3.0
+        steps = max(int(np.ceil(np.abs(gap).max() / step_rad)), 1)
+        locked = np.zeros_like(q_rad, dtype=bool)
+        locked[:, j] = True
+        q = q_rad.copy()
+        ok = np.ones(len(q), dtype=bool)
+        for s in range(1, steps + 1):
+            guess = q.copy()
+            guess[:, j] = start + gap * s / steps
+            walked = project(self.fibre, guess, settings.projection_iterations, locked=locked)
+            moved = np.linalg.norm(walked.q_rad - q, axis=1)
+            inside = np.all(
+                self.periodic
+                | ((walked.q_rad >= self.lower_rad) & (walked.q_rad <= self.upper_rad)),
+                axis=1,
+            )
+            ok &= (
+                (walked.error_norm <= self.planner.projection_tolerance)
+                & inside
+                & (moved <= self.planner.lambda_ * max(np.abs(gap).max() / steps, step_rad))
+            )
+            q = np.where(ok[:, None], walked.q_rad, q)
+        q[:, j] = coaxial_set.angle_rad
+        return q, ok
 
 
 def _components(num_nodes: int, starts: list[IntArray], ends: list[IntArray]) -> IntArray:

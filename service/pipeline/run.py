@@ -102,6 +102,7 @@ def run(model: SmmModel, query: Query, deadline: Deadline = NO_DEADLINE) -> SmmR
             tolerance_position_m=query.tolerance_position_m,
             tolerance_orientation_rad=query.tolerance_orientation_rad,
             deadline=deadline,
+            coaxial_sets=model.coaxial_sets,
         )
     with watch.stage("summarise"):
         summaries = summarise_all(

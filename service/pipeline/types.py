@@ -56,8 +56,25 @@ class Kinematics(Protocol):
         ...
 
 
+@dataclass(frozen=True)
+class CoaxialSet:
+    """Configurations with q_j = angle_rad, where joints j - 1 and j + 1 share one axis line
+    (coaxial.py finds them once per model): q + a slide stays on every fibre for any a."""
+
+    joint: int  # j, whose angle aligns the two axes
+    angle_rad: float  # q_j on the set, inside joint j's limits
+    slide: FloatArray  # (n,) e_i - sign e_k: the exact self-motion along the set
+
+    @property
+    def moving(self) -> tuple[int, int]:
+        """(i, k): the two joints the slide turns."""
+        i, k = np.flatnonzero(self.slide)
+        return int(i), int(k)
+
+
 class SmmModel(Protocol):
-    """What the pipeline needs of a served model: its manifest, flow and kinematics."""
+    """What the pipeline needs of a served model: its manifest, flow and kinematics, and
+    the coaxial sets of its chain (found once, when the model is loaded)."""
 
     @property
     def manifest(self) -> Manifest: ...
@@ -67,6 +84,9 @@ class SmmModel(Protocol):
 
     @property
     def kinematics(self) -> Kinematics: ...
+
+    @property
+    def coaxial_sets(self) -> Sequence[CoaxialSet]: ...
 
 
 # -- in: one query -----------------------------------------------------------------------------

@@ -1,7 +1,10 @@
 """roadmap (stage 5 for r > 1): on the iiwa14's 4-D position fibre, a null-space random walk
 along one component comes back as one component, and the elbow-up and elbow-down
 components, nearer each other than the 2.5 rad radius the service used to join samples
-with, stay two."""
+with, stay two; two samples joined only through the shoulder set (q2 = 0, where q1 + q3
+is all that moves the arm) are one component once the roadmap has its coaxial nodes;
+and where the link lengths keep the fibre off the shoulder and elbow sets, no component
+holds both signs of q2 or of q4."""
 
 import numpy as np
 import pytest
@@ -12,8 +15,9 @@ from service.pipeline.connectivity import planner_settings, roadmap_settings
 from service.pipeline.fibre import project
 from service.pipeline.roadmap import roadmap_labels
 from service.pipeline.run import run
-from service.pipeline.types import Query
+from service.pipeline.types import CoaxialSet, Query
 from tests.service.pipeline.fibre_support import pose_fibre
+from tests.support.iiwa14_dh import iiwa14_pose
 
 OLD_RADIUS_RAD = 2.5  # the radius graph's default for this model before stage 5
 
@@ -81,3 +85,74 @@ def test_elbow_up_and_down_stay_two_though_nearer_than_the_old_radius(
     down = np.concatenate([c for c, s in zip(components, elbow, strict=True) if s[0] < 0])
     nearest = np.min(np.linalg.norm(up[:, None, :] - down[None, :, :], axis=2))
     assert nearest < OLD_RADIUS_RAD  # a radius graph would have joined them
+
+
+def walk_holding(model: ServedModel, q0: np.ndarray, joint: int, to_rad: float) -> np.ndarray:
+    """q0 (7,) walked along its position fibre to q[joint] = to_rad in 0.02 rad steps, that
+    joint held while Newton puts the others back; every step is checked to converge."""
+    fibre = pose_fibre(model, q0)
+    q = q0.copy()
+    locked = np.zeros((1, 7), dtype=bool)
+    locked[0, joint] = True
+    for value in np.linspace(q0[joint], to_rad, 40)[1:]:
+        guess = q.copy()
+        guess[joint] = value
+        projected = project(fibre, guess[None], 4, locked=locked)
+        assert projected.error_norm[0] < 1e-10
+        assert np.linalg.norm(projected.q_rad[0] - q) < 0.2  # no jump
+        q = projected.q_rad[0]
+    return q
+
+
+def test_samples_joined_only_through_the_shoulder_set_are_one_component(
+    iiwa14_position: ServedModel,
+) -> None:
+    lower, upper, periodic = iiwa14_position.manifest.joints.arrays()
+    on_set = np.array([-0.3, 0.0, 0.4, 1.0, -0.5, 1.2, 0.0])  # q2 = 0
+    slid = on_set + 2.4 * np.array([1.0, 0, -1.0, 0, 0, 0, 0])  # the set's self-motion
+    # By the DH table (independent of the service): the slide keeps the position.
+    np.testing.assert_allclose(iiwa14_pose(slid[None]), iiwa14_pose(on_set[None]), atol=1e-12)
+    a = walk_holding(iiwa14_position, on_set, joint=1, to_rad=0.35)
+    b = walk_holding(iiwa14_position, slid, joint=1, to_rad=-0.35)
+    for q in (a, b):
+        assert np.all((q >= lower) & (q <= upper))
+        np.testing.assert_allclose(
+            iiwa14_pose(q[None])[0, :3, 3], iiwa14_pose(on_set[None])[0, :3, 3], atol=1e-9
+        )
+    spec = iiwa14_position.manifest.defaults.connectivity
+    # Farther apart than any candidate edge of the roadmap (bridges reach 3 rad) ...
+    assert np.linalg.norm(a - b) > spec.bridge_radius_rad
+    fibre = pose_fibre(iiwa14_position, on_set)
+
+    def labels(coaxial: tuple[CoaxialSet, ...]) -> list[int]:
+        return roadmap_labels(
+            fibre, np.stack([a, b]), lower, upper, periodic, planner_settings(spec),
+            roadmap_settings(spec), coaxial=coaxial,
+        ).tolist()  # fmt: skip
+
+    assert labels(()) == [0, 1]
+    # ... but joined through the set's line of nodes.
+    assert labels(iiwa14_position.coaxial_sets) == [0, 0]
+
+
+def test_twins_stay_apart_where_the_fibre_cannot_reach_the_shoulder_or_elbow_set(
+    iiwa14_position: ServedModel,
+) -> None:
+    # The end effector is 0.555 m from the elbow-up point (q2 = 0 allows 0.526) and
+    # 0.611 m from the shoulder (q4 = 0 needs at least 0.694): along any path on this
+    # fibre q2 and q4 keep their signs, though q2 comes within 0.1 rad of 0.
+    q_target = np.array([-1.8321, 0.3116, -2.7316, 1.2636, 2.7301, 1.4829, -2.7446])
+    position = iiwa14_pose(q_target[None])[0, :3, 3]
+    assert np.linalg.norm(position - np.array([0, 0, 0.78])) > 0.40 + 0.126
+    assert np.linalg.norm(position - np.array([0, 0, 0.36])) < 0.82 - 0.126
+    query = Query.for_model(
+        iiwa14_position.manifest, position_m=position.tolist(), num_samples=1000, seed=29
+    )
+    result = run(iiwa14_position, query)
+    signs = set()
+    for component in result.components:
+        q = component.configurations_rad
+        assert len(set(np.sign(q[:, 1]).tolist())) == 1
+        assert len(set(np.sign(q[:, 3]).tolist())) == 1
+        signs.add((np.sign(q[0, 1]), np.sign(q[0, 3])))
+    assert len(signs) == 4  # all four twins are there, each its own component
