@@ -47,14 +47,21 @@ def dls_step(
 def task_error(
     fk: KinematicsResult, target: Target, task: TaskSpec
 ) -> tuple[FloatArray, FloatArray]:
-    """Task error e (B, m) = target - current and the task Jacobian (B, m, n)."""
+    """Task error e (B, m) = target - current and the task Jacobian (B, m, n).
+
+    The Jacobian's rows are the constrained position axes, then (pose task) the angular
+    rows; when those are all of the geometric Jacobian's rows in order (the full pose),
+    it is `fk.jacobian` itself, not a copy.
+    """
     axes = task.position_axes
-    error = target.position_m[None, :] - fk.position_m[:, axes]  # (B, m_p)
-    jacobian = fk.jacobian[:, axes, :]  # (B, m_p, n)
-    if task.orientation and target.rotation is not None:
-        rotation_target = np.broadcast_to(target.rotation, fk.rotation.shape)
-        error = np.concatenate([error, rotation_error(rotation_target, fk.rotation)], axis=1)
-        jacobian = np.concatenate([jacobian, fk.jacobian[:, 3:6, :]], axis=1)
+    m_p = len(axes)
+    rotation = target.rotation if task.orientation else None  # (3, 3)
+    rows = list(axes) if rotation is None else [*axes, 3, 4, 5]
+    jacobian = fk.jacobian if rows == list(range(6)) else fk.jacobian[:, rows, :]  # (B, m, n)
+    error = np.empty((len(fk.position_m), len(rows)))  # (B, m)
+    error[:, :m_p] = target.position_m[None, :] - fk.position_m[:, axes]
+    if rotation is not None:
+        error[:, m_p:] = rotation_error(rotation, fk.rotation)
     return error, jacobian
 
 

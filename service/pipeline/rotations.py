@@ -7,6 +7,8 @@ from scipy.spatial.transform import Rotation
 
 from service.pipeline.arrays import FloatArray
 
+_COS_150_DEG = float(np.cos(np.radians(150.0)))
+
 
 def quaternion_to_matrix(w: float, x: float, y: float, z: float) -> FloatArray:
     """Rotation matrix (3, 3) of the unit quaternion w + xi + yj + zk (normalised here)."""
@@ -23,33 +25,55 @@ def rotation_log(rotation: FloatArray) -> FloatArray:
     that is no rotation at all (non-finite, or a non-positive determinant, as a faulty
     network may produce) gets a NaN vector instead of failing the whole batch.
     """
-    rotvec = np.full((rotation.shape[0], 3), np.nan)
-    valid = np.all(np.isfinite(rotation), axis=(1, 2))  # (B,)
-    with np.errstate(over="ignore", invalid="ignore"):
-        valid[valid] = np.linalg.det(rotation[valid]) > 0.0
-    if not valid.any():
-        return rotvec
-    r = rotation[valid]  # (V, 3, 3)
-    sin_axis = 0.5 * np.stack(
-        [r[:, 2, 1] - r[:, 1, 2], r[:, 0, 2] - r[:, 2, 0], r[:, 1, 0] - r[:, 0, 1]], axis=1
-    )  # (V, 3) = sin(theta) * axis
-    sin = np.linalg.norm(sin_axis, axis=1)
-    cos = 0.5 * (np.trace(r, axis1=1, axis2=2) - 1.0)
-    angle = np.arctan2(sin, cos)
-    # theta / sin(theta), with its series 1 + theta^2 / 6 where sin(theta) vanishes.
-    with np.errstate(divide="ignore", invalid="ignore"):
-        scale = np.where(sin > 1e-8, angle / sin, 1.0 + angle * angle / 6.0)
-    out = sin_axis * scale[:, None]
-    wide = cos < np.cos(np.radians(150.0))
-    if wide.any():
-        out[wide] = Rotation.from_matrix(r[wide]).as_rotvec()
-    rotvec[valid] = out
-    return rotvec
+    return _log(rotation.reshape(len(rotation), 9), transposed=False)
 
 
 def rotation_error(rotation_target: FloatArray, rotation: FloatArray) -> FloatArray:
-    """Base-frame rotation vector e (B, 3) with exp([e]) R = R*: log(R* R^T)."""
+    """Base-frame rotation vector e (B, 3) with exp([e]) R = R*: log(R* R^T).
+
+    rotation_target is one target (3, 3) for the whole batch or one per row (B, 3, 3); one
+    target takes a single (3B, 3) x (3, 3) product, R R*^T = (R* R^T)^T, instead of B
+    small ones, and the logarithm reads R* R^T off its transpose.
+    """
+    if rotation_target.ndim == 2:
+        transposed = rotation.reshape(-1, 3) @ rotation_target.T  # (3B, 3): rows of R R*^T
+        return _log(transposed.reshape(len(rotation), 9), transposed=True)
     return rotation_log(rotation_target @ np.swapaxes(rotation, -1, -2))
+
+
+# Entries of a row-major 3 x 3 matrix M flattened to 9: M21, M02, M10 (the skew part's
+# vee is (M21 - M12, M02 - M20, M10 - M01) / 2) and the rows and columns the determinant
+# by cofactors along the first row takes.
+_SKEW_PLUS, _SKEW_MINUS = [7, 2, 3], [5, 6, 1]
+_DIAGONAL = [0, 4, 8]
+_COFACTOR = ([0, 1, 2], [4, 5, 3], [8, 6, 7], [5, 3, 4], [7, 8, 6])
+
+
+def _log(matrix: FloatArray, transposed: bool) -> FloatArray:  # (B, 9) -> (B, 3)
+    """rotation_log of row-major flattened matrices M (B, 9), or of M where `matrix` holds
+    M^T (the skew part changes sign; trace and determinant do not). Every step acts on
+    whole columns; the determinant is taken by cofactors (a LAPACK LU per row costs ten
+    times more), and only rows over 150 degrees go through scipy."""
+    plus, minus = (_SKEW_MINUS, _SKEW_PLUS) if transposed else (_SKEW_PLUS, _SKEW_MINUS)
+    first, a, b, c, d = (matrix[:, k] for k in _COFACTOR)
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        determinant = np.einsum("bi,bi->b", first, a * b - c * d)
+        valid = np.isfinite(matrix).all(axis=1) & (determinant > 0.0)  # (B,)
+        sin_axis = 0.5 * (matrix[:, plus] - matrix[:, minus])  # (B, 3) = sin(theta) * axis
+        sin = np.sqrt(np.einsum("bi,bi->b", sin_axis, sin_axis))
+        cos = 0.5 * (matrix[:, _DIAGONAL].sum(axis=1) - 1.0)
+        angle = np.arctan2(sin, cos)
+        # theta / sin(theta), with its series 1 + theta^2 / 6 where sin(theta) vanishes.
+        scale = np.where(sin > 1e-8, angle / sin, 1.0 + angle * angle / 6.0)
+        rotvec = sin_axis * scale[:, None]
+    wide = valid & (cos < _COS_150_DEG)
+    if wide.any():
+        rows = matrix[wide].reshape(-1, 3, 3)
+        rotvec[wide] = Rotation.from_matrix(
+            np.swapaxes(rows, 1, 2) if transposed else rows
+        ).as_rotvec()
+    rotvec[~valid] = np.nan
+    return rotvec
 
 
 def rotation_6d(rotation: FloatArray) -> FloatArray:

@@ -62,3 +62,21 @@ def test_rotation_log_agrees_with_scipy_at_every_angle() -> None:
     rotvec = axis * angle[:, None]
     matrices = Rotation.from_rotvec(rotvec).as_matrix()
     np.testing.assert_allclose(rotation_log(matrices), rotvec, atol=1e-9)
+
+
+def test_one_target_for_the_batch_gives_the_per_row_error() -> None:
+    """A (3, 3) target (one product for the batch, its log read off the transpose) and the
+    same target repeated per row agree, at small and wide angles and on a faulty row."""
+    rng = np.random.default_rng(4)
+    target = Rotation.random(random_state=5).as_matrix()
+    angle = np.concatenate([rng.uniform(0.0, 0.1, 50), rng.uniform(2.7, np.pi, 50)])
+    axis = rng.normal(size=(100, 3))
+    axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+    rotation = Rotation.from_rotvec(axis * angle[:, None]).as_matrix() @ target
+    rotation[7] = np.nan
+    one = rotation_error(target, rotation)
+    per_row = rotation_error(np.broadcast_to(target, rotation.shape), rotation)
+    np.testing.assert_allclose(one, per_row, atol=1e-12)
+    assert np.isnan(one[7]).all() and np.isfinite(np.delete(one, 7, axis=0)).all()
+    np.testing.assert_allclose(np.linalg.norm(np.delete(one, 7, axis=0), axis=1),
+                               np.delete(angle, 7), atol=1e-9)  # fmt: skip
