@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 
@@ -48,33 +49,82 @@ class Projection:
         return np.linalg.norm(self.error, axis=1)
 
 
+def evaluate(fibre: Fibre, q_rad: FloatArray) -> Projection:  # q_rad (B, n)
+    """The configurations as they are, with their measured error and Jacobian."""
+    error, jacobian = fibre.residual(q_rad)
+    return Projection(q_rad=q_rad, error=error, jacobian=jacobian)
+
+
 def project(
     fibre: Fibre,
     q_rad: FloatArray,  # (B, n)
     iterations: int,
     locked: BoolArray | None = None,  # (B, n) joints held fixed
     tangent: FloatArray | None = None,  # (B, n) move orthogonally to this (1-D fibres)
+    until: float | None = None,  # a row whose |e| is at most this takes no further step
 ) -> Projection:
     """`iterations` Newton steps onto the fibre; the returned points are all evaluated.
 
     Every returned configuration is one at which the kinematics was evaluated, so its
-    error is measured, not extrapolated: iterations = k costs k + 1 evaluations. With
-    `locked`, the locked joints' columns of J are zeroed (those joints do not move); with
-    `tangent` (r = 1 only) the step solves [J; t^T] dq = [e; 0], the corrector of
-    pseudo-arclength continuation, which keeps the point from sliding along the fibre.
+    error is measured, not extrapolated: iterations = k costs k + 1 evaluations (fewer
+    for the rows that reach `until` early). With `locked`, the locked joints' columns of
+    J are zeroed (those joints do not move); with `tangent` (r = 1 only) the step solves
+    [J; t^T] dq = [e; 0], the corrector of pseudo-arclength continuation, which keeps the
+    point from sliding along the fibre.
     """
-    q = q_rad.copy()
-    error, jacobian = fibre.residual(q)  # (B, m), (B, m, n)
+    return newton(fibre, evaluate(fibre, q_rad.copy()), iterations, locked, tangent, until)
+
+
+def newton(
+    fibre: Fibre,
+    start: Projection,  # (B,) configurations already evaluated
+    iterations: int,
+    locked: BoolArray | None = None,  # (B, n)
+    tangent: FloatArray | None = None,  # (B, n)
+    until: float | None = None,
+) -> Projection:
+    """`project` from configurations whose error and Jacobian are known: no evaluation is
+    repeated, so iterations = k costs at most k evaluations per row.
+
+    Each step is one batched kinematics call over the rows still moving: every row with
+    `until` None, else the rows whose |e| is above `until` (or not finite).
+    """
+    if until is None:  # every row takes every step: whole arrays, no row bookkeeping
+        q, error, jacobian = start.q_rad, start.error, start.jacobian
+        for _ in range(iterations):
+            dq = _step(fibre, jacobian, error, locked, tangent)
+            q = np.where(np.isfinite(dq), q + dq, np.nan)
+            error, jacobian = fibre.residual(q)
+        return Projection(q_rad=q, error=error, jacobian=jacobian)
+    q, error, jacobian = start.q_rad.copy(), start.error.copy(), start.jacobian.copy()
+    moving = np.flatnonzero(~(start.error_norm <= until))  # (A,)
     for _ in range(iterations):
-        if locked is not None:
-            jacobian = np.where(locked[:, None, :], 0.0, jacobian)
-        if tangent is None:
-            dq = dls_step(jacobian, error, fibre.damping)
-        else:
-            dq = corrector_step(jacobian, error, tangent)
-        q = np.where(np.isfinite(dq), q + dq, np.nan)
-        error, jacobian = fibre.residual(q)
+        if not len(moving):
+            break
+        dq = _step(
+            fibre, jacobian[moving], error[moving],
+            None if locked is None else locked[moving],
+            None if tangent is None else tangent[moving],
+        )  # fmt: skip
+        q_a = np.where(np.isfinite(dq), q[moving] + dq, np.nan)
+        error_a, jacobian_a = fibre.residual(q_a)
+        q[moving], error[moving], jacobian[moving] = q_a, error_a, jacobian_a
+        moving = moving[~(np.linalg.norm(error_a, axis=1) <= until)]
     return Projection(q_rad=q, error=error, jacobian=jacobian)
+
+
+def _step(
+    fibre: Fibre,
+    jacobian: FloatArray,  # (B, m, n)
+    error: FloatArray,  # (B, m)
+    locked: BoolArray | None,  # (B, n)
+    tangent: FloatArray | None,  # (B, n)
+) -> FloatArray:  # (B, n) one Newton step; NaN rows where it has none
+    if locked is not None:
+        jacobian = np.where(locked[:, None, :], 0.0, jacobian)
+    if tangent is None:
+        return dls_step(jacobian, error, fibre.damping)
+    return corrector_step(jacobian, error, tangent)
 
 
 def corrector_step(
@@ -83,9 +133,11 @@ def corrector_step(
     tangent: FloatArray,  # (B, n)
 ) -> FloatArray:  # (B, n)
     """dq with J dq = e and t . dq = 0; NaN rows where the system is singular."""
-    batch, _, _n = jacobian.shape
-    system = np.concatenate([jacobian, tangent[:, None, :]], axis=1)  # (B, n, n)
-    rhs = np.concatenate([error, np.zeros((batch, 1))], axis=1)[..., None]  # (B, n, 1)
+    batch, m, n = jacobian.shape
+    system = np.empty((batch, n, n))
+    system[:, :m], system[:, m] = jacobian, tangent
+    rhs = np.zeros((batch, n, 1))
+    rhs[:, :m, 0] = error
     return _solve_rows(system, rhs)[..., 0]
 
 
@@ -100,16 +152,28 @@ def unit_tangent(
     """
     batch, m, n = jacobian.shape
     if previous is None:
-        finite = np.all(np.isfinite(jacobian), axis=(1, 2))
-        tangent = np.full((batch, n), np.nan)
-        if finite.any():
-            tangent[finite] = np.linalg.svd(jacobian[finite])[2][:, -1, :]
-        return tangent
-    system = np.concatenate([jacobian, previous[:, None, :]], axis=1)  # (B, n, n)
+        return null_vector(jacobian)[0]
+    system = np.empty((batch, n, n))
+    system[:, :m], system[:, m] = jacobian, previous
     rhs = np.zeros((batch, n, 1))
     rhs[:, m, 0] = 1.0
     direction = _solve_rows(system, rhs)[..., 0]  # (B, n)
     return direction / np.linalg.norm(direction, axis=1, keepdims=True)
+
+
+def null_vector(
+    jacobian: FloatArray,  # (B, n - 1, n)
+) -> tuple[FloatArray, FloatArray]:  # (B, n) unit tangent (sign arbitrary), (B,) sigma_min
+    """One SVD per row for both the unit null vector of J and its smallest singular value
+    (NaN rows for a non-finite J)."""
+    batch, _, n = jacobian.shape
+    finite = np.all(np.isfinite(jacobian), axis=(1, 2))
+    tangent = np.full((batch, n), np.nan)
+    sigma = np.full(batch, np.nan)
+    if finite.any():
+        _, singular, vh = np.linalg.svd(jacobian[finite])
+        tangent[finite], sigma[finite] = vh[:, -1, :], singular[:, -1]
+    return tangent, sigma
 
 
 def smallest_singular_value(jacobian: FloatArray) -> FloatArray:  # (B, m, n) -> (B,)
@@ -121,8 +185,30 @@ def smallest_singular_value(jacobian: FloatArray) -> FloatArray:  # (B, m, n) ->
     return sigma
 
 
+def min_singular_value(jacobian: FloatArray) -> float:  # (B, m, n), m <= n
+    """The least sigma_min over the rows with a finite J (inf for none): the same number as
+    `smallest_singular_value(jacobian)` least, at about half the cost.
+
+    The eigenvalues of J J^T (one symmetric eigensolve per row, cheaper than an SVD) give
+    each sigma_min to within sqrt(eps) sigma_max; only the rows within that of the least
+    estimate go through the SVD, which then decides the minimum.
+    """
+    finite = np.all(np.isfinite(jacobian), axis=(1, 2))
+    j = jacobian if finite.all() else jacobian[finite]
+    if not len(j):
+        return float(np.inf)
+    eigenvalues = np.linalg.eigvalsh(j @ np.swapaxes(j, 1, 2))  # (B, m) ascending
+    estimate = np.sqrt(np.maximum(eigenvalues[:, 0], 0.0))
+    slack = 1e-6 * (1.0 + np.sqrt(max(float(eigenvalues[:, -1].max()), 0.0)))
+    close = estimate <= estimate.min() + slack
+    return float(smallest_singular_value(j[close]).min())
+
+
 def _solve_rows(system: FloatArray, rhs: FloatArray) -> FloatArray:
     """Batched solve that leaves a NaN row for each singular or non-finite system."""
+    if np.isfinite(system).all() and np.isfinite(rhs).all():  # the usual case: one solve
+        with contextlib.suppress(np.linalg.LinAlgError):
+            return cast(FloatArray, np.linalg.solve(system, rhs))
     out = np.full(rhs.shape, np.nan)
     finite = np.all(np.isfinite(system), axis=(1, 2)) & np.all(np.isfinite(rhs), axis=(1, 2))
     if not finite.any():
