@@ -5,12 +5,13 @@ The planar 3R's continuous joints are periodic with limits pi. For the iiwa14, F
 against the tests' own DH evaluation (tests/support/iiwa14_dh.py) in float64, the
 geometric Jacobian against central finite differences of that DH FK, and the joint
 limits against the paper's degrees. Raw pytorch-kinematics (float32 origins) is ~1e-8 m
-off; `load_chain` must be exact.
+off; `load_chain` must be exact. `chain_spec` (chain.json) refuses a prismatic joint.
 """
 
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,7 +20,7 @@ from scipy.spatial.transform import Rotation
 
 from service.manifest import REPO_MODELS_DIR
 from tests.support.iiwa14_dh import LIMITS_RAD, iiwa14_pose
-from training.kinematics import ForwardKinematics, joint_spec, load_chain
+from training.kinematics import ForwardKinematics, chain_spec, joint_spec, load_chain
 from training.robots import robot_spec
 
 URDF = REPO_MODELS_DIR / "robots" / "iiwa14.urdf"
@@ -91,3 +92,18 @@ def test_the_float32_origins_of_pytorch_kinematics_are_replaced() -> None:
         - iiwa14_pose(q)[:, :3, 3]
     ).max()
     assert raw_error > 1e-9  # the defect load_chain exists for; if it vanishes, simplify
+
+
+def test_chain_spec_refuses_a_prismatic_joint(tmp_path: Path) -> None:
+    """chain.json (and the service's kernel) model revolute and continuous joints only."""
+    urdf = tmp_path / "slider.urdf"
+    urdf.write_text(
+        '<robot name="slider"><link name="base"/><link name="a"/><link name="ee"/>'
+        '<joint name="turn" type="continuous"><parent link="base"/><child link="a"/>'
+        '<axis xyz="0 0 1"/></joint>'
+        '<joint name="slide" type="prismatic"><parent link="a"/><child link="ee"/>'
+        '<axis xyz="1 0 0"/><limit lower="0" upper="1" effort="0" velocity="0"/></joint>'
+        "</robot>"
+    )
+    with pytest.raises(ValueError, match="joint 'slide': only revolute and continuous joints"):
+        chain_spec(load_chain(urdf, "ee"))
