@@ -22,6 +22,22 @@ p_i of every joint stay in place for the Jacobian.
 
 A non-finite joint value gives non-finite outputs in its own row only (every operation
 acts on one batch column at a time), without a warning.
+
+Measured by `python -m tools.kinematics_bench` (iiwa14, 7 joints; lscpu: AMD EPYC, family
+25 model 17, 2 cores, load 1.3; one thread; both in turn, median of 40 rounds), the same
+run, time per call (per configuration):
+
+    batch    chain.json (this kernel)    kinematics.onnx (one onnxruntime thread)
+        1       62 us                        98 us
+       30       73 us  (2.4 us)             302 us  (10.1 us)
+      200      104 us  (0.52 us)            1.43 ms (7.2 us)
+     1000      242 us  (0.24 us)            7.09 ms (7.1 us)
+    10000      2.75 ms (0.28 us)            93.5 ms (9.4 us)
+
+and the two agree to 1.2e-15 over 10,000 configurations. The iiwa14 pose's connect stage
+(`tools/connect_profile`, 8 targets, ~37 calls and ~4,600 configurations each) took a
+median 22 ms (p95 32 ms) with it against 57 ms (p95 85 ms) with kinematics.onnx, its
+kinematics 4.5 ms against 37 ms.
 """
 
 from __future__ import annotations
