@@ -12,7 +12,10 @@ between them along the tangent), so neighbouring seeds share the work and each c
 closes in about (largest gap between its seeds) / 2h steps. Chaining the fronts through
 their seeds and meetings orders every curve; curves are then cut by the joint limits
 (each end refined onto the limit with the limited joint held there) and densified to
-the path spacing by Hermite interpolation and projection, every path point evaluated.
+the path spacing: points on the cubic Hermite curve through the traced points and their
+tangents, each put on the fibre by Newton and evaluated where it is returned. Every
+traced point keeps what the kinematics measured there (error, Jacobian, tangent), so no
+point is evaluated twice.
 
 A front that cannot go on (the corrector fails, a step jumps, the step budget runs out)
 leaves its curve open there; such a trace, and a fibre whose Jacobian comes near rank
@@ -21,15 +24,22 @@ deficiency, make the result `near_singular`.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from service.pipeline.arrays import BoolArray, FloatArray, IntArray
 from service.pipeline.deadline import NO_DEADLINE, Deadline
-from service.pipeline.fibre import Fibre, project, smallest_singular_value, unit_tangent
-from service.pipeline.joint_space import TWO_PI, JointBox, wrap_to_pi
+from service.pipeline.fibre import (
+    Fibre,
+    Projection,
+    evaluate,
+    min_singular_value,
+    newton,
+    project,
+    unit_tangent,
+)
+from service.pipeline.joint_space import TWO_PI, wrap_to_pi
 
 
 @dataclass(frozen=True)
@@ -39,9 +49,10 @@ class TraceSettings:
     seed_spacing_rad: float  # seeds are at least this far apart (torus metric)
     path_spacing_rad: float  # largest gap between consecutive path points
     corrector_iterations: int = 1  # per continuation step (each costs one evaluation)
-    path_iterations: int = 1  # Newton steps that put each path point on the fibre ...
-    path_error: float = 1e-9  # ... and more for the points whose |e| is still above this,
-    path_extra_iterations: int = 8  # up to this many
+    # Newton puts each path point within this |e| (well under any tolerance: a point
+    # from a Hermite guess usually gets there in one step, and a second costs little) ...
+    path_error: float = 5e-11
+    path_iterations: int = 9  # ... in at most this many steps (each costs one evaluation)
 
 
 @dataclass(frozen=True)
@@ -60,11 +71,52 @@ class Trace:
     min_singular_value: float  # over the traced points (inf when nothing was traced)
 
 
-@dataclass
-class _Front:
-    seed: int
-    points: list[FloatArray] = field(default_factory=list)  # unwrapped, in travel order
-    partner: int | None = None  # the front it met, end to end
+@dataclass(frozen=True)
+class _Evaluated:
+    """Configurations the kinematics was evaluated at, with what it measured there.
+
+    Every traced point is kept with its error, Jacobian and tangent, so that no later
+    step evaluates it again: curves refer to these points by row.
+    """
+
+    q_rad: FloatArray  # (T, n) as evaluated (on the torus: any turn of each joint)
+    error: FloatArray  # (T, m)
+    jacobian: FloatArray  # (T, m, n)
+    tangent: FloatArray  # (T, n) unit null vector of the Jacobian, either sign
+
+    @classmethod
+    def of(cls, projection: Projection, tangent: FloatArray) -> _Evaluated:
+        return cls(projection.q_rad, projection.error, projection.jacobian, tangent)
+
+    def __len__(self) -> int:
+        return len(self.q_rad)
+
+    def take(self, rows: IntArray | BoolArray) -> _Evaluated:
+        return _Evaluated(
+            self.q_rad[rows], self.error[rows], self.jacobian[rows], self.tangent[rows]
+        )
+
+    def extended(self, *others: _Evaluated) -> _Evaluated:
+        parts = (self, *others)
+        return _Evaluated(
+            np.concatenate([p.q_rad for p in parts]),
+            np.concatenate([p.error for p in parts]),
+            np.concatenate([p.jacobian for p in parts]),
+            np.concatenate([p.tangent for p in parts]),
+        )
+
+
+@dataclass(frozen=True)
+class _Curve:
+    """A traced curve: rows of the evaluated points in order along it."""
+
+    rows: IntArray  # (P,)
+    points: FloatArray  # (P, n) those points made continuous (unwrapped)
+    closed: bool  # the last point joins the first
+
+
+def _curve(evaluated: _Evaluated, rows: IntArray, closed: bool) -> _Curve:
+    return _Curve(rows, _unwrap(evaluated.q_rad[rows]), closed)
 
 
 def trace_fibre(
@@ -79,25 +131,18 @@ def trace_fibre(
     """Every curve through `q_on_fibre_rad`, cut by the limits, as ordered dense paths."""
     if len(q_on_fibre_rad) == 0:
         return Trace(pieces=[], complete=True, min_singular_value=np.inf)
-    seeds = spread_seeds(q_on_fibre_rad, settings.seed_spacing_rad)  # (S, n)
-    start = project(fibre, seeds, iterations=0)
+    start = evaluate(fibre, spread_seeds(q_on_fibre_rad, settings.seed_spacing_rad))  # (S,)
     tangent0 = unit_tangent(start.jacobian)  # (S, n)
-    ok = np.all(np.isfinite(tangent0), axis=1)
-    seeds, tangent0 = start.q_rad[ok], tangent0[ok]
-    sigma = [smallest_singular_value(start.jacobian)]
-    loops, complete, traced_sigma = _walk(fibre, seeds, tangent0, settings, deadline)
-    sigma.append(traced_sigma)
-    loops = _refine_near_limits(fibre, loops, lower_rad, upper_rad, periodic, settings)
-    pieces = []
-    for loop, closed in loops:
-        pieces.extend(_cut_by_limits(loop, closed, lower_rad, upper_rad, periodic))
-    dense = _densify(fibre, pieces, lower_rad, upper_rad, periodic, settings)
-    finite_sigma = np.concatenate([s[np.isfinite(s)] for s in sigma])
-    return Trace(
-        pieces=dense,
-        complete=complete,
-        min_singular_value=float(finite_sigma.min()) if len(finite_sigma) else np.inf,
+    seeds = _Evaluated.of(start, tangent0).take(np.all(np.isfinite(tangent0), axis=1))
+    evaluated, loops, complete = _walk(fibre, seeds, settings, deadline)
+    # sigma_min over the seeds and every point the fronts reached.
+    sigma = min_singular_value(np.concatenate([start.jacobian, evaluated.jacobian[len(seeds) :]]))
+    evaluated, loops = _refine_near_limits(
+        fibre, evaluated, loops, lower_rad, upper_rad, periodic, settings
     )
+    runs = _cut_by_limits(loops, lower_rad, upper_rad, periodic)
+    dense = _densify(fibre, evaluated, runs, lower_rad, upper_rad, periodic, settings)
+    return Trace(pieces=dense, complete=complete, min_singular_value=sigma)
 
 
 def spread_seeds(q_rad: FloatArray, spacing_rad: float, batch: int = 32) -> FloatArray:
@@ -151,13 +196,6 @@ class _Spacing:
         return near
 
 
-def _torus_tree(q_rad: FloatArray) -> tuple[cKDTree, FloatArray]:
-    """A KD-tree over q_rad (N, n) on the joint torus (every joint a circle, as the
-    kinematics sees it) and the points it holds."""
-    box = JointBox.covering(q_rad, np.ones(q_rad.shape[1], dtype=bool), margin_rad=0.0)
-    return box.tree(q_rad), box.points(q_rad)
-
-
 def _torus_difference(a: FloatArray, b: FloatArray) -> FloatArray:
     return wrap_to_pi(a - b)
 
@@ -172,12 +210,12 @@ def _unwrap(points: FloatArray) -> FloatArray:
 
 def _walk(
     fibre: Fibre,
-    seeds: FloatArray,  # (S, n) on the fibre
-    tangent0: FloatArray,  # (S, n)
+    seeds: _Evaluated,  # (S,) on the fibre, with their tangents
     settings: TraceSettings,
     deadline: Deadline,
-) -> tuple[list[tuple[FloatArray, bool]], bool, FloatArray]:
-    """Fronts in lockstep from every seed both ways; the curves as (points (P, n), closed).
+) -> tuple[_Evaluated, list[_Curve], bool]:
+    """Fronts in lockstep from every seed both ways; every point they reached (the seeds
+    first, then the fronts' points), the curves through them, and whether all closed.
 
     Each front has its own step: a step that fails (the corrector does not converge, pulls
     the prediction by more than a quarter step, which is how a step lands on a nearby
@@ -185,25 +223,27 @@ def _walk(
     h, and a good step lets the next one grow back by 1.5x: sharp bends near a singular
     value are walked, not jumped.
     """
-    num_seeds, _n = seeds.shape
+    num_seeds = len(seeds)
     h = settings.step_rad
-    fronts = [_Front(seed=i // 2) for i in range(2 * num_seeds)]
-    q = np.repeat(seeds, 2, axis=0)  # (F, n) front ends; front 2i goes along +t, 2i+1 along -t
-    tangent = np.repeat(tangent0, 2, axis=0) * np.tile([1.0, -1.0], num_seeds)[:, None]
-    step_rad = np.full(len(fronts), h)  # (F,)
-    alive = np.ones(len(fronts), dtype=bool)
-    jacobians: list[FloatArray] = []  # (A, m, n) per step: sigma_min once at the end
+    num_fronts = 2 * num_seeds  # front 2i leaves seed i along +t, front 2i + 1 along -t
+    q = np.repeat(seeds.q_rad, 2, axis=0)  # (F, n) front ends
+    tangent = np.repeat(seeds.tangent, 2, axis=0) * np.tile([1.0, -1.0], num_seeds)[:, None]
+    step_rad = np.full(num_fronts, h)  # (F,)
+    alive = np.ones(num_fronts, dtype=bool)
+    partner = np.full(num_fronts, -1)  # (F,) the front each met, end to end
+    reached: list[_Evaluated] = []  # per step, the points the fronts moved to
+    reached_by: list[IntArray] = []  # per step, which fronts moved
     for _ in range(settings.max_steps):
         if not alive.any():
             break
         deadline.check("connect")
         index = np.flatnonzero(alive)
-        h_i = step_rad[index]
-        predicted = q[index] + h_i[:, None] * tangent[index]  # (A, n)
-        corrected = project(fibre, predicted, settings.corrector_iterations, tangent=tangent[index])
-        step = np.linalg.norm(corrected.q_rad - q[index], axis=1)
-        new_tangent = unit_tangent(corrected.jacobian, previous=tangent[index])
-        turn = np.einsum("an,an->a", new_tangent, tangent[index])
+        h_i, q_i, t_i = step_rad[index], q[index], tangent[index]  # (A,), (A, n), (A, n)
+        predicted = q_i + h_i[:, None] * t_i
+        corrected = project(fibre, predicted, settings.corrector_iterations, tangent=t_i)
+        step = np.linalg.norm(corrected.q_rad - q_i, axis=1)
+        new_tangent = unit_tangent(corrected.jacobian, previous=t_i)
+        turn = np.einsum("an,an->a", new_tangent, t_i)
         pulled = np.linalg.norm(corrected.q_rad - predicted, axis=1)
         moved = (
             (corrected.error_norm < 1e-2 * h_i / h)  # converged
@@ -211,21 +251,25 @@ def _walk(
             & (step < 2.0 * h_i)  # no jump
             & (turn > 0.5)  # the tangent turned by under 60 degrees
         )
-        jacobians.append(corrected.jacobian[moved])
         retry = index[~moved]
         step_rad[retry] *= 0.5
         alive[retry[step_rad[retry] < h / 16]] = False  # gave up: its curve stays open
         previous = q.copy()
-        index, corrected_q, new_tangent = index[moved], corrected.q_rad[moved], new_tangent[moved]
-        q[index], tangent[index] = corrected_q, new_tangent
+        index = index[moved]
+        reached.append(_Evaluated.of(corrected, new_tangent).take(moved))
+        reached_by.append(index)
+        q[index], tangent[index] = reached[-1].q_rad, reached[-1].tangent
         step_rad[index] = np.minimum(h, 1.5 * step_rad[index])
-        for front, point in zip(index.tolist(), corrected_q, strict=True):
-            fronts[front].points.append(point)
-        _meet(q, previous, tangent, step_rad, alive, fronts)
-    loops = _chain(seeds, fronts)
-    all_sigma = smallest_singular_value(np.concatenate(jacobians)) if jacobians else np.zeros(0)
+        _meet(q, previous, tangent, step_rad, alive, partner)
+    evaluated = seeds.extended(*reached)
+    # Each front's points in travel order, as rows of `evaluated` (after the seeds).
+    by_front = np.concatenate([np.zeros(0, dtype=np.int64), *reached_by])  # (T - S,)
+    order = np.argsort(by_front, kind="stable")
+    bounds = np.searchsorted(by_front[order], np.arange(num_fronts + 1))
+    fronts = [num_seeds + order[bounds[f] : bounds[f + 1]] for f in range(num_fronts)]
+    loops = _chain(evaluated, num_seeds, fronts, partner)
     # A front that gave up but was met by another leaves its curve closed all the same.
-    return loops, all(closed for _, closed in loops), all_sigma
+    return evaluated, loops, all(loop.closed for loop in loops)
 
 
 def _meet(
@@ -233,8 +277,8 @@ def _meet(
     previous: FloatArray,  # (F, n) the ends one step before
     tangent: FloatArray,  # (F, n) directions of travel
     step_rad: FloatArray,  # (F,) each front's current step
-    alive: BoolArray,  # (F,)
-    fronts: list[_Front],
+    alive: BoolArray,  # (F,) updated: fronts that met stop
+    partner: IntArray,  # (F,) updated: the front each met, -1 for none
 ) -> None:
     """Stop the pairs of fronts that meet head-on on one curve (nearest pairs first).
 
@@ -244,11 +288,20 @@ def _meet(
     directions, the chord between them runs along the curve, and they came closer in
     this step (so the two fronts leaving one seed never meet at their start).
     """
-    reach = 1.1 * step_rad.max()
-    pairs = _torus_tree(q)[0].query_pairs(reach, output_type="ndarray")
-    if len(pairs) == 0:
+    live = np.flatnonzero(alive)  # (A,) a front that met another is no longer alive
+    if not len(live):
         return
-    a, b = pairs[:, 0], pairs[:, 1]
+    # Candidates by the chord between the points' circle embeddings (cos q, sin q), never
+    # longer than the torus distance: one (A, 2n) x (2n, F) product, no KD-tree.
+    circle = np.concatenate([np.cos(q), np.sin(q)], axis=1)  # (F, 2n)
+    chordal2 = 2.0 * q.shape[1] - 2.0 * (circle[live] @ circle.T)  # (A, F)
+    reach = 1.1 * step_rad.max()
+    row, b = np.nonzero(chordal2 <= reach * reach + 1e-9)
+    a = live[row]
+    pair = (a != b) & (partner[b] < 0) & ((a < b) | ~alive[b])  # each pair once
+    a, b = np.minimum(a[pair], b[pair]), np.maximum(a[pair], b[pair])
+    if not len(a):
+        return
     chord = _torus_difference(q[b], q[a])  # (P, n) from a's end to b's end
     length = np.linalg.norm(chord, axis=1)
     before = np.linalg.norm(_torus_difference(previous[b], previous[a]), axis=1)
@@ -256,63 +309,79 @@ def _meet(
     head_on = np.einsum("pn,pn->p", tangent[a], tangent[b]) < -0.5
     along = np.abs(np.einsum("pn,pn->p", chord, tangent[a])) >= 0.7 * length
     closer = length < before
-    partnerless = np.array([fronts[i].partner is None and fronts[j].partner is None
-                            for i, j in zip(a, b, strict=True)])  # fmt: skip
-    ok = near & head_on & along & closer & partnerless & (alive[a] | alive[b])
-    for p in np.flatnonzero(ok)[np.argsort(length[ok])]:
+    ok = np.flatnonzero(near & head_on & along & closer)
+    for p in ok[np.argsort(length[ok])].tolist():
         i, j = int(a[p]), int(b[p])
-        if fronts[i].partner is None and fronts[j].partner is None:
-            fronts[i].partner, fronts[j].partner = j, i
+        if partner[i] < 0 and partner[j] < 0:
+            partner[i], partner[j] = j, i
             alive[i] = alive[j] = False
 
 
-def _chain(seeds: FloatArray, fronts: list[_Front]) -> list[tuple[FloatArray, bool]]:
+def _chain(
+    evaluated: _Evaluated,
+    num_seeds: int,  # the seeds are the first rows of `evaluated`
+    fronts: list[IntArray],  # per front, its points' rows in travel order
+    partner: IntArray,  # (F,)
+) -> list[_Curve]:
     """Order every curve: seed, its + front, the partner front backwards to its seed, ..."""
-    visited = np.zeros(len(seeds), dtype=bool)
+    overlap = _overlaps(evaluated.q_rad, fronts, partner)
+    visited = np.zeros(num_seeds, dtype=bool)
     loops = []
-    for first in range(len(seeds)):
+    for first in range(num_seeds):
         if visited[first]:
             continue
         visited[first] = True
-        forward, closed = _follow(seeds, fronts, 2 * first, visited, stop_seed=first)
+        seed = np.array([first])
+        forward, closed = _follow(fronts, partner, overlap, 2 * first, visited, first)
         if closed:
-            loops.append((_unwrap(np.concatenate([seeds[first][None], *forward])), True))
+            loops.append(_curve(evaluated, np.concatenate([seed, *forward]), closed=True))
             continue
-        backward, _ = _follow(seeds, fronts, 2 * first + 1, visited, stop_seed=first)
-        parts = [p[::-1] for p in backward[::-1]] + [seeds[first][None]] + forward
-        loops.append((_unwrap(np.concatenate(parts)), False))
+        backward, _ = _follow(fronts, partner, overlap, 2 * first + 1, visited, first)
+        parts = [p[::-1] for p in backward[::-1]] + [seed] + forward
+        loops.append(_curve(evaluated, np.concatenate(parts), closed=False))
     return loops
 
 
+def _overlaps(q_rad: FloatArray, fronts: list[IntArray], partner: IntArray) -> BoolArray:
+    """(F,) whether each front's last point lies past its partner's (fronts that met just
+    after passing overlap by under a step): the partner's last point is behind it, against
+    its last step. Chaining drops that point from the front it follows forward."""
+    ends = [
+        (f, rows[-2], rows[-1], fronts[other][-1])
+        for f, (rows, other) in enumerate(zip(fronts, partner.tolist(), strict=True))
+        if other >= 0 and len(rows) >= 2 and len(fronts[other])
+    ]
+    overlap = np.zeros(len(fronts), dtype=bool)
+    if ends:
+        front, before, last, theirs = (np.asarray(column) for column in zip(*ends, strict=True))
+        travel = _torus_difference(q_rad[last], q_rad[before])  # (E, n)
+        behind = _torus_difference(q_rad[theirs], q_rad[last])
+        overlap[front] = np.einsum("en,en->e", behind, travel) < 0
+    return overlap
+
+
 def _follow(
-    seeds: FloatArray, fronts: list[_Front], front: int, visited: BoolArray, stop_seed: int
-) -> tuple[list[FloatArray], bool]:
-    """Points along the curve from a seed through `front` and on; closed if back at stop_seed."""
-    n = seeds.shape[1]
-    parts: list[FloatArray] = []
+    fronts: list[IntArray], partner: IntArray, overlap: BoolArray, front: int,
+    visited: BoolArray, stop_seed: int,
+) -> tuple[list[IntArray], bool]:  # fmt: skip
+    """Rows along the curve from a seed through `front` and on; closed if back at stop_seed."""
+    parts: list[IntArray] = []
     while True:
-        mine = np.asarray(fronts[front].points).reshape(-1, n)
-        partner = fronts[front].partner
-        if partner is None:
-            parts.append(mine)
+        other = int(partner[front])
+        if other < 0:
+            parts.append(fronts[front])
             return parts, False
+        parts.append(fronts[front][:-1] if overlap[front] else fronts[front])
         # The partner front ran from its seed to the meeting: walk it backwards to its seed.
-        theirs = np.asarray(fronts[partner].points).reshape(-1, n)[::-1]
-        if len(mine) >= 2 and len(theirs):
-            # Fronts that met just after passing overlap by under a step: drop the overlap.
-            travel = _torus_difference(mine[-1], mine[-2])
-            if np.dot(_torus_difference(theirs[0], mine[-1]), travel) < 0:
-                mine = mine[:-1]
-        parts.append(mine)
-        parts.append(theirs)
-        seed = fronts[partner].seed
+        parts.append(fronts[other][::-1])
+        seed = other // 2
         if seed == stop_seed:
             return parts, True
         if visited[seed]:  # a second chain met this one: stop rather than loop
             return parts, False
         visited[seed] = True
-        parts.append(seeds[seed][None])
-        front = partner ^ 1  # the seed's other front carries on in the same direction
+        parts.append(np.array([seed]))
+        front = other ^ 1  # the seed's other front carries on in the same direction
 
 
 def _window_low(lower_rad: FloatArray, upper_rad: FloatArray, periodic: BoolArray) -> FloatArray:
@@ -328,66 +397,186 @@ def to_window(q_rad: FloatArray, window_low: FloatArray) -> FloatArray:
 
 def _refine_near_limits(
     fibre: Fibre,
-    loops: list[tuple[FloatArray, bool]],
+    evaluated: _Evaluated,
+    loops: list[_Curve],
     lower_rad: FloatArray,
     upper_rad: FloatArray,
     periodic: BoolArray,
     settings: TraceSettings,
     rounds: int = 3,
     pieces: int = 4,
-) -> list[tuple[FloatArray, bool]]:
+) -> tuple[_Evaluated, list[_Curve]]:
     """Curves with points added where a step may pass through the limits unseen.
 
     A component shorter than a step can lie between two traced points that are both
     outside the limits. Where the chord of a step, widened by how far a curve bends in
-    a step, meets the limit box, the step is split into `pieces` projected points; a
-    few rounds find components down to about h / pieces**rounds long.
+    a step, meets the limit box, the step is split into `pieces` projected points (from
+    the Hermite curve through its ends); a few rounds, each looking again only at the
+    pieces of the steps the last one split, find components down to about
+    h / pieces**rounds long. The evaluated points come back with the added ones.
     """
     low = _window_low(lower_rad, upper_rad, periodic)
-    loops = list(loops)
+    steps = _Steps.of(evaluated, loops)
+    added: list[_Evaluated] = []
+    added_loop: list[IntArray] = []
+    added_key: list[FloatArray] = []  # place in the loop: its step's first point + fraction
+    fraction = np.arange(1, pieces) / pieces  # (p - 1,)
     for _ in range(rounds):
-        candidates: list[tuple[int, int]] = []  # (loop, index of the step's first point)
-        for k, (loop, closed) in enumerate(loops):
-            ends = np.concatenate([loop, loop[:1]]) if closed else loop
-            a = to_window(ends[:-1], low)  # (S, n)
-            b = a + _torus_difference(ends[1:], ends[:-1])
-            inside_a = np.all(periodic | ((a >= lower_rad) & (a <= upper_rad)), axis=1)
-            inside_b = np.all(periodic | ((b >= lower_rad) & (b <= upper_rad)), axis=1)
-            # A curve bends off its chord by ~kappa L^2 / 8: a margin of L / 4 per step.
-            margin = 0.25 * np.linalg.norm(b - a, axis=1, keepdims=True)  # (S, 1)
-            meets = _chord_meets_box(a, b, lower_rad - margin, upper_rad + margin, periodic)
-            candidates.extend(
-                (k, first) for first in np.flatnonzero(meets & ~inside_a & ~inside_b).tolist()
-            )
-        if not candidates:
+        a = to_window(steps.start, low)  # (C, n)
+        b = a + steps.delta
+        inside_a = np.all(periodic | ((a >= lower_rad) & (a <= upper_rad)), axis=1)
+        inside_b = np.all(periodic | ((b >= lower_rad) & (b <= upper_rad)), axis=1)
+        # A curve bends off its chord by ~kappa L^2 / 8: a margin of L / 4 per step.
+        margin = 0.25 * np.linalg.norm(steps.delta, axis=1, keepdims=True)  # (C, 1)
+        meets = _chord_meets_box(a, b, lower_rad - margin, upper_rad + margin, periodic)
+        steps = steps.take(meets & ~inside_a & ~inside_b)
+        if not len(steps.loop):
             break
-        starts, steps = [], []
-        for k, first in candidates:
-            loop = loops[k][0]
-            starts.append(loop[first])
-            steps.append(_torus_difference(loop[(first + 1) % len(loop)], loop[first]))
-        start, delta = np.asarray(starts), np.asarray(steps)  # (C, n)
-        fraction = np.arange(1, pieces) / pieces  # (pieces - 1,)
-        guess = start[:, None, :] + fraction[None, :, None] * delta[:, None, :]  # (C, p-1, n)
-        direction = np.repeat(delta / np.linalg.norm(delta, axis=1, keepdims=True), pieces - 1, 0)
-        projected = project(fibre, guess.reshape(-1, start.shape[1]), 2, tangent=direction)
-        new = projected.q_rad.reshape(guess.shape)
-        converged = projected.error_norm < 1e-6
-        ok = np.all(converged.reshape(len(candidates), pieces - 1), axis=1)
-        inserts: dict[int, list[tuple[int, FloatArray]]] = {}
-        for c, (k, first) in enumerate(candidates):
-            if ok[c]:
-                inserts.setdefault(k, []).append((first, new[c]))
-        for k, added in inserts.items():
-            loop, closed = loops[k]
-            parts: list[FloatArray] = []
-            previous = 0
-            for first, points in sorted(added, key=lambda item: item[0]):
-                parts.extend([loop[previous : first + 1], points])
-                previous = first + 1
-            parts.append(loop[previous:])
-            loops[k] = (_unwrap(np.concatenate(parts)), closed)
-    return loops
+        count = len(steps.loop)
+        guess, direction = _hermite(
+            np.repeat(steps.start, pieces - 1, axis=0),
+            np.repeat(steps.start_tangent, pieces - 1, axis=0),
+            np.repeat(steps.start + steps.delta, pieces - 1, axis=0),
+            np.repeat(steps.end_tangent, pieces - 1, axis=0),
+            np.tile(fraction, count),
+        )  # (C (p - 1), n)
+        projected = project(fibre, guess, 2, tangent=direction, until=settings.path_error)
+        ok = np.all((projected.error_norm < 1e-6).reshape(count, pieces - 1), axis=1)  # (C,)
+        if not ok.any():
+            break
+        new_rows = len(evaluated) + np.arange((pieces - 1) * ok.sum()).reshape(-1, pieces - 1)
+        keep = np.repeat(ok, pieces - 1)
+        new = _Evaluated.of(projected, unit_tangent(projected.jacobian, previous=direction))
+        added.append(new.take(keep))
+        evaluated = evaluated.extended(added[-1])
+        steps = steps.take(ok)
+        added_loop.append(np.repeat(steps.loop, pieces - 1))
+        added_key.append((steps.key[:, None] + steps.span[:, None] * fraction).ravel())
+        steps = steps.split(new_rows, evaluated)
+    if not added:
+        return evaluated, loops
+    loop_of = np.concatenate(added_loop)
+    key = np.concatenate(added_key)
+    rows = len(evaluated) - len(loop_of) + np.arange(len(loop_of))  # the added rows, in order
+    loops = list(loops)
+    for k in np.unique(loop_of).tolist():
+        mine = loop_of == k
+        places = np.concatenate([np.arange(len(loops[k].rows)), key[mine]])
+        merged = np.concatenate([loops[k].rows, rows[mine]])[np.argsort(places, kind="stable")]
+        loops[k] = _curve(evaluated, merged, loops[k].closed)
+    return evaluated, loops
+
+
+@dataclass(frozen=True)
+class _Steps:
+    """Steps of traced curves between evaluated points (C of them), as the refinement
+    looks at them: unwrapped start and chord, tangents along the chord at both ends."""
+
+    loop: IntArray  # (C,) which curve
+    key: FloatArray  # (C,) where the step starts in the curve: point index (+ fraction)
+    span: FloatArray  # (C,) how much of the curve's step it is: 1, 1 / pieces, ...
+    start: FloatArray  # (C, n) unwrapped like the curve
+    delta: FloatArray  # (C, n) to the step's end, the short way on the torus
+    start_tangent: FloatArray  # (C, n) unit, along delta
+    end_tangent: FloatArray  # (C, n)
+
+    @classmethod
+    def of(cls, evaluated: _Evaluated, loops: list[_Curve]) -> _Steps:
+        """Every step of every curve (the closing step of a closed one included)."""
+        n = evaluated.q_rad.shape[1]
+        if not loops:
+            none = np.zeros((0, n))
+            return cls(np.zeros(0, np.int64), np.zeros(0), np.zeros(0), none, none, none, none)
+        size = np.array([len(curve.rows) for curve in loops])  # (L,)
+        first = np.cumsum(size) - size  # (L,) where each curve starts
+        loop = np.repeat(np.arange(len(loops)), size)  # (P,)
+        place = np.arange(len(loop)) - first[loop]  # (P,) index in its curve
+        following = np.arange(len(loop)) + 1  # (P,) the point after, round a closed curve
+        last = place == size[loop] - 1
+        following[last] = first[loop[last]]
+        step = ~last | np.array([curve.closed for curve in loops])[loop]
+        rows = np.concatenate([curve.rows for curve in loops])
+        row_a, row_b = rows[step], rows[following[step]]  # (C,) each step's ends
+        delta = _torus_difference(evaluated.q_rad[row_b], evaluated.q_rad[row_a])
+        return cls(
+            loop=loop[step],
+            key=place[step].astype(np.float64),
+            span=np.ones(len(delta)),
+            start=np.concatenate([curve.points for curve in loops])[step],
+            delta=delta,
+            start_tangent=_along(evaluated.tangent[row_a], delta),
+            end_tangent=_along(evaluated.tangent[row_b], delta),
+        )
+
+    def take(self, rows: BoolArray) -> _Steps:
+        return _Steps(
+            self.loop[rows], self.key[rows], self.span[rows], self.start[rows],
+            self.delta[rows], self.start_tangent[rows], self.end_tangent[rows],
+        )  # fmt: skip
+
+    def split(self, new_rows: IntArray, evaluated: _Evaluated) -> _Steps:
+        """Each step as its `pieces` steps through the new points (C, pieces - 1) inside it."""
+        count, inner = new_rows.shape
+        pieces = inner + 1
+        q = evaluated.q_rad[new_rows]  # (C, p - 1, n)
+        end = self.start + self.delta
+        # The new points in the step's unwrapped coordinates: each moved little from its guess.
+        q = self.start[:, None, :] + _torus_difference(q, self.start[:, None, :])
+        nodes = np.concatenate([self.start[:, None], q, end[:, None]], axis=1)  # (C, p + 1, n)
+        tangents = np.concatenate(
+            [self.start_tangent[:, None], evaluated.tangent[new_rows], self.end_tangent[:, None]],
+            axis=1,
+        )  # (C, p + 1, n)
+        delta = np.diff(nodes, axis=1).reshape(-1, nodes.shape[2])  # (C p, n)
+        span = np.repeat(self.span / pieces, pieces)
+        return _Steps(
+            loop=np.repeat(self.loop, pieces),
+            key=np.repeat(self.key, pieces) + span * np.tile(np.arange(pieces), count),
+            span=span,
+            start=nodes[:, :-1].reshape(-1, nodes.shape[2]),
+            delta=delta,
+            start_tangent=_along(tangents[:, :-1].reshape(delta.shape), delta),
+            end_tangent=_along(tangents[:, 1:].reshape(delta.shape), delta),
+        )
+
+
+def _along(tangent: FloatArray, direction: FloatArray) -> FloatArray:  # (K, n) -> (K, n)
+    """Each tangent with the sign that points it along `direction`; where the tangent is
+    not finite (a rank-deficient Jacobian), the unit direction itself."""
+    if not np.isfinite(tangent).all():
+        with np.errstate(invalid="ignore", divide="ignore"):
+            unit = direction / np.linalg.norm(direction, axis=1, keepdims=True)
+        tangent = np.where(np.all(np.isfinite(tangent), axis=1, keepdims=True), tangent, unit)
+    return np.where(np.einsum("kn,kn->k", tangent, direction)[:, None] < 0.0, -tangent, tangent)
+
+
+def _hermite(
+    p0: FloatArray,  # (K, n)
+    t0: FloatArray,  # (K, n) unit tangent at p0, pointing toward p1
+    p1: FloatArray,  # (K, n)
+    t1: FloatArray,  # (K, n) unit tangent at p1, pointing away from p0
+    s: FloatArray,  # (K,) in [0, 1]
+) -> tuple[FloatArray, FloatArray]:  # (K, n) points, (K, n) unit directions of the curve
+    """The cubic Hermite curve from p0 to p1 with end tangents t0, t1 scaled by the chord
+    length, at parameter s: off a smooth curve by O(L^4) where the chord is off by O(L^2)."""
+    chord = p1 - p0  # (K, n)
+    length = np.linalg.norm(chord, axis=1, keepdims=True)  # (K, 1)
+    s = s[:, None]
+    r = 1.0 - s
+    point = (
+        p0
+        + (s * s * (3.0 - 2.0 * s)) * chord
+        + (length * s * r * r) * t0
+        - (length * s * s * r) * t1
+    )
+    direction = (
+        (6.0 * s * r) * chord
+        + (length * r * (1.0 - 3.0 * s)) * t0
+        + (length * s * (3.0 * s - 2.0)) * t1
+    )
+    with np.errstate(invalid="ignore"):
+        direction = direction / np.linalg.norm(direction, axis=1, keepdims=True)
+    return point, direction
 
 
 def _chord_meets_box(
@@ -411,126 +600,165 @@ def _chord_meets_box(
 
 @dataclass(frozen=True)
 class _Run:
-    points: FloatArray  # (P, n) unwrapped, in order
+    rows: IntArray  # (P,) evaluated points in order
+    points: FloatArray  # (P, n) those points unwrapped
     closed: bool
     start_exit: FloatArray | None  # (n,) the outside point before the run (open runs)
     end_exit: FloatArray | None  # (n,) the outside point after the run
 
 
 def _cut_by_limits(
-    loop: FloatArray, closed: bool, lower_rad: FloatArray, upper_rad: FloatArray,
-    periodic: BoolArray,
-) -> list[_Run]:  # fmt: skip
-    """The runs of consecutive points of a curve (P, n) that lie inside the limits."""
-    low = _window_low(lower_rad, upper_rad, periodic)
-    inside = np.all(periodic | ((to_window(loop, low) >= lower_rad) &
-                                (to_window(loop, low) <= upper_rad)), axis=1)  # fmt: skip
-    if inside.all():
-        return [_Run(loop, closed, None, None)]
-    if not inside.any():
+    loops: list[_Curve], lower_rad: FloatArray, upper_rad: FloatArray, periodic: BoolArray
+) -> list[_Run]:
+    """The runs of consecutive points of each curve that lie inside the limits."""
+    if not loops:
         return []
-    if closed:  # rotate so that the loop starts outside: runs never wrap
-        shift = int(np.flatnonzero(~inside)[0])
-        loop, inside = _unwrap(np.roll(loop, -shift, axis=0)), np.roll(inside, -shift)
-    edges = np.diff(np.concatenate([[0], inside.astype(np.int8), [0]]))
-    starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    low = _window_low(lower_rad, upper_rad, periodic)
+    window = to_window(np.concatenate([loop.points for loop in loops]), low)  # (P, n)
+    inside_all = np.all(periodic | ((window >= lower_rad) & (window <= upper_rad)), axis=1)
+    per_loop = np.split(inside_all, np.cumsum([len(loop.rows) for loop in loops])[:-1])
     runs = []
-    for begin, end in zip(starts.tolist(), stops.tolist(), strict=True):
-        before = loop[begin - 1] if begin > 0 else (loop[-1] if closed else None)
-        after = loop[end] if end < len(loop) else (loop[0] if closed else None)
-        runs.append(_Run(loop[begin:end], False, before, after))
+    for loop, inside in zip(loops, per_loop, strict=True):
+        if inside.all():
+            runs.append(_Run(loop.rows, loop.points, loop.closed, None, None))
+            continue
+        if not inside.any():
+            continue
+        rows, points, closed = loop.rows, loop.points, loop.closed
+        if closed:  # rotate so that the loop starts outside: runs never wrap
+            shift = int(np.argmin(inside))
+            turns = points[-1] + _torus_difference(points[0], points[-1]) - points[0]  # (n,)
+            rows = np.concatenate([rows[shift:], rows[:shift]])
+            inside = np.concatenate([inside[shift:], inside[:shift]])
+            points = np.concatenate([points[shift:], points[:shift] + turns])
+        edges = np.diff(np.concatenate([[0], inside.astype(np.int8), [0]]))
+        starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+        for begin, end in zip(starts.tolist(), stops.tolist(), strict=True):
+            before = points[begin - 1] if begin > 0 else (points[-1] if closed else None)
+            after = points[end] if end < len(points) else (points[0] if closed else None)
+            runs.append(_Run(rows[begin:end], points[begin:end], False, before, after))
     return runs
 
 
 def _densify(
     fibre: Fibre,
+    evaluated: _Evaluated,
     runs: list[_Run],
     lower_rad: FloatArray,
     upper_rad: FloatArray,
     periodic: BoolArray,
     settings: TraceSettings,
 ) -> list[TracedPiece]:
-    """Each run with its ends refined onto the limits, at the path spacing, all projected."""
+    """Each run with its ends refined onto the limits, at the path spacing, all evaluated.
+
+    A run's nodes are its traced points and its refined limit points. Between two nodes
+    a chord of length L gets ceil(L / (0.9 spacing)) - 1 points on the cubic Hermite
+    curve through the nodes' tangents, within O(L^4) of the fibre, and Newton puts each on
+    it (orthogonally to the curve's direction), with more steps for the points whose |e|
+    is still above path_error. A traced node needs no second evaluation: Newton goes on
+    from what the trace measured there, and a node already within path_error stays as it
+    is. The refined limit points are exact and are not moved (another step would push
+    them across their limit).
+    """
     if not runs:
         return []
     n = runs[0].points.shape[1]
     low = _window_low(lower_rad, upper_rad, periodic)
-    ends = _limit_points(fibre, runs, lower_rad, upper_rad, periodic, low)
-    segments: list[FloatArray] = []
-    fixed_rows: list[BoolArray] = []
-    fixed_errors: list[FloatArray] = []
+    limits, limits_window, limit_of = _limit_points(
+        fibre, runs, evaluated, lower_rad, upper_rad, periodic, low, settings
+    )
+    nodes = evaluated.extended(limits)  # a limit point's row: len(evaluated) + its index
+    node_q: list[FloatArray] = []  # per run (N_r, n), unwrapped
+    node_rows: list[IntArray] = []  # per run (N_r,) rows of `nodes`
     for r, run in enumerate(runs):
-        first, last = ends[2 * r], ends[2 * r + 1]
-        parts = [run.points]
-        if first is not None:
-            parts.insert(0, first.q_rad[None])
-            fixed_errors.append(first.error)
-        if last is not None:
-            parts.append(last.q_rad[None])
-        points = np.concatenate(parts)
+        first, last = limit_of[2 * r], limit_of[2 * r + 1]
+        points, rows = run.points, run.rows
+        if first >= 0:
+            points = np.concatenate([limits.q_rad[first][None], points])
+            rows = np.concatenate([[len(evaluated) + first], rows])
+        if last >= 0:
+            points = np.concatenate([points, limits.q_rad[last][None]])
+            rows = np.concatenate([rows, [len(evaluated) + last]])
         if run.closed:  # back to the first point, the short way round
-            points = np.concatenate(
-                [points, points[-1:] + _torus_difference(points[:1], points[-1:])]
-            )
-        dense = _interpolate(points, 0.9 * settings.path_spacing_rad)
-        if run.closed:
-            dense = dense[:-1]
-        fixed = np.zeros(len(dense), dtype=bool)
-        fixed[0], fixed[-1] = first is not None, last is not None
-        if last is not None:
-            fixed_errors.append(last.error)
-        segments.append(dense)
-        fixed_rows.append(fixed)
-    every = np.concatenate(segments)  # (P, n)
-    fixed = np.concatenate(fixed_rows)  # (P,)
-    free = ~fixed
-    # The refined limit points are already exact; projecting them again would push them
-    # across their limit, so only the others are projected (along the chord normal plane).
-    chord_tangent = _chord_tangents(segments)  # (P, n)
-    projected = project(fibre, every[free], settings.path_iterations, tangent=chord_tangent[free])
-    q = every.copy()
-    error = np.zeros((len(every), projected.error.shape[1]))
-    q[free], error[free] = projected.q_rad, projected.error
-    again = np.flatnonzero(free)[~(projected.error_norm <= settings.path_error)]
-    for _ in range(settings.path_extra_iterations):  # near a singular value: more Newton
-        if not len(again):
-            break
-        refined = project(fibre, q[again], iterations=1, tangent=chord_tangent[again])
-        q[again], error[again] = refined.q_rad, refined.error
-        again = again[~(refined.error_norm <= settings.path_error)]
+            closing = points[-1:] + _torus_difference(points[:1], points[-1:])
+            points, rows = np.concatenate([points, closing]), np.append(rows, rows[0])
+        node_q.append(points)
+        node_rows.append(rows)
+    run_of = np.repeat(np.arange(len(runs)), [len(rows) for rows in node_rows])  # (N,)
+    q_node = np.concatenate(node_q)  # (N, n)
+    row = np.concatenate(node_rows)  # (N,)
+    last_node = np.append(run_of[1:] != run_of[:-1], True)  # (N,) no segment after it
+    # Dense layout: each node, then the inner points of the segment to the next node.
+    chord = np.diff(q_node, axis=0)  # (N - 1, n)
+    inner = np.ceil(np.linalg.norm(chord, axis=1) / (0.9 * settings.path_spacing_rad))
+    inner = np.append(np.where(last_node[:-1], 0, np.maximum(inner, 1) - 1), 0).astype(np.int64)
+    offset = np.cumsum(inner + 1) - (inner + 1)  # (N,) dense row of each node
+    segment = np.repeat(np.arange(len(row)), inner + 1)  # (D,) the node each dense row follows
+    part = np.arange(len(segment)) - offset[segment]  # (D,) 0 for the node itself
+    between = np.flatnonzero(part > 0)  # (I,)
+    k = segment[between]
+    guess, direction = _hermite(
+        q_node[k],
+        _along(nodes.tangent[row[k]], chord[k]),
+        q_node[k + 1],
+        _along(nodes.tangent[row[k + 1]], chord[k]),
+        part[between] / (inner[k] + 1),
+    )  # (I, n)
+    # The closing node of a closed run repeats its first; a limit point is kept as it is.
+    repeated = np.zeros(len(row), dtype=bool)
+    repeated[np.flatnonzero(last_node)] = [run.closed for run in runs]
+    limit_node = row >= len(evaluated)
+    moving_node = np.flatnonzero(~repeated & ~limit_node)
+    placed = np.empty((len(segment), n))  # (D, n) where each point was put before Newton
+    placed[offset] = q_node
+    placed[between] = guess
+    known = Projection(q_node[moving_node], nodes.error[row[moving_node]],
+                       nodes.jacobian[row[moving_node]])  # fmt: skip
+    start = _stack(known, evaluate(fibre, guess)) if len(guess) else known
+    tangent = np.concatenate([nodes.tangent[row[moving_node]], direction])
+    moved = newton(
+        fibre, start, settings.path_iterations, tangent=tangent, until=settings.path_error
+    )
+    q = placed.copy()
+    error = np.empty((len(segment), nodes.error.shape[1]))
+    error[offset] = nodes.error[row]  # the limit points' (the others are set next)
+    moved_rows = np.concatenate([offset[moving_node], between])
+    q[moved_rows], error[moved_rows] = moved.q_rad, moved.error
     # A point that Newton carried away from its place on the path is left out.
-    strayed = np.linalg.norm(q - every, axis=1) > 0.5 * settings.path_spacing_rad
-    if fixed.any():
-        error[fixed] = np.asarray(fixed_errors)
+    strayed = np.linalg.norm(q - placed, axis=1) > 0.5 * settings.path_spacing_rad
     q = to_window(q, low)
+    # A limit point as refined, on its limit exactly (not through its run's coordinates).
+    q[offset[limit_node]] = limits_window[row[limit_node] - len(evaluated)]
     inside = np.all(periodic | ((q >= lower_rad) & (q <= upper_rad)), axis=1) & ~strayed
+    inside[offset[repeated]] = False
     q = np.where(periodic, wrap_to_pi(q), q)
+    run_of_dense = run_of[segment]
+    bounds = np.searchsorted(run_of_dense, np.arange(len(runs) + 1))
     pieces = []
-    offsets = np.cumsum([0] + [len(d) for d in segments])
     for r, run in enumerate(runs):
-        rows = np.arange(offsets[r], offsets[r + 1])
+        rows = np.arange(bounds[r], bounds[r + 1])
         rows = rows[inside[rows]]  # a point the projection pushed past a limit is left out
-        pieces.append(
-            TracedPiece(
-                path_rad=q[rows].reshape(-1, n),
-                error=error[rows],
-                closed=run.closed,
-            )
-        )
+        pieces.append(TracedPiece(path_rad=q[rows].reshape(-1, n), error=error[rows],
+                                  closed=run.closed))  # fmt: skip
     return pieces
 
 
-@dataclass(frozen=True)
-class _LimitPoint:
-    q_rad: FloatArray  # (n,) unwrapped like its run
-    error: FloatArray  # (m,) task error there
+def _stack(*parts: Projection) -> Projection:
+    return Projection(
+        q_rad=np.concatenate([p.q_rad for p in parts]),
+        error=np.concatenate([p.error for p in parts]),
+        jacobian=np.concatenate([p.jacobian for p in parts]),
+    )
 
 
 def _limit_points(
-    fibre: Fibre, runs: list[_Run], lower_rad: FloatArray, upper_rad: FloatArray,
-    periodic: BoolArray, window_low: FloatArray,
-) -> list[_LimitPoint | None]:  # fmt: skip
-    """For each run, its start and end refined onto the joint limit its curve crosses there.
+    fibre: Fibre, runs: list[_Run], evaluated: _Evaluated, lower_rad: FloatArray,
+    upper_rad: FloatArray, periodic: BoolArray, window_low: FloatArray, settings: TraceSettings,
+) -> tuple[_Evaluated, FloatArray, IntArray]:  # fmt: skip
+    """Each run's start and end refined onto the joint limit its curve crosses there: the
+    refined points (L,), unwrapped like their runs, the same (L, n) in window coordinates
+    (the limited joint on its limit exactly), and for each run end (2 x runs, start then
+    end) the index of its point, -1 for none.
 
     Between the last point inside and the first outside, the joint that leaves first is
     set on its limit and held there while Newton puts the rest back on the fibre. A
@@ -547,9 +775,11 @@ def _limit_points(
             inner.append(run.points[-1])
             outer.append(run.end_exit)
             keys.append(2 * r + 1)
-    found: list[_LimitPoint | None] = [None] * (2 * len(runs))
+    found = np.full(2 * len(runs), -1)
+    n, m = evaluated.q_rad.shape[1], evaluated.error.shape[1]
     if not inner:
-        return found
+        none = _Evaluated(np.zeros((0, n)), np.zeros((0, m)), np.zeros((0, m, n)), np.zeros((0, n)))
+        return none, np.zeros((0, n)), found
     a, b = np.asarray(inner), np.asarray(outer)  # (E, n) unwrapped, consecutive on the curve
     b = a + _torus_difference(b, a)
     a_w = to_window(a, window_low)
@@ -566,40 +796,14 @@ def _limit_points(
     guess[rows, joint] = bound
     locked = np.zeros_like(guess, dtype=bool)
     locked[rows, joint] = True
-    refined = project(fibre, guess, iterations=6, locked=locked)
+    refined = project(fibre, guess, iterations=6, locked=locked, until=settings.path_error)
     q = refined.q_rad
     q[rows, joint] = bound  # exactly on the limit (the locked joint did not move)
     inside = np.all(periodic | ((q >= lower_rad) & (q <= upper_rad)), axis=1)
     close = np.linalg.norm(q - a_w, axis=1) <= 2.0 * np.linalg.norm(b_w - a_w, axis=1)
     good = inside & close & (refined.error_norm < 1e-8)
-    for e, key in enumerate(keys):
-        if good[e]:
-            # Back to the run's unwrapped coordinates: the same offset as its inner point.
-            found[key] = _LimitPoint(q[e] + (a[e] - a_w[e]), refined.error[e])
-    return found
-
-
-def _interpolate(points: FloatArray, spacing_rad: float) -> FloatArray:
-    """Points (P, n) with straight-line points inserted so that gaps are <= spacing_rad."""
-    if len(points) < 2:
-        return points
-    gap = np.linalg.norm(np.diff(points, axis=0), axis=1)  # (P - 1,)
-    pieces = np.maximum(np.ceil(gap / spacing_rad).astype(np.int64), 1)  # sub-steps per gap
-    start = np.repeat(points[:-1], pieces, axis=0)
-    delta = np.repeat(np.diff(points, axis=0) / pieces[:, None], pieces, axis=0)
-    offset = np.arange(pieces.sum()) - np.repeat(np.cumsum(pieces) - pieces, pieces)
-    return np.concatenate([start + offset[:, None] * delta, points[-1:]])
-
-
-def _chord_tangents(segments: list[FloatArray]) -> FloatArray:
-    """A unit direction (P, n) along each path at each point (central chords)."""
-    out = []
-    for points in segments:
-        if len(points) == 1:
-            out.append(np.full_like(points, 1.0 / np.sqrt(points.shape[1])))
-            continue
-        ahead = np.concatenate([points[1:], points[-1:]])
-        behind = np.concatenate([points[:1], points[:-1]])
-        chord = ahead - behind
-        out.append(chord / np.linalg.norm(chord, axis=1, keepdims=True))
-    return np.concatenate(out)
+    # Back to the runs' unwrapped coordinates: the same offset as each inner point.
+    tangent = unit_tangent(refined.jacobian, previous=b - a)
+    points = _Evaluated(q + (a - a_w), refined.error, refined.jacobian, tangent).take(good)
+    found[np.asarray(keys)[good]] = np.arange(good.sum())
+    return points, q[good], found

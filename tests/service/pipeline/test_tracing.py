@@ -1,12 +1,28 @@
 """tracing: seeds are spread on the joint torus, a whole turn apart counting as no apart,
 an angle a rounding below 0 (which np.mod maps onto 2 pi itself) is a valid seed, and the
-seeds are the in-order greedy choice."""
+seeds are the in-order greedy choice; the Hermite guesses between traced points follow a
+curve to fourth order; every path point of a traced iiwa pose fibre comes back with the
+error measured at that very point, exact, inside the limits and finely spaced, and open
+paths end on a limit."""
 
 import numpy as np
 import pytest
 
+from service.manifest import REPO_MODELS_DIR
+from service.models.registry import ServedModel, load_model
 from service.pipeline.joint_space import joint_distance
-from service.pipeline.tracing import spread_seeds
+from service.pipeline.tracing import TraceSettings, _hermite, spread_seeds, trace_fibre
+from tests.service.pipeline.fibre_support import pose_fibre
+from training.evaluate.references.iiwa14 import pose_smm
+
+SETTINGS = TraceSettings(
+    step_rad=0.15, max_steps=200, seed_spacing_rad=1.0, path_spacing_rad=0.05
+)  # the bundled models' defaults
+
+
+@pytest.fixture(scope="module")
+def iiwa14_pose() -> ServedModel:
+    return load_model(REPO_MODELS_DIR / "iiwa14-pose", threads=1)
 
 
 def test_seeds_are_spread_on_the_torus_and_survive_angles_rounding_to_2_pi() -> None:
@@ -35,3 +51,50 @@ def test_seeds_are_the_greedy_choice_in_order(spacing: float) -> None:
         if all(joint_distance(q[i], q[j], np.ones(4, bool)) > spacing for j in chosen):
             chosen.append(i)
     np.testing.assert_array_equal(spread_seeds(q, spacing), q[chosen])
+
+
+def test_hermite_follows_a_circle_to_fourth_order() -> None:
+    """Between two points of a unit circle with their tangents, the Hermite point is off
+    the circle by O(L^4) (the chord's midpoint by L^2 / 8), and its direction is the
+    circle's tangent there to O(L^3)."""
+    for arc in (0.15, 0.075):
+        theta = np.array([0.3, 0.3 + arc])
+        p = np.stack([np.cos(theta), np.sin(theta)], axis=1)  # (2, 2)
+        t = np.stack([-np.sin(theta), np.cos(theta)], axis=1)
+        s = np.array([0.25, 0.5, 0.75])
+        point, direction = _hermite(
+            np.repeat(p[:1], 3, 0), np.repeat(t[:1], 3, 0), np.repeat(p[1:], 3, 0),
+            np.repeat(t[1:], 3, 0), s,
+        )  # fmt: skip
+        assert np.abs(np.linalg.norm(point, axis=1) - 1.0).max() < 0.01 * arc**4
+        angle = np.arctan2(point[:, 1], point[:, 0])
+        along = np.stack([-np.sin(angle), np.cos(angle)], axis=1)
+        assert np.abs(direction - along).max() < 0.05 * arc**3
+
+
+def test_every_path_point_is_exact_where_it_is_returned(iiwa14_pose: ServedModel) -> None:
+    """A traced pose fibre (samples: exact S-R-S points): each returned error is the one
+    the kinematics measures at the returned point, within 1e-9; the points are inside
+    the limits and at most 0.05 rad apart; an open path ends on a joint limit."""
+    manifest = iiwa14_pose.manifest
+    lower, upper, periodic = manifest.joints.arrays()
+    q_target = np.random.default_rng(8).uniform(0.8 * lower, 0.8 * upper)
+    fibre = pose_fibre(iiwa14_pose, q_target)
+    fk = iiwa14_pose.kinematics(q_target[None])
+    exact = pose_smm(fk.position_m[0], fk.rotation[0])
+    samples = np.concatenate([component.q_rad[::150] for component in exact])
+    trace = trace_fibre(fibre, samples, lower, upper, periodic, SETTINGS)
+    assert trace.complete and len(trace.pieces) == len(exact)
+    for piece in trace.pieces:
+        q = piece.path_rad
+        # The same point read in its joints' window: the angles round by ~1e-16 rad.
+        np.testing.assert_allclose(fibre.residual(q)[0], piece.error, rtol=0, atol=1e-13)
+        assert np.linalg.norm(piece.error, axis=1).max() <= 1e-9
+        assert np.all(periodic | ((q >= lower) & (q <= upper)))
+        gaps = joint_distance(q[1:], q[:-1], periodic)
+        if piece.closed:
+            gaps = np.append(gaps, joint_distance(q[-1], q[0], periodic))
+        else:
+            for end in (q[0], q[-1]):
+                assert np.minimum(end - lower, upper - end)[~periodic].min() <= 1e-12
+        assert gaps.max() <= SETTINGS.path_spacing_rad
