@@ -45,7 +45,6 @@ def rotation_error(rotation_target: FloatArray, rotation: FloatArray) -> FloatAr
 # vee is (M21 - M12, M02 - M20, M10 - M01) / 2) and the rows and columns the determinant
 # by cofactors along the first row takes.
 _SKEW_PLUS, _SKEW_MINUS = [7, 2, 3], [5, 6, 1]
-_DIAGONAL = [0, 4, 8]
 _COFACTOR = ([0, 1, 2], [4, 5, 3], [8, 6, 7], [5, 3, 4], [7, 8, 6])
 
 
@@ -61,10 +60,12 @@ def _log(matrix: FloatArray, transposed: bool) -> FloatArray:  # (B, 9) -> (B, 3
         valid = np.isfinite(matrix).all(axis=1) & (determinant > 0.0)  # (B,)
         sin_axis = 0.5 * (matrix[:, plus] - matrix[:, minus])  # (B, 3) = sin(theta) * axis
         sin = np.sqrt(np.einsum("bi,bi->b", sin_axis, sin_axis))
-        cos = 0.5 * (matrix[:, _DIAGONAL].sum(axis=1) - 1.0)
+        cos = 0.5 * (matrix[:, ::4].sum(axis=1) - 1.0)  # entries 0, 4, 8: the trace
         angle = np.arctan2(sin, cos)
-        # theta / sin(theta), with its series 1 + theta^2 / 6 where sin(theta) vanishes.
-        scale = np.where(sin > 1e-8, angle / sin, 1.0 + angle * angle / 6.0)
+        # theta / sin(theta); where sin(theta) < 1e-8 (under 150 degrees: theta < 1e-8) its
+        # series 1 + theta^2 / 6 rounds to 1 in float64.
+        scale = np.ones_like(sin)
+        np.divide(angle, sin, out=scale, where=sin > 1e-8)
         rotvec = sin_axis * scale[:, None]
     wide = valid & (cos < _COS_150_DEG)
     if wide.any():
@@ -72,7 +73,8 @@ def _log(matrix: FloatArray, transposed: bool) -> FloatArray:  # (B, 9) -> (B, 3
         rotvec[wide] = Rotation.from_matrix(
             np.swapaxes(rows, 1, 2) if transposed else rows
         ).as_rotvec()
-    rotvec[~valid] = np.nan
+    if not valid.all():
+        rotvec[~valid] = np.nan
     return rotvec
 
 
