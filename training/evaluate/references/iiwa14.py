@@ -31,6 +31,7 @@ from scipy.spatial import cKDTree
 D_M = np.array([0.360, 0.0, 0.420, 0.0, 0.400, 0.0, 0.081])  # seed Table 1; a = 0
 ALPHA_RAD = np.radians([-90.0, 90.0, 90.0, -90.0, -90.0, 90.0, 0.0])
 END_EFFECTOR_OFFSET_M = 0.045  # along the link-7 z axis (the flange)
+TWO_PI = 2.0 * np.pi
 LIMITS_RAD = np.radians([170.0, 120.0, 170.0, 120.0, 170.0, 120.0, 175.0])
 
 
@@ -395,22 +396,32 @@ def singular_set_points(position_m: np.ndarray, steps: int = 720) -> dict[int, n
     forearm = (position_m - elbow) / (FOREARM_M + WRIST_TO_EE_M)
     cases[5] = (elbow + FOREARM_M * forearm, elbow)
     free = {1: [0, 2], 3: [2, 4], 5: [4]}
+    to_target = position_m - SHOULDER_M  # psi's reference, as in position_smm
+    reference = _perpendicular_basis(to_target / np.linalg.norm(to_target))
     points: dict[int, np.ndarray] = {}
     for joint, (wrist_m, elbow_m) in cases.items():
         if not len(wrist_m):
             continue
         z_axis = (position_m - wrist_m) / WRIST_TO_EE_M  # (D, 3)
         rotation = rotations_with_z_axis(z_axis / np.linalg.norm(z_axis, axis=1, keepdims=True))
-        found = []
-        for d in range(len(wrist_m)):
-            psi = _arm_angle(wrist_m[d], elbow_m[d])
-            for branch in BRANCHES:
-                q = inverse_kinematics(position_m, rotation[d], np.array([psi]), branch)
-                if q is not None:
-                    found.append(q[0, :6])
-        if not found:
+        axis = (wrist_m - SHOULDER_M) / np.linalg.norm(wrist_m - SHOULDER_M, axis=1, keepdims=True)
+        u, v = _circle_basis(axis, reference)
+        to_elbow = elbow_m - SHOULDER_M  # its part across the S-W axis gives psi
+        psi = np.arctan2(np.sum(to_elbow * v, axis=1), np.sum(to_elbow * u, axis=1))  # (D,)
+        q = np.concatenate(
+            [_inverse_kinematics_grid(position_m, rotation, psi[:, None], b, reference)[:, 0, :6]
+             for b in BRANCHES]
+        )  # fmt: skip
+        q = q[np.all(np.isfinite(q), axis=1)]
+        if joint in (1, 3):
+            # On the set q_i and q_k alone are arbitrary (the IK picks one split) and only
+            # their sum is fixed, up to a turn: every sum the limits allow is a line of the
+            # fibre, so each gets its points (q_i shifted by a turn).
+            i, k = free[joint]
+            q = np.concatenate([q + shift * TWO_PI * np.eye(6)[i] for shift in (-1, 0, 1)])
+            q = q[np.abs(q[:, i] + q[:, k]) <= LIMITS_RAD[i] + LIMITS_RAD[k]]
+        if not len(q):
             continue
-        q = np.asarray(found)
         checked = np.ones(6, dtype=bool)
         checked[free[joint]] = False
         feasible = np.all(np.abs(q[:, checked]) <= LIMITS_RAD[:6][checked], axis=1)
@@ -419,13 +430,14 @@ def singular_set_points(position_m: np.ndarray, steps: int = 720) -> dict[int, n
     return points
 
 
-def _arm_angle(wrist_m: np.ndarray, elbow_m: np.ndarray) -> float:
-    """psi of `elbow_positions` that puts the elbow nearest elbow_m (for this wrist)."""
-    shoulder_to_wrist = wrist_m - SHOULDER_M
-    axis = shoulder_to_wrist / np.linalg.norm(shoulder_to_wrist)
-    u, v = _perpendicular_basis(axis)
-    radial = elbow_m - SHOULDER_M - np.dot(elbow_m - SHOULDER_M, axis) * axis
-    return float(np.arctan2(np.dot(radial, v), np.dot(radial, u)))
+def _circle_basis(
+    axis: np.ndarray, reference: tuple[np.ndarray, np.ndarray]
+) -> tuple[np.ndarray, np.ndarray]:
+    """(D, 3) x 2: the fixed `reference` projected onto the plane across each unit S-W axis
+    (D, 3), and its quarter turn: psi = 0 and psi = pi / 2 on each elbow circle."""
+    u = reference[0] - np.sum(reference[0] * axis, axis=1, keepdims=True) * axis
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    return u, np.cross(axis, u)
 
 
 def _inverse_kinematics_grid(
@@ -437,8 +449,9 @@ def _inverse_kinematics_grid(
 ) -> np.ndarray:
     """(D, K, 7) IK for many end-effector rotations (D, 3, 3) at once; NaN where out of reach.
 
-    psi is measured from the fixed `reference` basis projected onto each circle's plane,
-    so neighbouring rotations get neighbouring elbows.
+    psi (K,) for every rotation, or (D, K) per rotation, is measured from the fixed
+    `reference` basis projected onto each circle's plane, so neighbouring rotations get
+    neighbouring elbows.
     """
     shoulder, elbow, wrist = branch
     wrist_m = position_m - WRIST_TO_EE_M * rotation[:, :, 2]  # (D, 3)
@@ -449,12 +462,9 @@ def _inverse_kinematics_grid(
     axis = shoulder_to_wrist / distance  # (D, 3)
     along = (distance**2 + UPPER_ARM_M**2 - FOREARM_M**2) / (2 * distance)  # (D, 1)
     radius = np.sqrt(np.clip(UPPER_ARM_M**2 - along**2, 0.0, None))
-    u = reference[0] - np.sum(reference[0] * axis, axis=1, keepdims=True) * axis
-    u /= np.linalg.norm(u, axis=1, keepdims=True)
-    v = np.cross(axis, u)
-    circle = (
-        np.cos(psi_rad)[None, :, None] * u[:, None] + np.sin(psi_rad)[None, :, None] * v[:, None]
-    )
+    u, v = _circle_basis(axis, reference)
+    psi = np.atleast_2d(psi_rad)  # (1, K) or (D, K)
+    circle = np.cos(psi)[..., None] * u[:, None] + np.sin(psi)[..., None] * v[:, None]
     elbow_m = SHOULDER_M + (along * axis)[:, None] + radius[:, :, None] * circle  # (D, K, 3)
     z2 = (elbow_m - SHOULDER_M) / UPPER_ARM_M
     q2 = shoulder * np.arccos(np.clip(z2[..., 2], -1.0, 1.0))
