@@ -116,9 +116,16 @@ class _Roadmap:
             return np.ones(len(a), dtype=bool)
         return ~np.isin(keys, np.fromiter(self.tested, dtype=np.int64))
 
-    def _neighbours(self, k: int, radius_rad: float, margin_rad: float) -> tuple[IntArray, ...]:
+    def _box(self, settings: RoadmapSettings) -> JointBox:
+        """KD-tree coordinates over every node, exact for neighbours up to a bridge apart."""
+        margin_rad = 2.0 * settings.bridge_radius_rad + 1.0
+        return JointBox.covering(self.q_rad, self.periodic, margin_rad=margin_rad)
+
+    def _neighbours(
+        self, k: int, radius_rad: float, settings: RoadmapSettings
+    ) -> tuple[IntArray, ...]:
         """Every node's k nearest within radius: (rows, cols, lengths), flattened."""
-        box = JointBox.covering(self.q_rad, self.periodic, margin_rad=margin_rad)
+        box = self._box(settings)
         points = box.points(self.q_rad)
         k = min(k, len(self.q_rad))
         distance, neighbour = box.tree(self.q_rad).query(
@@ -131,8 +138,9 @@ class _Roadmap:
 
     def join_neighbours(self, settings: RoadmapSettings) -> None:
         """Boruvka rounds over the neighbour edges: each component's shortest untested one."""
-        margin = 2.0 * settings.bridge_radius_rad + 1.0
-        rows, cols, length = self._neighbours(settings.neighbours + 1, settings.radius_rad, margin)
+        rows, cols, length = self._neighbours(
+            settings.neighbours + 1, settings.radius_rad, settings
+        )
         keep = rows < cols
         a, b, length = rows[keep], cols[keep], length[keep]
         order = np.argsort(length, kind="stable")
@@ -163,9 +171,7 @@ class _Roadmap:
         labels = np.unique(root)
         if len(labels) == 1 or settings.bridge_pairs == 0:
             return
-        box = JointBox.covering(
-            self.q_rad, self.periodic, margin_rad=2.0 * settings.bridge_radius_rad + 1.0
-        )
+        box = self._box(settings)
         points = box.points(self.q_rad)
         rows_: list[IntArray] = []
         cols_: list[IntArray] = []
@@ -197,8 +203,10 @@ class _Roadmap:
         of every component nearest the set; True when any were added."""
         root = self.roots()
         q = self.q_rad[:num_samples]
-        origins: list[int] = []  # a sample and the line node it was projected to
-        on_line: list[int] = []
+        lines: list[FloatArray] = []  # (L, n) each, laid out along a set
+        origins: list[int] = []  # the sample each line was reached from ...
+        on_line: list[int] = []  # ... and the line's node where it arrived (a = 0)
+        next_node = len(self.q_rad)  # index of the first node of the next line
         for coaxial_set in coaxial:
             self.deadline.check("connect")
             j = coaxial_set.joint
@@ -212,26 +220,29 @@ class _Roadmap:
             rank = np.arange(len(order)) - np.searchsorted(root[order], root[order])
             origin = order[rank < settings.coaxial_nodes]  # (O,)
             q_set, good = self._walk_onto_set(q[origin], coaxial_set, settings)
-            if not good.any():
-                continue
             origin, q_set = origin[good], q_set[good]
             low, high = slide_range(coaxial_set, q_set, self.lower_rad, self.upper_rad,
                                     self.periodic)  # fmt: skip
+            step = settings.slide_step_rad
             for o, point, a_low, a_high in zip(origin, q_set, low, high, strict=True):
                 # a = 0 (the point itself) and steps of at most slide_step both ways.
-                below = np.linspace(a_low, 0.0, int(np.ceil(-a_low / settings.slide_step_rad)) + 1)
-                above = np.linspace(0.0, a_high, int(np.ceil(a_high / settings.slide_step_rad)) + 1)
+                below = np.linspace(a_low, 0.0, int(np.ceil(-a_low / step)) + 1)
+                above = np.linspace(0.0, a_high, int(np.ceil(a_high / step)) + 1)
                 a = np.concatenate([below, above[1:]])  # (L,) increasing, holds 0
-                line = point[None] + a[:, None] * coaxial_set.slide[None]  # (L, n)
-                first = len(self.q_rad)
-                self.q_rad = np.concatenate([self.q_rad, line])
-                index = np.arange(first, first + len(line))
-                self.join(index[:-1], index[1:])  # the line lies on the fibre
                 origins.append(int(o))
-                on_line.append(int(index[np.argmin(np.abs(a))]))
-        if origins:  # each sample reached its set along a walked path
-            self.join(np.asarray(origins), np.asarray(on_line))
-        return bool(origins)
+                on_line.append(next_node + len(below) - 1)
+                lines.append(point[None] + a[:, None] * coaxial_set.slide[None])
+                next_node += len(a)
+        if not lines:
+            return False
+        first = len(self.q_rad)
+        self.q_rad = np.concatenate([self.q_rad, *lines])
+        index = np.arange(first, len(self.q_rad))
+        ends = np.cumsum([len(line) for line in lines]) + first - 1  # each line's last node
+        step_ok = ~np.isin(index[:-1], ends)  # consecutive nodes of one line
+        self.join(index[:-1][step_ok], index[1:][step_ok])  # a line lies on the fibre
+        self.join(np.asarray(origins), np.asarray(on_line))  # each sample walked onto it
+        return True
 
     def _walk_onto_set(
         self, q_rad: FloatArray, coaxial_set: CoaxialSet, settings: RoadmapSettings
