@@ -15,6 +15,7 @@ import logging
 import shutil
 import subprocess
 import warnings
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -125,19 +126,34 @@ def export_kinematics(fk: ForwardKinematics, path: Path, joints: JointSpec) -> N
 
 def check_kinematics_parity(fk: ForwardKinematics, path: Path, joints: JointSpec) -> None:
     """Raise ExportParityError unless onnxruntime on `path` reproduces pytorch-kinematics."""
+    session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+
+    def onnx(q: np.ndarray) -> list[np.ndarray]:
+        return list(session.run(list(KINEMATICS_OUTPUTS), {KINEMATICS_INPUT: q}))
+
+    _check_against_torch(fk, joints, onnx, path, "kinematics", KINEMATICS_PARITY_ATOL)
+
+
+def _check_against_torch(
+    fk: ForwardKinematics,
+    joints: JointSpec,
+    evaluate: Callable[[np.ndarray], Sequence[np.ndarray]],
+    path: Path,
+    what: str,
+    atol: float,
+) -> None:
+    """Raise ExportParityError unless `evaluate` (q (B, n) -> position, rotation, Jacobian)
+    reproduces pytorch-kinematics within `atol` on configurations uniform in the limits."""
     lower, upper, _ = joints.arrays()
-    rng = np.random.default_rng(0)
-    q = rng.uniform(lower, upper, size=(257, joints.count))
+    q = np.random.default_rng(0).uniform(lower, upper, size=(257, joints.count))
     with torch.no_grad():
         expected = [x.numpy() for x in fk(torch.from_numpy(q))]
-    session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
-    actual = session.run(list(KINEMATICS_OUTPUTS), {KINEMATICS_INPUT: q})
-    for name, a, e in zip(KINEMATICS_OUTPUTS, actual, expected, strict=True):
+    for name, a, e in zip(KINEMATICS_OUTPUTS, evaluate(q), expected, strict=True):
         error = float(np.max(np.abs(a - e)))
-        if not error <= KINEMATICS_PARITY_ATOL:
+        if not error <= atol:
             raise ExportParityError(
-                f"{path}: kinematics output {name!r} differs from pytorch-kinematics by "
-                f"{error:.3g} > {KINEMATICS_PARITY_ATOL}"
+                f"{path}: {what} output {name!r} differs from pytorch-kinematics by "
+                f"{error:.3g} > {atol}"
             )
 
 
@@ -152,19 +168,13 @@ def export_chain(fk: ForwardKinematics, path: Path, joints: JointSpec) -> None:
 
 def check_chain_parity(fk: ForwardKinematics, path: Path, joints: JointSpec) -> None:
     """Raise ExportParityError unless the numpy kernel on `path` reproduces pytorch-kinematics."""
-    lower, upper, _ = joints.arrays()
-    q = np.random.default_rng(0).uniform(lower, upper, size=(257, joints.count))
-    with torch.no_grad():
-        expected = [x.numpy() for x in fk(torch.from_numpy(q))]
-    answer = SerialChainKinematics.from_file(path)(q)
-    actual = (answer.position_m, answer.rotation, answer.jacobian)
-    for name, a, e in zip(KINEMATICS_OUTPUTS, actual, expected, strict=True):
-        error = float(np.max(np.abs(a - e)))
-        if not error <= CHAIN_PARITY_ATOL:
-            raise ExportParityError(
-                f"{path}: chain output {name!r} differs from pytorch-kinematics by "
-                f"{error:.3g} > {CHAIN_PARITY_ATOL}"
-            )
+    kernel = SerialChainKinematics.from_file(path)
+
+    def chain(q: np.ndarray) -> list[np.ndarray]:
+        answer = kernel(q)
+        return [answer.position_m, answer.rotation, answer.jacobian]
+
+    _check_against_torch(fk, joints, chain, path, "chain", CHAIN_PARITY_ATOL)
 
 
 def git_commit() -> str:
