@@ -14,6 +14,12 @@ sets: the samples of each component nearest a set are projected onto it (the ali
 joint held at its angle), and from each such point the exact straight self-motion of
 the set is laid out as a line of nodes inside the limits, its consecutive nodes joined
 (the line lies on the fibre). The bridges then run again over the enlarged roadmap.
+Between the components still apart, walks steered along the fibre (steering.py: toward
+a node of the other component in the tangent space, sliding along joint limits) start
+from both ends of each pair's nearest links; where a walk ends, the planner tries the
+edge to its goal and to the nearest node of any other component. This joins the thin
+pieces the limits leave of a 4-D fibre, whose samples are far apart along a bent or
+limit-bounded way that no straight edge follows.
 The added nodes only carry connectivity: they are never returned.
 
 Components are the connected components of the graph of walked edges; a lone node is a
@@ -35,6 +41,7 @@ from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.fibre import Fibre, project
 from service.pipeline.joint_space import JointBox, wrap_to_pi
 from service.pipeline.local_planner import PlannerSettings, edges_on_fibre
+from service.pipeline.steering import SteerSettings, steer
 from service.pipeline.types import CoaxialSet
 
 
@@ -50,6 +57,13 @@ class RoadmapSettings:
     coaxial_reach_rad: float = 0.6  # ... at most this far from it in the aligning joint,
     slide_step_rad: float = 0.3  # and the set's self-motion laid out at this spacing
     projection_iterations: int = 3  # Newton steps per step of a walk onto a set
+    # Steering walks between the components still apart (steering.py): from both ends of
+    # this many nearest links per pair of components, steps of steer_step_rad, at most
+    # steer_max_steps of them (0 pairs: no steering).
+    steer_pairs: int = 3
+    steer_step_rad: float = 0.15
+    steer_max_steps: int = 100
+    steer_radius_rad: float = 6.0  # longest link between components that a walk follows
 
 
 def roadmap_labels(
@@ -73,6 +87,8 @@ def roadmap_labels(
     apart = len(np.unique(roadmap.roots()[:num_nodes])) > 1
     if apart and coaxial and roadmap.add_coaxial_nodes(coaxial, num_nodes, settings):
         roadmap.bridge(settings)
+    if len(np.unique(roadmap.roots()[:num_nodes])) > 1:
+        roadmap.steer_between(settings)
     return _ordered_labels(roadmap.roots()[:num_nodes])
 
 
@@ -118,7 +134,7 @@ class _Roadmap:
 
     def _box(self, settings: RoadmapSettings) -> JointBox:
         """KD-tree coordinates over every node, exact for neighbours up to a bridge apart."""
-        margin_rad = 2.0 * settings.bridge_radius_rad + 1.0
+        margin_rad = 2.0 * max(settings.bridge_radius_rad, settings.steer_radius_rad) + 1.0
         return JointBox.covering(self.q_rad, self.periodic, margin_rad=margin_rad)
 
     def _neighbours(
@@ -161,40 +177,96 @@ class _Roadmap:
             self.check(a[chosen], b[chosen])
 
     def bridge(self, settings: RoadmapSettings) -> None:
-        """Between the components left: the nearest pairs of each pair of components.
+        """Between the components left: the `bridge_pairs` nearest untested pairs of nodes
+        of each pair of components, walked with the bridge's path-length allowance."""
+        rows, cols = self._nearest_pairs(
+            settings, settings.bridge_pairs, settings.bridge_radius_rad, untested_only=True
+        )
+        if len(rows):
+            self.check(rows, cols, lambda_=settings.bridge_lambda)
 
-        For each component, a KD-tree over its nodes gives every node of a later
-        component its nearest node in it; per pair of components the `bridge_pairs`
-        shortest of those links are walked with the bridge's path-length allowance.
+    def _nearest_pairs(
+        self, settings: RoadmapSettings, per_pair: int, radius_rad: float, untested_only: bool
+    ) -> tuple[IntArray, IntArray]:  # (P,) node a, (P,) node b in another component
+        """The `per_pair` shortest links within `radius_rad` of each pair of components.
+
+        For each component, a KD-tree over its nodes gives every node outside it its
+        nearest node in it, so each pair of components has links from the nodes of both
+        sides (a lone node's side too); per pair the shortest distinct links are kept.
         """
         root = self.roots()
         labels = np.unique(root)
-        if len(labels) == 1 or settings.bridge_pairs == 0:
-            return
+        empty = np.zeros(0, dtype=np.int64)
+        if len(labels) == 1 or per_pair == 0:
+            return empty, empty
         box = self._box(settings)
         points = box.points(self.q_rad)
         rows_: list[IntArray] = []
         cols_: list[IntArray] = []
         length_: list[FloatArray] = []
-        for label in labels[:-1]:
+        for label in labels:
             inside = np.flatnonzero(root == label)
-            later = np.flatnonzero(root > label)
+            outside = np.flatnonzero(root != label)
             distance, nearest = box.tree(self.q_rad[inside]).query(
-                points[later], k=1, distance_upper_bound=settings.bridge_radius_rad
+                points[outside], k=1, distance_upper_bound=radius_rad
             )
             found = np.isfinite(distance)
             rows_.append(inside[nearest[found]])
-            cols_.append(later[found])
+            cols_.append(outside[found])
             length_.append(distance[found])
         rows, cols = np.concatenate(rows_), np.concatenate(cols_)
         length = np.concatenate(length_)
-        keep = self.untested(rows, cols)
-        rows, cols, length = rows[keep], cols[keep], length[keep]
-        pair_key = root[rows] * len(self.q_rad) + root[cols]
+        low, high = np.minimum(rows, cols), np.maximum(rows, cols)  # one link per node pair
+        _, unique = np.unique(low * len(self.q_rad) + high, return_index=True)
+        rows, cols, length = low[unique], high[unique], length[unique]
+        if untested_only:
+            keep = self.untested(rows, cols)
+            rows, cols, length = rows[keep], cols[keep], length[keep]
+        root_a, root_b = root[rows], root[cols]
+        pair_key = np.minimum(root_a, root_b) * len(self.q_rad) + np.maximum(root_a, root_b)
         order = np.lexsort((length, pair_key))
         rank = np.arange(len(order)) - np.searchsorted(pair_key[order], pair_key[order])
-        chosen = order[rank < settings.bridge_pairs]
-        self.check(rows[chosen], cols[chosen], lambda_=settings.bridge_lambda)
+        chosen = order[rank < per_pair]
+        return rows[chosen], cols[chosen]
+
+    def steer_between(self, settings: RoadmapSettings) -> None:
+        """Walks on the fibre between the components left (steering.py), from both ends
+        of each pair's nearest links; where a walk ends, the planner tries the edge to
+        its goal and to the nearest node of any other component."""
+        rows, cols = self._nearest_pairs(
+            settings, settings.steer_pairs, settings.steer_radius_rad, untested_only=False
+        )
+        if not len(rows):
+            return
+        start = np.concatenate([rows, cols])  # (W,) walks both ways
+        goal = np.concatenate([cols, rows])
+        walk = steer(
+            self.fibre, self.q_rad[start], self.q_rad[goal], self.lower_rad, self.upper_rad,
+            self.periodic, SteerSettings(
+                step_rad=settings.steer_step_rad, max_steps=settings.steer_max_steps,
+                lambda_=self.planner.lambda_,
+                projection_tolerance=self.planner.projection_tolerance,
+            ), self.deadline,
+        )  # fmt: skip
+        first = len(self.q_rad)
+        end = np.arange(first, first + len(start))  # (W,) each walk's end, a new node
+        self.q_rad = np.concatenate([self.q_rad, walk.q_end_rad])
+        self.join(start, end)  # the walk is a path on the fibre
+        root = self.roots()
+        box = self._box(settings)
+        k = min(8, len(self.q_rad))
+        _, neighbour = box.tree(self.q_rad).query(
+            box.points(walk.q_end_rad), k=k, distance_upper_bound=settings.bridge_radius_rad
+        )  # (W, k)
+        valid = neighbour < len(self.q_rad)
+        other = valid & (root[np.where(valid, neighbour, 0)] != root[start][:, None])
+        has_other = other.any(axis=1)
+        nearest_other = neighbour[np.arange(len(start)), np.argmax(other, axis=1)]
+        a = np.concatenate([end, end[has_other]])
+        b = np.concatenate([goal, nearest_other[has_other]])
+        distinct = np.concatenate([np.ones(len(end), dtype=bool), nearest_other[has_other]
+                                   != goal[has_other]])  # fmt: skip
+        self.check(a[distinct], b[distinct], lambda_=settings.bridge_lambda)
 
     def add_coaxial_nodes(
         self, coaxial: Sequence[CoaxialSet], num_samples: int, settings: RoadmapSettings

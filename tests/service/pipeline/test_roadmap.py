@@ -2,9 +2,12 @@
 along one component comes back as one component, and the elbow-up and elbow-down
 components, nearer each other than the 2.5 rad radius the service used to join samples
 with, stay two; two samples joined only through the shoulder set (q2 = 0, where q1 + q3
-is all that moves the arm) are one component once the roadmap has its coaxial nodes;
+is all that moves the arm) are one component once the roadmap has its coaxial nodes or
+its steering walks, and two without either;
 and where the link lengths keep the fibre off the shoulder and elbow sets, no component
 holds both signs of q2 or of q4."""
+
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -124,15 +127,17 @@ def test_samples_joined_only_through_the_shoulder_set_are_one_component(
     assert np.linalg.norm(a - b) > spec.bridge_radius_rad
     fibre = pose_fibre(iiwa14_position, on_set)
 
-    def labels(coaxial: tuple[CoaxialSet, ...]) -> list[int]:
+    def labels(coaxial: tuple[CoaxialSet, ...], steer_pairs: int) -> list[int]:
+        settings = replace(roadmap_settings(spec), steer_pairs=steer_pairs)
         return roadmap_labels(
             fibre, np.stack([a, b]), lower, upper, periodic, planner_settings(spec),
-            roadmap_settings(spec), coaxial=coaxial,
+            settings, coaxial=coaxial,
         ).tolist()  # fmt: skip
 
-    assert labels(()) == [0, 1]
-    # ... but joined through the set's line of nodes.
-    assert labels(iiwa14_position.coaxial_sets) == [0, 0]
+    assert labels((), steer_pairs=0) == [0, 1]
+    # ... but joined through the set's line of nodes, or by a walk steered along the fibre.
+    assert labels(iiwa14_position.coaxial_sets, steer_pairs=0) == [0, 0]
+    assert labels((), steer_pairs=roadmap_settings(spec).steer_pairs) == [0, 0]
 
 
 def test_twins_stay_apart_where_the_fibre_cannot_reach_the_shoulder_or_elbow_set(

@@ -1,0 +1,131 @@
+"""Steering on the fibre: walk from a toward b in the fibre's tangent space, sliding along
+the joint limits.
+
+The projected local planner (local_planner.py) follows the joint-space segment a-b, so it
+fails wherever a component bends away from that segment or is cut by a joint limit across
+it: the thin pieces that the limits leave of a 4-D fibre are often such. The steer walks
+instead along the part of the direction to b that the fibre allows: the direction
+b - q projected onto the null space of J, with each joint that sits on a limit and is
+pushed further out held fixed, so the walk slides along the limit face (the
+gradient-projection step of constrained optimisation, on the fibre). Each step, at most
+`step_rad` long, ends inside the limits (a joint that would cross one stops on it), is
+projected back onto the fibre with Newton (the joints on a limit held) and is checked as
+the planner checks its steps: converged within tolerance, inside the limits, no jump (a
+move longer than lambda x the step). A walk ends when it is within one step of b
+(arrived), when a step fails, or when it stops getting nearer to b (a local minimum of
+the distance on the fibre). Every walk's steps form a path on the fibre inside the
+limits, from a to where it ended. All walks advance in lockstep: one batched kinematics
+call per Newton iteration for every walk still going.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from service.pipeline.arrays import BoolArray, FloatArray
+from service.pipeline.deadline import NO_DEADLINE, Deadline
+from service.pipeline.fibre import Fibre, evaluate, newton
+from service.pipeline.joint_space import joint_difference, wrap_periodic
+
+
+@dataclass(frozen=True)
+class SteerSettings:
+    step_rad: float  # longest step along the tangent
+    max_steps: int  # steps per walk at most
+    lambda_: float  # a projected step may move at most lambda x step_rad
+    projection_tolerance: float  # |e| a projected step must reach
+    projection_iterations: int = 4  # Newton steps per projected step (rows stop once within)
+    stall_steps: int = 8  # end a walk that got no nearer to b over this many steps ...
+    min_progress_rad: float = 0.02  # ... by at least this much
+
+
+@dataclass(frozen=True)
+class Steer:
+    """Where each walk ended, on the fibre and inside the limits, and whether it got to b."""
+
+    q_end_rad: FloatArray  # (E, n) joined to its start by a path on the fibre
+    arrived: BoolArray  # (E,) within one step of b (b itself is then joined too)
+
+
+def steer(
+    fibre: Fibre,
+    q_from_rad: FloatArray,  # (E, n) on the fibre, inside the limits
+    q_to_rad: FloatArray,  # (E, n)
+    lower_rad: FloatArray,  # (n,)
+    upper_rad: FloatArray,  # (n,)
+    periodic: BoolArray,  # (n,)
+    settings: SteerSettings,
+    deadline: Deadline = NO_DEADLINE,
+) -> Steer:
+    """Walk every a toward its b on the fibre; the walks advance in lockstep."""
+    num_walks = len(q_from_rad)
+    goal = q_from_rad + joint_difference(q_to_rad, q_from_rad, periodic)  # (E, n) unwrapped
+    state = evaluate(fibre, q_from_rad.copy())
+    q, jacobian = state.q_rad.copy(), state.jacobian.copy()  # (E, n), (E, m, n)
+    arrived = np.zeros(num_walks, dtype=bool)
+    walking = np.ones(num_walks, dtype=bool)
+    best = np.linalg.norm(goal - q, axis=1)  # (E,) nearest to b so far
+    since_best = np.zeros(num_walks, dtype=np.int64)  # steps since `best` last improved
+    for _ in range(settings.max_steps):
+        remaining = goal - q  # (E, n)
+        distance = np.linalg.norm(remaining, axis=1)
+        arrived |= walking & (distance <= settings.step_rad)
+        walking &= ~arrived
+        if not walking.any():
+            break
+        deadline.check("connect")
+        index = np.flatnonzero(walking)  # (A,)
+        q_a, lower_side, upper_side = q[index], q[index] <= lower_rad, q[index] >= upper_rad
+        pushed_out = (lower_side & (remaining[index] < 0)) | (upper_side & (remaining[index] > 0))
+        held = pushed_out & ~periodic  # (A, n) joints on a limit that the direction pushes out
+        direction = tangent_direction(jacobian[index], remaining[index], held)  # (A, n)
+        length = np.linalg.norm(direction, axis=1)
+        moving = length > 1e-9
+        step = (
+            direction
+            * (np.minimum(settings.step_rad, length) / np.maximum(length, 1e-300))[:, None]
+        )
+        guess = np.clip(q_a + step, np.where(periodic, -np.inf, lower_rad),
+                        np.where(periodic, np.inf, upper_rad))  # fmt: skip
+        on_limit = ~periodic & ((guess <= lower_rad) | (guess >= upper_rad))  # (A, n)
+        projected = newton(
+            fibre, evaluate(fibre, guess), settings.projection_iterations,
+            locked=on_limit, until=settings.projection_tolerance,
+        )  # fmt: skip
+        q_new = projected.q_rad
+        moved = np.linalg.norm(q_new - q_a, axis=1)
+        inside = np.all(periodic | ((q_new >= lower_rad) & (q_new <= upper_rad)), axis=1)
+        ok = (
+            moving
+            & (projected.error_norm <= settings.projection_tolerance)
+            & inside
+            & (moved <= settings.lambda_ * settings.step_rad)
+        )
+        walking[index[~ok]] = False
+        good = index[ok]
+        q[good] = q_new[ok]
+        jacobian[good] = projected.jacobian[ok]
+        now = np.linalg.norm(goal[good] - q[good], axis=1)
+        improved = now < best[good] - settings.min_progress_rad
+        best[good] = np.where(improved, now, best[good])
+        since_best[good] = np.where(improved, 0, since_best[good] + 1)
+        walking[good[since_best[good] >= settings.stall_steps]] = False
+    arrived |= walking & (np.linalg.norm(goal - q, axis=1) <= settings.step_rad)
+    return Steer(q_end_rad=wrap_periodic(q, periodic), arrived=arrived)
+
+
+def tangent_direction(
+    jacobian: FloatArray,  # (A, m, n)
+    wanted: FloatArray,  # (A, n) the direction asked for
+    held: BoolArray,  # (A, n) joints that must not move
+) -> FloatArray:  # (A, n) the nearest direction with J d = 0 and d = 0 on held joints
+    """Least-squares projection of `wanted` onto the null space of J, held joints fixed."""
+    free = ~held
+    j_free = jacobian * free[:, None, :]  # (A, m, n) held columns zeroed
+    g = wanted * free  # (A, n)
+    gram = j_free @ np.swapaxes(j_free, 1, 2)  # (A, m, m)
+    gram += 1e-9 * np.eye(gram.shape[1])[None]
+    y = np.linalg.solve(gram, (j_free @ g[:, :, None]))  # (A, m, 1)
+    return g - (np.swapaxes(j_free, 1, 2) @ y)[..., 0]

@@ -1,0 +1,147 @@
+"""steering: the tangent direction is the least-squares nearest one with J d = 0 and the
+held joints still (against an explicit null-space basis); on the iiwa14's position fibre a
+walk steered from one end of a null-space random walk reaches the other end, every step
+exact by the DH table and inside the limits; walks between the elbow-up and elbow-down
+components, which no path joins, never arrive and never change the sign of q4; and a
+walk whose straight way out is blocked by a joint limit slides along it to its goal."""
+
+import numpy as np
+import pytest
+from scipy.linalg import null_space
+
+from service.manifest import REPO_MODELS_DIR
+from service.models.registry import ServedModel, load_model
+from service.pipeline.fibre import Fibre, project
+from service.pipeline.steering import SteerSettings, steer, tangent_direction
+from tests.service.pipeline.fibre_support import pose_fibre
+from tests.service.pipeline.test_roadmap import null_space_walk
+from tests.support.iiwa14_dh import iiwa14_pose
+
+SETTINGS = SteerSettings(step_rad=0.15, max_steps=100, lambda_=2.0, projection_tolerance=1e-4)
+
+
+@pytest.fixture(scope="module")
+def iiwa14_position() -> ServedModel:
+    return load_model(REPO_MODELS_DIR / "iiwa14-position", threads=1)
+
+
+def test_tangent_direction_is_the_projection_onto_the_free_null_space() -> None:
+    rng = np.random.default_rng(0)
+    jacobian = rng.normal(size=(20, 3, 7))
+    wanted = rng.normal(size=(20, 7))
+    held = rng.random((20, 7)) < 0.3
+    held[:, :3] = False  # at least 4 free joints: a null space remains
+    direction = tangent_direction(jacobian, wanted, held)
+    for row in range(20):
+        free = ~held[row]
+        basis = null_space(jacobian[row][:, free])  # orthonormal, (free, free - 3)
+        expected = np.zeros(7)
+        expected[free] = basis @ (basis.T @ wanted[row, free])
+        np.testing.assert_allclose(direction[row], expected, atol=1e-7)
+        np.testing.assert_allclose(jacobian[row] @ direction[row], 0.0, atol=1e-7)
+        assert np.all(direction[row, held[row]] == 0.0)
+
+
+def assert_on_fibre(points: np.ndarray, q0: np.ndarray) -> None:
+    """Every configuration (k, 7) reaches q0's position within the projection tolerance,
+    by the DH table (independent of the service's kinematics)."""
+    error = iiwa14_pose(points)[:, :3, 3] - iiwa14_pose(q0[None])[0, :3, 3]
+    assert np.linalg.norm(error, axis=1).max() <= SETTINGS.projection_tolerance
+
+
+def _walk_points(
+    fibre: Fibre, start: np.ndarray, goal: np.ndarray, lower: np.ndarray, upper: np.ndarray
+) -> list[np.ndarray]:
+    """The configurations a steered walk visits, one step of the walk at a time."""
+    periodic = np.zeros(7, dtype=bool)
+    points = [start]
+    for steps in range(1, SETTINGS.max_steps + 1):
+        settings = SteerSettings(**{**SETTINGS.__dict__, "max_steps": steps})
+        walk = steer(fibre, start[None], goal[None], lower, upper, periodic, settings)
+        points.append(walk.q_end_rad[0])
+        if walk.arrived[0] or np.array_equal(points[-1], points[-2]):
+            break
+    return points
+
+
+def test_a_walk_reaches_the_far_end_of_a_random_walk_on_one_component(
+    iiwa14_position: ServedModel,
+) -> None:
+    lower, upper, periodic = iiwa14_position.manifest.joints.arrays()
+    q0 = np.array([0.3, 0.5, -0.4, -1.3, 0.6, 0.9, 0.2])
+    path = null_space_walk(iiwa14_position, q0, steps=400, seed=0)
+    start, goal = path[0], path[-1]
+    assert np.linalg.norm(goal - start) > 1.0
+    fibre = pose_fibre(iiwa14_position, q0)
+    walk = steer(fibre, start[None], goal[None], lower, upper, periodic, SETTINGS)
+    assert walk.arrived[0]
+    assert np.linalg.norm(walk.q_end_rad[0] - goal) <= SETTINGS.step_rad
+    # Every step of the walk is on the fibre (DH table, independent of the service),
+    # inside the limits, and no step jumps.
+    points = np.stack(_walk_points(fibre, start, goal, lower, upper))
+    assert_on_fibre(points, q0)
+    assert np.all((points >= lower) & (points <= upper))
+    steps = np.linalg.norm(np.diff(points, axis=0), axis=1)
+    assert steps.max() <= SETTINGS.lambda_ * SETTINGS.step_rad
+
+
+def test_walks_between_elbow_up_and_down_never_arrive(iiwa14_position: ServedModel) -> None:
+    # 0.674 m from the shoulder: q4 = 0 would put the end effector 0.82 +- 0.126 m from
+    # it, so no path on this fibre changes the sign of q4 (test_roadmap has the same target).
+    lower, upper, periodic = iiwa14_position.manifest.joints.arrays()
+    up = np.array([0.3, 0.5, -0.4, 1.3, 0.6, 0.9, 0.2])
+    fibre = pose_fibre(iiwa14_position, up)
+    down = null_space_walk(iiwa14_position, up, steps=60, seed=2)
+    down = down * np.array([1, -1, 1, -1, 1, -1, 1])  # the mirror: q2, q4, q6 negated
+    np.testing.assert_allclose(iiwa14_pose(down)[:, :3, 3].std(axis=0), 0.0, atol=1e-3)
+    start = np.repeat(up[None], len(down), axis=0)
+    walk = steer(fibre, start, down, lower, upper, periodic, SETTINGS)
+    assert not walk.arrived.any()
+    assert np.all(walk.q_end_rad[:, 3] > 0.0)
+
+
+def held_walk(model: ServedModel, q0: np.ndarray, joint: int, steps: int, seed: int) -> np.ndarray:
+    """(k, 7) a random walk on the fibre of q0's position with one joint held at its value:
+    steps of 0.05 rad along the null space of J's other columns (scipy's basis), projected
+    back with that joint locked."""
+    fibre = pose_fibre(model, q0)
+    lower, upper, _ = model.manifest.joints.arrays()
+    rng = np.random.default_rng(seed)
+    free = np.arange(7) != joint
+    locked = ~free[None]
+    walk, heading = [q0], rng.normal(size=7)
+    for _ in range(steps):
+        q = walk[-1]
+        _, jacobian = fibre.residual(q[None])
+        heading = 0.9 * heading + 0.3 * rng.normal(size=7)
+        basis = null_space(jacobian[0][:, free])
+        d = np.zeros(7)
+        d[free] = basis @ (basis.T @ heading[free])
+        projected = project(fibre, (q + 0.05 * d / np.linalg.norm(d))[None], 4, locked=locked)
+        nxt = projected.q_rad[0]
+        if projected.error_norm[0] < 1e-10 and np.all((nxt >= lower) & (nxt <= upper)):
+            walk.append(nxt)
+        else:
+            heading = rng.normal(size=7)
+    return np.asarray(walk)
+
+
+def test_a_walk_slides_along_a_joint_limit_to_its_goal(iiwa14_position: ServedModel) -> None:
+    # Start and goal joined by a path with q6 held at 0.9 (so they are one component when
+    # q6 may not exceed 0.9); the walk with the usual limits overshoots 0.9, so with that
+    # limit it must hold q6 on it and slide.
+    lower, upper, periodic = iiwa14_position.manifest.joints.arrays()
+    q0 = np.array([0.3, 0.5, -0.4, -1.3, 0.6, 0.9, 0.2])
+    witness = held_walk(iiwa14_position, q0, joint=5, steps=300, seed=1)
+    start, goal = witness[0], witness[-1]
+    assert np.linalg.norm(goal - start) > 2.0 and np.all(witness[:, 5] == 0.9)
+    fibre = pose_fibre(iiwa14_position, q0)
+    unlimited = np.stack(_walk_points(fibre, start, goal, lower, upper))
+    assert unlimited[:, 5].max() > 0.9 + 0.05
+    limited_upper = upper.copy()
+    limited_upper[5] = 0.9
+    walk = steer(fibre, start[None], goal[None], lower, limited_upper, periodic, SETTINGS)
+    assert walk.arrived[0]
+    points = np.stack(_walk_points(fibre, start, goal, lower, limited_upper))
+    assert np.all(points[:, 5] <= 0.9) and np.sum(points[:, 5] == 0.9) > len(points) // 2
+    assert_on_fibre(points, q0)
