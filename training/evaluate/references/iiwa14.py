@@ -21,6 +21,7 @@ frame 2, E->W is z_4 = (-c3 s4, -s3 s4, c4); and R_47 = R_04^T R has third colum
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -151,9 +152,13 @@ def pose_smm(
     """The exact SMM of a pose within the joint limits, as its feasible components.
 
     Each branch's loop is sampled at `psi_steps` arm angles; consecutive feasible points
-    belong to the same component unless they jump by more than `max_jump_rad` (near a
-    shoulder or wrist singularity the loop can turn fast in joint space; such a jump is
-    split rather than bridged). The loop closes: the last arc joins the first.
+    belong to the same component when the arc between them stays inside the limits.
+    Near a shoulder, elbow or wrist singularity the loop turns fast in joint space (two
+    coaxial joints swing against each other while psi hardly moves), so consecutive
+    samples can lie more than `max_jump_rad` apart on one continuous arc: such a step is
+    resampled in psi until every step is short (`_arc_between`), and the arc is cut only
+    where a resampled point leaves the limits. The loop closes: the last arc joins the
+    first.
     """
     psi = np.linspace(-np.pi, np.pi, psi_steps, endpoint=False)
     components: list[ReferenceComponent] = []
@@ -162,24 +167,97 @@ def pose_smm(
         if q is None:
             return []
         feasible = np.all(np.abs(q) <= LIMITS_RAD, axis=1)  # (K,)
-        step = np.linalg.norm(np.diff(q, axis=0, append=q[:1]), axis=1)  # (K,) to the next
-        linked = feasible & np.roll(feasible, -1) & (step <= max_jump_rad)
+        following = np.roll(np.arange(len(psi)), -1)
+        step = np.linalg.norm(q[following] - q, axis=1)  # (K,) to the next
+        linked = feasible & feasible[following] & (step <= max_jump_rad)
+        inserted: dict[int, np.ndarray] = {}  # resampled points after a sample, in order
+        for jump in np.flatnonzero(feasible & feasible[following] & (step > max_jump_rad)).tolist():
+            after = int(following[jump])
+            psi_next = psi[after] + (TWO_PI if after == 0 else 0.0)
+            arc = _arc_between(
+                position_m, rotation, branch, psi[jump], psi_next, q[jump], q[after], max_jump_rad
+            )
+            if arc is not None:
+                linked[jump] = True
+                inserted[jump] = arc
+                chain = np.concatenate([q[[jump]], arc, q[[after]]])
+                step[jump] = float(np.linalg.norm(np.diff(chain, axis=0), axis=1).sum())
         if feasible.all() and linked.all():
-            components.append(ReferenceComponent(q, branch, float(step.sum())))
+            whole = _arc_points(q, inserted, list(range(len(psi))))
+            whole = np.concatenate([whole, inserted.get(len(psi) - 1, q[:0])])
+            components.append(ReferenceComponent(whole, branch, float(step.sum())))
             continue
         # Start right after a break, so no arc straddles the end of the array.
         start = int(np.flatnonzero(~linked)[0]) + 1
         order = np.roll(np.arange(len(psi)), -start)
-        arc: list[int] = []
+        arc_members: list[int] = []
         for index in order.tolist():
             if feasible[index]:
-                arc.append(index)
-            if not linked[index] and arc:
-                members = np.asarray(arc)
-                length = float(step[members[:-1]].sum())
-                components.append(ReferenceComponent(q[members], branch, length))
-                arc = []
+                arc_members.append(index)
+            if not linked[index] and arc_members:
+                length = float(step[np.asarray(arc_members[:-1], dtype=int)].sum())
+                components.append(
+                    ReferenceComponent(_arc_points(q, inserted, arc_members), branch, length)
+                )
+                arc_members = []
     return components
+
+
+def _arc_points(q: np.ndarray, inserted: dict[int, np.ndarray], members: list[int]) -> np.ndarray:
+    """The samples q[members] (k, 7) of an arc in order, with the points resampled after
+    each (`inserted`, by sample) between them."""
+    rows = [q[[members[0]]]]
+    for before, index in itertools.pairwise(members):
+        rows += [inserted.get(before, q[:0]), q[[index]]]
+    return np.concatenate(rows)
+
+
+def _arc_between(
+    position_m: np.ndarray,
+    rotation: np.ndarray,
+    branch: tuple[int, int, int],
+    psi_a: float,
+    psi_b: float,
+    q_a: np.ndarray,  # (7,) the branch at psi_a
+    q_b: np.ndarray,  # (7,) the branch at psi_b
+    max_jump_rad: float,
+    min_width_rad: float = 1e-12,
+) -> np.ndarray | None:
+    """The branch's points strictly between psi_a and psi_b (k, 7) in order, no two
+    consecutive ones (ends included) more than `max_jump_rad` apart; None where the arc
+    leaves the limits in between.
+
+    Every interval whose ends are more than `max_jump_rad` apart is resampled at 15
+    interior arm angles, down to `min_width_rad`. A step still long at that width is the
+    branch crossing a singular set exactly: there the two coaxial joints are free to
+    swing along a straight line, which stays inside the limits (a box) because both ends
+    do; points along it fill the step. A resampled point outside the limits cuts the arc
+    (it is also where the (-pi, pi] angles wrap, all outside the iiwa's limits).
+    """
+    found_psi: list[np.ndarray] = []
+    found_q: list[np.ndarray] = []
+    pending = [(psi_a, psi_b, q_a, q_b)]
+    while pending:
+        a, b, end_a, end_b = pending.pop()
+        if b - a < min_width_rad:
+            count = int(np.ceil(np.linalg.norm(end_b - end_a) / max_jump_rad))
+            fraction = np.arange(1, count) / count  # (count - 1,) along the straight swing
+            found_psi.append(a + (b - a) * fraction)
+            found_q.append(end_a + fraction[:, None] * (end_b - end_a))
+            continue
+        psi = np.linspace(a, b, 17)
+        inner = inverse_kinematics(position_m, rotation, psi[1:-1], branch)
+        assert inner is not None  # the same wrist point as the ends, which are reachable
+        if not np.all(np.abs(inner) <= LIMITS_RAD):
+            return None
+        found_psi.append(psi[1:-1])
+        found_q.append(inner)
+        q = np.concatenate([end_a[None], inner, end_b[None]])  # (17, 7)
+        step = np.linalg.norm(np.diff(q, axis=0), axis=1)  # (16,)
+        for k in np.flatnonzero(step > max_jump_rad).tolist():
+            pending.append((psi[k], psi[k + 1], q[k], q[k + 1]))
+    order = np.argsort(np.concatenate(found_psi), kind="stable")
+    return np.concatenate(found_q)[order]
 
 
 def rotations_with_z_axis(z_axis: np.ndarray) -> np.ndarray:

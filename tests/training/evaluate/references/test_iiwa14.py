@@ -2,7 +2,8 @@
 
 The IK's configurations are checked by the tests' own DH FK (tests/support/iiwa14_dh.py) to
 1e-9 on all 8 branches; the configuration that made a target must lie on its exact SMM;
-each feasible component stays within the limits and is continuous; the 4-D position SMM
+each feasible component stays within the limits and is continuous, also where it passes
+next to the shoulder set and q1, q3 swing fast against each other; the 4-D position SMM
 is exact and feasible, q7 does not move the position, a feasible walk along the
 position fibre stays in one component, the exact points of the singular sets are exact,
 and a fibre that cannot reach the shoulder or elbow set (by the link lengths alone)
@@ -79,6 +80,26 @@ def test_components_are_feasible_continuous_and_exact() -> None:
             assert component.arc_length_rad == pytest.approx(steps.sum(), rel=1e-9, abs=0.2)
             reached = iiwa14_pose(component.q_rad)
             assert np.abs(reached[:, :3, 3] - pose[:3, 3]).max() < 1e-9
+
+
+@pytest.mark.parametrize("q2_rad", [1e-4, 1e-7])
+def test_a_component_passing_near_the_shoulder_set_is_whole(q2_rad: float) -> None:
+    # Near q2 = 0, q1 and q3 swing by about pi against each other while psi hardly moves:
+    # consecutive arm-angle samples are then far apart on one continuous arc. The arc must
+    # stay one component, filled with exact points no more than 0.2 rad apart.
+    q_target = np.array([0.3, q2_rad, 0.4, -1.2, 0.5, 1.0, 0.2])
+    pose = iiwa14_pose(q_target[None])[0]
+    components = pose_smm(pose[:3, 3], pose[:3, :3])
+    holder = min(components, key=lambda c: np.linalg.norm(c.q_rad - q_target, axis=1).min())
+    assert np.linalg.norm(holder.q_rad - q_target, axis=1).min() < 0.1
+    assert np.ptp(holder.q_rad[:, 0]) > 2.5  # the swing is inside it
+    for component in components:
+        steps = np.linalg.norm(np.diff(component.q_rad, axis=0), axis=1)
+        assert steps.max(initial=0.0) <= 0.2
+        assert np.all(np.abs(component.q_rad) <= LIMITS_RAD)
+        reached = iiwa14_pose(component.q_rad)
+        assert np.abs(reached[:, :3, 3] - pose[:3, 3]).max() < 1e-6
+        assert rotation_angle_rad(reached[:, :3, :3], pose[None, :3, :3]).max() < 1e-6
 
 
 def test_position_smm_points_are_exact_feasible_and_q7_does_not_move_the_position() -> None:
