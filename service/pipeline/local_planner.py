@@ -5,8 +5,9 @@ The check of constrained sampling-based planning (OMPL's ProjectedStateSpace,
 the joint-space segment toward b (the shorter way round only on periodic joints; a
 limited joint never crosses its +-pi seam), project the step onto the fibre with Newton
 (float64) and accept it only if the projection converged, stayed inside the limits, did
-not jump (a step no longer than lambda x delta), made progress toward b and the path so
-far is no longer than lambda x the chord. The edge holds when b is reached. A failed
+not jump (a step no longer than lambda x delta, and no step across a coaxial set where
+the fibre does not reach it: coaxial.py), made progress toward b and the path so far is
+no longer than lambda x the chord. The edge holds when b is reached. A failed
 edge is evidence that a and b lie on different components, so candidate edges may be
 long without merging what is separate. All edges advance in lockstep: one batched
 kinematics call per Newton iteration for every edge still walking.
@@ -14,14 +15,17 @@ kinematics call per Newton iteration for every edge still walking.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from service.pipeline.arrays import BoolArray, FloatArray
+from service.pipeline.coaxial import crossings_on_fibre
 from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.fibre import Fibre, project
 from service.pipeline.joint_space import joint_difference
+from service.pipeline.types import CoaxialSet
 
 
 @dataclass(frozen=True)
@@ -43,6 +47,7 @@ def edges_on_fibre(
     settings: PlannerSettings,
     lambda_: float | None = None,  # overrides settings.lambda_
     deadline: Deadline = NO_DEADLINE,
+    coaxial: Sequence[CoaxialSet] = (),  # sets a step may cross only where the fibre does
 ) -> BoolArray:  # (E,) True where a path on the fibre joins the two ends
     """Walk every edge on the fibre in lockstep; True for the edges that reach their end."""
     num_edges = len(q_from_rad)
@@ -87,6 +92,12 @@ def edges_on_fibre(
             & (np.linalg.norm(goal[index] - q_new, axis=1) < distance[index])
             & (travelled[index] + moved <= stretch * chord[index])
         )
+        if coaxial and ok.any():
+            crossed = np.flatnonzero(ok)
+            ok[crossed] = crossings_on_fibre(
+                fibre, q[index[crossed]], q_new[crossed], coaxial, periodic,
+                settings.projection_tolerance,
+            )  # fmt: skip
         walking[index[~ok]] = False
         q[index[ok]] = q_new[ok]
         travelled[index[ok]] += moved[ok]

@@ -81,7 +81,9 @@ def roadmap_labels(
     num_nodes = len(q_rad)
     if num_nodes == 0:
         return np.zeros(0, dtype=np.int64)
-    roadmap = _Roadmap(fibre, q_rad, lower_rad, upper_rad, periodic, planner, deadline)
+    roadmap = _Roadmap(
+        fibre, q_rad, lower_rad, upper_rad, periodic, planner, deadline, tuple(coaxial)
+    )
     roadmap.join_neighbours(settings)
     roadmap.bridge(settings)
     apart = len(np.unique(roadmap.roots()[:num_nodes])) > 1
@@ -103,6 +105,7 @@ class _Roadmap:
     periodic: BoolArray
     planner: PlannerSettings
     deadline: Deadline
+    coaxial: tuple[CoaxialSet, ...]  # no walked step may cross a set off the fibre
     joined_from: list[IntArray] = field(default_factory=list)
     joined_to: list[IntArray] = field(default_factory=list)
     tested: set[int] = field(default_factory=set)  # a * N_max + b of every edge tried
@@ -123,6 +126,7 @@ class _Roadmap:
         joined = edges_on_fibre(
             self.fibre, self.q_rad[a], self.q_rad[b], self.lower_rad, self.upper_rad,
             self.periodic, self.planner, lambda_=lambda_, deadline=self.deadline,
+            coaxial=self.coaxial,
         )  # fmt: skip
         self.join(a[joined], b[joined])
 
@@ -246,7 +250,7 @@ class _Roadmap:
                 step_rad=settings.steer_step_rad, max_steps=settings.steer_max_steps,
                 lambda_=self.planner.lambda_,
                 projection_tolerance=self.planner.projection_tolerance,
-            ), self.deadline,
+            ), self.deadline, self.coaxial,
         )  # fmt: skip
         first = len(self.q_rad)
         end = np.arange(first, first + len(start))  # (W,) each walk's end, a new node

@@ -11,7 +11,8 @@ gradient-projection step of constrained optimisation, on the fibre). Each step, 
 `step_rad` long, ends inside the limits (a joint that would cross one stops on it), is
 projected back onto the fibre with Newton (the joints on a limit held) and is checked as
 the planner checks its steps: converged within tolerance, inside the limits, no jump (a
-move longer than lambda x the step). A walk ends when it is within one step of b
+move longer than lambda x the step, or across a coaxial set where the fibre does not
+reach it). A walk ends when it is within one step of b
 (arrived), when a step fails, or when it stops getting nearer to b (a local minimum of
 the distance on the fibre). Every walk's steps form a path on the fibre inside the
 limits, from a to where it ended. All walks advance in lockstep: one batched kinematics
@@ -20,14 +21,17 @@ call per Newton iteration for every walk still going.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from service.pipeline.arrays import BoolArray, FloatArray
+from service.pipeline.coaxial import crossings_on_fibre
 from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.fibre import Fibre, evaluate, newton
 from service.pipeline.joint_space import joint_difference, wrap_periodic
+from service.pipeline.types import CoaxialSet
 
 
 @dataclass(frozen=True)
@@ -58,6 +62,7 @@ def steer(
     periodic: BoolArray,  # (n,)
     settings: SteerSettings,
     deadline: Deadline = NO_DEADLINE,
+    coaxial: Sequence[CoaxialSet] = (),  # sets a step may cross only where the fibre does
 ) -> Steer:
     """Walk every a toward its b on the fibre; the walks advance in lockstep."""
     num_walks = len(q_from_rad)
@@ -103,6 +108,12 @@ def steer(
             & inside
             & (moved <= settings.lambda_ * settings.step_rad)
         )
+        if coaxial and ok.any():
+            crossed = np.flatnonzero(ok)
+            ok[crossed] = crossings_on_fibre(
+                fibre, q_a[crossed], q_new[crossed], coaxial, periodic,
+                settings.projection_tolerance,
+            )  # fmt: skip
         walking[index[~ok]] = False
         good = index[ok]
         q[good] = q_new[ok]
