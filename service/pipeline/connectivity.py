@@ -26,7 +26,7 @@ from service.pipeline.arrays import BoolArray, FloatArray, IntArray
 from service.pipeline.correction import error_norms
 from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.fibre import Fibre, smallest_singular_value
-from service.pipeline.joint_space import JointBox, joint_distance
+from service.pipeline.joint_space import JointBox, joint_difference, joint_distance
 from service.pipeline.local_planner import PlannerSettings
 from service.pipeline.roadmap import RoadmapSettings, roadmap_labels
 from service.pipeline.tracing import TracedPiece, TraceSettings, trace_fibre
@@ -65,33 +65,31 @@ def connect(
     redundancy = correction.q_rad.shape[1] - correction.jacobian.shape[1]
     min_sigma = np.inf
     if redundancy > 1:  # r = 1: the trace measures sigma_min along every curve instead
-        sigma = smallest_singular_value(correction.jacobian[acceptance.within_tolerance])
-        min_sigma = float(np.nanmin(sigma, initial=np.inf))
+        sigmas = smallest_singular_value(correction.jacobian[acceptance.within_tolerance])
+        min_sigma = float(np.nanmin(sigmas, initial=np.inf))
     components: list[Component] = []
     leftover = accepted
     complete = True
     if redundancy == 1:
-        trace = trace_fibre(
-            fibre,
-            correction.q_rad[acceptance.within_tolerance],
-            lower_rad,
-            upper_rad,
-            periodic,
-            trace_settings(spec),
-            deadline,
-        )
-        complete = trace.complete
-        min_sigma = min(min_sigma, trace.min_singular_value)
-        paths = []
-        for piece in trace.pieces:
-            path, all_exact = _exact_path(
-                piece, fibre.task, tolerance_position_m, tolerance_orientation_rad, periodic,
-                spec.path_spacing_rad,
+        paths, complete, sigma = _traced_paths(
+            fibre, correction.q_rad[acceptance.within_tolerance], lower_rad, upper_rad,
+            periodic, spec, tolerance_position_m, tolerance_orientation_rad, deadline,
+        )  # fmt: skip
+        on_curve_rad = ON_CURVE_FRACTION * spec.path_spacing_rad
+        owner = _owner_path(correction.q_rad[accepted], paths, periodic, on_curve_rad)
+        if (owner < 0).any():
+            # Samples on no traced curve: curves the first seeds missed, such as a twin
+            # a few hundredths of a radian from a traced one near a singular value.
+            more, more_complete, more_sigma = _traced_paths(
+                fibre, correction.q_rad[accepted[owner < 0]], lower_rad, upper_rad,
+                periodic, spec, tolerance_position_m, tolerance_orientation_rad, deadline,
             )  # fmt: skip
-            complete &= all_exact
-            if len(path.q_rad):
-                paths.append(path)
-        owner = _owner_path(correction.q_rad[accepted], paths, periodic, spec.path_spacing_rad)
+            new = [p for p in more if not _retraced(p, paths, periodic, on_curve_rad)]
+            paths += new
+            complete &= more_complete
+            sigma = min(sigma, more_sigma)
+            owner = _owner_path(correction.q_rad[accepted], paths, periodic, on_curve_rad)
+        min_sigma = min(min_sigma, sigma)
         for index, path in enumerate(paths):
             members = accepted[owner == index]
             components.append(_component(correction, members, path))
@@ -111,6 +109,50 @@ def connect(
         traced=redundancy == 1,
     )
     return Connection(components=components, structure=structure)
+
+
+# A sample lies on a traced curve when it is within this fraction of the path spacing of
+# the path's segments: the chord of a path step of 0.05 rad misses its curve by about
+# curvature x 0.05^2 / 8 (3e-4 rad at a curvature of 1), while a twin curve near a
+# singular value may pass 0.02 rad from it.
+ON_CURVE_FRACTION = 0.2
+
+
+def _traced_paths(
+    fibre: Fibre,
+    q_on_fibre_rad: FloatArray,  # (M, n) seeds' source: samples within tolerance
+    lower_rad: FloatArray,
+    upper_rad: FloatArray,
+    periodic: BoolArray,
+    spec: ConnectivitySpec,
+    tolerance_position_m: float,
+    tolerance_orientation_rad: float,
+    deadline: Deadline,
+) -> tuple[list[ComponentPath], bool, float]:
+    """The exact paths of every curve through the samples; whether all are whole; the
+    least sigma_min met on them."""
+    trace = trace_fibre(
+        fibre, q_on_fibre_rad, lower_rad, upper_rad, periodic, trace_settings(spec), deadline
+    )
+    complete = trace.complete
+    paths = []
+    for piece in trace.pieces:
+        path, all_exact = _exact_path(
+            piece, fibre.task, tolerance_position_m, tolerance_orientation_rad, periodic,
+            spec.path_spacing_rad,
+        )  # fmt: skip
+        complete &= all_exact
+        if len(path.q_rad):
+            paths.append(path)
+    return paths, complete, trace.min_singular_value
+
+
+def _retraced(
+    path: ComponentPath, paths: list[ComponentPath], periodic: BoolArray, on_curve_rad: float
+) -> bool:
+    """The path is one of `paths` traced again: most of its points lie on one of them."""
+    owner = _owner_path(path.q_rad, paths, periodic, on_curve_rad)
+    return bool(np.mean(owner >= 0) > 0.5)
 
 
 def trace_settings(spec: ConnectivitySpec) -> TraceSettings:
@@ -179,18 +221,54 @@ def _owner_path(
     paths: list[ComponentPath],
     periodic: BoolArray,
     spacing_rad: float,
+    candidates: int = 4,
 ) -> IntArray:  # (K,) index of the path each sample lies on, -1 for none
-    """Each sample joins the path whose nearest point is within the path spacing."""
+    """Each sample joins the path that passes nearest to it, if within the path spacing.
+
+    The distance is to the path's segments beside each of the sample's nearest path
+    points, not to the points: a sample lies on its own curve between two points up to
+    the spacing apart, while a twin curve near a singular value can pass nearer than
+    that to it without passing through it.
+    """
     owner = np.full(len(q_rad), -1)
     if not paths or not len(q_rad):
         return owner
-    points = np.concatenate([p.q_rad for p in paths])
+    points = np.concatenate([p.q_rad for p in paths])  # (P, n)
     which = np.concatenate([np.full(len(p.q_rad), i) for i, p in enumerate(paths)])
+    before, after = np.arange(len(points)) - 1, np.arange(len(points)) + 1  # neighbours ...
+    first = np.cumsum([0] + [len(p.q_rad) for p in paths[:-1]])
+    last = first + np.array([len(p.q_rad) for p in paths]) - 1
+    closed = np.array([p.closed for p in paths])
+    before[first] = np.where(closed, last, first)  # ... along each path (a loop wraps)
+    after[last] = np.where(closed, first, last)
     box = JointBox.covering(np.concatenate([points, q_rad]), periodic, margin_rad=1.0)
-    distance, nearest = box.tree(points).query(box.points(q_rad))
-    on_path = distance <= spacing_rad
-    owner[on_path] = which[nearest[on_path]]
+    k = min(candidates, len(points))
+    _, nearest = box.tree(points).query(box.points(q_rad), k=k)  # (K, k)
+    nearest = nearest.reshape(len(q_rad), k)
+    distance = np.minimum(
+        _segment_distance(q_rad, points[nearest], points[before[nearest]], periodic),
+        _segment_distance(q_rad, points[nearest], points[after[nearest]], periodic),
+    )  # (K, k)
+    best = np.argmin(distance, axis=1)
+    rows = np.arange(len(q_rad))
+    on_path = distance[rows, best] <= spacing_rad
+    owner[on_path] = which[nearest[rows, best]][on_path]
     return owner
+
+
+def _segment_distance(
+    q_rad: FloatArray,  # (K, n)
+    a_rad: FloatArray,  # (K, k, n) segment starts
+    b_rad: FloatArray,  # (K, k, n) segment ends
+    periodic: BoolArray,
+) -> FloatArray:  # (K, k) joint-metric distance from each q to each segment a-b
+    along = joint_difference(b_rad, a_rad, periodic)  # (K, k, n)
+    offset = joint_difference(q_rad[:, None, :], a_rad, periodic)
+    length2 = np.einsum("kcn,kcn->kc", along, along)
+    fraction = np.clip(
+        np.einsum("kcn,kcn->kc", offset, along) / np.maximum(length2, 1e-300), 0.0, 1.0
+    )
+    return np.linalg.norm(offset - fraction[..., None] * along, axis=2)
 
 
 def _component(correction: Correction, members: IntArray, path: ComponentPath | None) -> Component:

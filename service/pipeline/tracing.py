@@ -260,7 +260,7 @@ def _walk(
         reached_by.append(index)
         q[index], tangent[index] = reached[-1].q_rad, reached[-1].tangent
         step_rad[index] = np.minimum(h, 1.5 * step_rad[index])
-        _meet(q, previous, tangent, step_rad, alive, partner)
+        _meet(q, previous, tangent, step_rad, h, alive, partner)
     evaluated = seeds.extended(*reached)
     # Each front's points in travel order, as rows of `evaluated` (after the seeds).
     by_front = np.concatenate([np.zeros(0, dtype=np.int64), *reached_by])  # (T - S,)
@@ -277,6 +277,7 @@ def _meet(
     previous: FloatArray,  # (F, n) the ends one step before
     tangent: FloatArray,  # (F, n) directions of travel
     step_rad: FloatArray,  # (F,) each front's current step
+    h: float,  # the full continuation step
     alive: BoolArray,  # (F,) updated: fronts that met stop
     partner: IntArray,  # (F,) updated: the front each met, -1 for none
 ) -> None:
@@ -308,6 +309,16 @@ def _meet(
     near = length <= 1.1 * np.maximum(step_rad[a], step_rad[b])
     head_on = np.einsum("pn,pn->p", tangent[a], tangent[b]) < -0.5
     along = np.abs(np.einsum("pn,pn->p", chord, tangent[a])) >= 0.7 * length
+    # Where both fronts walk at the full step (the curve bends gently there), the chord
+    # of an arc is parallel to the mean of its end tangents (exactly on a circle): off it
+    # by more than a tenth of its length, the ends lie on two nearby curves, such as
+    # twins a few hundredths of a radian apart along a whole fibre near a singular value.
+    # In a sharp bend (a step was halved) the chord may leave the mean tangent more.
+    mean = tangent[a] - tangent[b]  # (P, n), the fronts travel head-on
+    mean /= np.maximum(np.linalg.norm(mean, axis=1, keepdims=True), 1e-300)
+    offset = chord - np.einsum("pn,pn->p", chord, mean)[:, None] * mean
+    gentle = np.minimum(step_rad[a], step_rad[b]) >= h
+    along &= ~gentle | (np.linalg.norm(offset, axis=1) <= 0.1 * length)
     closer = length < before
     ok = np.flatnonzero(near & head_on & along & closer)
     for p in ok[np.argsort(length[ok])].tolist():
