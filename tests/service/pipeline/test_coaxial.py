@@ -2,15 +2,20 @@
 kinematics alone, and on them the slide is an exact self-motion, checked by forward
 kinematics independent of the service's (the iiwa14's DH table, the planar arm's closed
 form): the iiwa14's shoulder (q2 = 0, q1 + q3 fixed), elbow (q4 = 0) and wrist (q6 = 0),
-and the planar arm folded back on itself (q2 = pi, where joint 3 lands on joint 1)."""
+and the planar arm folded back on itself (q2 = pi, where joint 3 lands on joint 1); and a
+step across a set is refused where the fibre does not reach the set (the link lengths
+say so) and kept where a walk along the fibre crosses it."""
 
 import numpy as np
 import pytest
 
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
-from service.pipeline.coaxial import find_coaxial_sets, slide_range
+from service.pipeline.coaxial import crossings_on_fibre, find_coaxial_sets, slide_range
+from tests.service.pipeline.fibre_support import pose_fibre
+from tests.service.pipeline.test_roadmap import null_space_walk
 from tests.support.iiwa14_dh import LIMITS_RAD, iiwa14_pose
+from training.evaluate.references.iiwa14 import inverse_kinematics
 
 
 @pytest.fixture(scope="module")
@@ -55,3 +60,38 @@ def test_the_planar_arm_folded_back_turns_about_its_base(planar3r: ServedModel) 
 
     for a in (-2.0, 0.7, 3.0):
         np.testing.assert_allclose(tip(q + a * sets[0].slide), tip(q), atol=1e-12)
+
+
+def test_a_step_may_cross_a_set_only_where_the_fibre_reaches_it(iiwa14: ServedModel) -> None:
+    """A step between two points of a position fibre that crosses q2 = 0 is refused where
+    the link lengths keep the fibre off that set, and kept where a walk along the fibre
+    really crosses the wrist set q6 = 0."""
+    lower, upper, periodic = iiwa14.manifest.joints.arrays()
+    sets = find_coaxial_sets(iiwa14.kinematics, lower, upper, periodic)
+    shoulder, wrist = sets[0], sets[2]
+    # The end effector is 0.555 m from the elbow-up point; q2 = 0 allows at most 0.526.
+    q_a = np.array([-1.8321, 0.3116, -2.7316, 1.2636, 2.7301, 1.4829, -2.7446])
+    position = iiwa14_pose(q_a[None])[0, :3, 3]
+    assert np.linalg.norm(position - np.array([0, 0, 0.78])) > 0.40 + 0.126
+    fibre = pose_fibre(iiwa14, q_a)
+    # The same pose with the shoulder flipped (the S-R-S IK, branch s = -1): q2 < 0.
+    pose = iiwa14_pose(q_a[None])[0]
+    psi = np.linspace(-np.pi, np.pi, 3600, endpoint=False)
+    twins = np.concatenate([
+        inverse_kinematics(pose[:3, 3], pose[:3, :3], psi, (-1, elbow, wrist_sign))
+        for elbow in (1, -1) for wrist_sign in (1, -1)
+    ])  # fmt: skip
+    q_b = twins[np.argmin(np.linalg.norm(twins - q_a, axis=1))]
+    np.testing.assert_allclose(iiwa14_pose(q_b[None])[0, :3, 3], position, atol=1e-9)
+    assert q_b[1] < 0.0 < q_a[1]
+    crossed = crossings_on_fibre(fibre, q_a[None], q_b[None], [shoulder], periodic, 1e-4)
+    assert not crossed[0]
+    # A walk along one component through q6 = 0: each of its steps is kept.
+    walk = null_space_walk(iiwa14, np.array([0.3, 0.5, -0.4, -1.3, 0.6, 0.9, 0.2]), 400, 0)
+    across = np.flatnonzero(np.sign(walk[1:, 5]) != np.sign(walk[:-1, 5]))
+    assert len(across) >= 1
+    walk_fibre = pose_fibre(iiwa14, walk[0])
+    kept = crossings_on_fibre(walk_fibre, walk[across], walk[across + 1], [wrist], periodic, 1e-4)
+    assert kept.all()
+    # A step that crosses no set is never refused.
+    assert crossings_on_fibre(walk_fibre, walk[:5], walk[1:6], [shoulder], periodic, 1e-4).all()

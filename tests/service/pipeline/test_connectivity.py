@@ -98,3 +98,28 @@ def test_iiwa_pose_components_match_the_srs_ik(iiwa14_pose: ServedModel, seed: i
         assert np.abs(pose[:, :3, 3] - position).max() <= 1e-6
     assert hit == set(range(len(exact)))
     check_paths(result, lower, upper, periodic)
+
+
+@pytest.mark.parametrize("q4_rad", [0.015, 0.03])
+def test_twins_a_few_hundredths_apart_stay_apart(iiwa14_pose: ServedModel, q4_rad: float) -> None:
+    """With the elbow nearly straight (|q4| small), the fibre's curves run in parallel pairs,
+    q4 = +-|q4| on the whole fibre (the elbow angle is fixed by the shoulder-wrist
+    distance), a few hundredths of a radian apart: flagged near-singular, yet no component
+    holds both twins and the count is the S-R-S count."""
+    manifest = iiwa14_pose.manifest
+    q_target = np.array([-0.34, -1.259, 1.261, q4_rad, 2.189, 1.661, -1.119])
+    fk = iiwa14_pose.kinematics(q_target[None])
+    position, rotation = fk.position_m[0], fk.rotation[0]
+    query = Query.for_model(
+        manifest, position_m=position.tolist(), orientation_wxyz=orientation_wxyz(rotation),
+        num_samples=1000, seed=1,
+    )  # fmt: skip
+    result = run(iiwa14_pose, query)
+    exact = pose_smm(position, rotation)
+    assert all(np.ptp(c.q_rad[:, 3]) < 1e-9 for c in exact)  # q4 is constant on each
+    for component in result.components:
+        q = np.concatenate([component.configurations_rad, component.path.q_rad])  # type: ignore[union-attr]
+        assert np.all(np.sign(q[:, 3]) == np.sign(q[0, 3]))
+        # On the fibre (within 1e-6 m, where sigma_min is ~0.4 |q4|, so q4 itself within ~1e-4)
+        assert np.abs(np.abs(q[:, 3]) - q4_rad).max() < 0.1 * q4_rad
+    assert len(result.components) == len(exact)
