@@ -37,9 +37,16 @@ from service.pipeline.fibre import (
     min_singular_value,
     newton,
     project,
+    smallest_singular_value,
     unit_tangent,
 )
 from service.pipeline.joint_space import TWO_PI, wrap_to_pi
+
+# sigma_min(J) below which two meeting fronts may be on twin curves (the iiwa's elbow
+# twins at q4 = +-0.015, 0.03 rad apart, have sigma_min ~ 0.006; on regular pose targets
+# the fibre's least sigma_min is ~0.1).
+TWIN_SIGMA = 0.05
+TWIN_OFFSET = 0.05  # x h: the chord's offset from the mean tangent that marks twins
 
 
 @dataclass(frozen=True)
@@ -228,6 +235,7 @@ def _walk(
     num_fronts = 2 * num_seeds  # front 2i leaves seed i along +t, front 2i + 1 along -t
     q = np.repeat(seeds.q_rad, 2, axis=0)  # (F, n) front ends
     tangent = np.repeat(seeds.tangent, 2, axis=0) * np.tile([1.0, -1.0], num_seeds)[:, None]
+    jacobian = np.repeat(seeds.jacobian, 2, axis=0)  # (F, m, n) at the front ends
     step_rad = np.full(num_fronts, h)  # (F,)
     alive = np.ones(num_fronts, dtype=bool)
     partner = np.full(num_fronts, -1)  # (F,) the front each met, end to end
@@ -259,8 +267,9 @@ def _walk(
         reached.append(_Evaluated.of(corrected, new_tangent).take(moved))
         reached_by.append(index)
         q[index], tangent[index] = reached[-1].q_rad, reached[-1].tangent
+        jacobian[index] = reached[-1].jacobian
         step_rad[index] = np.minimum(h, 1.5 * step_rad[index])
-        _meet(q, previous, tangent, step_rad, h, alive, partner)
+        _meet(q, previous, tangent, jacobian, step_rad, h, alive, partner)
     evaluated = seeds.extended(*reached)
     # Each front's points in travel order, as rows of `evaluated` (after the seeds).
     by_front = np.concatenate([np.zeros(0, dtype=np.int64), *reached_by])  # (T - S,)
@@ -276,6 +285,7 @@ def _meet(
     q: FloatArray,  # (F, n) front ends
     previous: FloatArray,  # (F, n) the ends one step before
     tangent: FloatArray,  # (F, n) directions of travel
+    jacobian: FloatArray,  # (F, m, n) at the front ends
     step_rad: FloatArray,  # (F,) each front's current step
     h: float,  # the full continuation step
     alive: BoolArray,  # (F,) updated: fronts that met stop
@@ -309,16 +319,30 @@ def _meet(
     near = length <= 1.1 * np.maximum(step_rad[a], step_rad[b])
     head_on = np.einsum("pn,pn->p", tangent[a], tangent[b]) < -0.5
     along = np.abs(np.einsum("pn,pn->p", chord, tangent[a])) >= 0.7 * length
-    # Where both fronts walk at the full step (the curve bends gently there), the chord
-    # of an arc is parallel to the mean of its end tangents (exactly on a circle): off it
-    # by more than a tenth of its length, the ends lie on two nearby curves, such as
-    # twins a few hundredths of a radian apart along a whole fibre near a singular value.
-    # In a sharp bend (a step was halved) the chord may leave the mean tangent more.
-    mean = tangent[a] - tangent[b]  # (P, n), the fronts travel head-on
-    mean /= np.maximum(np.linalg.norm(mean, axis=1, keepdims=True), 1e-300)
-    offset = chord - np.einsum("pn,pn->p", chord, mean)[:, None] * mean
-    gentle = np.minimum(step_rad[a], step_rad[b]) >= h
-    along &= ~gentle | (np.linalg.norm(offset, axis=1) <= 0.1 * length)
+    # Near a singular value the curves can run in parallel pairs (twins) a few hundredths
+    # of a radian apart, about as far apart as sigma_min(J) is small. There, where both
+    # fronts walk at the full step (the curve bends gently), the chord of one arc is
+    # parallel to the mean of its end tangents (exactly so on a circle; measured on the
+    # iiwa pose, off by at most 0.002 rad at meetings on one curve): off it by more than
+    # TWIN_OFFSET x h, the ends lie on two twins, which stay their gap apart (0.027 to
+    # 0.066 rad on report targets 50, 70, 132). Elsewhere, and in sharp bends (a step was
+    # halved), the looser test above decides.
+    candidate = np.flatnonzero(near & head_on & along & (length < before))
+    if len(candidate):
+        pa, pb = a[candidate], b[candidate]
+        sigma = np.minimum(
+            smallest_singular_value(jacobian[pa]), smallest_singular_value(jacobian[pb])
+        )
+        mean = tangent[pa] - tangent[pb]  # (C, n), the fronts travel head-on
+        mean /= np.maximum(np.linalg.norm(mean, axis=1, keepdims=True), 1e-300)
+        c = chord[candidate]
+        offset = np.linalg.norm(c - np.einsum("cn,cn->c", c, mean)[:, None] * mean, axis=1)
+        twins = (
+            (sigma < TWIN_SIGMA)
+            & (np.minimum(step_rad[pa], step_rad[pb]) >= h)
+            & (offset > TWIN_OFFSET * h)
+        )
+        along[candidate[twins]] = False
     closer = length < before
     ok = np.flatnonzero(near & head_on & along & closer)
     for p in ok[np.argsort(length[ok])].tolist():
