@@ -135,16 +135,40 @@ def _traced_paths(
         fibre, q_on_fibre_rad, lower_rad, upper_rad, periodic, trace_settings(spec), deadline
     )
     complete = trace.complete
-    paths = []
+    paths: list[ComponentPath] = []
     for piece in trace.pieces:
         path, all_exact = _exact_path(
             piece, fibre.task, tolerance_position_m, tolerance_orientation_rad, periodic,
             spec.path_spacing_rad,
         )  # fmt: skip
         complete &= all_exact
-        if len(path.q_rad):
+        if len(path.q_rad) and not _duplicate(path, paths, periodic, spec.path_spacing_rad):
             paths.append(path)
     return paths, complete, trace.min_singular_value
+
+
+def _duplicate(
+    path: ComponentPath, paths: list[ComponentPath], periodic: BoolArray, spacing_rad: float
+) -> bool:
+    """The same piece traced twice (two chains over one curve): the same arc length, the
+    same ends (open pieces) and, checked last, most points on the other."""
+    if not paths:
+        return False
+    arcs = np.array([p.arc_length_rad for p in paths])  # (P,)
+    alike = np.abs(arcs - path.arc_length_rad) <= max(0.01 * path.arc_length_rad, spacing_rad)
+    for index in np.flatnonzero(alike).tolist():
+        other = paths[index]
+        if other.closed != path.closed:
+            continue
+        if not path.closed:
+            ends, other_ends = path.q_rad[[0, -1]], other.q_rad[[0, -1]]
+            same = joint_distance(ends, other_ends, periodic).max() <= spacing_rad
+            reversed_ = joint_distance(ends, other_ends[::-1], periodic).max() <= spacing_rad
+            if not (same or reversed_):
+                continue
+        if _retraced(path, [other], periodic, ON_CURVE_FRACTION * spacing_rad):
+            return True
+    return False
 
 
 def _retraced(

@@ -1,7 +1,8 @@
 """connectivity (stage 5): components decided on the fibre. r = 1: every curve traced whole,
 cut by the limits, ordered paths that are exact, inside the limits and finely spaced,
-checked against the closed forms (planar 3R) and the S-R-S IK components (iiwa pose);
-r > 1: the roadmap joins one component across sampling gaps and keeps two apart."""
+checked against the closed forms (planar 3R) and the S-R-S IK components (iiwa pose),
+also where twin curves run a few hundredths of a radian apart and where one piece was
+traced twice; r > 1: the roadmap joins one component across sampling gaps and keeps two apart."""
 
 import numpy as np
 import pytest
@@ -15,6 +16,7 @@ from tests.support.iiwa14_dh import iiwa14_pose as dh_pose
 from training.evaluate.references.iiwa14 import pose_smm
 from training.evaluate.references.planar3r import planar3r_position
 from training.evaluate.served import orientation_wxyz
+from training.evaluate.targets import dh_targets
 
 SPACING_RAD = 0.05
 
@@ -123,3 +125,23 @@ def test_twins_a_few_hundredths_apart_stay_apart(iiwa14_pose: ServedModel, q4_ra
         # On the fibre (within 1e-6 m, where sigma_min is ~0.4 |q4|, so q4 itself within ~1e-4)
         assert np.abs(np.abs(q[:, 3]) - q4_rad).max() < 0.1 * q4_rad
     assert len(result.components) == len(exact)
+
+
+def test_a_piece_traced_twice_is_returned_once(iiwa14_pose: ServedModel) -> None:
+    """On this pose (the DH check's target 13) two chains of fronts once covered the same
+    four pieces, each returned twice with the samples split between the copies: every
+    piece comes once, and the count is the S-R-S count."""
+    pose = dh_targets(200, 3).pose[13]
+    query = Query.for_model(
+        iiwa14_pose.manifest, position_m=pose[:3, 3].tolist(),
+        orientation_wxyz=orientation_wxyz(pose[:3, :3]), num_samples=1000, seed=13,
+    )  # fmt: skip
+    result = run(iiwa14_pose, query)
+    assert not result.structure.near_singular
+    assert len(result.components) == len(pose_smm(pose[:3, 3], pose[:3, :3]))
+    ends = [c.path.q_rad[[0, -1]] for c in result.components]  # type: ignore[union-attr]
+    for i in range(len(ends)):
+        for j in range(i):
+            assert (
+                min(np.abs(ends[i] - ends[j]).max(), np.abs(ends[i] - ends[j][::-1]).max()) > 1e-3
+            )
