@@ -244,10 +244,10 @@ def _owner_path(
     q_rad: FloatArray,  # (K, n) accepted samples
     paths: list[ComponentPath],
     periodic: BoolArray,
-    spacing_rad: float,
+    within_rad: float,
     candidates: int = 4,
 ) -> IntArray:  # (K,) index of the path each sample lies on, -1 for none
-    """Each sample joins the path that passes nearest to it, if within the path spacing.
+    """Each sample joins the path that passes nearest to it, if within `within_rad`.
 
     The distance is to the path's segments beside each of the sample's nearest path
     points, not to the points: a sample lies on its own curve between two points up to
@@ -275,7 +275,7 @@ def _owner_path(
     )  # (K, k)
     best = np.argmin(distance, axis=1)
     rows = np.arange(len(q_rad))
-    on_path = distance[rows, best] <= spacing_rad
+    on_path = distance[rows, best] <= within_rad
     owner[on_path] = which[nearest[rows, best]][on_path]
     return owner
 

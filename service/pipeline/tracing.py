@@ -319,6 +319,7 @@ def _meet(
     near = length <= 1.1 * np.maximum(step_rad[a], step_rad[b])
     head_on = np.einsum("pn,pn->p", tangent[a], tangent[b]) < -0.5
     along = np.abs(np.einsum("pn,pn->p", chord, tangent[a])) >= 0.7 * length
+    closer = length < before
     # Near a singular value the curves can run in parallel pairs (twins) a few hundredths
     # of a radian apart, about as far apart as sigma_min(J) is small. There, where both
     # fronts walk at the full step (the curve bends gently), the chord of one arc is
@@ -327,7 +328,7 @@ def _meet(
     # TWIN_OFFSET x h, the ends lie on two twins, which stay their gap apart (0.027 to
     # 0.066 rad on report targets 50, 70, 132). Elsewhere, and in sharp bends (a step was
     # halved), the looser test above decides.
-    candidate = np.flatnonzero(near & head_on & along & (length < before))
+    candidate = np.flatnonzero(near & head_on & along & closer)
     if len(candidate):
         pa, pb = a[candidate], b[candidate]
         sigma = np.minimum(
@@ -343,7 +344,6 @@ def _meet(
             & (offset > TWIN_OFFSET * h)
         )
         along[candidate[twins]] = False
-    closer = length < before
     ok = np.flatnonzero(near & head_on & along & closer)
     for p in ok[np.argsort(length[ok])].tolist():
         i, j = int(a[p]), int(b[p])

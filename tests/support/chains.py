@@ -17,7 +17,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from service.manifest import CHAIN_FILE, MANIFEST_FILE, REPO_MODELS_DIR
+from service.manifest import CHAIN_FILE, KINEMATICS_FILE, MANIFEST_FILE, REPO_MODELS_DIR
+from service.models.sessions import OnnxKinematics, open_session
+from service.pipeline.types import Kinematics
 from tests.support.app import PLANAR3R_DIR
 from training.kinematics import ForwardKinematics, joint_spec, load_chain
 
@@ -105,3 +107,13 @@ def configurations(urdf: Path, end_effector_link: str, count: int, seed: int) ->
     joints = joint_spec(load_chain(urdf, end_effector_link))
     lower, upper, _ = joints.arrays()
     return np.random.default_rng(seed).uniform(lower, upper, (count, joints.count))
+
+
+def assert_chain_equals_onnx(kinematics: Kinematics, model_dir: Path, q_rad: np.ndarray) -> None:
+    """The served chain kernel gives what the model's kinematics.onnx gives at q_rad (B, n):
+    position, rotation and Jacobian within 1e-12."""
+    chain = kinematics(q_rad)
+    reference = OnnxKinematics(open_session(model_dir / KINEMATICS_FILE, threads=1))(q_rad)
+    np.testing.assert_allclose(chain.position_m, reference.position_m, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(chain.rotation, reference.rotation, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(chain.jacobian, reference.jacobian, rtol=0, atol=1e-12)

@@ -26,9 +26,14 @@ from service.manifest import (
 )
 from service.models.chain import SerialChainKinematics
 from service.models.registry import load_model, sha256_of
-from service.models.sessions import OnnxKinematics, open_session
+from service.models.sessions import OnnxKinematics
 from tests.support.app import PLANAR3R_DIR
-from tests.support.chains import TWISTED_END_EFFECTOR, model_without_chain, write_twisted_urdf
+from tests.support.chains import (
+    TWISTED_END_EFFECTOR,
+    assert_chain_equals_onnx,
+    model_without_chain,
+    write_twisted_urdf,
+)
 from training.export import (
     ExportParityError,
     check_chain_parity,
@@ -110,12 +115,8 @@ def test_refresh_writes_the_chain_the_registry_serves_and_touches_nothing_else(
     assert sorted(p.name for p in model_dir.parent.iterdir()) == [PLANAR3R_DIR.name, "robots"]
     served = load_model(model_dir, threads=1)  # verifies every sha256 and chain vs onnx
     assert isinstance(served.kinematics, SerialChainKinematics)
-    onnx = OnnxKinematics(open_session(model_dir / KINEMATICS_FILE, threads=1))
     q = np.random.default_rng(4).uniform(-np.pi, np.pi, (500, 3))
-    chain, reference = served.kinematics(q), onnx(q)
-    np.testing.assert_allclose(chain.position_m, reference.position_m, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(chain.rotation, reference.rotation, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(chain.jacobian, reference.jacobian, rtol=0, atol=1e-12)
+    assert_chain_equals_onnx(served.kinematics, model_dir, q)
 
 
 def test_refresh_refuses_another_urdf_and_leaves_the_model_as_it_was(tmp_path: Path) -> None:

@@ -18,12 +18,12 @@ import numpy as np
 import pytest
 
 from service.errors import ModelUnavailableError, ModelVerificationError, UnknownModelError
-from service.manifest import CHAIN_FILE, KINEMATICS_FILE, MANIFEST_FILE, REPO_MODELS_DIR
+from service.manifest import CHAIN_FILE, MANIFEST_FILE, REPO_MODELS_DIR
 from service.models.chain import SerialChainKinematics
 from service.models.registry import Registry, load_model
-from service.models.sessions import OnnxKinematics, open_session
+from service.models.sessions import OnnxKinematics
 from tests.support.app import PLANAR3R_DIR, make_client
-from tests.support.chains import model_without_chain
+from tests.support.chains import assert_chain_equals_onnx, model_without_chain
 
 
 def copy_models(tmp_path: Path) -> Path:
@@ -122,13 +122,9 @@ def test_bundled_models_are_served_by_their_chain_equal_to_kinematics_onnx(model
     model = load_model(REPO_MODELS_DIR / model_id, threads=1)
     assert CHAIN_FILE in model.manifest.files
     assert isinstance(model.kinematics, SerialChainKinematics)
-    onnx = OnnxKinematics(open_session(REPO_MODELS_DIR / model_id / KINEMATICS_FILE, threads=1))
     lower, upper, _ = model.manifest.joints.arrays()
     q = np.random.default_rng(5).uniform(lower, upper, (1000, len(lower)))
-    chain, reference = model.kinematics(q), onnx(q)
-    np.testing.assert_allclose(chain.position_m, reference.position_m, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(chain.rotation, reference.rotation, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(chain.jacobian, reference.jacobian, rtol=0, atol=1e-12)
+    assert_chain_equals_onnx(model.kinematics, REPO_MODELS_DIR / model_id, q)
 
 
 def test_tampered_chain_is_refused_naming_the_file(tmp_path: Path) -> None:

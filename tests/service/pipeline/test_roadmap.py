@@ -19,7 +19,7 @@ from service.pipeline.fibre import project
 from service.pipeline.roadmap import roadmap_labels
 from service.pipeline.run import run
 from service.pipeline.types import CoaxialSet, Query
-from tests.service.pipeline.fibre_support import pose_fibre
+from tests.service.pipeline.fibre_support import null_space_walk, pose_fibre
 from tests.support.iiwa14_dh import iiwa14_pose
 
 OLD_RADIUS_RAD = 2.5  # the radius graph's default for this model before stage 5
@@ -28,29 +28,6 @@ OLD_RADIUS_RAD = 2.5  # the radius graph's default for this model before stage 5
 @pytest.fixture(scope="module")
 def iiwa14_position() -> ServedModel:
     return load_model(REPO_MODELS_DIR / "iiwa14-position", threads=1)
-
-
-def null_space_walk(model: ServedModel, q0: np.ndarray, steps: int, seed: int) -> np.ndarray:
-    """(k, 7) configurations along a random walk on the fibre of q0's position: each step
-    0.05 rad along the null-space part of a slowly turning random direction, projected
-    back; a step that would leave the limits is not taken and the direction is redrawn."""
-    fibre = pose_fibre(model, q0)
-    lower, upper, _ = model.manifest.joints.arrays()
-    rng = np.random.default_rng(seed)
-    walk = [q0]
-    heading = rng.normal(size=7)
-    for _ in range(steps):
-        q = walk[-1]
-        _, jacobian = fibre.residual(q[None])
-        heading = 0.9 * heading + 0.3 * rng.normal(size=7)
-        d = heading - np.linalg.pinv(jacobian[0]) @ (jacobian[0] @ heading)  # tangent part
-        projected = project(fibre, (q + 0.05 * d / np.linalg.norm(d))[None], 4)
-        nxt = projected.q_rad[0]
-        if projected.error_norm[0] < 1e-10 and np.all((nxt >= lower) & (nxt <= upper)):
-            walk.append(nxt)
-        else:
-            heading = rng.normal(size=7)
-    return np.asarray(walk)
 
 
 def test_a_random_walk_along_one_component_is_one_component(

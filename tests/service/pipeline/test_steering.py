@@ -11,10 +11,9 @@ from scipy.linalg import null_space
 
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
-from service.pipeline.fibre import Fibre, project
+from service.pipeline.fibre import Fibre
 from service.pipeline.steering import SteerSettings, steer, tangent_direction
-from tests.service.pipeline.fibre_support import pose_fibre
-from tests.service.pipeline.test_roadmap import null_space_walk
+from tests.service.pipeline.fibre_support import null_space_walk, pose_fibre
 from tests.support.iiwa14_dh import iiwa14_pose
 
 SETTINGS = SteerSettings(step_rad=0.15, max_steps=100, lambda_=2.0, projection_tolerance=1e-4)
@@ -100,39 +99,13 @@ def test_walks_between_elbow_up_and_down_never_arrive(iiwa14_position: ServedMod
     assert np.all(walk.q_end_rad[:, 3] > 0.0)
 
 
-def held_walk(model: ServedModel, q0: np.ndarray, joint: int, steps: int, seed: int) -> np.ndarray:
-    """(k, 7) a random walk on the fibre of q0's position with one joint held at its value:
-    steps of 0.05 rad along the null space of J's other columns (scipy's basis), projected
-    back with that joint locked."""
-    fibre = pose_fibre(model, q0)
-    lower, upper, _ = model.manifest.joints.arrays()
-    rng = np.random.default_rng(seed)
-    free = np.arange(7) != joint
-    locked = ~free[None]
-    walk, heading = [q0], rng.normal(size=7)
-    for _ in range(steps):
-        q = walk[-1]
-        _, jacobian = fibre.residual(q[None])
-        heading = 0.9 * heading + 0.3 * rng.normal(size=7)
-        basis = null_space(jacobian[0][:, free])
-        d = np.zeros(7)
-        d[free] = basis @ (basis.T @ heading[free])
-        projected = project(fibre, (q + 0.05 * d / np.linalg.norm(d))[None], 4, locked=locked)
-        nxt = projected.q_rad[0]
-        if projected.error_norm[0] < 1e-10 and np.all((nxt >= lower) & (nxt <= upper)):
-            walk.append(nxt)
-        else:
-            heading = rng.normal(size=7)
-    return np.asarray(walk)
-
-
 def test_a_walk_slides_along_a_joint_limit_to_its_goal(iiwa14_position: ServedModel) -> None:
     # Start and goal joined by a path with q6 held at 0.9 (so they are one component when
     # q6 may not exceed 0.9); the walk with the usual limits overshoots 0.9, so with that
     # limit it must hold q6 on it and slide.
     lower, upper, periodic = iiwa14_position.manifest.joints.arrays()
     q0 = np.array([0.3, 0.5, -0.4, -1.3, 0.6, 0.9, 0.2])
-    witness = held_walk(iiwa14_position, q0, joint=5, steps=300, seed=1)
+    witness = null_space_walk(iiwa14_position, q0, steps=300, seed=1, held=5)
     start, goal = witness[0], witness[-1]
     assert np.linalg.norm(goal - start) > 2.0 and np.all(witness[:, 5] == 0.9)
     fibre = pose_fibre(iiwa14_position, q0)
