@@ -1,0 +1,567 @@
+"""Choosing serving defaults by measurement: a built-in sweep with the evaluation's own measures.
+
+It works for any robot trained from a URDF, where no analytic ground truth exists.
+
+Targets: `targets` held-out targets, the model's FK of configurations uniform in its
+limits (seeded), so every target is reachable.
+
+Reference: each target answered once by the SAME pipeline at a large budget (`SweepPlan`:
+4 x the largest candidate num_samples, 50 Euler steps, 12 DLS steps, another sample
+seed). It stands in for the ground truth that a URDF robot lacks: agreement with it says
+whether the cheaper setting finds what the dense one finds, not whether either is exact.
+
+Measures of a candidate setting over the targets:
+  keep rate       accepted / sampled;
+  answered        targets with at least one accepted configuration;
+  count right     targets whose components agree with the reference's: as many as the
+                  reference's counted ones, none a merge, none split
+                  (`training.evaluate.metrics.COUNT_RIGHT_DEFINITION`, the reference in
+                  place of the exact components). Each returned configuration (accepted
+                  sample or path point) belongs to the reference component of its nearest
+                  reference configuration; for r > 1 only reference components holding at
+                  least 1 % of the reference's accepted samples count, and a returned
+                  component lying only on smaller ones is neither counted nor a split;
+  recall          counted reference components holding a returned configuration;
+  coverage p95    over every reference configuration, the joint-metric distance (periodic
+                  joints wrapped, service/pipeline/joint_space.py) to the nearest returned
+                  configuration, 95th percentile over all targets together;
+  time            in-process median over targets of each stage and of the whole query.
+
+Candidates, one axis at a time: Euler sampler steps {10, 20, 50}, then DLS correction
+steps {3, 6, 10}, then num_samples {500, 1000, 2000}. An axis is swept with the other two
+at their values so far (the model's starting defaults, `training.defaults.serving_defaults`,
+replaced by each axis's choice as it is made), so the last axis measures exactly the
+chosen setting. Cost grows with every axis's value (sampler steps x N network
+evaluations, DLS steps x N Jacobians, N), so "cheaper" means the smaller value.
+
+Rule, applied per axis by `pick`: among the candidates answering as many targets as the
+best one (every target whenever any candidate does), take the cheapest whose keep rate is
+within KEEP_RATE_MARGIN, count right within COUNT_RIGHT_MARGIN and recall within
+RECALL_MARGIN of the best candidate's on that axis. When none is within all three margins,
+take the best count right (then keep rate, then recall; ties to the cheaper).
+
+Not swept: damping (the paper's), tolerances (the contract's) and connectivity, taken from
+the per-r table of `training.defaults`. The reference decides components with the same
+connectivity parameters, so agreement with it cannot judge them.
+
+    python -m training.sweep --model-dir models/iiwa14-pose --targets 20 [--out sweep.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import Literal, get_args
+
+import numpy as np
+
+from service.manifest import Defaults, SamplerSpec
+from service.models.registry import ServedModel, load_model
+from service.pipeline.arrays import BoolArray, FloatArray, IntArray
+from service.pipeline.joint_space import JointBox
+from service.pipeline.run import run
+from service.pipeline.types import Query, SmmResult
+from training.defaults import CONNECTIVITY_REASON
+from training.evaluate.metrics import median_stage_ms
+from training.evaluate.served import orientation_wxyz, stage_times_ms, with_defaults
+from training.evaluate.targets import held_out_targets
+
+# The rule's margins, as fractions. One point of keep rate is the spread the bundled
+# models' sweeps saw between 20 and 50 Euler steps; one target in 20 of count right; two
+# points of recall is one reference component in 50.
+KEEP_RATE_MARGIN = 0.01
+COUNT_RIGHT_MARGIN = 0.05
+RECALL_MARGIN = 0.02
+# For r > 1, reference components holding less than this share of the reference's
+# accepted samples are not counted (as the 4-D exact components in the evaluation).
+MIN_COMPONENT_SHARE = 0.01
+# The reference's samples are drawn with the target's seed plus this, apart from the
+# candidates' own.
+REFERENCE_SEED_OFFSET = 1_000_003
+
+Axis = Literal["sampler_steps", "correction_steps", "num_samples"]
+AXES: tuple[Axis, ...] = get_args(Axis)
+# The Defaults reason each axis writes, and how its value reads in a reason.
+_REASON_KEY: dict[Axis, str] = {
+    "sampler_steps": "sampler",
+    "correction_steps": "correction_steps",
+    "num_samples": "num_samples",
+}
+_UNIT: dict[Axis, str] = {
+    "sampler_steps": "Euler steps",
+    "correction_steps": "DLS steps",
+    "num_samples": "samples",
+}
+
+
+@dataclass(frozen=True)
+class SweepPlan:
+    """The candidates of each axis and the reference's budget."""
+
+    sampler_steps: tuple[int, ...] = (10, 20, 50)
+    correction_steps: tuple[int, ...] = (3, 6, 10)
+    num_samples: tuple[int, ...] = (500, 1000, 2000)
+    reference_samples_factor: int = 4  # reference N = this x the largest candidate N
+    reference_sampler_steps: int = 50
+    reference_correction_steps: int = 12
+
+    def candidates(self, axis: Axis) -> tuple[int, ...]:
+        values: tuple[int, ...] = getattr(self, axis)
+        return values
+
+    @property
+    def reference_samples(self) -> int:
+        return self.reference_samples_factor * max(self.num_samples)
+
+    def reference_setting(self) -> Setting:
+        return Setting(
+            self.reference_sampler_steps, self.reference_correction_steps, self.reference_samples
+        )
+
+
+@dataclass(frozen=True)
+class Setting:
+    """The swept serving defaults of one candidate."""
+
+    sampler_steps: int
+    correction_steps: int
+    num_samples: int
+
+    @classmethod
+    def of(cls, defaults: Defaults) -> Setting:
+        return cls(defaults.sampler.steps, defaults.correction_steps, defaults.num_samples)
+
+    def value(self, axis: Axis) -> int:
+        value: int = getattr(self, axis)
+        return value
+
+    def with_value(self, axis: Axis, value: int) -> Setting:
+        return replace(self, **{axis: value})
+
+    def describe(self, *, leaving_out: Axis | None = None) -> str:
+        return ", ".join(
+            f"{self.value(axis)} {_UNIT[axis]}" for axis in AXES if axis != leaving_out
+        )
+
+
+@dataclass(frozen=True)
+class ReferenceAnswer:
+    """One target's dense answer: every configuration it returned and its component."""
+
+    q_rad: FloatArray  # (P, n) accepted samples and path points, all components
+    component: IntArray  # (P,) index of the component holding each
+    counted: BoolArray  # (C,) the components count right and recall count
+    accepted: int
+    total_ms: float
+
+    @property
+    def counted_components(self) -> int:
+        return int(self.counted.sum())
+
+
+@dataclass(frozen=True)
+class TargetAgreement:
+    """One candidate answer against its target's reference."""
+
+    sampled: int
+    accepted: int
+    count_right: bool
+    found: int  # counted reference components holding a returned configuration
+    counted: int  # counted reference components
+    coverage_rad: FloatArray  # (P,) each reference configuration to the nearest returned
+    stage_ms: dict[str, float]
+
+
+@dataclass(frozen=True)
+class Measures:
+    """A candidate over the targets (see the module docstring for each measure)."""
+
+    targets: int
+    answered: int
+    keep_rate: float
+    count_right: float
+    recall: float | None  # None when no reference has a counted component
+    coverage_p95_rad: float | None  # None without reference configurations
+    median_total_ms: float
+    median_stage_ms: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """A row of the sweep table: the axis swept, the setting measured, its measures."""
+
+    axis: Axis
+    setting: Setting
+    measures: Measures
+
+    @property
+    def value(self) -> int:
+        return self.setting.value(self.axis)
+
+    def as_json(self) -> dict[str, object]:
+        return {"axis": self.axis, **asdict(self.setting), **_finite(asdict(self.measures))}
+
+
+@dataclass(frozen=True)
+class SweepResult:
+    """The chosen defaults with their reasons, and the table they were chosen from."""
+
+    defaults: Defaults
+    chosen: Setting
+    table: list[Candidate]  # in the order measured
+    targets: int
+    seed: int
+    plan: SweepPlan
+    reference_median_total_ms: float
+    wall_time_s: float
+
+    def as_json(self) -> dict[str, object]:
+        return {
+            "chosen": asdict(self.chosen),
+            "targets": self.targets,
+            "seed": self.seed,
+            "plan": {**asdict(self.plan), "reference_samples": self.plan.reference_samples},
+            "margins": {
+                "keep_rate": KEEP_RATE_MARGIN,
+                "count_right": COUNT_RIGHT_MARGIN,
+                "recall": RECALL_MARGIN,
+            },
+            "reference_median_total_ms": round(self.reference_median_total_ms, 1),
+            "wall_time_s": round(self.wall_time_s, 1),
+            "table": [row.as_json() for row in self.table],
+            "defaults": self.defaults.model_dump(),
+        }
+
+
+def _finite(values: dict[str, object]) -> dict[str, object]:
+    """inf (nothing returned to measure from) as None, so that the table is strict JSON."""
+    return {
+        k: None if isinstance(v, float) and not np.isfinite(v) else v for k, v in values.items()
+    }
+
+
+# -- the rule ----------------------------------------------------------------------------------
+
+
+def pick(rows: Sequence[Candidate]) -> Candidate:
+    """The rule of the module docstring over the candidates of one axis."""
+    if not rows or len({row.axis for row in rows}) != 1:
+        raise ValueError(f"pick takes the candidates of one axis, got {[r.axis for r in rows]}")
+    most_answered = max(row.measures.answered for row in rows)
+    answering = [row for row in rows if row.measures.answered == most_answered]
+    best_keep = max(row.measures.keep_rate for row in rows)
+    best_count = max(row.measures.count_right for row in rows)
+    best_recall = max((_recall(row) for row in rows), default=0.0)
+    within = [
+        row
+        for row in answering
+        if row.measures.keep_rate >= best_keep - KEEP_RATE_MARGIN
+        and row.measures.count_right >= best_count - COUNT_RIGHT_MARGIN
+        and _recall(row) >= best_recall - RECALL_MARGIN
+    ]
+    if within:
+        return min(within, key=lambda row: row.value)
+    return max(
+        answering,
+        key=lambda row: (
+            row.measures.count_right,
+            row.measures.keep_rate,
+            _recall(row),
+            -row.value,
+        ),
+    )
+
+
+def _recall(row: Candidate) -> float:
+    """Recall for the rule: a target set with nothing to recall puts no candidate behind."""
+    return 1.0 if row.measures.recall is None else row.measures.recall
+
+
+# -- the measures ------------------------------------------------------------------------------
+
+
+def nearest_reference(
+    query_rad: FloatArray,  # (Q, n)
+    data_rad: FloatArray,  # (P, n), P >= 1
+    periodic: BoolArray,  # (n,)
+) -> tuple[FloatArray, IntArray]:  # (Q,) distance in rad, (Q,) index into data_rad
+    """Joint-metric distance from each query configuration to its nearest in `data_rad`
+    (periodic joints wrapped), and which one it is. Exact: the box around limited joints
+    is wider than any distance between the points."""
+    both = np.concatenate([query_rad, data_rad])  # (Q + P, n)
+    span_rad = float(np.linalg.norm(both.max(axis=0) - both.min(axis=0)))
+    box = JointBox.covering(both, periodic, margin_rad=span_rad + 1.0)
+    distance_rad, index = box.tree(data_rad).query(box.points(query_rad))
+    return np.asarray(distance_rad, dtype=np.float64), np.asarray(index, dtype=np.int64)
+
+
+def coverage_distances(
+    reference_rad: FloatArray,  # (P, n)
+    returned_rad: FloatArray,  # (K, n)
+    periodic: BoolArray,  # (n,)
+) -> FloatArray:  # (P,)
+    """Each reference configuration's joint-metric distance to the nearest returned one
+    (inf when nothing was returned)."""
+    if len(returned_rad) == 0:
+        return np.full(len(reference_rad), np.inf)
+    if len(reference_rad) == 0:
+        return np.zeros(0)
+    return nearest_reference(reference_rad, returned_rad, periodic)[0]
+
+
+def _members(result: SmmResult, num_joints: int) -> list[FloatArray]:
+    """Each component's returned configurations (K_c, n): accepted samples and path points."""
+    members = []
+    for component in result.components:
+        q_rad = component.configurations_rad.reshape(-1, num_joints)
+        if component.path is not None:
+            q_rad = np.concatenate([q_rad, component.path.q_rad])
+        members.append(q_rad)
+    return members
+
+
+def reference_answer(result: SmmResult, num_joints: int, redundancy: int) -> ReferenceAnswer:
+    members = _members(result, num_joints)
+    sizes = np.array([c.size for c in result.components], dtype=np.int64)  # (C,)
+    accepted = result.counts.accepted
+    counted = (
+        np.ones(len(sizes), dtype=bool)
+        if redundancy == 1
+        else sizes >= MIN_COMPONENT_SHARE * max(accepted, 1)
+    )
+    return ReferenceAnswer(
+        q_rad=np.concatenate([np.zeros((0, num_joints)), *members]),
+        component=np.concatenate(
+            [np.zeros(0, np.int64)] + [np.full(len(q), c) for c, q in enumerate(members)]
+        ),
+        counted=counted,
+        accepted=accepted,
+        total_ms=result.timings.total_ms,
+    )
+
+
+def agreement(
+    result: SmmResult, reference: ReferenceAnswer, periodic: BoolArray
+) -> TargetAgreement:
+    """One candidate answer against the reference (the module docstring's measures)."""
+    num_joints = len(periodic)
+    members = _members(result, num_joints)
+    returned = np.concatenate([np.zeros((0, num_joints)), *members])
+    coverage = coverage_distances(reference.q_rad, returned, periodic)
+    counted = reference.counted
+    if len(reference.q_rad) == 0:
+        count_right, found = len(members) == 0, 0
+    else:
+        # (K,) the reference component of each returned configuration, split by component
+        owner = reference.component[nearest_reference(returned, reference.q_rad, periodic)[1]]
+        ends = np.cumsum([len(q) for q in members])[:-1]
+        touched = [np.unique(on) for on in np.split(owner, ends) if len(on)]
+        holders = np.zeros(len(counted), dtype=np.int64)  # (C,) returned components on each
+        for on in touched:
+            holders[on[counted[on]]] += 1
+        extra_small = sum(int(not counted[on].any()) for on in touched)
+        merges = sum(int(counted[on].sum() > 1) for on in touched)
+        splits = int(((holders > 1) & counted).sum())
+        count_right = (
+            len(members) - extra_small == reference.counted_components and not merges + splits
+        )
+        found = int(((holders > 0) & counted).sum())
+    return TargetAgreement(
+        sampled=result.counts.sampled,
+        accepted=result.counts.accepted,
+        count_right=bool(count_right),
+        found=found,
+        counted=reference.counted_components,
+        coverage_rad=coverage,
+        stage_ms=stage_times_ms(result),
+    )
+
+
+def summarise(answers: Sequence[TargetAgreement]) -> Measures:
+    """One candidate's measures over its targets' agreements."""
+    counted = sum(a.counted for a in answers)
+    coverage = np.concatenate([a.coverage_rad for a in answers])
+    stage_ms = median_stage_ms([a.stage_ms for a in answers])
+    return Measures(
+        targets=len(answers),
+        answered=sum(a.accepted > 0 for a in answers),
+        keep_rate=sum(a.accepted for a in answers) / sum(a.sampled for a in answers),
+        count_right=float(np.mean([a.count_right for a in answers])),
+        recall=sum(a.found for a in answers) / counted if counted else None,
+        coverage_p95_rad=float(np.percentile(coverage, 95)) if len(coverage) else None,
+        median_total_ms=stage_ms["total"],
+        median_stage_ms=stage_ms,
+    )
+
+
+# -- the sweep ---------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Targets:
+    """The sweep's targets as the query's arguments."""
+
+    position_m: list[list[float]]  # T x (m_p,)
+    orientation_wxyz: list[tuple[float, float, float, float] | None]  # T
+
+
+def _targets(model: ServedModel, count: int, seed: int) -> _Targets:
+    task = model.manifest.task
+    drawn = held_out_targets(model, count, seed)
+    return _Targets(
+        position_m=[drawn.position_m[i, task.position_axes].tolist() for i in range(count)],
+        orientation_wxyz=[
+            orientation_wxyz(drawn.rotation[i]) if task.orientation else None for i in range(count)
+        ],
+    )
+
+
+def _answer(
+    model: ServedModel, setting: Setting, targets: _Targets, i: int, seed: int
+) -> SmmResult:
+    candidate = with_defaults(
+        model,
+        sampler=SamplerSpec(method="euler", steps=setting.sampler_steps),
+        correction_steps=setting.correction_steps,
+        num_samples=setting.num_samples,
+    )
+    query = Query.for_model(
+        candidate.manifest,
+        position_m=targets.position_m[i],
+        orientation_wxyz=targets.orientation_wxyz[i],
+        seed=seed,
+    )
+    return run(candidate, query)
+
+
+def sweep_defaults(
+    model: ServedModel, targets: int, seed: int, plan: SweepPlan = SweepPlan()
+) -> SweepResult:
+    """Choose the model's sampler steps, DLS steps and num_samples by the rule of the module
+    docstring, starting from its manifest's defaults; the rest of them is kept."""
+    if targets < 1:
+        raise ValueError(f"a sweep needs at least 1 target, got {targets}")
+    for axis in AXES:
+        if not plan.candidates(axis) or min(plan.candidates(axis)) < 1:
+            raise ValueError(f"{axis}: candidates must be positive integers, got {plan}")
+    start_s = time.perf_counter()
+    manifest = model.manifest
+    periodic = np.asarray(manifest.joints.periodic, dtype=bool)
+    drawn = _targets(model, targets, seed)
+    run(model, Query.for_model(manifest, position_m=drawn.position_m[0],
+                               orientation_wxyz=drawn.orientation_wxyz[0]))  # fmt: skip
+    # warm-up above: onnxruntime's first-call allocations stay out of the timings.
+    references = [
+        reference_answer(
+            _answer(model, plan.reference_setting(), drawn, i, seed + REFERENCE_SEED_OFFSET + i),
+            manifest.joints.count,
+            manifest.redundancy,
+        )
+        for i in range(targets)
+    ]
+    measured: dict[Setting, Measures] = {}
+    table: list[Candidate] = []
+    reasons: dict[str, str] = {}
+    chosen = Setting.of(manifest.defaults)
+    for axis in AXES:
+        rows = []
+        for value in plan.candidates(axis):
+            setting = chosen.with_value(axis, value)
+            if setting not in measured:
+                measured[setting] = summarise(
+                    [
+                        agreement(_answer(model, setting, drawn, i, seed + i), ref, periodic)
+                        for i, ref in enumerate(references)
+                    ]
+                )
+            rows.append(Candidate(axis, setting, measured[setting]))
+        best = pick(rows)
+        table += rows
+        reasons[_REASON_KEY[axis]] = axis_reason(rows, best, seed, plan)
+        chosen = best.setting
+    reasons["connectivity"] = (
+        "taken from the per-r table of training/defaults.py, not swept: the dense reference "
+        "decides components with these same parameters, so agreement with it cannot judge "
+        f"them; {CONNECTIVITY_REASON}"
+    )
+    defaults = Defaults.model_validate(
+        {
+            **manifest.defaults.model_dump(),
+            "num_samples": chosen.num_samples,
+            "sampler": {"method": "euler", "steps": chosen.sampler_steps},
+            "correction_steps": chosen.correction_steps,
+            "reasons": {**manifest.defaults.reasons, **reasons},
+        }
+    )
+    return SweepResult(
+        defaults=defaults,
+        chosen=chosen,
+        table=table,
+        targets=targets,
+        seed=seed,
+        plan=plan,
+        reference_median_total_ms=float(np.median([r.total_ms for r in references])),
+        wall_time_s=time.perf_counter() - start_s,
+    )
+
+
+def choose_defaults(
+    model_dir: Path, targets: int, seed: int, plan: SweepPlan = SweepPlan(), threads: int = 1
+) -> SweepResult:
+    """`sweep_defaults` on the model in `model_dir`, loaded as the service loads it."""
+    return sweep_defaults(load_model(model_dir, threads=threads), targets, seed, plan)
+
+
+# -- the reasons -------------------------------------------------------------------------------
+
+
+def _figures(row: Candidate) -> str:
+    m = row.measures
+    recall = "-" if m.recall is None else f"{m.recall:.1%}"
+    coverage = "-" if m.coverage_p95_rad is None else f"{m.coverage_p95_rad:.3f} rad"
+    return (
+        f"{row.value}: keep rate {m.keep_rate:.1%}, answered {m.answered}/{m.targets}, "
+        f"count right {m.count_right:.0%}, recall {recall}, coverage p95 {coverage}, "
+        f"median {m.median_total_ms:.0f} ms per query in this process"
+    ).replace("%", " %")
+
+
+def axis_reason(rows: Sequence[Candidate], best: Candidate, seed: int, plan: SweepPlan) -> str:
+    """Why `best` was chosen, with the measured figures of every candidate on its axis."""
+    axis = best.axis
+    m = best.measures
+    reference = plan.reference_setting()
+    return (
+        f"{best.value} {_UNIT[axis]} by the rule of training/sweep.py (the cheapest "
+        f"candidate answering the most targets within {KEEP_RATE_MARGIN * 100:g} point of the "
+        f"best keep rate, {COUNT_RIGHT_MARGIN * 100:g} points of the best count right and "
+        f"{RECALL_MARGIN * 100:g} points of the best recall); "
+        f"{m.targets} held-out targets (FK of random configurations, seed {seed}), with "
+        f"{best.setting.describe(leaving_out=axis)}, against a dense reference of the same "
+        f"pipeline ({reference.describe()}): " + "; ".join(_figures(row) for row in rows)
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawTextHelpFormatter
+    )
+    parser.add_argument("--model-dir", required=True, type=Path)
+    parser.add_argument("--targets", type=int, default=20)
+    parser.add_argument("--seed", type=int, default=11, help="seed of the held-out targets")
+    parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--out", type=Path, help="write the sweep table as JSON here")
+    args = parser.parse_args()
+    result = choose_defaults(args.model_dir, args.targets, args.seed, threads=args.threads)
+    text = json.dumps(result.as_json(), indent=1)
+    if args.out:
+        args.out.write_text(text + "\n")
+    print(text)
+
+
+if __name__ == "__main__":
+    main()
