@@ -3,8 +3,9 @@
 - `best.pt`: the best-validation weights with their provenance; `smm-train
   --from-checkpoint` re-exports it without training.
 - `last.pt`: everything needed to go on after the last finished epoch (weights, optimiser,
-  schedule, random generator, best so far, history, wall time); `smm-train --resume`
-  continues from it and ends with the same weights as a run that was never stopped.
+  schedule, random generator, weight average, best so far, history, wall time), written
+  also mid-epoch (every `checkpoint_minutes`) with where the epoch stood; `smm-train
+  --resume` continues from it and ends with the same weights as a run never stopped.
 """
 
 from __future__ import annotations
@@ -24,7 +25,16 @@ LAST_FILE = "last.pt"
 HISTORY_FILE = "history.json"
 # Settings a resumed run may change: where and how fast it runs, and the measurement after.
 CHANGEABLE_ON_RESUME = frozenset(
-    {"device", "threads", "eval_targets", "eval_samples_per_target", "eval_seed"}
+    {
+        "device",
+        "threads",
+        "eval_targets",
+        "eval_samples_per_target",
+        "eval_seed",
+        "sweep_targets",
+        "sweep_seed",
+        "checkpoint_minutes",
+    }
 )
 
 
@@ -32,7 +42,7 @@ CHANGEABLE_ON_RESUME = frozenset(
 class TrainResult:
     """A trained flow and the record of how it was trained."""
 
-    model: VelocityField  # best-validation weights
+    model: VelocityField  # best-validation weights (the weight average's with ema_decay)
     best_validation_loss: float
     best_epoch: int
     history: list[dict[str, float]]  # per epoch: epoch, train_loss, validation_loss
@@ -97,7 +107,9 @@ def load_best(path: Path) -> BestCheckpoint:
 
 @dataclass
 class RunState:
-    """last.pt: a run after `next_epoch` finished epochs, enough to continue it exactly."""
+    """last.pt: a run after `next_epoch` finished epochs and `next_batch` batches of the
+    next one, enough to continue it exactly. Fields with defaults came later: a last.pt
+    written before them loads as a run without them."""
 
     config: TrainConfig
     next_epoch: int
@@ -110,6 +122,12 @@ class RunState:
     best_model: dict[str, torch.Tensor]
     history: list[dict[str, float]]
     wall_time_s: float  # training time so far, over every session
+    ema_model: dict[str, torch.Tensor] | None = None  # the weight average, when ema_decay > 0
+    # Mid-epoch: the generator state the epoch's shuffle was drawn from, the batches done
+    # and the sum of their losses (next_batch 0: at an epoch boundary).
+    epoch_start_generator: torch.Tensor | None = None
+    next_batch: int = 0
+    epoch_loss_sum: float = 0.0
 
 
 def save_state(path: Path, state: RunState) -> None:

@@ -50,28 +50,88 @@ def fit_condition_normalisation(features: np.ndarray) -> AffineNormalisation:
 
 
 @dataclass(frozen=True)
-class FlowData:
+class FlowPairs:
     """Normalised training pairs: targets of the flow (q_1) and their conditions."""
+
+    q_1: torch.Tensor  # (N, n) float32, joint limits at -1 and 1
+    condition: torch.Tensor  # (N, c) float32, the fitted range at -1 and 1
+
+
+def fresh_seed(seed: int, epoch: int) -> int:
+    """The Sobol scramble seed of `epoch`'s fresh configurations in a run seeded `seed`."""
+    return int(np.random.SeedSequence([seed, epoch]).generate_state(1)[0])
+
+
+@dataclass(frozen=True)
+class Labeller:
+    """Draws configurations and labels them with FK, normalised by fixed normalisations.
+
+    Built once from the initial data, so every later draw (fresh data each epoch) is
+    normalised exactly as the data the normalisation was fitted on.
+    """
+
+    fk: ForwardKinematics
+    joints: JointSpec
+    task: TaskSpec
+    joint_normalisation: AffineNormalisation
+    condition_normalisation: AffineNormalisation
+
+    def label(self, q: torch.Tensor) -> FlowPairs:
+        """Normalised pairs of configurations q (N, n) float64."""
+        return self.normalise(q, condition_features_of(self.fk, self.task, q))
+
+    def normalise(self, q: torch.Tensor, features: np.ndarray) -> FlowPairs:
+        """Pairs of configurations q (N, n) float64 and their raw condition features (N, c)."""
+        return FlowPairs(
+            q_1=torch.from_numpy(self.joint_normalisation.normalise(q.numpy()).astype(np.float32)),
+            condition=torch.from_numpy(
+                self.condition_normalisation.normalise(features).astype(np.float32)
+            ),
+        )
+
+    def __call__(self, count: int, seed: int) -> FlowPairs:
+        """`count` pairs from the Sobol points of scramble `seed`."""
+        return self.label(sobol_configurations(self.joints, count, seed))
+
+
+def condition_features_of(fk: ForwardKinematics, task: TaskSpec, q: torch.Tensor) -> np.ndarray:
+    """Raw condition features (N, c) of configurations q (N, n) float64 for `task`."""
+    position, rotation = end_effector_poses(fk, q)
+    return condition_features(
+        task, position[:, task.position_axes], rotation if task.orientation else None
+    )
+
+
+@dataclass(frozen=True)
+class FlowData:
+    """Normalised training pairs, their normalisations, and how to label more of them."""
 
     q_1: torch.Tensor  # (N, n) float32 in [-1, 1]
     condition: torch.Tensor  # (N, c) float32 in [-1, 1]
     joint_normalisation: AffineNormalisation
     condition_normalisation: AffineNormalisation
+    # Labels new configurations like these (training with fresh_data needs it).
+    labeller: Labeller | None = None
 
 
 def build_flow_data(
     fk: ForwardKinematics, joints: JointSpec, task: TaskSpec, count: int, seed: int
 ) -> FlowData:
+    """`count` Sobol configurations (scramble `seed`) labelled by FK; normalisations fitted."""
     q = sobol_configurations(joints, count, seed)
-    position, rotation = end_effector_poses(fk, q)
-    features = condition_features(
-        task, position[:, task.position_axes], rotation if task.orientation else None
+    features = condition_features_of(fk, task, q)
+    labeller = Labeller(
+        fk=fk,
+        joints=joints,
+        task=task,
+        joint_normalisation=joint_normalisation(joints),
+        condition_normalisation=fit_condition_normalisation(features),
     )
-    joint_norm = joint_normalisation(joints)
-    condition_norm = fit_condition_normalisation(features)
+    pairs = labeller.normalise(q, features)
     return FlowData(
-        q_1=torch.from_numpy(joint_norm.normalise(q.numpy()).astype(np.float32)),
-        condition=torch.from_numpy(condition_norm.normalise(features).astype(np.float32)),
-        joint_normalisation=joint_norm,
-        condition_normalisation=condition_norm,
+        q_1=pairs.q_1,
+        condition=pairs.condition,
+        joint_normalisation=labeller.joint_normalisation,
+        condition_normalisation=labeller.condition_normalisation,
+        labeller=labeller,
     )

@@ -1,8 +1,9 @@
 """The training loop: conditional flow matching over (q, FK(q)) pairs, best validation kept.
 
-`train()` runs the epochs; with a run directory it writes `last.pt` after every epoch
-(checkpoint.py), so a run that is stopped continues with `resume=True` to the same
-weights. The command line is `training/cli.py`.
+`train()` runs the epochs; with a run directory it writes, after every epoch, `log.jsonl`
+and `loss.png` (run_log.py) and `last.pt` (checkpoint.py), and `last.pt` also mid-epoch at
+most every `checkpoint_minutes`, so a run that is stopped anywhere continues with
+`resume=True` to the same weights. The command line is `training/cli.py`.
 """
 
 from __future__ import annotations
@@ -10,16 +11,22 @@ from __future__ import annotations
 import copy
 import math
 import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 import torch
+from torch import nn
 from tqdm import tqdm
 
 from training.checkpoint import LAST_FILE, RunState, TrainResult, load_state, save_state
 from training.config import TrainConfig
-from training.data import FlowData
-from training.flow import cfm_loss
+from training.data import FlowData, FlowPairs, fresh_seed
+from training.ema import WeightAverage
+from training.flow import TimeSampling, cfm_loss
 from training.model import VelocityField
+from training.run_log import LOG_FILE, LOSS_PLOT_FILE, plot_losses, read_log, write_log
 
 
 def build_model(config: TrainConfig, data: FlowData) -> VelocityField:
@@ -30,6 +37,7 @@ def build_model(config: TrainConfig, data: FlowData) -> VelocityField:
         hidden_width=config.hidden_width,
         hidden_layers=config.hidden_layers,
         time_embedding_dim=config.time_embedding_dim,
+        architecture=config.architecture,
     )
 
 
@@ -42,46 +50,77 @@ def split(
     return order[num_val:], order[:num_val]
 
 
+@dataclass
+class Optimisation:
+    """What a training step updates and draws from."""
+
+    model: VelocityField
+    optimizer: torch.optim.Optimizer
+    scheduler: torch.optim.lr_scheduler.LRScheduler
+    ema: WeightAverage | None  # updated after every step when on
+    generator: torch.Generator  # noise and times
+    times: TimeSampling
+    batch_size: int
+    autocast_bf16: bool  # the forward pass under bf16 autocast; the loss in float32
+
+
+@dataclass
+class EpochCursor:
+    """Where an epoch stands: the generator state its shuffle was drawn from, the batches
+    done and the sum of their losses."""
+
+    start_generator: torch.Tensor
+    next_batch: int = 0
+    loss_sum: float = 0.0
+
+
 def train_one_epoch(
-    model: VelocityField,
-    q_1: torch.Tensor,
-    condition: torch.Tensor,
-    optimizer: torch.optim.Optimizer,
-    scheduler: torch.optim.lr_scheduler.LRScheduler,
-    batch_size: int,
-    generator: torch.Generator,
+    step: Optimisation,
+    pairs: FlowPairs,
+    order: torch.Tensor,
+    cursor: EpochCursor,
     progress: tqdm,
+    after_batch: Callable[[EpochCursor], None] | None = None,
 ) -> float:
-    """One pass over (q_1, condition) in shuffled batches; returns the mean training loss."""
+    """The batches of `order` (N,) from `cursor.next_batch` on; returns the epoch's mean loss.
+
+    `after_batch` sees the cursor after every batch but the epoch's last.
+    """
+    model = step.model
     model.train()
-    device = q_1.device
-    order = torch.randperm(q_1.shape[0], generator=generator).to(device)
-    total, batches = 0.0, 0
-    for start in range(0, len(order), batch_size):
-        index = order[start : start + batch_size]
-        q_0 = torch.randn(len(index), q_1.shape[1], generator=generator).to(device)
-        t = torch.rand(len(index), 1, generator=generator).to(device)
-        loss = cfm_loss(model, q_1[index], condition[index], q_0, t)
-        optimizer.zero_grad(set_to_none=True)
+    device = pairs.q_1.device
+    batches = math.ceil(len(order) / step.batch_size)
+    for batch in range(cursor.next_batch, batches):
+        index = order[batch * step.batch_size : (batch + 1) * step.batch_size]
+        q_0 = torch.randn(len(index), pairs.q_1.shape[1], generator=step.generator).to(device)
+        t = step.times.sample(len(index), step.generator).to(device)
+        with torch.autocast(device.type, dtype=torch.bfloat16, enabled=step.autocast_bf16):
+            loss = cfm_loss(model, pairs.q_1[index], pairs.condition[index], q_0, t)
+        step.optimizer.zero_grad(set_to_none=True)
         loss.backward()
-        optimizer.step()
-        scheduler.step()
-        total += loss.item()
-        batches += 1
+        step.optimizer.step()
+        step.scheduler.step()
+        if step.ema is not None:
+            step.ema.update(model)
+        cursor.loss_sum += loss.item()
+        cursor.next_batch = batch + 1
         progress.update(1)
-    return total / batches
+        if after_batch is not None and cursor.next_batch < batches:
+            after_batch(cursor)
+    return cursor.loss_sum / batches
 
 
 @torch.no_grad()
 def validation_loss(
-    model: VelocityField,
+    model: nn.Module,
     q_1: torch.Tensor,
     condition: torch.Tensor,
     q_0: torch.Tensor,
     t: torch.Tensor,
     batch_size: int = 65_536,
 ) -> float:
-    """Validation CFM loss with fixed noise and times, so epochs compare like for like."""
+    """Validation CFM loss with fixed noise and uniform times, in float32, so epochs (and
+    runs with other time samplings or autocast) compare like for like."""
     model.eval()
     total = 0.0
     for start in range(0, q_1.shape[0], batch_size):
@@ -95,15 +134,23 @@ def train(
 ) -> TrainResult:
     """Train `config.epochs` epochs on `data`; return the best-validation weights.
 
-    With `run_dir`, the state after each epoch goes to `run_dir/last.pt`; with `resume`,
-    training continues from there (ValueError if it was written with other settings).
+    With `run_dir`, the state goes to `run_dir/last.pt` after each epoch (and mid-epoch
+    every `config.checkpoint_minutes`), with log.jsonl and loss.png beside it; with
+    `resume`, training continues from there (ValueError if it was written with other
+    settings). With `config.fresh_data`, epochs after the first train on new
+    configurations from `data.labeller`; the validation split stays `data`'s.
     """
+    times = TimeSampling(config.time_sampling, config.time_logit_mean, config.time_logit_std)
+    labeller = data.labeller
+    if config.fresh_data and labeller is None:
+        raise ValueError("fresh_data needs FlowData with a labeller (build_flow_data makes one)")
     torch.manual_seed(config.seed)
     generator = torch.Generator().manual_seed(config.seed)
     device = torch.device(config.device)
     train_index, val_index = split(data, config.validation_fraction, generator)
-    q_train = data.q_1[train_index].to(device)
-    c_train = data.condition[train_index].to(device)
+    train_pairs = FlowPairs(
+        data.q_1[train_index].to(device), data.condition[train_index].to(device)
+    )
     q_val = data.q_1[val_index].to(device)
     c_val = data.condition[val_index].to(device)
     q_0_val = torch.randn(q_val.shape, generator=generator).to(device)
@@ -113,13 +160,25 @@ def train(
     optimizer = torch.optim.AdamW(
         model.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay
     )
-    steps_per_epoch = math.ceil(q_train.shape[0] / config.batch_size)
+    steps_per_epoch = math.ceil(len(train_index) / config.batch_size)
     scheduler = torch.optim.lr_scheduler.CosineAnnealingLR(
         optimizer, T_max=config.epochs * steps_per_epoch
     )
-    first_epoch, elapsed_s = 0, 0.0
-    best_loss, best_epoch, best_state = math.inf, -1, copy.deepcopy(model.state_dict())
+    step = Optimisation(
+        model=model,
+        optimizer=optimizer,
+        scheduler=scheduler,
+        ema=None if config.ema_decay == 0 else WeightAverage(model, config.ema_decay),
+        generator=generator,
+        times=times,
+        batch_size=config.batch_size,
+        autocast_bf16=config.autocast_bf16,
+    )
+    evaluated = model if step.ema is None else step.ema.model  # validated, kept, exported
+    first_epoch, elapsed_s, resumed_cursor = 0, 0.0, None
+    best_loss, best_epoch, best_state = math.inf, -1, copy.deepcopy(evaluated.state_dict())
     history: list[dict[str, float]] = []
+    log_rows: list[dict[str, float]] = []
     last_path = None if run_dir is None else run_dir / LAST_FILE
     if run_dir is not None:
         run_dir.mkdir(parents=True, exist_ok=True)
@@ -131,6 +190,8 @@ def train(
         optimizer.load_state_dict(state.optimizer)
         scheduler.load_state_dict(state.scheduler)
         generator.set_state(state.generator)
+        if step.ema is not None and state.ema_model is not None:
+            step.ema.model.load_state_dict(state.ema_model)
         first_epoch, elapsed_s = state.next_epoch, state.wall_time_s
         best_loss, best_epoch, best_state = (
             state.best_validation_loss,
@@ -138,55 +199,109 @@ def train(
             state.best_model,
         )
         history = state.history
-
+        if state.next_batch and state.epoch_start_generator is not None:
+            resumed_cursor = EpochCursor(
+                state.epoch_start_generator, state.next_batch, state.epoch_loss_sum
+            )
+        if run_dir is not None:
+            log_rows = [r for r in read_log(run_dir / LOG_FILE) if r["epoch"] < first_epoch]
     session_start = time.perf_counter()
+    last_saved = session_start
+
+    def wall_time_s() -> float:
+        return elapsed_s + time.perf_counter() - session_start
+
+    def save(next_epoch: int, cursor: EpochCursor | None) -> None:
+        nonlocal last_saved
+        if last_path is None:
+            return
+        save_state(
+            last_path,
+            RunState(
+                config=config,
+                next_epoch=next_epoch,
+                model=model.state_dict(),
+                optimizer=optimizer.state_dict(),
+                scheduler=scheduler.state_dict(),
+                generator=generator.get_state(),
+                best_validation_loss=best_loss,
+                best_epoch=best_epoch,
+                best_model=best_state,
+                history=history,
+                wall_time_s=wall_time_s(),
+                ema_model=None if step.ema is None else step.ema.model.state_dict(),
+                epoch_start_generator=None if cursor is None else cursor.start_generator,
+                next_batch=0 if cursor is None else cursor.next_batch,
+                epoch_loss_sum=0.0 if cursor is None else cursor.loss_sum,
+            ),
+        )
+        last_saved = time.perf_counter()
+
+    def save_if_due(epoch: int, cursor: EpochCursor) -> None:
+        if time.perf_counter() - last_saved >= 60 * config.checkpoint_minutes:
+            save(epoch, cursor)
+
+    batches_done = first_epoch * steps_per_epoch + (
+        resumed_cursor.next_batch if resumed_cursor else 0
+    )
     with tqdm(
         total=config.epochs * steps_per_epoch,
-        initial=first_epoch * steps_per_epoch,
+        initial=batches_done,
         unit="batch",
         mininterval=2.0,
+        smoothing=0.0,  # ETA from this session's mean rate, pauses (validation, labels) included
     ) as progress:
         for epoch in range(first_epoch, config.epochs):
+            labelling_started = time.perf_counter()
+            pairs = train_pairs
+            if config.fresh_data and epoch > 0 and labeller is not None:
+                fresh = labeller(len(train_index), fresh_seed(config.seed, epoch))
+                pairs = FlowPairs(fresh.q_1.to(device), fresh.condition.to(device))
+            labelling_s = time.perf_counter() - labelling_started
+            if resumed_cursor is None:
+                cursor = EpochCursor(generator.get_state())
+                order = torch.randperm(len(train_index), generator=generator).to(device)
+            else:  # the shuffle drawn before the stop, then the generator where it stopped
+                cursor, resumed_cursor = resumed_cursor, None
+                now = generator.get_state()
+                generator.set_state(cursor.start_generator)
+                order = torch.randperm(len(train_index), generator=generator).to(device)
+                generator.set_state(now)
+            first_batch, training_started = cursor.next_batch, time.perf_counter()
             train_loss = train_one_epoch(
-                model=model,
-                q_1=q_train,
-                condition=c_train,
-                optimizer=optimizer,
-                scheduler=scheduler,
-                batch_size=config.batch_size,
-                generator=generator,
-                progress=progress,
+                step, pairs, order, cursor, progress, after_batch=partial(save_if_due, epoch)
             )
-            val_loss = validation_loss(model, q_val, c_val, q_0_val, t_val)
+            training_s = time.perf_counter() - training_started
+            val_loss = validation_loss(evaluated, q_val, c_val, q_0_val, t_val)
             history.append({"epoch": epoch, "train_loss": train_loss, "validation_loss": val_loss})
             if val_loss < best_loss:
                 best_loss, best_epoch = val_loss, epoch
-                best_state = copy.deepcopy(model.state_dict())
+                best_state = copy.deepcopy(evaluated.state_dict())
             progress.set_postfix(
                 epoch=epoch, train=f"{train_loss:.4f}", validation=f"{val_loss:.4f}"
             )
-            if last_path is not None:
-                save_state(
-                    last_path,
-                    RunState(
-                        config=config,
-                        next_epoch=epoch + 1,
-                        model=model.state_dict(),
-                        optimizer=optimizer.state_dict(),
-                        scheduler=scheduler.state_dict(),
-                        generator=generator.get_state(),
-                        best_validation_loss=best_loss,
-                        best_epoch=best_epoch,
-                        best_model=best_state,
-                        history=history,
-                        wall_time_s=elapsed_s + time.perf_counter() - session_start,
-                    ),
+            if run_dir is not None:
+                samples = len(order) - first_batch * config.batch_size
+                log_rows.append(
+                    {
+                        "epoch": epoch,
+                        "steps": (epoch + 1) * steps_per_epoch,
+                        "train_loss": train_loss,
+                        "validation_loss": val_loss,
+                        "learning_rate": float(scheduler.get_last_lr()[0]),
+                        "wall_time_s": wall_time_s(),
+                        "samples_per_s": samples / training_s,
+                        "labelling_s": labelling_s,
+                    }
                 )
+                write_log(run_dir / LOG_FILE, log_rows)
+                plot_losses(run_dir / LOSS_PLOT_FILE, history)
+            save(epoch + 1, None)
     model.load_state_dict(best_state)
     return TrainResult(
         model=model.cpu().eval(),
         best_validation_loss=best_loss,
         best_epoch=best_epoch,
         history=history,
-        wall_time_s=elapsed_s + time.perf_counter() - session_start,
+        wall_time_s=wall_time_s(),
     )

@@ -2,7 +2,8 @@
 
 best.pt gives back the weights, the config and the command it was saved with; last.pt
 reloads for a resumed run whose settings differ only where a resume may change them
-(where and how fast it runs, the measurement after) and names every other difference.
+(where and how fast it runs, how often it checkpoints, the measurement after) and names
+every other difference; a last.pt written before the mid-epoch and EMA fields still loads.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import pytest
+import torch
 
 from tests.support.tiny_training import TINY, tiny_planar_data, weights_equal
 from training.checkpoint import LAST_FILE, load_best, load_state, save_best
@@ -38,10 +40,29 @@ def test_last_checkpoint_loads_with_other_run_settings_and_names_other_differenc
     data: FlowData, tmp_path: Path
 ) -> None:
     train(TINY, data, run_dir=tmp_path)
-    faster = replace(TINY, threads=TINY.threads + 1, eval_targets=TINY.eval_targets + 1)
+    faster = replace(
+        TINY, threads=TINY.threads + 1, eval_targets=TINY.eval_targets + 1, checkpoint_minutes=1.0
+    )
     state = load_state(tmp_path / LAST_FILE, faster)
     assert state.config == faster and state.next_epoch == TINY.epochs
     other = replace(TINY, learning_rate=5e-4, batch_size=64)
     with pytest.raises(ValueError, match=r"learning_rate \(0.001 there, 0.0005 now\)") as refused:
         load_state(tmp_path / LAST_FILE, other)
     assert "batch_size (128 there, 64 now)" in str(refused.value)
+
+
+def test_a_last_checkpoint_from_before_mid_epoch_and_ema_fields_loads_at_an_epoch_boundary(
+    data: FlowData, tmp_path: Path
+) -> None:
+    """A last.pt without ema_model, epoch_start_generator, next_batch and epoch_loss_sum
+    (and a config without the issue 13 fields) loads as a run between epochs, no average."""
+    train(TINY, data, run_dir=tmp_path)
+    payload = torch.load(tmp_path / LAST_FILE, weights_only=False)
+    for name in ("ema_model", "epoch_start_generator", "next_batch", "epoch_loss_sum"):
+        del payload[name]
+    for name in ("ema_decay", "fresh_data", "architecture", "checkpoint_minutes"):
+        del payload["config"][name]
+    torch.save(payload, tmp_path / "old.pt")
+    state = load_state(tmp_path / "old.pt", TINY)
+    assert state.next_epoch == TINY.epochs and state.next_batch == 0
+    assert state.ema_model is None and state.epoch_start_generator is None

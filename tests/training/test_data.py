@@ -1,4 +1,5 @@
-"""data: Sobol points in the limits, FK labels vs the closed form, normalised training pairs."""
+"""data: Sobol points in the limits, FK labels vs the closed form, normalised training pairs,
+and the labeller that makes fresh pairs with the normalisation fitted once."""
 
 import math
 
@@ -7,8 +8,10 @@ import torch
 
 from service.manifest import REPO_MODELS_DIR
 from training.data import (
+    Labeller,
     build_flow_data,
     end_effector_poses,
+    fresh_seed,
     joint_normalisation,
     sobol_configurations,
 )
@@ -51,3 +54,36 @@ def test_flow_data_is_normalised_to_the_unit_box() -> None:
     assert float(data.q_1.abs().max()) <= 1.0 and float(data.condition.abs().max()) <= 1.0 + 1e-6
     norm = joint_normalisation(joints)
     np.testing.assert_allclose(norm.normalise(np.array(joints.upper_rad)), 1.0)
+
+
+def denormalised_planar_condition(data_q_1: torch.Tensor, labeller: Labeller) -> np.ndarray:
+    """The normalised condition of q_1 by the closed-form planar FK (not the FK module)."""
+    q = labeller.joint_normalisation.denormalise(data_q_1.double().numpy())
+    return labeller.condition_normalisation.normalise(planar3r_position(q))
+
+
+def test_the_labeller_labels_fresh_draws_consistently_with_the_fitted_normalisation() -> None:
+    """Pairs from the labeller are (normalised q, normalised FK(q)) under the normalisations
+    fitted once on the initial data (checked against the closed-form FK); the same seed
+    draws the same configurations, another seed other ones."""
+    fk = planar_fk()
+    data = build_flow_data(fk, joint_spec(fk.chain), PLANAR.task("position"), 2000, seed=0)
+    labeller = data.labeller
+    assert labeller is not None
+    assert labeller.condition_normalisation == data.condition_normalisation
+    fresh = labeller(3000, seed=fresh_seed(0, 1))
+    assert fresh.q_1.shape == (3000, 3) and fresh.condition.shape == (3000, 2)
+    np.testing.assert_allclose(
+        fresh.condition.numpy(), denormalised_planar_condition(fresh.q_1, labeller), atol=1e-5
+    )
+    assert torch.equal(fresh.q_1, labeller(3000, seed=fresh_seed(0, 1)).q_1)
+    assert not torch.equal(fresh.q_1, labeller(3000, seed=fresh_seed(0, 2)).q_1)
+    # The initial pairs are exactly the labeller's pairs of the initial draw.
+    assert torch.equal(data.condition, labeller(2000, seed=0).condition)
+
+
+def test_fresh_seeds_are_deterministic_and_distinct_per_epoch_and_run() -> None:
+    """(seed, epoch) -> one scramble seed, the same every time, different for other pairs."""
+    seeds = {fresh_seed(s, e) for s in range(5) for e in range(50)}
+    assert len(seeds) == 250
+    assert fresh_seed(42, 3) == fresh_seed(42, 3)
