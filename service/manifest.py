@@ -258,7 +258,11 @@ class Manifest(_Strict):
     task: TaskSpec
     urdf: FileRef
     end_effector_link: str
-    reach_m: float = Field(description="L, the reach used to express errors in % (paper).")
+    reach_m: float = Field(
+        description="L, the reach used to express errors in % (paper): the largest distance "
+        "of the end effector from the base-link origin within the joint limits, measured at "
+        "export (training.kinematics.measured_reach_m)."
+    )
     joints: JointSpec
     joint_normalisation: AffineNormalisation
     condition: ConditionSpec

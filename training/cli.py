@@ -1,7 +1,12 @@
 """`smm-train`: URDF -> data -> flow training -> export, for one robot and task.
 
     smm-train --robot planar3r --task position --samples 1000000 --epochs 60
+    smm-train --urdf my_arm.urdf --end-effector tool0 [--base-link base] --task pose
 
+`--robot` trains a robot that has a file models/robots/<robot>.json (`training.robots`);
+`--urdf` trains any serial arm: it copies the URDF to models/robots/<name>.urdf and writes
+models/robots/<name>.json first (name: `--name`, else the URDF's robot name), so the
+same model is then one `smm-train --robot <name>` away. Either way the command
 writes models/<robot>-<task>/ (flow.onnx, kinematics.onnx, chain.json, manifest.json);
 the checkpoints and the training history go to runs/<robot>-<task>/ (not in git). A
 stopped run continues with the same command and `--resume`; `--from-checkpoint
@@ -27,21 +32,45 @@ from training.config import TrainConfig, preset
 from training.data import build_flow_data
 from training.export import export_model, refresh_kinematics
 from training.kinematics import ForwardKinematics, joint_spec, load_chain
-from training.robots import robot_spec
+from training.robots import RobotSpec, register_urdf, robot_file, robot_spec
 from training.train import build_model, train
+from training.urdf import read_serial_chain, require_redundancy
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
         prog="smm-train", description="Train, export and measure one SMM model."
     )
-    parser.add_argument("--robot", required=True, help="robot name, e.g. planar3r")
-    parser.add_argument("--task", required=True, help="task name, e.g. position")
+    robot = parser.add_mutually_exclusive_group(required=True)
+    robot.add_argument(
+        "--robot", help="a robot with a file models/robots/<name>.json, e.g. planar3r"
+    )
+    robot.add_argument(
+        "--urdf",
+        type=Path,
+        help="any serial arm's URDF: registered as models/robots/<name>.json first",
+    )
+    parser.add_argument("--end-effector", help="with --urdf (required): the end-effector link")
+    parser.add_argument(
+        "--base-link",
+        help="with --urdf: the base link, whose frame targets are in "
+        "(default: the root of the URDF's tree)",
+    )
+    parser.add_argument(
+        "--name",
+        help="with --urdf: the robot's name (default: the URDF's robot name, "
+        "lowercased, characters outside [a-z0-9_-] replaced by '_')",
+    )
+    parser.add_argument("--task", required=True, help="task name: position or pose")
     defaults = TrainConfig()
     for f in fields(TrainConfig):
         if f.name not in ("robot", "task"):
             flag = f"--{f.name.replace('_', '-')}"
-            parser.add_argument(flag, type=type(getattr(defaults, f.name)), default=None)
+            kind = type(getattr(defaults, f.name))
+            if kind is bool:  # --flag / --no-flag (bool("False") would be True)
+                parser.add_argument(flag, action=argparse.BooleanOptionalAction, default=None)
+            else:
+                parser.add_argument(flag, type=kind, default=None)
     parser.add_argument("--models-dir", type=Path, default=REPO_MODELS_DIR)
     parser.add_argument("--runs-dir", type=Path, default=Path("runs"))
     start = parser.add_mutually_exclusive_group()
@@ -65,11 +94,19 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         "existing models/<robot>-<task>/ from its URDF (parity checked against "
         "pytorch-kinematics) and rewrite only the manifest's file digests",
     )
-    return parser.parse_args(argv)
+    args = parser.parse_args(argv)
+    if args.urdf is not None and args.end_effector is None:
+        parser.error("--urdf needs --end-effector LINK")
+    if args.urdf is None:
+        given = [f for f in ("end_effector", "base_link", "name") if getattr(args, f) is not None]
+        if given:
+            flags = ", ".join(f"--{f.replace('_', '-')}" for f in given)
+            parser.error(f"{flags}: only with --urdf (--robot takes them from its robot file)")
+    return args
 
 
-def config_from_args(args: argparse.Namespace) -> TrainConfig:
-    config = preset(args.robot, args.task)
+def config_from_args(args: argparse.Namespace, robot: str) -> TrainConfig:
+    config = preset(robot, args.task, args.models_dir)
     overrides = {
         f.name: getattr(args, f.name)
         for f in fields(TrainConfig)
@@ -78,30 +115,60 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
     return replace(config, **overrides)
 
 
+def robot_in(models_dir: Path, name: str) -> RobotSpec:
+    """The robot file of `name` in `models_dir`; a bundled robot is first copied there, with
+    its URDF, when `models_dir` is outside the repository and lacks them."""
+    if models_dir.resolve() != REPO_MODELS_DIR.resolve() and robot_file(name).is_file():
+        for relative in (robot_file(name).relative_to(REPO_MODELS_DIR), robot_spec(name).urdf):
+            if not (models_dir / relative).exists():
+                (models_dir / relative).parent.mkdir(parents=True, exist_ok=True)
+                shutil.copyfile(REPO_MODELS_DIR / relative, models_dir / relative)
+    return robot_spec(name, models_dir)
+
+
+def register(args: argparse.Namespace) -> str:
+    """The robot's name: `--robot`, or the robot `--urdf` was registered as."""
+    if args.urdf is None:
+        return str(args.robot)
+    robot = register_urdf(
+        args.urdf, args.end_effector, args.task, args.models_dir, args.base_link, args.name
+    )
+    print(
+        f"[{robot.name}] robot file {robot_file(robot.name, args.models_dir)}: chain "
+        f"{robot.base_link} -> {robot.end_effector_link}, tasks {sorted(robot.tasks)}; "
+        f"train it again with smm-train --robot {robot.name} --task {args.task}"
+    )
+    return robot.name
+
+
 def main(argv: list[str] | None = None) -> None:
     argv = sys.argv[1:] if argv is None else argv
     args = parse_args(argv)
+    models_dir: Path = args.models_dir
+    try:
+        robot = robot_in(models_dir, register(args))
+        robot.task(args.task)
+    except ValueError as error:  # a robot, URDF or task that cannot be trained: no traceback
+        raise SystemExit(f"smm-train: error: {error}") from None
     if args.refresh_kinematics:
-        robot = robot_spec(args.robot)
-        model_dir = args.models_dir / f"{robot.name}-{robot.task(args.task).name}"
-        manifest = refresh_kinematics(model_dir, args.models_dir)
+        model_dir = models_dir / f"{robot.name}-{robot.task(args.task).name}"
+        manifest = refresh_kinematics(model_dir, models_dir)
         print(f"[{manifest.model_id}] kinematics refreshed: {json.dumps(manifest.files, indent=1)}")
         return
-    config = config_from_args(args)
+    config = config_from_args(args, robot.name)
     best = None if args.from_checkpoint is None else load_best(args.from_checkpoint)
     if best is not None:
         config = best.config  # the data (and so the normalisation) follows from it
+        robot = robot_in(models_dir, config.robot)
     if config.threads:
         torch.set_num_threads(config.threads)
-    models_dir: Path = args.models_dir
-    robot = robot_spec(config.robot)
     task = robot.task(config.task)
     model_id = f"{robot.name}-{task.name}"
     urdf_path = models_dir / robot.urdf
-    if not urdf_path.exists():  # a models dir outside the repo gets its own copy of the URDF
-        urdf_path.parent.mkdir(parents=True, exist_ok=True)
-        shutil.copyfile(REPO_MODELS_DIR / robot.urdf, urdf_path)
-    chain = load_chain(urdf_path, robot.end_effector_link)
+    require_redundancy(
+        read_serial_chain(urdf_path.read_text(), robot.end_effector_link, robot.base_link), task
+    )
+    chain = load_chain(urdf_path, robot.end_effector_link, robot.base_link)
     fk = ForwardKinematics(chain)
     joints = joint_spec(chain)
 

@@ -3,6 +3,10 @@
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+
+from service.manifest import REPO_MODELS_DIR
+from training.robots import robot_spec
 
 
 @dataclass(frozen=True)
@@ -71,15 +75,10 @@ class TrainConfig:
         return asdict(self)
 
 
-# The paper's per-robot architecture and batch size (Table 3).
-PRESETS: dict[str, dict[str, int]] = {
-    "planar3r": {"batch_size": 512, "hidden_width": 256, "hidden_layers": 4},
-    "iiwa14": {"batch_size": 1024, "hidden_width": 512, "hidden_layers": 5},
-}
-
-
-def preset(robot: str, task: str) -> TrainConfig:
-    """The paper's configuration for `robot`; raises with the valid choices otherwise."""
-    if robot not in PRESETS:
-        raise ValueError(f"no training preset for robot {robot!r}; choose from {sorted(PRESETS)}")
-    return replace(TrainConfig(robot=robot, task=task), **PRESETS[robot])  # type: ignore[arg-type]
+def preset(robot: str, task: str, models_dir: Path = REPO_MODELS_DIR) -> TrainConfig:
+    """The configuration for `robot` and `task`: the architecture and batch size of its robot
+    file (models/robots/<robot>.json; the paper's Table 3 for the bundled robots); raises
+    with the valid choices for an unknown robot or task."""
+    spec = robot_spec(robot, models_dir)
+    spec.task(task)  # raises, listing the robot's tasks
+    return replace(TrainConfig(robot=robot, task=task), **spec.architecture.model_dump())

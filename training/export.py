@@ -16,6 +16,7 @@ import shutil
 import subprocess
 import warnings
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +28,7 @@ from service.manifest import (
     FLOW_FILE,
     KINEMATICS_FILE,
     MANIFEST_FILE,
+    ChainSpec,
     ConditionSpec,
     FileRef,
     JointSpec,
@@ -43,9 +45,16 @@ from training.config import TrainConfig
 from training.data import FlowData
 from training.defaults import serving_defaults
 from training.evaluate.quality import measure_quality
-from training.kinematics import ForwardKinematics, chain_spec, joint_spec, load_chain
+from training.kinematics import (
+    ForwardKinematics,
+    chain_spec,
+    joint_spec,
+    load_chain,
+    measured_reach_m,
+)
 from training.model import VelocityField
 from training.robots import RobotSpec
+from training.sweep import sweep_defaults
 
 # float32 network: velocities reach a few hundred near t = 1, where float32 rounding
 # differences between torch and onnxruntime are ~1e-6 relative; compare like np.allclose.
@@ -200,6 +209,9 @@ def export_model(
 ) -> Manifest:
     """Write flow.onnx, kinematics.onnx, chain.json and manifest.json into `model_dir`; measure.
 
+    The manifest's reach L is measured on the chain (`measured_reach_m`: the farthest the
+    end effector gets from the base-link origin within the limits), not typed in.
+
     Everything is written to a hidden staging directory beside `model_dir` (the registry
     skips hidden directories) and moved into place only once parity and quality are done,
     so a failed export never leaves a half-written model behind.
@@ -217,7 +229,7 @@ def export_model(
         task=task,
         urdf=FileRef(path=robot.urdf, sha256=sha256_of(models_dir / robot.urdf)),
         end_effector_link=robot.end_effector_link,
-        reach_m=robot.reach_m,
+        reach_m=measured_reach_m(fk.chain, joints),
         joints=joints,
         joint_normalisation=data.joint_normalisation,
         condition=ConditionSpec(
@@ -226,7 +238,7 @@ def export_model(
         files={
             name: sha256_of(staging / name) for name in (FLOW_FILE, KINEMATICS_FILE, CHAIN_FILE)
         },
-        defaults=serving_defaults(model_id),
+        defaults=serving_defaults(model_id, task, joints.count - task.dimension),
         training=TrainingRecord(
             command=command,
             samples=config.samples,
@@ -244,8 +256,14 @@ def export_model(
     )
     manifest_path = staging / MANIFEST_FILE
     manifest_path.write_text(manifest.model_dump_json(indent=2) + "\n")
-    # Quality is measured on exactly what ships: the model loaded as the service loads it.
+    # Defaults and quality are measured on exactly what ships: the model loaded as the
+    # service loads it.
     served = load_model(staging, threads=config.threads)
+    if config.sweep_targets > 0:
+        swept = sweep_defaults(served, config.sweep_targets, config.sweep_seed)
+        manifest = manifest.model_copy(update={"defaults": swept.defaults})
+        manifest_path.write_text(manifest.model_dump_json(indent=2) + "\n")
+        served = replace(served, manifest=manifest)
     quality = measure_quality(
         served, config.eval_targets, config.eval_samples_per_target, config.eval_seed
     )
@@ -273,7 +291,12 @@ def refresh_kinematics(model_dir: Path, models_dir: Path, threads: int = 1) -> M
             f"{urdf_path}: sha256 differs from the manifest's; the flow was trained on the "
             "recorded URDF, so its kinematics cannot be refreshed from this one (retrain)"
         )
-    fk = ForwardKinematics(load_chain(urdf_path, manifest.end_effector_link))
+    # The chain starts where the model's did: chain.json's base link (a model from before
+    # chain.json was trained from the URDF's root).
+    base_link = None
+    if CHAIN_FILE in manifest.files:
+        base_link = ChainSpec.model_validate_json((model_dir / CHAIN_FILE).read_bytes()).base_link
+    fk = ForwardKinematics(load_chain(urdf_path, manifest.end_effector_link, base_link))
     joints = joint_spec(fk.chain)
     if joints != manifest.joints:
         raise ExportParityError(f"{urdf_path}: joints {joints} differ from the manifest's")
@@ -287,7 +310,10 @@ def refresh_kinematics(model_dir: Path, models_dir: Path, threads: int = 1) -> M
         manifest = manifest.model_copy(
             update={"files": {name: sha256_of(staging / name) for name in names}}
         )
-        (staging / MANIFEST_FILE).write_text(manifest.model_dump_json(indent=2) + "\n")
+        # exclude_unset: fields the schema gained since this manifest was written stay absent
+        (staging / MANIFEST_FILE).write_text(
+            manifest.model_dump_json(indent=2, exclude_unset=True) + "\n"
+        )
         load_model(staging, threads=threads)  # verifies sha256 and chain.json vs kinematics.onnx
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)

@@ -25,7 +25,7 @@ TINY = TrainConfig(
 def tiny_planar_data() -> FlowData:
     """TINY.samples labelled planar 3R position pairs (data seed 1)."""
     robot = robot_spec("planar3r")
-    chain = load_chain(REPO_MODELS_DIR / robot.urdf, robot.end_effector_link)
+    chain = load_chain(REPO_MODELS_DIR / robot.urdf, robot.end_effector_link, robot.base_link)
     return build_flow_data(
         ForwardKinematics(chain), joint_spec(chain), robot.task("position"), TINY.samples, 1
     )

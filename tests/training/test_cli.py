@@ -1,10 +1,17 @@
 """smm-train end to end: a tiny model is trained, exported and served by the real service.
 
+A URDF the project has never seen (tests/support/small_arm.py: a 4R spatial arm with a
+floating joint above its base and a gripper branch, position task, r = 1) trains, exports
+and is served through the documented command alone: `--urdf` writes its robot file and
+URDF copy, the manifest records the command and a measured reach, and every configuration
+the service returns reaches the target by the test's own numpy FK, inside the limits.
+
 `--refresh-kinematics` re-exports only the kinematics of an existing model directory: it
 gains chain.json, its flow is untouched, and the service serves it by the chain.
 """
 
 import json
+import shlex
 import subprocess
 import sys
 from pathlib import Path
@@ -17,8 +24,10 @@ from service.models.chain import SerialChainKinematics
 from service.models.registry import load_model, sha256_of
 from tests.support.app import make_client
 from tests.support.chains import model_without_chain
+from tests.support.small_arm import JOINTS, arm_pose, write_arm
 from training.cli import main
 from training.evaluate.references.planar3r import planar3r_position
+from training.robots import robot_spec
 
 
 def test_tiny_model_trains_exports_and_is_served(tmp_path: Path) -> None:
@@ -26,7 +35,7 @@ def test_tiny_model_trains_exports_and_is_served(tmp_path: Path) -> None:
     command = [
         sys.executable, "-m", "training.cli",
         "--robot", "planar3r", "--task", "position",
-        "--samples", "4000", "--epochs", "2",
+        "--samples", "4000", "--epochs", "2", "--sweep-targets", "0",
         "--eval-targets", "4", "--eval-samples-per-target", "200",
         "--models-dir", str(models), "--runs-dir", str(runs),
     ]  # fmt: skip
@@ -56,6 +65,68 @@ def test_tiny_model_trains_exports_and_is_served(tmp_path: Path) -> None:
     q = np.array([q for c in answer["components"] for q in c["configurations"]]).reshape(-1, 3)
     # Even a barely trained flow, once corrected, returns only exact configurations.
     assert np.all(np.linalg.norm(planar3r_position(q) - target, axis=1) <= 1e-6)
+
+
+def test_a_urdf_never_seen_trains_exports_and_is_served(tmp_path: Path) -> None:
+    models, runs = tmp_path / "models", tmp_path / "runs"
+    urdf = write_arm(tmp_path, name="Small Arm")
+    command = [
+        sys.executable, "-m", "training.cli",
+        "--urdf", str(urdf), "--end-effector", "tool", "--base-link", "base",
+        "--task", "position",
+        "--samples", "4000", "--epochs", "2", "--hidden-width", "64", "--hidden-layers", "2",
+        "--sweep-targets", "2",
+        "--eval-targets", "4", "--eval-samples-per-target", "200",
+        "--models-dir", str(models), "--runs-dir", str(runs),
+    ]  # fmt: skip
+    result = subprocess.run(command, capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr[-3000:]
+
+    robot = robot_spec("small_arm", models)  # smm-train --robot small_arm from now on
+    assert (models / robot.urdf).read_text() == urdf.read_text()
+    assert (robot.base_link, robot.end_effector_link) == ("base", "tool")
+    manifest = Manifest.model_validate_json(
+        (models / "small_arm-position" / "manifest.json").read_text()
+    )
+    assert manifest.training.command == shlex.join(["smm-train", *command[3:]])
+    assert manifest.joints.names == ["j1", "j2", "j3", "j4"]
+    # Its serving defaults were chosen by the built-in sweep, every candidate measured.
+    for key, values in [("sampler", (10, 20, 50)), ("num_samples", (500, 1000, 2000))]:
+        reason = manifest.defaults.reasons[key]
+        assert "dense reference" in reason
+        assert all(f"; {v}: keep rate" in reason or f": {v}: keep rate" in reason for v in values)
+    lower, upper, _ = manifest.joints.arrays()
+    rng = np.random.default_rng(7)
+    sampled_m = [np.linalg.norm(arm_pose(q)[:3, 3]) for q in rng.uniform(lower, upper, (500, 4))]
+    links_m = sum(float(np.linalg.norm(xyz)) for _, _, _, _, xyz, *_ in JOINTS[1:7])
+    assert max(sampled_m) <= manifest.reach_m <= links_m  # measured, between two bounds
+
+    q_target = rng.uniform(lower, upper)
+    target = arm_pose(q_target)[:3, 3]
+    with make_client(models) as client:
+        assert [m["robot"] for m in client.get("/robots").json()["models"]] == ["small_arm"]
+        body = {"robot": "small_arm", "task": "position", "target": {"position": target.tolist()}}
+        response = client.post("/smm", json={**body, "num_samples": 1000, "seed": 3})
+    assert response.status_code == 200, response.text
+    answer = response.json()
+    q = np.array([q for c in answer["components"] for q in c["configurations"]]).reshape(-1, 4)
+    assert len(q) > 0
+    reached = np.array([arm_pose(one)[:3, 3] for one in q])
+    assert np.all(np.linalg.norm(reached - target, axis=1) <= 1e-6)
+    assert np.all((q >= lower) & (q <= upper))
+
+
+def test_an_arm_that_cannot_be_trained_is_refused_by_name_before_anything_is_written(
+    tmp_path: Path,
+) -> None:
+    """Without --base-link the chain starts at the URDF's root, above the floating cart."""
+    models = tmp_path / "models"
+    argv = ["--urdf", str(write_arm(tmp_path)), "--end-effector", "tool", "--task", "position"]
+    with pytest.raises(SystemExit, match=r"smm-train: error: joint 'cart' .* is 'floating'"):
+        main([*argv, "--models-dir", str(models)])
+    with pytest.raises(SystemExit, match=r"unknown robot 'arm'.*choose from \[\]"):
+        main(["--robot", "arm", "--task", "position", "--models-dir", str(models)])
+    assert not models.exists()
 
 
 def test_refresh_kinematics_flag_gives_an_existing_model_its_chain(tmp_path: Path) -> None:

@@ -6,10 +6,12 @@ URDF with fixed joints, oblique axes and a continuous joint. `refresh_kinematics
 kinematics.onnx and chain.json into an existing model directory (the flow, and the
 manifest but for its `files` digests, untouched) and the registry then serves the chain,
 equal to kinematics.onnx; it refuses a URDF that is not the one the model was trained on
-and leaves the directory as it was.
+and leaves the directory as it was. It rebuilds the chain from the base link chain.json
+records, not from the URDF's root, when the URDF has links above it.
 """
 
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -128,3 +130,33 @@ def test_refresh_refuses_another_urdf_and_leaves_the_model_as_it_was(tmp_path: P
         refresh_kinematics(model_dir, model_dir.parent)
     assert {p.name: p.read_bytes() for p in model_dir.iterdir()} == files
     assert sorted(p.name for p in model_dir.parent.iterdir()) == [PLANAR3R_DIR.name, "robots"]
+
+
+def test_refresh_starts_the_chain_at_the_recorded_base_link(tmp_path: Path) -> None:
+    """A URDF with a "world" link 2 m below base_link: the refreshed chain.json still starts
+    at base_link, as the flow was trained (from the root it would be 2 m off)."""
+    models = tmp_path / "models"
+    shutil.copytree(REPO_MODELS_DIR / "robots", models / "robots")
+    model_dir = models / PLANAR3R_DIR.name
+    shutil.copytree(PLANAR3R_DIR, model_dir)
+    chain_before = (model_dir / CHAIN_FILE).read_text()
+    urdf = models / "robots" / "planar3r.urdf"
+    urdf.write_text(
+        urdf.read_text().replace(
+            '<link name="base_link"/>',
+            '<link name="world"/><link name="base_link"/><joint name="mount" type="fixed">'
+            '<parent link="world"/><child link="base_link"/><origin xyz="0 0 2"/></joint>',
+        )
+    )
+    manifest = json.loads((model_dir / MANIFEST_FILE).read_text())
+    manifest["urdf"]["sha256"] = sha256_of(urdf)
+    (model_dir / MANIFEST_FILE).write_text(json.dumps(manifest, indent=2) + "\n")
+
+    refresh_kinematics(model_dir, models)
+
+    assert ChainSpec.model_validate_json((model_dir / CHAIN_FILE).read_text()) == (
+        ChainSpec.model_validate_json(chain_before)
+    )
+    served = load_model(model_dir, threads=1)
+    position = served.kinematics(np.zeros((1, 3))).position_m
+    np.testing.assert_allclose(position, [[3.0, 0.0, 0.0]], rtol=0, atol=1e-15)

@@ -6,6 +6,8 @@ against the tests' own DH evaluation (tests/support/iiwa14_dh.py) in float64, th
 geometric Jacobian against central finite differences of that DH FK, and the joint
 limits against the paper's degrees. Raw pytorch-kinematics (float32 origins) is ~1e-8 m
 off; `load_chain` must be exact. `chain_spec` (chain.json) refuses a prismatic joint.
+The measured reach equals the closed forms: 3 m for the planar 3R (three unit links
+stretched out), 0.36 + 0.42 + 0.40 + 0.126 m for the iiwa14 (straight up), to 1e-6 m.
 """
 
 from __future__ import annotations
@@ -20,7 +22,13 @@ from scipy.spatial.transform import Rotation
 
 from service.manifest import REPO_MODELS_DIR
 from tests.support.iiwa14_dh import LIMITS_RAD, iiwa14_pose
-from training.kinematics import ForwardKinematics, chain_spec, joint_spec, load_chain
+from training.kinematics import (
+    ForwardKinematics,
+    chain_spec,
+    joint_spec,
+    load_chain,
+    measured_reach_m,
+)
 from training.robots import robot_spec
 
 URDF = REPO_MODELS_DIR / "robots" / "iiwa14.urdf"
@@ -95,7 +103,9 @@ def test_the_float32_origins_of_pytorch_kinematics_are_replaced() -> None:
 
 
 def test_chain_spec_refuses_a_prismatic_joint(tmp_path: Path) -> None:
-    """chain.json (and the service's kernel) model revolute and continuous joints only."""
+    """chain.json (and the service's kernel) model revolute and continuous joints only: the
+    URDF reader refuses a prismatic joint by name, and chain_spec refuses one in a chain
+    built by pytorch-kinematics directly."""
     urdf = tmp_path / "slider.urdf"
     urdf.write_text(
         '<robot name="slider"><link name="base"/><link name="a"/><link name="ee"/>'
@@ -105,5 +115,17 @@ def test_chain_spec_refuses_a_prismatic_joint(tmp_path: Path) -> None:
         '<axis xyz="1 0 0"/><limit lower="0" upper="1" effort="0" velocity="0"/></joint>'
         "</robot>"
     )
+    with pytest.raises(ValueError, match=r"joint 'slide' \(from 'a' to 'ee'\) is 'prismatic'"):
+        load_chain(urdf, "ee")  # training.urdf refuses it first
+    import pytorch_kinematics as pk
+
+    raw = pk.build_serial_chain_from_urdf(urdf.read_bytes(), "ee").to(dtype=torch.float64)
     with pytest.raises(ValueError, match="joint 'slide': only revolute and continuous joints"):
-        chain_spec(load_chain(urdf, "ee"))
+        chain_spec(raw)
+
+
+def test_measured_reach_is_the_closed_form(fk: ForwardKinematics) -> None:
+    planar = ForwardKinematics(load_chain(REPO_MODELS_DIR / PLANAR.urdf, PLANAR.end_effector_link))
+    assert abs(measured_reach_m(planar.chain, joint_spec(planar.chain)) - 3.0) <= 1e-6
+    iiwa_reach_m = 0.36 + 0.42 + 0.40 + 0.126
+    assert abs(measured_reach_m(fk.chain, joint_spec(fk.chain)) - iiwa_reach_m) <= 1e-6
