@@ -8,8 +8,10 @@ must satisfy what pyproject.toml asks.
 
 import re
 import tomllib
+from importlib import metadata
 from pathlib import Path
 
+import pytest
 from packaging.requirements import Requirement
 from packaging.utils import canonicalize_name
 
@@ -52,6 +54,17 @@ def test_readme_ci_and_dockerfile_install_with_the_constraints() -> None:
         assert "pip install -c constraints.txt -e " in command, command
     serve, test = commands
     assert serve.endswith(".venv/bin/smm-serve")
+    assert lock.no_deps_command() in test, "the --no-deps packages are installed by the tests"
     ci = (ROOT / ".ci" / "run").read_text()
     assert test.replace("pip install -c", "pip install -q -c") in ci
     assert "--constraint constraints.txt" in (ROOT / "Dockerfile").read_text()
+
+
+def test_packages_installed_without_dependencies_left_out_what_they_declare() -> None:
+    """eaik's renderer and realtime-smm's misspelt `tdqm` are not installed; they are pinned."""
+    pins = lock.read()
+    for name, (version, _) in lock.WITHOUT_DEPENDENCIES.items():
+        assert pins[canonicalize_name(name)] == version
+    for unwanted in ("tdqm", "urchin", "pyglet"):
+        with pytest.raises(metadata.PackageNotFoundError):
+            metadata.distribution(unwanted)

@@ -9,6 +9,11 @@ not `2.13.0+cpu`): the pin then matches the CPU wheel and is what pyproject.toml
 
     .venv/bin/python -m tools.lock           # rewrite constraints.txt from this environment
     .venv/bin/python -m tools.lock --check   # exit 1, listing the differences, if stale
+
+Two evaluation packages declare dependencies the project must not install, so they are
+installed by a second pip command with --no-deps (the README's test command and .ci/run)
+and pinned here without their declared closure (`WITHOUT_DEPENDENCIES`): their real
+dependencies are in the `train` extra.
 """
 
 from __future__ import annotations
@@ -26,6 +31,27 @@ ROOT = Path(__file__).resolve().parent.parent
 CONSTRAINTS = ROOT / "constraints.txt"
 PROJECT = "smm-service"
 EXTRAS = ("train", "test")
+# name -> (version, why its declared dependencies are not installed)
+WITHOUT_DEPENDENCIES: dict[str, tuple[str, str]] = {
+    # Exact Panda IK, the evaluation's ground truth (training/evaluate/references/panda.py):
+    # only eaik.IK_Homogeneous is used, which needs numpy alone; its metadata pulls urchin
+    # and a 3-D renderer (pyglet, PyOpenGL, trimesh and 6 more) for a URDF front end the
+    # project never imports.
+    "eaik": ("1.2.2", "urchin and its renderer, unused"),
+    # Clark and Xie's own code, the report's Fourier baseline (baselines/fourier.py): it
+    # declares `tdqm`, a misspelling of tqdm that must never be installed; its real
+    # dependencies (numpy, scipy, torch, networkx) are in `train`; zarr and platformdirs
+    # serve only its own disk cache, which the baseline does not use.
+    "realtime-smm": ("0.1.2", "declares tdqm, a misspelling of tqdm"),
+}
+
+
+def no_deps_command() -> str:
+    """The pip command that installs WITHOUT_DEPENDENCIES (after the project's)."""
+    pins = " ".join(f"{name}=={version}" for name, (version, _) in WITHOUT_DEPENDENCIES.items())
+    return f"pip install -c constraints.txt --no-deps {pins}"
+
+
 HEADER = """\
 # Exact versions of every package smm-service[train,test] installs (its dependency
 # closure on Linux, CPython 3.11). Used by the README's install commands, .ci/run and the
@@ -60,6 +86,8 @@ def closure(project: str = PROJECT, extras: tuple[str, ...] = EXTRAS) -> dict[st
         if canonicalize_name(name) != canonicalize_name(project):
             pins[canonicalize_name(name)] = Version(dist.version).public
         pending += [(r.name, set(r.extras)) for r in _requirements(dist, wanted)]
+    for name, (_, _) in WITHOUT_DEPENDENCIES.items():  # pinned as installed, closure not followed
+        pins[canonicalize_name(name)] = Version(metadata.version(name)).public
     return dict(sorted(pins.items()))
 
 

@@ -1,14 +1,18 @@
 """Exact ground truth per target, from the references: every exact configuration of the
-SMM within the limits, and (iiwa) the component of each and each component's size."""
+SMM within the limits, and (iiwa14, panda) the component of each and each component's
+size."""
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
 from service.pipeline.types import SmmModel
-from training.evaluate.references.iiwa14 import MIN_SHARE, pose_smm, position_smm
+from training.evaluate.references import iiwa14, panda
+from training.evaluate.references.iiwa14 import MIN_SHARE, PositionSmm
 from training.evaluate.references.planar3r import closed_form_smm, expected_component_count
 
 # Recall of exact components is reported per size bucket: small pieces are expected
@@ -22,7 +26,7 @@ SHARE_BUCKETS = (0.0, MIN_SHARE, 0.1, np.inf)
 class Truth:
     points: np.ndarray  # (P, n) exact configurations within the limits
     count: int  # number of feasible components (4-D: those of at least MIN_SHARE)
-    # Component of each point, each component's size and the size buckets (iiwa only).
+    # Component of each point, each component's size and the size buckets (not planar3r).
     point_component: np.ndarray | None = None  # (P,)
     size: np.ndarray | None = None  # (C,) arc length in rad (1-D) or share of the fibre (4-D)
     size_edges: tuple[float, ...] = ARC_BUCKETS_RAD
@@ -30,23 +34,51 @@ class Truth:
     membership_joints: int = 7  # the first this many joints
 
 
+class _Arc(Protocol):
+    """A component of a 1-D pose SMM, as each reference gives it."""
+
+    @property
+    def q_rad(self) -> np.ndarray: ...  # (k, 7) ordered along the arc
+
+    @property
+    def arc_length_rad(self) -> float: ...
+
+
+@dataclass(frozen=True)
+class _Reference:
+    pose_smm: Callable[[np.ndarray, np.ndarray], Sequence[_Arc]]
+    position_smm: Callable[[np.ndarray, int], PositionSmm]
+
+
+# The exact references of the 7-joint arms, by robot name.
+REFERENCES = {
+    "iiwa14": _Reference(iiwa14.pose_smm, lambda p, seed: iiwa14.position_smm(p, seed=seed)),
+    "panda": _Reference(panda.pose_smm, lambda p, seed: panda.position_smm(p, seed=seed)),
+}
+
+
 def ground_truth(model: SmmModel, q_target: np.ndarray, seed: int) -> Truth:
     """The exact SMM of the target made by q_target (n,); `seed` drives the 4-D grid only."""
     fk = model.kinematics(q_target[None])
     position, rotation = fk.position_m[0], fk.rotation[0]
-    if model.manifest.robot == "planar3r":
+    robot = model.manifest.robot
+    if robot == "planar3r":
         components = closed_form_smm(position[:2], phi_step_rad=0.002)
         count = expected_component_count(float(np.linalg.norm(position[:2])))
         return Truth(points=np.concatenate(components), count=count)
+    if robot not in REFERENCES:
+        known = ", ".join(sorted([*REFERENCES, "planar3r"]))
+        raise ValueError(f"no exact reference for robot {robot!r}; references: {known}")
+    reference = REFERENCES[robot]
     if model.manifest.task.orientation:
-        exact = pose_smm(position, rotation)
+        exact = reference.pose_smm(position, rotation)
         return Truth(
             points=np.concatenate([c.q_rad for c in exact]),
             count=len(exact),
             point_component=np.concatenate([np.full(len(c.q_rad), i) for i, c in enumerate(exact)]),
             size=np.array([c.arc_length_rad for c in exact]),
         )
-    fibre = position_smm(position, seed=seed)
+    fibre = reference.position_smm(position, seed)
     if fibre.count == 0:
         # At the edge of the workspace (arm straight) the fibre is thinner than the grid
         # and no node lands on it: the generating configuration stands for it.

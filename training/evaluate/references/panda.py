@@ -1,0 +1,372 @@
+"""Exact kinematics of the Franka Panda from Franka's published (modified, Craig) DH table:
+forward kinematics, and the exact SMMs of a pose (1-D) and of a position (4-D), as the
+evaluation's ground truth (numpy, float64).
+
+Nothing here reads the URDF or shares code with pytorch-kinematics or the ONNX export;
+the tests check this table against the bundled URDF with their own float64 chain.
+
+The Panda has no closed-form arm angle like the iiwa's S-R-S: its elbow (a = 0.0825 m)
+and wrist (a = 0.088 m) are offset. With joint 7 locked at a value q7, what is left is
+a 6R arm whose first three axes meet at the shoulder (eaik classifies it as
+6R-SPHERICAL_FIRST_TWO_INTERSECTING): `eaik` (Ostermeier et al., 2024) solves it in
+closed form by subproblem decomposition, all branches, and flags least-squares (not
+exact) rows. Sweeping q7
+over its range gives exact points of the 1-D pose SMM; `pose_smm` chains them into
+curves, joins the two branches that meet at each fold (where the curve turns back in
+q7), fills fast swings, and cuts the curves by the joint limits.
+
+Angles come back in (-pi, pi]. Every joint's range but q6's lies inside (-pi, pi) so
+the wrap is outside the limits; q6's range [-0.0175, 3.7525] straddles pi, so q6 is
+kept in the chart [-0.0175, 2 pi - 0.0175), whose seam is the lower limit itself.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+
+import numpy as np
+from eaik.IK_Homogeneous import HomogeneousRobot
+from scipy.optimize import linear_sum_assignment
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+from training.evaluate.references.iiwa14 import PositionSmm
+
+# Franka's modified DH table (frame i from i - 1: Rx(alpha) Tx(a) Rz(q) Tz(d)).
+A_M = np.array([0.0, 0.0, 0.0, 0.0825, -0.0825, 0.0, 0.088])
+D_M = np.array([0.333, 0.0, 0.316, 0.0, 0.384, 0.0, 0.0])
+ALPHA_RAD = np.array([0.0, -np.pi / 2, np.pi / 2, np.pi / 2, -np.pi / 2, np.pi / 2, np.pi / 2])
+FLANGE_M = 0.107  # link 8 beyond link 7 along z
+HAND_YAW_RAD = -np.pi / 4  # the hand about the flange's z
+TCP_M = 0.1034  # the TCP beyond the hand along z (the SRDF's end effector)
+LOWER_RAD = np.array([-2.8973, -1.7628, -2.8973, -3.0718, -2.8973, -0.0175, -2.8973])
+UPPER_RAD = np.array([2.8973, 1.7628, 2.8973, -0.0698, 2.8973, 3.7525, 2.8973])
+TWO_PI = 2.0 * np.pi
+
+
+def _mdh(q_rad: np.ndarray, a_m: float, d_m: float, alpha_rad: float) -> np.ndarray:
+    """(B, 4, 4) modified DH link transforms Rx(alpha) Tx(a) Rz(q) Tz(d) for q (B,)."""
+    ct, st = np.cos(q_rad), np.sin(q_rad)
+    ca, sa = np.cos(alpha_rad), np.sin(alpha_rad)
+    link = np.zeros((len(q_rad), 4, 4))
+    link[:, 0] = np.stack([ct, -st, 0 * ct, a_m + 0 * ct], axis=1)
+    link[:, 1] = np.stack([st * ca, ct * ca, -sa + 0 * ct, -d_m * sa + 0 * ct], axis=1)
+    link[:, 2] = np.stack([st * sa, ct * sa, ca + 0 * ct, d_m * ca + 0 * ct], axis=1)
+    link[:, 3, 3] = 1.0
+    return link
+
+
+def _tool() -> np.ndarray:
+    """(4, 4) the TCP in the link-7 frame: flange, hand yaw, TCP offset."""
+    c, s = np.cos(HAND_YAW_RAD), np.sin(HAND_YAW_RAD)
+    tool = np.array([[c, -s, 0.0, 0.0], [s, c, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0, 0, 0, 1.0]])
+    tool[2, 3] = FLANGE_M + TCP_M
+    return tool
+
+
+def joint_frames(q_rad: np.ndarray) -> np.ndarray:
+    """(B, 8, 4, 4) the frames of joints 1-7 (each turns about its z) and of the TCP."""
+    q_rad = np.atleast_2d(q_rad)
+    pose = np.tile(np.eye(4), (len(q_rad), 1, 1))  # (B, 4, 4)
+    frames = []
+    for i in range(7):
+        pose = pose @ _mdh(q_rad[:, i], A_M[i], D_M[i], ALPHA_RAD[i])
+        frames.append(pose)
+    frames.append(pose @ _tool())
+    return np.stack(frames, axis=1)
+
+
+def dh_pose(q_rad: np.ndarray) -> np.ndarray:
+    """(B, 4, 4) TCP poses of configurations (B, 7)."""
+    return joint_frames(q_rad)[:, -1]
+
+
+def to_chart(q_rad: np.ndarray) -> np.ndarray:
+    """(..., 7) the same configurations with q6 in [lower, lower + 2 pi) (see the module)."""
+    q = np.array(q_rad, dtype=float)
+    q[..., 5] = LOWER_RAD[5] + np.mod(q[..., 5] - LOWER_RAD[5], TWO_PI)
+    return q
+
+
+def within_limits(q_rad: np.ndarray) -> np.ndarray:
+    return np.all((q_rad >= LOWER_RAD) & (q_rad <= UPPER_RAD), axis=-1)
+
+
+def _angle_gap(q_a: np.ndarray, q_b: np.ndarray) -> np.ndarray:
+    """(..., 7) q_b - q_a, each joint wrapped to (-pi, pi]: the unconstrained fibre lives
+    on the torus, and a curve that crosses a wrap (always outside the limits) stays one."""
+    return np.pi - np.mod(np.pi - (q_b - q_a), TWO_PI)
+
+
+_ZERO_POSE_FRAMES = joint_frames(np.zeros((1, 7)))[0]  # (8, 4, 4) what eaik is built from
+
+
+def solve_locked_q7(pose: np.ndarray, q7_rad: float) -> np.ndarray:
+    """(k, 7) every exact configuration reaching `pose` (4, 4) with joint 7 at q7, no
+    limits applied, q6 in the chart; eaik's least-squares rows are dropped."""
+    robot = HomogeneousRobot(_ZERO_POSE_FRAMES, fixed_axes=[(6, float(q7_rad))])
+    solution = robot.IK(pose)
+    q = np.asarray(solution.Q, dtype=float).reshape(-1, 7)[~np.asarray(solution.is_LS, bool)]
+    return to_chart(q)
+
+
+@dataclass(frozen=True)
+class ReferenceComponent:
+    """One feasible piece of a pose's SMM: points along it in order and its arc length."""
+
+    q_rad: np.ndarray  # (k, 7) in order, <= max_step apart, ends within max_step of a limit
+    arc_length_rad: float  # joint-space length (Euclidean; no Panda joint is periodic)
+    closed: bool  # a loop inside the limits (the last point joins the first)
+
+
+@dataclass
+class _Sweep:
+    """Exact slices of the unconstrained fibre at q7 values and the links between their
+    points: nodes are (slice, row); each node has at most two links."""
+
+    pose: np.ndarray  # (4, 4)
+    q7_rad: list[float]
+    slices: list[np.ndarray]  # each (k, 7)
+    links: list[tuple[int, int, int, int]]  # (slice a, row a, slice b, row b)
+    fill: dict[tuple[int, int, int, int], np.ndarray]  # straight points along a link
+
+    def add(self, q7_rad: float) -> int:
+        self.q7_rad.append(q7_rad)
+        self.slices.append(solve_locked_q7(self.pose, q7_rad))
+        return len(self.slices) - 1
+
+
+def pose_smm(
+    position_m: np.ndarray,
+    rotation: np.ndarray,
+    q7_steps: int = 2000,
+    max_step_rad: float = 0.05,
+    min_width_rad: float = 1e-11,
+) -> list[ReferenceComponent]:
+    """The exact SMM of a pose within the joint limits, as its components.
+
+    q7 is swept over its range at `q7_steps` values, each giving the fibre's exact points
+    at that q7 (`solve_locked_q7`). Between neighbouring q7 values, points are linked
+    one to one (mutual nearest on the wrapped joint distance) when the counts agree,
+    every link is at most `max_step_rad` long and each is clearly the nearest (at most
+    half the distance to any other candidate); otherwise the q7 interval is bisected,
+    down to `min_width_rad`. An interval that narrow where the counts still differ holds
+    a fold: the curve turns back in q7 and two points coalesce, so the two left over on
+    the side with more points are one curve and are linked to each other (they are
+    ~sqrt(width) apart). One where a link is still long is a fast swing next to a
+    singular set (q2 ~ 0: joints 1 and 3 coaxial), filled with straight points. The
+    linked points form paths and loops; each is cut where it leaves the limits.
+    """
+    pose = np.eye(4)
+    pose[:3, :3], pose[:3, 3] = rotation, position_m
+    sweep = _Sweep(pose, [], [], [], {})
+    grid = [sweep.add(q7) for q7 in np.linspace(LOWER_RAD[6], UPPER_RAD[6], q7_steps)]
+    pending = list(itertools.pairwise(grid))
+    while pending:
+        a, b = pending.pop()
+        if not _link(sweep, a, b, max_step_rad, sweep.q7_rad[b] - sweep.q7_rad[a] < min_width_rad):
+            middle = sweep.add(0.5 * (sweep.q7_rad[a] + sweep.q7_rad[b]))
+            pending += [(a, middle), (middle, b)]
+    return _components(sweep)
+
+
+def _link(sweep: _Sweep, a: int, b: int, max_step_rad: float, forced: bool) -> bool:
+    """Link slice a's points to slice b's if that is unambiguous (or `forced`); False when
+    the interval must be bisected."""
+    q_a, q_b = sweep.slices[a], sweep.slices[b]
+    gap = np.linalg.norm(_angle_gap(q_a[:, None], q_b[None]), axis=-1)  # (ka, kb)
+    if not forced:
+        if len(q_a) != len(q_b):
+            return False
+        if not len(q_a):
+            return True
+        # Each point's nearest in the other slice, both ways the same, short, and clearly
+        # nearer than any rival.
+        cols = np.argmin(gap, axis=1)
+        rows = np.arange(len(q_a))
+        matched = gap[rows, cols]
+        ranked = np.sort(gap, axis=1)[:, 1] if len(q_b) > 1 else np.full(len(q_a), np.inf)
+        rival = np.sort(gap, axis=0)[1] if len(q_a) > 1 else np.full(len(q_b), np.inf)
+        if (
+            np.any(np.argmin(gap, axis=0)[cols] != rows)
+            or np.any(matched > max_step_rad)
+            or np.any(matched > 0.5 * np.minimum(ranked, rival[cols]))
+        ):
+            return False
+        sweep.links += [
+            (a, row, b, col) for row, col in zip(rows.tolist(), cols.tolist(), strict=True)
+        ]
+        return True
+    rows, cols = linear_sum_assignment(gap)
+    for row, col in zip(rows.tolist(), cols.tolist(), strict=True):
+        _add_link(sweep, (a, row, b, col), max_step_rad)
+    # Forced with unequal counts: a fold. The points left over pair up nearest first.
+    side, left = (a, np.setdiff1d(np.arange(len(q_a)), rows)) if len(q_a) > len(q_b) else (
+        b, np.setdiff1d(np.arange(len(q_b)), cols))  # fmt: skip
+    left_q = sweep.slices[side][left]
+    while len(left) >= 2:
+        distance = np.linalg.norm(_angle_gap(left_q[0], left_q[1:]), axis=-1)
+        partner = 1 + int(np.argmin(distance))
+        _add_link(sweep, (side, int(left[0]), side, int(left[partner])), max_step_rad)
+        keep = np.ones(len(left), bool)
+        keep[[0, partner]] = False
+        left, left_q = left[keep], left_q[keep]
+    return True
+
+
+def _add_link(sweep: _Sweep, link: tuple[int, int, int, int], max_step_rad: float) -> None:
+    """Record a link; one longer than `max_step_rad` gets straight points in between."""
+    sweep.links.append(link)
+    start = sweep.slices[link[0]][link[1]]
+    step = _angle_gap(start, sweep.slices[link[2]][link[3]])
+    count = int(np.ceil(np.linalg.norm(step) / max_step_rad))
+    if count > 1:
+        fraction = np.arange(1, count)[:, None] / count
+        sweep.fill[link] = to_chart(start + fraction * step)
+
+
+def _components(sweep: _Sweep) -> list[ReferenceComponent]:
+    """Trace the linked points into paths and loops, then cut them by the limits."""
+    offset = np.cumsum([0] + [len(s) for s in sweep.slices])
+    nodes = np.concatenate(sweep.slices) if offset[-1] else np.zeros((0, 7))  # (N, 7)
+    neighbours: list[list[tuple[int, np.ndarray]]] = [[] for _ in range(len(nodes))]
+    for link in sweep.links:
+        i, j = int(offset[link[0]] + link[1]), int(offset[link[2]] + link[3])
+        between = sweep.fill.get(link, np.zeros((0, 7)))
+        neighbours[i].append((j, between))
+        neighbours[j].append((i, between[::-1]))
+    seen = np.zeros(len(nodes), bool)
+    components: list[ReferenceComponent] = []
+    for start in sorted(range(len(nodes)), key=lambda i: len(neighbours[i]) != 1):
+        if seen[start]:
+            continue
+        path, closed = _trace(start, nodes, neighbours, seen)
+        components += _cut_by_limits(path, closed)
+    return components
+
+
+def _trace(
+    start: int,
+    nodes: np.ndarray,
+    neighbours: list[list[tuple[int, np.ndarray]]],
+    seen: np.ndarray,
+) -> tuple[np.ndarray, bool]:
+    """(k, 7) the points from `start` along its links in order, and whether they loop."""
+    rows = [nodes[[start]]]
+    seen[start] = True
+    current, count = start, 1
+    while True:
+        ahead = [(n, between) for n, between in neighbours[current] if not seen[n]]
+        if not ahead:
+            # Back at the start through another link than the first one: a loop.
+            closing = [between for n, between in neighbours[current] if n == start]
+            if count >= 3 and closing:
+                return np.concatenate([*rows, closing[0]]), True
+            return np.concatenate(rows), False
+        current, between = ahead[0]
+        rows += [between, nodes[[current]]]
+        seen[current] = True
+        count += 1
+
+
+def _cut_by_limits(path: np.ndarray, closed: bool) -> list[ReferenceComponent]:
+    """The runs of `path` (k, 7) inside the limits, each a component."""
+    feasible = within_limits(path)
+    if closed and feasible.all():
+        steps = np.linalg.norm(np.diff(np.concatenate([path, path[:1]]), axis=0), axis=1)
+        return [ReferenceComponent(path, float(steps.sum()), closed=True)]
+    if closed:  # start right after a point outside the limits
+        path = np.roll(path, -int(np.flatnonzero(~feasible)[0]), axis=0)
+        feasible = within_limits(path)
+    edges = np.diff(np.concatenate([[0], feasible.astype(int), [0]]))
+    components = []
+    for first, end in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True):
+        run = path[first:end]
+        length = float(np.linalg.norm(np.diff(run, axis=0), axis=1).sum())
+        components.append(ReferenceComponent(run, length, closed=False))
+    return components
+
+
+def fibonacci_sphere(count: int) -> np.ndarray:
+    """(count, 3) unit vectors of equal-area cells (the Fibonacci lattice)."""
+    index = np.arange(count) + 0.5
+    z = 1.0 - 2.0 * index / count
+    azimuth = np.pi * (1.0 + np.sqrt(5.0)) * index
+    radius = np.sqrt(1.0 - z * z)
+    return np.stack([radius * np.cos(azimuth), radius * np.sin(azimuth), z], axis=1)
+
+
+def orientation_grid(sphere_steps: int, psi_steps: int) -> np.ndarray:
+    """(S * K, 3, 3) rotations uniform under the Haar measure: the z axis on an equal-area
+    sphere lattice (S) times K equal turns about it; cells ~ sqrt(4 pi / S) and 2 pi / K."""
+    z_axis = fibonacci_sphere(sphere_steps)
+    helper = np.where(np.abs(z_axis[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    y_axis = np.cross(z_axis, helper)
+    y_axis /= np.linalg.norm(y_axis, axis=1, keepdims=True)
+    frame = np.stack([np.cross(y_axis, z_axis), y_axis, z_axis], axis=2)  # (S, 3, 3)
+    psi = np.linspace(-np.pi, np.pi, psi_steps, endpoint=False)
+    turn = np.zeros((psi_steps, 3, 3))
+    turn[:, 0, 0] = turn[:, 1, 1] = np.cos(psi)
+    turn[:, 1, 0], turn[:, 0, 1] = np.sin(psi), -np.sin(psi)
+    turn[:, 2, 2] = 1.0
+    return (frame[:, None] @ turn[None]).reshape(-1, 3, 3)
+
+
+def position_smm(
+    position_m: np.ndarray,
+    num_points: int = 20000,
+    seed: int = 0,
+    sphere_steps: int = 2000,
+    psi_steps: int = 80,
+    neighbours: int = 16,
+) -> PositionSmm:
+    """The exact SMM of a position within the joint limits: its components and points.
+
+    The TCP lies on joint 7's axis (the tool is a pure offset along z7), so q7 does not
+    move it: the fibre is the 3-D fibre of q1..q6 times the whole q7 range. With q7
+    locked at 0, each TCP orientation R gives the fibre's points at R exactly (eaik, all
+    branches); sweeping R over an SO(3) grid (`orientation_grid`, spacing h ~ 0.079 rad)
+    covers the fibre, each in-limit solution a node weighted by its orientation cell
+    (equal cells, so `share` is each component's fraction of the nodes).
+
+    Components: nodes within `link_rad` = 4.5 h of each other in q1..q6 are linked (among
+    each node's `neighbours` nearest). Why that radius: a node's neighbours on the same
+    sheet are one grid step h away in orientation, hence gain * h away in q1..q6, where
+    the gain |dq/dR| of the locked-q7 IK is ~1.5-3 away from its singular sets (measured:
+    nearest-neighbour gaps have median 1.3 h and 99th percentile 2.2-3.6 h), so 4.5 h
+    links a sheet's nodes to their grid neighbours with a margin; and two distinct
+    components (separated by the limits, as every pair is) would need to come within
+    4.5 h ~ 0.36 rad to be merged. Pieces closer than that count as one component, the
+    same rule as the iiwa's contact radius. Where the gain is larger (next to a fold of
+    the IK, or q2 ~ 0 where joints 1 and 3 are coaxial) a component can fall apart into
+    slivers, which stay under MIN_SHARE and are not counted.
+    """
+    rotation = orientation_grid(sphere_steps, psi_steps)
+    spacing_rad = float(np.sqrt(4 * np.pi / sphere_steps))
+    poses = np.tile(np.eye(4), (len(rotation), 1, 1))  # (S * K, 4, 4)
+    poses[:, :3, :3], poses[:, :3, 3] = rotation, position_m
+    robot = HomogeneousRobot(_ZERO_POSE_FRAMES, fixed_axes=[(6, 0.0)])
+    solutions = robot.IK_batched(poses, 2)
+    q = np.concatenate([np.reshape(s.Q, (-1, 7)) for s in solutions])  # (N, 7)
+    exact = ~np.concatenate([np.asarray(s.is_LS, bool) for s in solutions])
+    q = to_chart(q[exact])
+    q6 = q[within_limits(q)][:, :6]  # (F, 6) the in-limit nodes, q7 = 0 dropped
+    if not len(q6):
+        return PositionSmm(np.zeros((0, 7)), np.zeros(0, int), np.zeros(0), spacing_rad)
+    link_rad = 4.5 * spacing_rad
+    distance, index = cKDTree(q6).query(
+        q6, k=min(neighbours, len(q6)), distance_upper_bound=link_rad
+    )
+    near = np.isfinite(distance)
+    first = np.broadcast_to(np.arange(len(q6))[:, None], index.shape)[near]
+    graph = coo_matrix((np.ones(len(first)), (first, index[near])), shape=(len(q6), len(q6)))
+    _, component = connected_components(graph, directed=False)
+    share = np.bincount(component) / len(component)
+    rng = np.random.default_rng(seed)
+    drawn = rng.choice(len(q6), size=num_points)
+    q7 = rng.uniform(LOWER_RAD[6], UPPER_RAD[6], num_points)
+    return PositionSmm(
+        np.concatenate([q6[drawn], q7[:, None]], axis=1), component[drawn], share, spacing_rad
+    )
