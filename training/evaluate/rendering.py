@@ -1,6 +1,7 @@
 """The report as Markdown: errors beside the paper's Table 2, components against ground
 truth (count right, splits, merges), the connect stage's time, the returned paths
-(r = 1), exact components found by size, and the targets the service got wrong."""
+(r = 1), exact components found by size, the targets the service got wrong, and which
+baselines ran how (the Fourier model's training) or were skipped and why."""
 
 from __future__ import annotations
 
@@ -15,11 +16,15 @@ PAPER_TABLE_2: dict[
         "ODE": (2.95e-9, 0.0, 2.95e-9, 166),
         "FM": (0.144, 0.0, 0.144, 125),
         "FM + DLS": (1.56e-14, 0.0, 1.56e-14, 126),
+        "Fourier (realtime-smm)": (0.513, 0.0, 0.513, 16.8),
+        "Fourier (realtime-smm) + DLS": (5.29e-13, 0.0, 5.29e-13, 29.7),
     },
     "iiwa14-pose": {
         "ODE": (2.57e-10, 2.37e-6, 1.18e-6, 8210),
         "FM": (1.07, 1.70, 1.39, 297),
         "FM + DLS": (2.88e-10, 0.0, 1.44e-10, 375),
+        "Fourier (realtime-smm)": (19.9, 47.0, 33.5, 39.9),
+        "Fourier (realtime-smm) + DLS": (5.52, 8.46, 6.99, 144),
     },
     # Seed Sec. 5: mean FK error over 1000 targets, before and after correction; no time.
     "iiwa14-position": {
@@ -27,6 +32,10 @@ PAPER_TABLE_2: dict[
         "FM + DLS": (0.0013, None, 0.0013, None),
     },
 }
+
+# Rows whose errors are over every raw point (the flow's samples, the ODE's trace, the
+# Fourier prediction) and that judge nothing, so they have no keep rate.
+RAW_ROWS = ("FM", "ODE", "Fourier (realtime-smm)")
 
 
 def _cell(value: object) -> str:
@@ -109,7 +118,7 @@ def markdown(model_id: str, report: dict[str, Any]) -> str:
         quoted = paper.get(name)
         error_rows.append(
             [name, errors["e_p_pct"], errors["e_o_pct"], errors["e_pct"], errors["mm"],
-             errors["deg"], None if name in ("FM", "ODE") else summary["keep_rate"],
+             errors["deg"], None if name in RAW_ROWS else summary["keep_rate"],
              summary["median_time_ms"], ", ".join(_cell(v) for v in quoted) if quoted else None]
         )  # fmt: skip
     component_rows: list[list[object]] = []
@@ -169,6 +178,7 @@ def markdown(model_id: str, report: dict[str, Any]) -> str:
         *_path_lines(methods),
         *_recall_lines(methods, report.get("component_size", "size")),
         *_listed_targets(report),
+        *_baseline_lines(model_id, report),
         "",
         "Errors: the FM and ODE rows are over every raw sample or trace point, the others over "
         "returned configurations (accepted samples and, for a 1-D SMM, the points of each "
@@ -177,6 +187,48 @@ def markdown(model_id: str, report: dict[str, Any]) -> str:
         "Count right: " + report.get("count_right_definition", COUNT_RIGHT_DEFINITION),
     ]
     return "\n".join(lines) + "\n"
+
+
+def _baseline_lines(model_id: str, report: dict[str, Any]) -> list[str]:
+    """How the Fourier model was trained, when it ran; each skipped method and why, with the
+    paper's figures for it where it quotes some."""
+    lines: list[str] = []
+    training = report.get("fourier_training")
+    if training is not None:
+        budget, clusters = training.get("budget", {}), training.get("clusters", [])
+        wall = training.get("wall_time_s", {})
+        lines += [
+            "",
+            f"Fourier (realtime-smm): Clark and Xie's package {training.get('realtime_smm')} "
+            f"(training/evaluate/baselines/fourier.py), trained on {training.get('grid_nodes')} "
+            f"targets {budget.get('pos_resolution_m')} m apart on the half-plane line "
+            f"({training.get('nodes_ok')} traced), "
+            + ", ".join(
+                f"{c['branches']} branch{'es' if c['branches'] > 1 else ''} for rho in "
+                f"[{c['rho_m'][0]:g}, {c['rho_m'][1]:g}] m ({c['nodes']} targets)"
+                for c in clusters
+            )
+            + f"; {len(budget.get('hidden_dims', []))} x {max(budget.get('hidden_dims', [0]))} "
+            f"{budget.get('activation')} networks, {budget.get('epochs')} epochs, FFT cutoff "
+            f"{budget.get('fft_cutoff')}; {_cell(wall.get('total'))} s on {training.get('cpus')} "
+            f"CPU cores ({_cell(wall.get('grid'))} s grid, {_cell(wall.get('networks'))} s "
+            "networks). Its raw row returns every predicted point, one component per predicted "
+            "branch; + DLS: the same points after the service's DLS correction and acceptance "
+            "(model defaults), branch labels kept (no connect stage); its time includes the "
+            "prediction.",
+        ]
+    for name, why in report.get("skipped", {}).items():
+        quoted = [
+            f"{row}: e {_cell(values[2])} %, {_cell(values[3])} ms"
+            for row, values in PAPER_TABLE_2.get(model_id, {}).items()
+            if row.startswith(name)
+        ]
+        lines += [
+            "",
+            f"Not run: {name}: {why}."
+            + (f" The paper quotes {'; '.join(quoted)}." if quoted else ""),
+        ]
+    return lines
 
 
 def _regular_lines(methods: dict[str, dict[str, object]]) -> list[str]:
@@ -247,7 +299,7 @@ def _path_lines(methods: dict[str, dict[str, Any]]) -> list[str]:
 def _method_errors(name: str, summary: dict[str, Any]) -> dict[str, Any]:
     # Raw rows (the flow's samples, the ODE's trace) over every point; the others over
     # what a client gets back.
-    return summary["raw"] if name in ("FM", "ODE") else summary["returned"]
+    return summary["raw"] if name in RAW_ROWS else summary["returned"]
 
 
 def table_2(reports: dict[str, dict[str, Any]]) -> str:

@@ -9,7 +9,12 @@ of samples per target:
 - FM + DLS: the service's pipeline with its defaults (what a client gets);
 - random-restart DLS: pytorch-kinematics PseudoInverseIK from uniform restarts, judged
   by the same acceptance and grouped by the same connect stage (its time includes both);
-- ODE (1-D SMMs only): the paper's null-space RK5 trace from the generating configuration.
+- ODE (1-D SMMs only): the paper's null-space RK5 trace from the generating configuration;
+- Fourier (planar 3R only): the paper's third method, realtime-smm's per-cluster Fourier
+  regressors (baselines/fourier.py; trained once by its --train into runs/), its raw
+  prediction and the same points after the service's DLS correction and acceptance. Where
+  it cannot run (another robot, realtime-smm not installed, no trained model) the report
+  says so under "skipped".
 
     python -m training.evaluate.report --model iiwa14-pose --targets 200   # -> docs/reports/
     python -m training.evaluate.report --table-2   # the README's Table 2, from the reports
@@ -19,12 +24,22 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
 
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
+from training.evaluate.baselines.fourier import (
+    FOURIER,
+    FOURIER_DLS,
+    RUN_DIR,
+    FourierModel,
+    FourierUnavailable,
+    fourier_targets,
+    load_for,
+)
 from training.evaluate.methods import (
     MethodTarget,
     flow_target,
@@ -48,9 +63,10 @@ REPORTS_DIR = Path(__file__).resolve().parents[2] / "docs" / "reports"
 
 
 def build_report(
-    model: ServedModel, num_targets: int, seed: int, num_samples: int
+    model: ServedModel, num_targets: int, seed: int, num_samples: int, fourier_dir: Path = RUN_DIR
 ) -> dict[str, object]:
-    """Every method on `num_targets` held-out targets (seed), measured against ground truth."""
+    """Every method on `num_targets` held-out targets (seed), measured against ground truth
+    (the Fourier baseline from the model trained in `fourier_dir`, where it runs)."""
     manifest = model.manifest
     lower, upper, _ = manifest.joints.arrays()
     q_targets = uniform_configurations(lower, upper, num_targets, seed)
@@ -62,6 +78,15 @@ def build_report(
     methods: dict[str, list[MethodTarget]] = {"FM + DLS": [], "FM": [], "random-restart DLS": []}
     if one_dimensional:
         methods["ODE"] = []
+    skipped: dict[str, str] = {}
+    fourier: FourierModel | None = None
+    try:
+        fourier = load_for(manifest, fourier_dir)
+    except FourierUnavailable as why:
+        skipped[FOURIER] = str(why)
+    if fourier is not None:
+        methods[FOURIER], methods[FOURIER_DLS] = [], []
+        fourier_targets(model, fourier, q_targets[0], 10)  # warm-up, like the flow's
     for i, q in enumerate(q_targets):
         answer = flow_target(model, q, num_samples, seed=i)
         methods["FM + DLS"].append(answer)
@@ -69,6 +94,10 @@ def build_report(
         methods["random-restart DLS"].append(restart_target(model, chain, q, num_samples, seed=i))
         if one_dimensional:
             methods["ODE"].append(ode_target(model, q))
+        if fourier is not None:
+            raw, corrected = fourier_targets(model, fourier, q, num_samples)
+            methods[FOURIER].append(raw)
+            methods[FOURIER_DLS].append(corrected)
     boundary = near_boundary(model, q_targets)
     report: dict[str, object] = {
         "model": model.reference,
@@ -89,6 +118,10 @@ def build_report(
             ),
         },
     }
+    if fourier is not None:
+        report["fourier_training"] = fourier.training
+    if skipped:
+        report["skipped"] = skipped
     answers = methods["FM + DLS"]
     if truths[0].size is not None:
         report["missed_component_targets"] = missed_components(answers, truths)
@@ -125,6 +158,10 @@ def main() -> None:
         return
     model = load_model(REPO_MODELS_DIR / args.model, threads=0)
     report = build_report(model, args.targets, args.seed, args.num_samples)
+    skipped = report.get("skipped")
+    if isinstance(skipped, dict):
+        for name, why in skipped.items():
+            print(f"skipped {name}: {why}", file=sys.stderr)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / f"{args.model}.json").write_text(json.dumps(report, indent=1) + "\n")
     (args.out / f"{args.model}.md").write_text(markdown(args.model, report))

@@ -1,11 +1,13 @@
 """report: a small planar report finds the closed-form component counts, returns exact
 configurations within the limits, covers the closed-form SMM, checks the returned paths,
-times the connect stage (median and p95, the restarts' too) and writes every table.
+times the connect stage (median and p95, the restarts' too) and writes every table; the
+Fourier baseline runs or the report says why not.
 """
 
 from __future__ import annotations
 
 from service.models.registry import ServedModel
+from training.evaluate.baselines.fourier import FOURIER
 from training.evaluate.rendering import markdown
 from training.evaluate.report import build_report
 
@@ -32,6 +34,11 @@ def test_small_planar_report_meets_the_closed_form(planar3r: ServedModel) -> Non
     assert methods["FM"]["raw"]["mm"] > 1.0  # the raw flow is millimetres off
     assert methods["ODE"]["raw"]["mm"] < 1e-6  # RK5 drift only
     assert report["wrong_count_targets"] == []
+    # The Fourier baseline ran (realtime-smm and a trained model here) or says why not.
+    skipped = report.get("skipped", {})
+    assert isinstance(skipped, dict)
+    if FOURIER not in methods:
+        assert "realtime-smm" in skipped[FOURIER] or "no trained model" in skipped[FOURIER]
     text = markdown("planar3r-position", report)
     assert "| FM + DLS |" in text and "| random-restart DLS |" in text and "count right" in text
     assert "connect p95 ms" in text and "max gap rad" in text and "Count right: " in text
