@@ -168,6 +168,14 @@ class RawError(_Strict):
     orientation_error_deg_mean: float | None
     orientation_error_deg_median: float | None
     orientation_error_pct_mean: float | None
+    # The paper's own figures, to read beside its tables: means over the samples whose
+    # e = (e_p + e_o) / 2 (e = e_p for a position task) is under PAPER_KEPT_BELOW = 0.02,
+    # and that fraction of all samples; and the mean over targets of the best sample's e_p
+    # (its 4-D figure). None in manifests written before they were measured.
+    kept_only_fraction: float | None = None
+    kept_only_position_error_pct_reach_mean: float | None = None
+    kept_only_orientation_error_pct_mean: float | None = None
+    best_of_n_position_error_pct_reach_mean: float | None = None
 
 
 class Quality(_Strict):

@@ -6,8 +6,11 @@ every sample, and the same figures for the same seed.
 
 from __future__ import annotations
 
+import numpy as np
+import pytest
+
 from service.models.registry import ServedModel
-from training.evaluate.quality import PAPER_SAMPLER_STEPS, measure_quality
+from training.evaluate.quality import PAPER_SAMPLER_STEPS, measure_quality, summarise_raw
 
 
 def test_quality_reports_both_samplers_and_reproduces_for_a_seed(planar3r: ServedModel) -> None:
@@ -19,3 +22,25 @@ def test_quality_reports_both_samplers_and_reproduces_for_a_seed(planar3r: Serve
     assert 0.0 < quality.keep_rate <= 1.0 and quality.targets_with_solution == 1.0
     assert all(r.orientation_error_deg_mean is None for r in quality.raw)  # position task
     assert measure_quality(planar3r, num_targets=3, samples=100, seed=5) == quality
+
+
+def test_paper_figures_follow_their_definitions_on_hand_made_errors() -> None:
+    """Kept-only: samples with (e_p + e_o) / 2 < 0.02, means over them; best-of-N: the mean
+    over targets of each target's smallest e_p (here, reach 2 m)."""
+    position_m = np.array([[0.02, 0.08, 0.2], [0.04, 0.01, 0.5]])  # (T=2, N=3)
+    orientation_rad = np.array([[0.0, 0.0, 0.0], [0.05 * np.pi, 0.0, 0.0]])
+    raw = summarise_raw(20, position_m, orientation_rad, reach_m=2.0, pose=True)
+    # e_p = [[.01, .04, .1], [.02, .005, .25]], e_o = [[0, 0, 0], [.05, 0, 0]]
+    # e = [[.005, .02, .05], [.035, .0025, .125]]: kept (< 0.02) are (0, 0) and (1, 1)
+    assert raw.kept_only_fraction == pytest.approx(2 / 6)
+    assert raw.kept_only_position_error_pct_reach_mean == pytest.approx((1.0 + 0.5) / 2)
+    assert raw.kept_only_orientation_error_pct_mean == pytest.approx(0.0)
+    assert raw.best_of_n_position_error_pct_reach_mean == pytest.approx((1.0 + 0.5) / 2)
+    assert raw.position_error_pct_reach_mean == pytest.approx(e_p_mean(position_m, 2.0))
+    position_only = summarise_raw(20, position_m, orientation_rad * 0, reach_m=2.0, pose=False)
+    assert position_only.kept_only_fraction == pytest.approx(2 / 6)  # e = e_p: .01, .005
+    assert position_only.kept_only_orientation_error_pct_mean is None
+
+
+def e_p_mean(position_m: np.ndarray, reach_m: float) -> float:
+    return float(position_m.mean() / reach_m * 100)
