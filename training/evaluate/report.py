@@ -71,7 +71,7 @@ def build_report(
     lower, upper, _ = manifest.joints.arrays()
     q_targets = uniform_configurations(lower, upper, num_targets, seed)
     robot = robot_spec(manifest.robot)
-    chain = load_chain(REPO_MODELS_DIR / robot.urdf, robot.end_effector_link)
+    chain = load_chain(REPO_MODELS_DIR / robot.urdf, robot.end_effector_link, robot.base_link)
     one_dimensional = manifest.joints.count - manifest.task.dimension == 1
     truths = [ground_truth(model, q, seed + i) for i, q in enumerate(q_targets)]
     flow_target(model, q_targets[0], 10, seed=0)  # warm-up: onnxruntime's first-call cost
