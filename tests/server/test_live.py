@@ -15,6 +15,7 @@ import pytest
 
 from tests.server.conftest import FUZZ_MAX_NUM_SAMPLES
 from tests.support.bad_inputs import BadInput, catalogue, check_answer
+from tests.support.bundled import bundled_model_ids
 from tools.local_server import LocalServer
 
 CATALOGUE = catalogue(FUZZ_MAX_NUM_SAMPLES, max_body_bytes=65_536)
@@ -49,4 +50,4 @@ def test_answers_and_log_lines_share_the_request_id(server: LocalServer) -> None
     assert access["message"] == "request" and access["status"] == 200
     assert access["route"] == "/smm" and access["model"] == "iiwa14-position"
     started = [line for line in server.log_lines() if line.get("message") == "model loaded"]
-    assert len(started) == 3
+    assert len(started) == len(bundled_model_ids())

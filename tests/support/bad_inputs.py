@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from tests.support import bodies
+from tests.support.bundled import served_robots_message
 
 PLANAR = bodies.PLANAR
 POSE: dict[str, Any] = {**bodies.POSE, "num_samples": 50}
@@ -333,15 +334,13 @@ def catalogue(max_num_samples: int, max_body_bytes: int) -> list[BadInput]:
             planar(target=[0.5, 0.0]),
         ),
         # Unknown model (a path-like name is just an unknown name: no field becomes a path).
-        BadInput(
-            "unknown-robot", 404, "robot", "served robots: iiwa14, planar3r", planar(robot="ur5")
-        ),
+        BadInput("unknown-robot", 404, "robot", served_robots_message(), planar(robot="ur5")),
         BadInput("unknown-task", 404, "task", "served tasks: position", planar(task="pose")),
         BadInput(
             "path-like-robot",
             404,
             "robot",
-            "served robots: iiwa14, planar3r",
+            served_robots_message(),
             planar(robot="../models/planar3r-position"),
         ),
         # The body as a whole.

@@ -18,7 +18,7 @@ float32 run's. A short budget favours what helps early (EMA, a residual net); th
 says so and the long run confirms or not.
 
     python -m training.evaluate.recipe --robot iiwa14 --task pose --samples 500000 --epochs 8
-    # -> docs/reports/recipe-iiwa14-pose.{json,md}; runs under runs/recipe/ (not in git),
+    # -> docs/reports/training/recipe-iiwa14-pose.{json,md}; runs under runs/recipe/ (not in git),
     #    a variant whose model is already there is not trained again (the job resumes)
 """
 
@@ -39,7 +39,8 @@ from service.manifest import Manifest
 from training.flow import cfm_loss
 from training.model import VelocityField
 
-REPORTS_DIR = Path(__file__).resolve().parents[2] / "docs" / "reports"
+# Beside, not among, the model reports (docs/reports/*.json are read as model reports).
+REPORTS_DIR = Path(__file__).resolve().parents[2] / "docs" / "reports" / "training"
 RAW_GAIN = 0.05  # a kept quality option lowers raw errors by at least 5 %
 KEEP_RATE_SLACK = 0.005  # ... and costs at most half a point of keep rate
 SPEED_GAIN = 0.15  # bf16 kept when at least 15 % faster

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
+from tests.support.bundled import served_robots_message
 from training.evaluate.references.planar3r import planar3r_position
 
 
@@ -174,7 +175,7 @@ def test_missing_top_level_field_and_nan_get_422(client: TestClient) -> None:
 def test_unknown_robot_or_task_is_404_listing_what_is_served(client: TestClient) -> None:
     response = smm(client, robot="ur5")
     assert response.status_code == 404
-    assert response.json()["detail"] == "unknown robot 'ur5'; served robots: iiwa14, planar3r"
+    assert response.json()["detail"] == f"unknown robot 'ur5'; {served_robots_message()}"
     response = smm(client, task="pose")
     assert response.status_code == 404
     assert response.json()["detail"] == (

@@ -4,11 +4,13 @@ from __future__ import annotations
 
 from fastapi.testclient import TestClient
 
+from tests.support.bundled import bundled_robots
+
 
 def test_served_names_are_enums_and_errors_are_documented(client: TestClient) -> None:
     spec = client.get("/openapi.json").json()
     request = spec["components"]["schemas"]["SmmRequest"]["properties"]
-    assert request["robot"]["enum"] == ["iiwa14", "planar3r"]
+    assert request["robot"]["enum"] == bundled_robots()
     assert request["task"]["enum"] == ["pose", "position"]
     smm = spec["paths"]["/smm"]["post"]["responses"]
     assert set(smm) == {"200", "400", "401", "404", "413", "415", "422", "503", "504"}

@@ -1,0 +1,23 @@
+"""The bundled models as their manifest files list them, read as JSON (not through the
+registry the tests check), so tests that name what is served follow models/."""
+
+from __future__ import annotations
+
+import json
+
+from service.manifest import MANIFEST_FILE, REPO_MODELS_DIR
+
+
+def bundled_model_ids() -> list[str]:
+    paths = sorted(REPO_MODELS_DIR.glob(f"*/{MANIFEST_FILE}"))
+    return sorted(json.loads(p.read_text())["model_id"] for p in paths)
+
+
+def bundled_robots() -> list[str]:
+    paths = sorted(REPO_MODELS_DIR.glob(f"*/{MANIFEST_FILE}"))
+    return sorted({json.loads(p.read_text())["robot"] for p in paths})
+
+
+def served_robots_message() -> str:
+    """The tail of the 404 for an unknown robot."""
+    return "served robots: " + ", ".join(bundled_robots())
