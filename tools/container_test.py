@@ -61,6 +61,7 @@ from scipy.spatial.transform import Rotation
 
 from tests.support.iiwa14_dh import LIMITS_RAD as IIWA14_LIMITS_RAD
 from tests.support.iiwa14_dh import iiwa14_pose, rotation_angle_rad
+from tests.support.urdf_chain import read_chain
 from tools.local_server import LOOPBACK, free_port
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -315,15 +316,64 @@ def iiwa14_target(task: str) -> Target:
     )
 
 
+def panda_target(task: str) -> Target:
+    """The Panda checked by the tests' own float64 URDF chain (not pytorch-kinematics)."""
+    chain = read_chain(ROOT / "models" / "robots" / "panda.urdf", "panda_hand_tcp", "panda_link0")
+    q_source = np.array([0.3, -0.4, 0.2, -2.0, 0.1, 1.8, 0.5])
+    goal = chain.pose(q_source[None])[0]  # (4, 4)
+    target: dict[str, Any] = {"position": goal[:3, 3].tolist()}
+    tolerance = {"position": 1e-6}
+    if task == "pose":
+        x, y, z, w = Rotation.from_matrix(goal[:3, :3]).as_quat()
+        target["orientation"] = {"w": w, "x": x, "y": y, "z": z}
+        tolerance["orientation"] = 1e-6
+
+    def check(q: np.ndarray) -> dict[str, float]:
+        reached = chain.pose(q)  # (B, 4, 4)
+        errors = {"position": float(np.linalg.norm(reached[:, :3, 3] - goal[:3, 3], axis=1).max())}
+        if task == "pose":
+            goal_rotation = np.broadcast_to(goal[:3, :3], reached[:, :3, :3].shape)
+            errors["orientation"] = float(
+                rotation_angle_rad(reached[:, :3, :3], goal_rotation).max()
+            )
+        return errors
+
+    body = {
+        "robot": "panda",
+        "task": task,
+        "target": target,
+        "tolerance": tolerance,
+        "reference_configuration": q_source.tolist(),
+        "seed": 7,
+    }
+    return Target(
+        body=body,
+        q_source=q_source,
+        check=check,
+        within_limits=lambda q: np.all(
+            (q >= chain.lower - 1e-12) & (q <= chain.upper + 1e-12), axis=-1
+        ),
+        distance=lambda q, r: np.linalg.norm(q - r, axis=-1),  # limited joints: no wrap
+    )
+
+
 # Every bundled model needs an entry here: a model without an independent check fails.
 TARGETS: dict[str, Callable[[], Target]] = {
     "planar3r-position": planar3r_target,
     "iiwa14-pose": lambda: iiwa14_target("pose"),
     "iiwa14-position": lambda: iiwa14_target("position"),
+    "panda-pose": lambda: panda_target("pose"),
+    "panda-position": lambda: panda_target("position"),
 }
 # How close (joint-space norm, rad) some answer must come to the source configuration.
 # The 4-D position SMM is sampled sparsely at 1000 samples: a looser bound.
-NEAREST_BOUND_RAD = {"planar3r-position": 0.3, "iiwa14-pose": 0.3, "iiwa14-position": 1.5}
+NEAREST_BOUND_RAD = {
+    "planar3r-position": 0.3,
+    "iiwa14-pose": 0.3,
+    "iiwa14-position": 1.5,
+    "panda-pose": 0.3,
+    "panda-position": 1.5,
+}
 
 
 def bundled_models() -> list[str]:
