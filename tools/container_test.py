@@ -279,9 +279,16 @@ def planar3r_target() -> Target:
     )
 
 
-def iiwa14_target(task: str) -> Target:
-    q_source = np.array([0.3, 0.6, 0.0, -1.2, 0.0, 0.9, 0.0])
-    goal = iiwa14_pose(q_source[None])[0]
+def spatial_target(
+    robot: str,
+    task: str,
+    q_source: np.ndarray,  # (n,)
+    pose: Callable[[np.ndarray], np.ndarray],  # (B, n) -> (B, 4, 4), the independent FK
+    lower_rad: np.ndarray,  # (n,)
+    upper_rad: np.ndarray,  # (n,)
+) -> Target:
+    """A spatial arm's target made from q_source, checked by its independent FK `pose`."""
+    goal = pose(q_source[None])[0]  # (4, 4)
     target: dict[str, Any] = {"position": goal[:3, 3].tolist()}
     tolerance = {"position": 1e-6}
     if task == "pose":
@@ -290,7 +297,7 @@ def iiwa14_target(task: str) -> Target:
         tolerance["orientation"] = 1e-6
 
     def check(q: np.ndarray) -> dict[str, float]:
-        reached = iiwa14_pose(q)
+        reached = pose(q)  # (B, 4, 4)
         errors = {"position": float(np.linalg.norm(reached[:, :3, 3] - goal[:3, 3], axis=1).max())}
         if task == "pose":
             goal_rotation = np.broadcast_to(goal[:3, :3], reached[:, :3, :3].shape)
@@ -300,46 +307,7 @@ def iiwa14_target(task: str) -> Target:
         return errors
 
     body = {
-        "robot": "iiwa14",
-        "task": task,
-        "target": target,
-        "tolerance": tolerance,
-        "reference_configuration": q_source.tolist(),
-        "seed": 7,
-    }
-    return Target(
-        body=body,
-        q_source=q_source,
-        check=check,
-        within_limits=lambda q: np.all(np.abs(q) <= IIWA14_LIMITS_RAD + 1e-12, axis=-1),
-        distance=lambda q, r: np.linalg.norm(q - r, axis=-1),  # limited joints: no wrap
-    )
-
-
-def panda_target(task: str) -> Target:
-    """The Panda checked by the tests' own float64 URDF chain (not pytorch-kinematics)."""
-    chain = read_chain(ROOT / "models" / "robots" / "panda.urdf", "panda_hand_tcp", "panda_link0")
-    q_source = np.array([0.3, -0.4, 0.2, -2.0, 0.1, 1.8, 0.5])
-    goal = chain.pose(q_source[None])[0]  # (4, 4)
-    target: dict[str, Any] = {"position": goal[:3, 3].tolist()}
-    tolerance = {"position": 1e-6}
-    if task == "pose":
-        x, y, z, w = Rotation.from_matrix(goal[:3, :3]).as_quat()
-        target["orientation"] = {"w": w, "x": x, "y": y, "z": z}
-        tolerance["orientation"] = 1e-6
-
-    def check(q: np.ndarray) -> dict[str, float]:
-        reached = chain.pose(q)  # (B, 4, 4)
-        errors = {"position": float(np.linalg.norm(reached[:, :3, 3] - goal[:3, 3], axis=1).max())}
-        if task == "pose":
-            goal_rotation = np.broadcast_to(goal[:3, :3], reached[:, :3, :3].shape)
-            errors["orientation"] = float(
-                rotation_angle_rad(reached[:, :3, :3], goal_rotation).max()
-            )
-        return errors
-
-    body = {
-        "robot": "panda",
+        "robot": robot,
         "task": task,
         "target": target,
         "tolerance": tolerance,
@@ -351,10 +319,25 @@ def panda_target(task: str) -> Target:
         q_source=q_source,
         check=check,
         within_limits=lambda q: np.all(
-            (q >= chain.lower - 1e-12) & (q <= chain.upper + 1e-12), axis=-1
+            (q >= lower_rad - 1e-12) & (q <= upper_rad + 1e-12), axis=-1
         ),
         distance=lambda q, r: np.linalg.norm(q - r, axis=-1),  # limited joints: no wrap
     )
+
+
+def iiwa14_target(task: str) -> Target:
+    """The iiwa14 checked by the paper's DH table (tests/support/iiwa14_dh.py)."""
+    q_source = np.array([0.3, 0.6, 0.0, -1.2, 0.0, 0.9, 0.0])
+    return spatial_target(
+        "iiwa14", task, q_source, iiwa14_pose, -IIWA14_LIMITS_RAD, IIWA14_LIMITS_RAD
+    )
+
+
+def panda_target(task: str) -> Target:
+    """The Panda checked by the tests' own float64 URDF chain (not pytorch-kinematics)."""
+    chain = read_chain(ROOT / "models" / "robots" / "panda.urdf", "panda_hand_tcp", "panda_link0")
+    q_source = np.array([0.3, -0.4, 0.2, -2.0, 0.1, 1.8, 0.5])
+    return spatial_target("panda", task, q_source, chain.pose, chain.lower, chain.upper)
 
 
 # Every bundled model needs an entry here: a model without an independent check fails.

@@ -86,7 +86,7 @@ def closure(project: str = PROJECT, extras: tuple[str, ...] = EXTRAS) -> dict[st
         if canonicalize_name(name) != canonicalize_name(project):
             pins[canonicalize_name(name)] = Version(dist.version).public
         pending += [(r.name, set(r.extras)) for r in _requirements(dist, wanted)]
-    for name, (_, _) in WITHOUT_DEPENDENCIES.items():  # pinned as installed, closure not followed
+    for name in WITHOUT_DEPENDENCIES:  # pinned as installed, closure not followed
         pins[canonicalize_name(name)] = Version(metadata.version(name)).public
     return dict(sorted(pins.items()))
 

@@ -6,15 +6,17 @@ unnormalised oblique axis), a fixed tool, and a gripper branch off the last link
 prismatic finger and a revolute finger that mimics it). `arm_pose` multiplies the URDF's
 transforms out from the same numbers the URDF is written from (origin: translation,
 then Rz(yaw) Ry(pitch) Rx(roll); motion: Rodrigues about the unit axis), with neither
-pytorch-kinematics nor training/.
+pytorch-kinematics nor training/ (the origin and Rodrigues helpers of
+tests/support/urdf_chain.py).
 """
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import numpy as np
+
+from tests.support.urdf_chain import origin_matrix, rodrigues
 
 # (name, type, parent, child, xyz, rpy, axis, limits): the arm the URDF is written from.
 JOINTS: list[tuple[str, str, str, str, tuple, tuple, tuple | None, tuple | None]] = [
@@ -61,39 +63,18 @@ def write_arm(directory: Path, replace: dict[str, str] | None = None, name: str 
     return path
 
 
-def _transform(xyz: tuple, rpy: tuple) -> np.ndarray:
-    roll, pitch, yaw = rpy
-    r_x = np.array(
-        [[1, 0, 0], [0, math.cos(roll), -math.sin(roll)], [0, math.sin(roll), math.cos(roll)]]
-    )
-    r_y = np.array(
-        [[math.cos(pitch), 0, math.sin(pitch)], [0, 1, 0], [-math.sin(pitch), 0, math.cos(pitch)]]
-    )
-    r_z = np.array(
-        [[math.cos(yaw), -math.sin(yaw), 0], [math.sin(yaw), math.cos(yaw), 0], [0, 0, 1]]
-    )
-    transform = np.eye(4)
-    transform[:3, :3] = r_z @ r_y @ r_x
-    transform[:3, 3] = xyz
-    return transform
-
-
-def _rodrigues(axis: tuple, angle: float) -> np.ndarray:
-    k = np.asarray(axis, dtype=float) / np.linalg.norm(axis)
-    cross = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    rotation = np.eye(4)
-    rotation[:3, :3] = np.eye(3) + math.sin(angle) * cross + (1 - math.cos(angle)) * cross @ cross
-    return rotation
-
-
 def arm_pose(q: np.ndarray) -> np.ndarray:
     """The tool's pose (4, 4) in the frame of "base" at q (4,) (the chain from "base" to
     "tool"): the URDF's transforms multiplied out."""
     pose, column = np.eye(4), 0
     for name, kind, *_, xyz, rpy, axis, _ in JOINTS[1:7]:  # base to tool
-        pose = pose @ _transform(xyz, rpy)
+        pose = pose @ origin_matrix(np.asarray(xyz, float), np.asarray(rpy, float))
         if kind != "fixed":
             assert axis is not None, name
-            pose = pose @ _rodrigues(axis, q[column])
+            motion = np.eye(4)
+            motion[:3, :3] = rodrigues(
+                np.asarray(axis) / np.linalg.norm(axis), q[column : column + 1]
+            )[0]
+            pose = pose @ motion
             column += 1
     return pose
