@@ -28,11 +28,18 @@ Measures of a candidate setting over the targets:
   time            in-process median over targets of each stage and of the whole query.
 
 Candidates, one axis at a time: Euler sampler steps {10, 20, 50}, then DLS correction
-steps {3, 6, 10}, then num_samples {500, 1000, 2000}. An axis is swept with the other two
-at their values so far (the model's starting defaults, `training.defaults.serving_defaults`,
-replaced by each axis's choice as it is made), so the last axis measures exactly the
-chosen setting. Cost grows with every axis's value (sampler steps x N network
-evaluations, DLS steps x N Jacobians, N), so "cheaper" means the smaller value.
+steps {3, 6, 10}, then num_samples {500, 1000, 2000}, then the connectivity step: for
+r = 1 the continuation step h of the trace {0.075, 0.15, 0.3} rad, for r > 1 the local
+planner's delta {0.15, 0.3, 0.6} rad. An axis is swept with the others at their values so
+far (the model's starting defaults, `training.defaults.serving_defaults`, replaced by each
+axis's choice as it is made), so the last axis measures exactly the chosen setting. Cost
+grows with the value of the first three axes (sampler steps x N network evaluations, DLS
+steps x N Jacobians, N) and shrinks with the connectivity step (a curve of length L takes
+L / h continuation steps, an edge of length l takes l / delta projections), so "cheaper"
+means the smaller count or the longer step. A longer step is also the riskier one: the
+trace's fronts meet within 1.1 h, which can join two curves passing closer than that, and
+a long planner step can land on another sheet of the fibre; the agreement with a
+reference that decides components with the finest candidate step is what shows it.
 
 Rule, applied per axis by `pick`: among the candidates answering as many targets as the
 best one (every target whenever any candidate does), take the cheapest whose keep rate is
@@ -40,9 +47,10 @@ within KEEP_RATE_MARGIN, count right within COUNT_RIGHT_MARGIN and recall within
 RECALL_MARGIN of the best candidate's on that axis. When none is within all three margins,
 take the best count right (then keep rate, then recall; ties to the cheaper).
 
-Not swept: damping (the paper's), tolerances (the contract's) and connectivity, taken from
-the per-r table of `training.defaults`. The reference decides components with the same
-connectivity parameters, so agreement with it cannot judge them.
+Not swept: damping (the paper's), tolerances (the contract's) and the rest of the
+connectivity parameters (OMPL's lambda and projection tolerance, the roadmap's neighbours
+and radii, the path spacing of the contract), taken from the per-r table of
+`training.defaults`.
 
     python -m training.sweep --model-dir models/iiwa14-pose --targets 20 [--out sweep.json]
 """
@@ -59,7 +67,7 @@ from typing import Literal, get_args
 
 import numpy as np
 
-from service.manifest import Defaults, SamplerSpec
+from service.manifest import ConnectivitySpec, Defaults, SamplerSpec
 from service.models.registry import ServedModel, load_model
 from service.pipeline.arrays import BoolArray, FloatArray, IntArray
 from service.pipeline.joint_space import JointBox
@@ -83,19 +91,34 @@ MIN_COMPONENT_SHARE = 0.01
 # candidates' own.
 REFERENCE_SEED_OFFSET = 1_000_003
 
-Axis = Literal["sampler_steps", "correction_steps", "num_samples"]
+Axis = Literal["sampler_steps", "correction_steps", "num_samples", "connectivity_step_rad"]
 AXES: tuple[Axis, ...] = get_args(Axis)
 # The Defaults reason each axis writes, and how its value reads in a reason.
 _REASON_KEY: dict[Axis, str] = {
     "sampler_steps": "sampler",
     "correction_steps": "correction_steps",
     "num_samples": "num_samples",
+    "connectivity_step_rad": "connectivity",
 }
 _UNIT: dict[Axis, str] = {
     "sampler_steps": "Euler steps",
     "correction_steps": "DLS steps",
     "num_samples": "samples",
+    "connectivity_step_rad": "rad connectivity step",
 }
+# Axes whose cost falls as their value grows (a longer step takes fewer of them).
+_LONGER_IS_CHEAPER: frozenset[Axis] = frozenset({"connectivity_step_rad"})
+
+
+def cost(axis: Axis, value: float) -> float:
+    """What "cheaper" orders the candidates of an axis by (smaller is cheaper)."""
+    return 1.0 / value if axis in _LONGER_IS_CHEAPER else value
+
+
+def connectivity_step_field(redundancy: int) -> str:
+    """The ConnectivitySpec field the connectivity axis sets: the trace's continuation step
+    for r = 1 (curves traced whole), the local planner's delta for r > 1 (a roadmap)."""
+    return "trace_step_rad" if redundancy == 1 else "delta_rad"
 
 
 @dataclass(frozen=True)
@@ -105,11 +128,15 @@ class SweepPlan:
     sampler_steps: tuple[int, ...] = (10, 20, 50)
     correction_steps: tuple[int, ...] = (3, 6, 10)
     num_samples: tuple[int, ...] = (500, 1000, 2000)
+    trace_step_rad: tuple[float, ...] = (0.075, 0.15, 0.3)  # r = 1
+    planner_delta_rad: tuple[float, ...] = (0.15, 0.3, 0.6)  # r > 1
     reference_samples_factor: int = 4  # reference N = this x the largest candidate N
     reference_sampler_steps: int = 50
     reference_correction_steps: int = 12
 
-    def candidates(self, axis: Axis) -> tuple[int, ...]:
+    def candidates(self, axis: Axis, redundancy: int = 1) -> tuple[float, ...]:
+        if axis == "connectivity_step_rad":
+            return self.trace_step_rad if redundancy == 1 else self.planner_delta_rad
         values: tuple[int, ...] = getattr(self, axis)
         return values
 
@@ -117,9 +144,13 @@ class SweepPlan:
     def reference_samples(self) -> int:
         return self.reference_samples_factor * max(self.num_samples)
 
-    def reference_setting(self) -> Setting:
+    def reference_setting(self, redundancy: int = 1) -> Setting:
+        """The dense reference: most samples, most steps, the finest connectivity step."""
         return Setting(
-            self.reference_sampler_steps, self.reference_correction_steps, self.reference_samples
+            self.reference_sampler_steps,
+            self.reference_correction_steps,
+            self.reference_samples,
+            min(self.candidates("connectivity_step_rad", redundancy)),
         )
 
 
@@ -130,17 +161,21 @@ class Setting:
     sampler_steps: int
     correction_steps: int
     num_samples: int
+    connectivity_step_rad: float  # trace step h (r = 1) or planner delta (r > 1)
 
     @classmethod
-    def of(cls, defaults: Defaults) -> Setting:
-        return cls(defaults.sampler.steps, defaults.correction_steps, defaults.num_samples)
+    def of(cls, defaults: Defaults, redundancy: int) -> Setting:
+        step = getattr(defaults.connectivity, connectivity_step_field(redundancy))
+        return cls(defaults.sampler.steps, defaults.correction_steps, defaults.num_samples, step)
 
-    def value(self, axis: Axis) -> int:
-        value: int = getattr(self, axis)
+    def value(self, axis: Axis) -> float:
+        value: float = getattr(self, axis)
         return value
 
-    def with_value(self, axis: Axis, value: int) -> Setting:
-        return replace(self, **{axis: value})
+    def with_value(self, axis: Axis, value: float) -> Setting:
+        if axis == "connectivity_step_rad":
+            return replace(self, connectivity_step_rad=float(value))
+        return replace(self, **{axis: int(value)})
 
     def describe(self, *, leaving_out: Axis | None = None) -> str:
         return ", ".join(
@@ -199,8 +234,12 @@ class Candidate:
     measures: Measures
 
     @property
-    def value(self) -> int:
+    def value(self) -> float:
         return self.setting.value(self.axis)
+
+    @property
+    def cost(self) -> float:
+        return cost(self.axis, self.value)
 
     def as_json(self) -> dict[str, object]:
         return {"axis": self.axis, **asdict(self.setting), **_finite(asdict(self.measures))}
@@ -264,14 +303,14 @@ def pick(rows: Sequence[Candidate]) -> Candidate:
         and _recall(row) >= best_recall - RECALL_MARGIN
     ]
     if within:
-        return min(within, key=lambda row: row.value)
+        return min(within, key=lambda row: row.cost)
     return max(
         answering,
         key=lambda row: (
             row.measures.count_right,
             row.measures.keep_rate,
             _recall(row),
-            -row.value,
+            -row.cost,
         ),
     )
 
@@ -428,6 +467,7 @@ def _answer(
         sampler=SamplerSpec(method="euler", steps=setting.sampler_steps),
         correction_steps=setting.correction_steps,
         num_samples=setting.num_samples,
+        connectivity=_connectivity(model, setting),
     )
     query = Query.for_model(
         candidate.manifest,
@@ -438,26 +478,38 @@ def _answer(
     return run(candidate, query)
 
 
+def _connectivity(model: ServedModel, setting: Setting) -> ConnectivitySpec:
+    """The model's connectivity with the setting's step in the field its r uses."""
+    field_name = connectivity_step_field(model.manifest.redundancy)
+    return model.manifest.defaults.connectivity.model_copy(
+        update={field_name: setting.connectivity_step_rad}
+    )
+
+
 def sweep_defaults(
     model: ServedModel, targets: int, seed: int, plan: SweepPlan = SweepPlan()
 ) -> SweepResult:
-    """Choose the model's sampler steps, DLS steps and num_samples by the rule of the module
-    docstring, starting from its manifest's defaults; the rest of them is kept."""
+    """Choose the model's sampler steps, DLS steps, num_samples and connectivity step by the
+    rule of the module docstring, starting from its manifest's defaults; the rest of them
+    is kept."""
     if targets < 1:
         raise ValueError(f"a sweep needs at least 1 target, got {targets}")
-    for axis in AXES:
-        if not plan.candidates(axis) or min(plan.candidates(axis)) < 1:
-            raise ValueError(f"{axis}: candidates must be positive integers, got {plan}")
-    start_s = time.perf_counter()
     manifest = model.manifest
+    redundancy = manifest.redundancy
+    for axis in AXES:
+        values = plan.candidates(axis, redundancy)
+        if not values or min(values) <= 0 or (axis not in _LONGER_IS_CHEAPER and min(values) < 1):
+            raise ValueError(f"{axis}: candidates must be positive (counts at least 1), got {plan}")
+    start_s = time.perf_counter()
     periodic = np.asarray(manifest.joints.periodic, dtype=bool)
     drawn = _targets(model, targets, seed)
     run(model, Query.for_model(manifest, position_m=drawn.position_m[0],
                                orientation_wxyz=drawn.orientation_wxyz[0]))  # fmt: skip
     # warm-up above: onnxruntime's first-call allocations stay out of the timings.
+    reference = plan.reference_setting(redundancy)
     references = [
         reference_answer(
-            _answer(model, plan.reference_setting(), drawn, i, seed + REFERENCE_SEED_OFFSET + i),
+            _answer(model, reference, drawn, i, seed + REFERENCE_SEED_OFFSET + i),
             manifest.joints.count,
             manifest.redundancy,
         )
@@ -466,10 +518,10 @@ def sweep_defaults(
     measured: dict[Setting, Measures] = {}
     table: list[Candidate] = []
     reasons: dict[str, str] = {}
-    chosen = Setting.of(manifest.defaults)
+    chosen = Setting.of(manifest.defaults, redundancy)
     for axis in AXES:
         rows = []
-        for value in plan.candidates(axis):
+        for value in plan.candidates(axis, redundancy):
             setting = chosen.with_value(axis, value)
             if setting not in measured:
                 measured[setting] = summarise(
@@ -481,12 +533,11 @@ def sweep_defaults(
             rows.append(Candidate(axis, setting, measured[setting]))
         best = pick(rows)
         table += rows
-        reasons[_REASON_KEY[axis]] = axis_reason(rows, best, seed, plan)
+        reasons[_REASON_KEY[axis]] = axis_reason(rows, best, seed, plan, redundancy)
         chosen = best.setting
     reasons["connectivity"] = (
-        "taken from the per-r table of training/defaults.py, not swept: the dense reference "
-        "decides components with these same parameters, so agreement with it cannot judge "
-        f"them; {CONNECTIVITY_REASON}"
+        f"{connectivity_step_field(redundancy)} = {reasons['connectivity']}; the other "
+        f"parameters from the per-r table of training/defaults.py: {CONNECTIVITY_REASON}"
     )
     defaults = Defaults.model_validate(
         {
@@ -494,6 +545,7 @@ def sweep_defaults(
             "num_samples": chosen.num_samples,
             "sampler": {"method": "euler", "steps": chosen.sampler_steps},
             "correction_steps": chosen.correction_steps,
+            "connectivity": _connectivity(model, chosen).model_dump(),
             "reasons": {**manifest.defaults.reasons, **reasons},
         }
     )
@@ -530,11 +582,13 @@ def _figures(row: Candidate) -> str:
     ).replace("%", " %")
 
 
-def axis_reason(rows: Sequence[Candidate], best: Candidate, seed: int, plan: SweepPlan) -> str:
+def axis_reason(
+    rows: Sequence[Candidate], best: Candidate, seed: int, plan: SweepPlan, redundancy: int
+) -> str:
     """Why `best` was chosen, with the measured figures of every candidate on its axis."""
     axis = best.axis
     m = best.measures
-    reference = plan.reference_setting()
+    reference = plan.reference_setting(redundancy)
     return (
         f"{best.value} {_UNIT[axis]} by the rule of training/sweep.py (the cheapest "
         f"candidate answering the most targets within {KEEP_RATE_MARGIN * 100:g} point of the "

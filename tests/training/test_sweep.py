@@ -4,11 +4,12 @@ Checked: the rule, on sweep tables built by hand, picks the cheapest candidate a
 most targets within the stated margins of the best (and falls back to the best count right
 when none is within all of them); the coverage measure equals a brute-force nearest-distance
 computation on the joint metric (periodic joints wrapped, limited ones not), also on a real
-dense reference of the bundled planar 3R; a sweep of the bundled planar3r-position model
-with a tiny budget chooses by that rule on every axis, returns defaults that validate as
-`Defaults` and serve a query, keeps connectivity, damping and tolerances, writes reasons
-that quote every candidate measured, and a table that is strict JSON; a model id with no
-measured entry starts from generic defaults chosen by r.
+dense reference of the bundled planar 3R; on the connectivity axis a longer step is the
+cheaper candidate; a sweep of the bundled planar3r-position model with a tiny budget
+chooses by that rule on every axis, sets the chosen trace step (and nothing else of the
+connectivity), keeps damping and tolerances, returns defaults that validate as `Defaults`
+and serve a query, writes reasons that quote every candidate measured, and a table that is
+strict JSON; a model id with no measured entry starts from generic defaults chosen by r.
 """
 
 from __future__ import annotations
@@ -50,20 +51,25 @@ from training.sweep import (
 )
 
 # A tiny budget for the bundled planar 3R: two candidates an axis, a 2000-sample reference.
-TINY_PLAN = SweepPlan(sampler_steps=(10, 20), correction_steps=(3, 6), num_samples=(250, 500))
+TINY_PLAN = SweepPlan(
+    sampler_steps=(10, 20), correction_steps=(3, 6), num_samples=(250, 500),
+    trace_step_rad=(0.15, 0.3),
+)  # fmt: skip
 TINY_TARGETS = 3
 SEED = 5
 
 
 def row(
-    value: int,
+    value: float,
     keep_rate: float,
     count_right: float,
     recall: float | None = 1.0,
     answered: int = 20,
     axis: Axis = "sampler_steps",
 ) -> Candidate:
-    setting = Setting(sampler_steps=20, correction_steps=6, num_samples=1000)
+    setting = Setting(
+        sampler_steps=20, correction_steps=6, num_samples=1000, connectivity_step_rad=0.15
+    )
     return Candidate(
         axis=axis,
         setting=setting.with_value(axis, value),
@@ -98,6 +104,11 @@ def test_the_rule_picks_the_cheapest_candidate_within_the_margins() -> None:
     # count right, then the better keep rate.
     split = [row(10, 0.90, 0.50), row(20, 0.50, 0.90), row(50, 0.60, 0.90)]
     assert pick(split).value == 50
+    # The connectivity step: the longer step is the cheaper one, and wins when within the
+    # margins; a step that splits or merges (count right behind) loses.
+    step: Axis = "connectivity_step_rad"
+    assert pick([row(0.075, 0.7, 1.0, axis=step), row(0.3, 0.7, 0.96, axis=step)]).value == 0.3
+    assert pick([row(0.15, 0.7, 1.0, axis=step), row(0.3, 0.7, 0.90, axis=step)]).value == 0.15
     with pytest.raises(ValueError, match="one axis"):
         pick([row(10, 0.7, 1.0), row(3, 0.7, 1.0, axis="correction_steps")])
     with pytest.raises(ValueError, match="one axis"):
@@ -171,7 +182,7 @@ def test_the_sweep_chooses_by_the_rule_and_its_defaults_serve(
     chosen = swept.chosen
     for axis in AXES:
         rows = [r for r in swept.table if r.axis == axis]
-        assert [r.value for r in rows] == list(TINY_PLAN.candidates(axis))
+        assert [r.value for r in rows] == list(TINY_PLAN.candidates(axis, redundancy=1))
         assert pick(rows).setting == rows[[r.value for r in rows].index(chosen.value(axis))].setting
         assert all(r.measures.targets == TINY_TARGETS for r in rows)
     # The last axis measured exactly the chosen setting.
@@ -184,7 +195,10 @@ def test_the_sweep_chooses_by_the_rule_and_its_defaults_serve(
         chosen.correction_steps,
         chosen.num_samples,
     )
-    assert defaults.connectivity == start.connectivity == CONNECTIVITY_CURVES
+    assert start.connectivity == CONNECTIVITY_CURVES
+    assert defaults.connectivity == CONNECTIVITY_CURVES.model_copy(
+        update={"trace_step_rad": chosen.connectivity_step_rad}
+    )
     assert (defaults.damping, defaults.tolerance_position_m) == (start.damping, 1e-6)
 
     served = replace(planar, manifest=planar.manifest.model_copy(update={"defaults": defaults}))
@@ -195,19 +209,21 @@ def test_the_sweep_chooses_by_the_rule_and_its_defaults_serve(
 
 def test_the_reasons_quote_every_candidate_and_the_table_is_json(swept: SweepResult) -> None:
     reasons = swept.defaults.reasons
-    for axis, key in zip(AXES, ("sampler", "correction_steps", "num_samples"), strict=True):
+    keys = ("sampler", "correction_steps", "num_samples", "connectivity")
+    for axis, key in zip(AXES, keys, strict=True):
         reason = reasons[key]
-        assert reason.startswith(f"{swept.chosen.value(axis)} ")
+        prefix = "trace_step_rad = " if key == "connectivity" else ""
+        assert reason.startswith(f"{prefix}{swept.chosen.value(axis)} "), reason
         assert "against a dense reference of the same pipeline (50 Euler steps" in reason
         assert f"{TINY_TARGETS} held-out targets" in reason
-        for candidate in TINY_PLAN.candidates(axis):
+        for candidate in TINY_PLAN.candidates(axis, redundancy=1):
             assert f"{candidate}: keep rate " in reason, (candidate, reason)
-    assert "not swept" in reasons["connectivity"]
+    assert "0.15 rad connectivity step" in reasons["sampler"]  # the reference's finest step
     assert set(reasons) == {
         "num_samples", "sampler", "correction_steps", "damping", "connectivity", "tolerance",
     }  # fmt: skip
     table = json.loads(json.dumps(swept.as_json(), allow_nan=False))
-    assert len(table["table"]) == len(swept.table) == 6
+    assert len(table["table"]) == len(swept.table) == 8
     assert table["plan"]["reference_samples"] == 2000
     assert Defaults.model_validate(table["defaults"]) == swept.defaults
 
