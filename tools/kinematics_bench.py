@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
 import time
 
 import numpy as np
@@ -24,6 +23,7 @@ from service.models.chain import SerialChainKinematics
 from service.models.sessions import OnnxKinematics, open_session
 from service.pipeline.arrays import FloatArray
 from service.pipeline.types import Kinematics
+from training.machine import cpu_model
 
 
 def block_seconds(kinematics: Kinematics, q: FloatArray, calls: int) -> float:
@@ -41,17 +41,6 @@ def max_difference(a: Kinematics, b: Kinematics, q: FloatArray) -> float:
         float(np.max(np.abs(x.rotation - y.rotation))),
         float(np.max(np.abs(x.jacobian - y.jacobian))),
     )
-
-
-def cpu_model() -> str:
-    try:
-        with open("/proc/cpuinfo") as handle:
-            for line in handle:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -35,6 +35,7 @@ from scipy.spatial.transform import Rotation
 from service.manifest import KINEMATICS_FILE, MANIFEST_FILE, REPO_MODELS_DIR, Manifest
 from service.models.sessions import OnnxKinematics, open_session
 from tools.local_server import LocalServer
+from training.machine import cpu_model
 
 TARGETS_PER_MODEL = 64
 
@@ -150,14 +151,7 @@ def summarise(outcomes: list[Outcome], clients: int, duration_s: float) -> Repor
 
 
 def machine_description() -> str:
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo") as handle:
-            names = [line for line in handle if line.startswith("model name")]
-        cpu = names[0].split(":", 1)[1].strip() if names else cpu
-    except OSError:
-        pass
-    return f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}"
+    return f"{cpu_model()}, {os.cpu_count()} cores, Python {platform.python_version()}"
 
 
 async def run_load(

@@ -91,10 +91,17 @@ def test_a_urdf_never_seen_trains_exports_and_is_served(tmp_path: Path) -> None:
     assert manifest.training.command == shlex.join(["smm-train", *command[3:]])
     assert manifest.joints.names == ["j1", "j2", "j3", "j4"]
     # Its serving defaults were chosen by the built-in sweep, every candidate measured.
-    for key, values in [("sampler", (10, 20, 50)), ("num_samples", (500, 1000, 2000))]:
+    swept = [
+        ("sampler", (10, 20, 50)),
+        ("num_samples", (500, 1000, 2000)),
+        ("connectivity", (0.075, 0.15, 0.3)),  # r = 1: the trace's step
+    ]
+    for key, values in swept:
         reason = manifest.defaults.reasons[key]
         assert "dense reference" in reason
         assert all(f"; {v}: keep rate" in reason or f": {v}: keep rate" in reason for v in values)
+    chosen_step = manifest.defaults.connectivity.trace_step_rad
+    assert manifest.defaults.reasons["connectivity"].startswith(f"trace_step_rad = {chosen_step} ")
     lower, upper, _ = manifest.joints.arrays()
     rng = np.random.default_rng(7)
     sampled_m = [np.linalg.norm(arm_pose(q)[:3, 3]) for q in rng.uniform(lower, upper, (500, 4))]

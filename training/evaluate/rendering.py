@@ -8,6 +8,7 @@ from __future__ import annotations
 from typing import Any
 
 from training.evaluate.metrics import COUNT_RIGHT_DEFINITION, COVERAGE_RADIUS_RAD
+from training.machine import Machine
 
 PAPER_TABLE_2: dict[
     str, dict[str, tuple[float | None, ...]]
@@ -108,6 +109,14 @@ def _listed_targets(report: dict[str, Any]) -> list[str]:
     return lines
 
 
+def _machine_lines(report: dict[str, Any]) -> list[str]:
+    """Where the times were measured (older reports did not record it)."""
+    if "machine" not in report:
+        return []
+    machine = Machine.from_json(report["machine"])
+    return ["", f"Times measured in process, warm, on: {machine.describe()}."]
+
+
 def markdown(model_id: str, report: dict[str, Any]) -> str:
     """The report's two tables: errors and time beside the paper's Table 2, then components."""
     methods: dict[str, dict[str, Any]] = report["methods"]
@@ -140,6 +149,7 @@ def markdown(model_id: str, report: dict[str, Any]) -> str:
         f"Model `{report['model']}`; {report['targets']} held-out targets (seed {report['seed']}), "
         f"{report['num_samples']} samples (or restarts) per target. Produced by "
         f"`python -m training.evaluate.report --model {model_id} --targets {report['targets']}`.",
+        *_machine_lines(report),
         "",
         *_table(
             [

@@ -57,6 +57,7 @@ from training.evaluate.rendering import markdown, table_2
 from training.evaluate.targets import near_boundary, uniform_configurations
 from training.evaluate.truth import ground_truth
 from training.kinematics import load_chain
+from training.machine import Machine
 from training.robots import robot_spec
 
 REPORTS_DIR = Path(__file__).resolve().parents[2] / "docs" / "reports"
@@ -67,6 +68,7 @@ def build_report(
 ) -> dict[str, object]:
     """Every method on `num_targets` held-out targets (seed), measured against ground truth
     (the Fourier baseline from the model trained in `fourier_dir`, where it runs)."""
+    machine = Machine.now()
     manifest = model.manifest
     lower, upper, _ = manifest.joints.arrays()
     q_targets = uniform_configurations(lower, upper, num_targets, seed)
@@ -101,6 +103,7 @@ def build_report(
     boundary = near_boundary(model, q_targets)
     report: dict[str, object] = {
         "model": model.reference,
+        "machine": machine.ended().as_json(),
         "targets": num_targets,
         "seed": seed,
         "num_samples": num_samples,

@@ -2,8 +2,9 @@
 Table 2 sets each method's errors (raw for FM and ODE, returned for the others) beside
 the paper's figures; the report shows count right with its definition, splits and merges
 per target, the connect stage's median and p95, the path checks (r = 1) and the
-near-singular fraction; a report without them (older JSON) still renders; the Fourier
-rows sit beside the paper's and a method the report skipped is named with the reason.
+near-singular fraction and the machine the times were measured on (flagged when the load
+exceeded the cores); a report without them (older JSON) still renders; the Fourier rows
+sit beside the paper's and a method the report skipped is named with the reason.
 """
 
 from __future__ import annotations
@@ -88,6 +89,8 @@ def test_markdown_shows_count_right_splits_merges_connect_time_and_paths() -> No
     served = _served_summary()
     report = {
         "model": "iiwa14-pose@test", "targets": 8, "seed": 7, "num_samples": 1000,
+        "machine": {"cpu": "AMD EPYC 9R14", "cores": 2, "python": "3.11.9",
+                    "load_1min_start": 1.9, "load_1min_end": 3.2},
         "methods": {"FM + DLS": served, "FM": _summary(1.5, 1.5)},
         "component_size": "arc length (rad)", "count_right_definition": COUNT_RIGHT_DEFINITION,
         "near_boundary": {"targets": 1, "indices": [3], "FM + DLS": served},
@@ -103,6 +106,11 @@ def test_markdown_shows_count_right_splits_merges_connect_time_and_paths() -> No
     assert "| FM + DLS | 640 | 0.0525 | 0.045 | 0 | 9e-07 | 8e-07 |" in text
     assert "2 (4 for 3, 1 split, 0 merged)" in text
     assert "Count right: " + COUNT_RIGHT_DEFINITION in text
+    assert (
+        "Times measured in process, warm, on: AMD EPYC 9R14, 2 cores, Python 3.11.9; 1-min "
+        "load average 1.9 -> 3.2 (above the core count: other work shared the cores, times "
+        "inflated)." in text
+    )
     # Table 2 carries splits, merges and the connect stage's median and p95.
     row = "| iiwa14-pose | FM + DLS | 3 | 3.1 | 0.75 | 0.125 | 0.125 | 0.375 | 0.0625 |"
     assert row in table_2({"iiwa14-pose": report})
@@ -117,4 +125,5 @@ def test_markdown_renders_a_report_without_the_new_measures() -> None:
     }  # fmt: skip
     text = markdown("planar3r-position", report)
     assert "connect median ms" not in text and "max gap rad" not in text
+    assert "Times measured" not in text
     assert "Count right: " + COUNT_RIGHT_DEFINITION in text

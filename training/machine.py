@@ -1,0 +1,67 @@
+"""The machine a measurement ran on, so that every time a report quotes names it.
+
+Times are only comparable within one run on one machine (the CPU model differs between
+sessions), and a run that shared its cores with other work is slower than the machine:
+the load average over the run says so (above the core count, other work waited).
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass
+from typing import Any
+
+
+def cpu_model() -> str:
+    """The CPU's model name (/proc/cpuinfo), else what the platform module knows."""
+    try:
+        with open("/proc/cpuinfo") as handle:
+            for line in handle:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine() or "unknown"
+
+
+def load_average_1min() -> float | None:
+    """The 1-minute load average (runnable processes), None where the OS has none."""
+    try:
+        return round(os.getloadavg()[0], 2)
+    except OSError:
+        return None
+
+
+@dataclass(frozen=True)
+class Machine:
+    cpu: str
+    cores: int
+    python: str
+    load_1min_start: float | None
+    load_1min_end: float | None = None
+
+    @classmethod
+    def now(cls) -> Machine:
+        return cls(cpu_model(), os.cpu_count() or 1, platform.python_version(), load_average_1min())
+
+    def ended(self) -> Machine:
+        """The same record with the load average at the end of the run."""
+        return Machine(self.cpu, self.cores, self.python, self.load_1min_start, load_average_1min())
+
+    def describe(self) -> str:
+        text = f"{self.cpu}, {self.cores} cores, Python {self.python}"
+        loads = [x for x in (self.load_1min_start, self.load_1min_end) if x is not None]
+        if loads:
+            text += f"; 1-min load average {' -> '.join(f'{x:g}' for x in loads)}"
+            if max(loads) > self.cores + 0.5:
+                text += " (above the core count: other work shared the cores, times inflated)"
+        return text
+
+    def as_json(self) -> dict[str, object]:
+        return asdict(self)
+
+    @classmethod
+    def from_json(cls, record: Mapping[str, Any]) -> Machine:
+        return cls(**record)
