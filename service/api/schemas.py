@@ -122,9 +122,10 @@ class ComponentOut(BaseModel):
 class StructureOut(BaseModel):
     near_singular: bool = Field(
         description="The target is near a singular value of the kinematics (the Jacobian "
-        "nearly loses rank on the fibre, or a curve could not be traced through): "
-        "components may touch there, so their number may be ambiguous. Every returned "
-        "configuration is still exact and inside the limits."
+        "nearly loses rank on the fibre, a curve could not be traced through, or two "
+        "strands of the fibre run closer than the tracing resolves): components may touch "
+        "there, so their number may be ambiguous. Every returned configuration is still "
+        "exact and inside the limits."
     )
     min_singular_value: float | None = Field(
         description="Smallest singular value of the task Jacobian seen on the fibre."

@@ -10,8 +10,9 @@ coaxial sets (coaxial.py), where twin branches meet, when components are left ap
 
 Either way every accepted sample is in exactly one component, and the result says when
 the target is near a singular value of the kinematics (sigma_min(J) small on the fibre,
-or a curve that could not be traced through), where components may touch or split and
-the structure is ambiguous.
+a curve that could not be traced through, or two strands of the traced fibre closer
+than the fronts' meeting distance), where components may touch or split and the
+structure is ambiguous.
 """
 
 from __future__ import annotations
@@ -29,7 +30,13 @@ from service.pipeline.fibre import Fibre, smallest_singular_value
 from service.pipeline.joint_space import JointBox, joint_difference, joint_distance
 from service.pipeline.local_planner import PlannerSettings
 from service.pipeline.roadmap import RoadmapSettings, roadmap_labels
-from service.pipeline.tracing import TracedPiece, TraceSettings, trace_fibre
+from service.pipeline.tracing import (
+    MEET_FACTOR,
+    TracedPiece,
+    TraceSettings,
+    closest_strands_rad,
+    trace_fibre,
+)
 from service.pipeline.types import (
     Acceptance,
     CoaxialSet,
@@ -90,6 +97,12 @@ def connect(
             sigma = min(sigma, more_sigma)
             owner = _owner_path(correction.q_rad[accepted], paths, periodic, on_curve_rad)
         min_sigma = min(min_sigma, sigma)
+        # Strands closer than the fronts' meeting distance may have been joined or told
+        # apart wrongly: the structure there is not resolved (tracing.closest_strands_rad).
+        strands_rad = closest_strands_rad(
+            [(p.q_rad, p.closed) for p in paths], periodic, MEET_FACTOR * spec.trace_step_rad
+        )
+        complete &= not np.isfinite(strands_rad)
         for index, path in enumerate(paths):
             members = accepted[owner == index]
             components.append(_component(correction, members, path))

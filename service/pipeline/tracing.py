@@ -18,15 +18,21 @@ traced point keeps what the kinematics measured there (error, Jacobian, tangent)
 point is evaluated twice.
 
 A front that cannot go on (the corrector fails, a step jumps, the step budget runs out)
-leaves its curve open there; such a trace, and a fibre whose Jacobian comes near rank
-deficiency, make the result `near_singular`.
+leaves its curve open there; such a trace, a fibre whose Jacobian comes near rank
+deficiency, and two strands of the fibre closer than the fronts' meeting distance
+(`closest_strands_rad`: the meeting test cannot always tell them apart; next to a
+singular value the fibre can run as twin strands a few hundredths of a radian apart, or
+far less, while sigma_min(J) stays moderate, as on the planar 3R within 1e-4 of
+|x| = 1) make the result `near_singular`.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from service.pipeline.arrays import BoolArray, FloatArray, IntArray
 from service.pipeline.deadline import NO_DEADLINE, Deadline
@@ -40,13 +46,17 @@ from service.pipeline.fibre import (
     smallest_singular_value,
     unit_tangent,
 )
-from service.pipeline.joint_space import TWO_PI, wrap_to_pi
+from service.pipeline.joint_space import TWO_PI, joint_difference, wrap_to_pi
 
 # sigma_min(J) below which two meeting fronts may be on twin curves (the iiwa's elbow
 # twins at q4 = +-0.015, 0.03 rad apart, have sigma_min ~ 0.006; on regular pose targets
 # the fibre's least sigma_min is ~0.1).
 TWIN_SIGMA = 0.05
 TWIN_OFFSET = 0.05  # x h: the chord's offset from the mean tangent that marks twins
+MEET_FACTOR = 1.1  # x h: fronts whose ends come this close may meet
+# Two traced points are on different strands of one curve when they lie more than this
+# many meeting distances apart along it (nearer, they are neighbours on one strand).
+STRAND_ARC_FACTOR = 4.0
 
 
 @dataclass(frozen=True)
@@ -306,7 +316,7 @@ def _meet(
     # longer than the torus distance: one (A, 2n) x (2n, F) product, no KD-tree.
     circle = np.concatenate([np.cos(q), np.sin(q)], axis=1)  # (F, 2n)
     chordal2 = 2.0 * q.shape[1] - 2.0 * (circle[live] @ circle.T)  # (A, F)
-    reach = 1.1 * step_rad.max()
+    reach = MEET_FACTOR * step_rad.max()
     row, b = np.nonzero(chordal2 <= reach * reach + 1e-9)
     a = live[row]
     pair = (a != b) & (partner[b] < 0) & ((a < b) | ~alive[b])  # each pair once
@@ -316,7 +326,7 @@ def _meet(
     chord = _torus_difference(q[b], q[a])  # (P, n) from a's end to b's end
     length = np.linalg.norm(chord, axis=1)
     before = np.linalg.norm(_torus_difference(previous[b], previous[a]), axis=1)
-    near = length <= 1.1 * np.maximum(step_rad[a], step_rad[b])
+    near = length <= MEET_FACTOR * np.maximum(step_rad[a], step_rad[b])
     head_on = np.einsum("pn,pn->p", tangent[a], tangent[b]) < -0.5
     along = np.abs(np.einsum("pn,pn->p", chord, tangent[a])) >= 0.7 * length
     closer = length < before
@@ -350,6 +360,49 @@ def _meet(
         if partner[i] < 0 and partner[j] < 0:
             partner[i], partner[j] = j, i
             alive[i] = alive[j] = False
+
+
+def closest_strands_rad(
+    curves: Sequence[tuple[FloatArray, bool]],  # (P_c, n) ordered points, closed or not
+    periodic: BoolArray,  # (n,)
+    within_rad: float,
+) -> float:
+    """The closest approach (joint metric) of two strands of the traced fibre: points of
+    two different curves, or of one curve but more than STRAND_ARC_FACTOR x `within_rad`
+    apart along it (the shorter way round a closed one); inf when none is within
+    `within_rad`.
+
+    Fronts meet within 1.1 h, so two strands closer than that are told apart only by the
+    twins test of `_meet`, and a fibre that runs as twins closer than the test resolves
+    is traced as the wrong curves: the structure there is ambiguous. Candidate pairs come
+    from a KD-tree on the circle embedding (cos q, sin q), whose chord is never longer
+    than the joint-metric distance.
+    """
+    curves = [(q, closed) for q, closed in curves if len(q)]
+    if not curves:
+        return np.inf
+    arc, length = [], []
+    for q, closed in curves:
+        steps = np.linalg.norm(joint_difference(q[1:], q[:-1], periodic), axis=1)
+        arc.append(np.concatenate([[0.0], np.cumsum(steps)]))
+        closing = np.linalg.norm(joint_difference(q[0], q[-1], periodic)) if closed else 0.0
+        length.append(arc[-1][-1] + float(closing))
+    points = np.concatenate([q for q, _ in curves])  # (P, n)
+    curve = np.concatenate([np.full(len(q), c) for c, (q, _) in enumerate(curves)])  # (P,)
+    s = np.concatenate(arc)  # (P,) arc position along its curve
+    total = np.asarray(length)[curve]  # (P,)
+    closed = np.array([closed for _, closed in curves])[curve]
+    circle = np.concatenate([np.cos(points), np.sin(points)], axis=1)  # (P, 2n)
+    pairs = cKDTree(circle).query_pairs(r=within_rad, output_type="ndarray")  # (K, 2)
+    if not len(pairs):
+        return np.inf
+    a, b = pairs[:, 0], pairs[:, 1]
+    distance = np.linalg.norm(joint_difference(points[a], points[b], periodic), axis=1)
+    apart = np.abs(s[a] - s[b])
+    apart = np.where(closed[a], np.minimum(apart, total[a] - apart), apart)
+    strands = (curve[a] != curve[b]) | (apart > STRAND_ARC_FACTOR * within_rad)
+    close = strands & (distance <= within_rad)
+    return float(distance[close].min()) if close.any() else np.inf
 
 
 def _chain(

@@ -218,7 +218,7 @@ class Component:
 class FibreStructure:
     """How sure the component structure is: near a singular value it may be ambiguous."""
 
-    near_singular: bool  # sigma_min(J) small on the fibre, or a curve not traced through
+    near_singular: bool  # sigma_min(J) small, a curve not traced through, strands too close
     min_singular_value: float | None  # smallest sigma_min(J) seen on the fibre
     traced: bool  # r = 1: components come from tracing the fibre whole
 

@@ -2,7 +2,9 @@
 cut by the limits, ordered paths that are exact, inside the limits and finely spaced,
 checked against the closed forms (planar 3R) and the S-R-S IK components (iiwa pose),
 also where twin curves run a few hundredths of a radian apart and where one piece was
-traced twice; r > 1: the roadmap joins one component across sampling gaps and keeps two apart."""
+traced twice; where twins run closer than the trace can resolve (the planar 3R within
+1e-4 of rho = 1) the answer says near_singular; r > 1: the roadmap joins one component
+across sampling gaps and keeps two apart."""
 
 import numpy as np
 import pytest
@@ -65,6 +67,24 @@ def test_planar_components_follow_the_closed_form(
     check_paths(result, lower, upper, periodic)
     for component in result.components:
         assert component.closed  # no limits on the planar arm: every component is a loop
+        reached = planar3r_position(component.path.q_rad)  # type: ignore[union-attr]
+        assert np.abs(reached - target).max() <= 1e-6
+
+
+@pytest.mark.parametrize("angle", [0.3, 2.0])
+@pytest.mark.parametrize("rho", [0.9999, 0.99999, 1.00001, 1.0001])
+def test_planar_twins_closer_than_the_trace_resolves_are_flagged(
+    planar3r: ServedModel, rho: float, angle: float
+) -> None:
+    """Within 1e-4 of rho = 1 the wrist passes within 1e-4 m of the base, and the fibre's
+    two elbow branches run as twin strands far closer than the fronts' meeting distance
+    while sigma_min(J) stays near 0.005-0.02: the structure (2 loops inside, 1 beyond) is
+    not resolved there, and the answer must say so; its paths are exact all the same."""
+    target = rho * np.array([np.cos(angle), np.sin(angle)])
+    query = Query.for_model(planar3r.manifest, position_m=target.tolist(), seed=1)
+    result = run(planar3r, query)
+    assert result.structure.near_singular
+    for component in result.components:
         reached = planar3r_position(component.path.q_rad)  # type: ignore[union-attr]
         assert np.abs(reached - target).max() <= 1e-6
 

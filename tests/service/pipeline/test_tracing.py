@@ -11,7 +11,13 @@ import pytest
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
 from service.pipeline.joint_space import joint_distance
-from service.pipeline.tracing import TraceSettings, _hermite, spread_seeds, trace_fibre
+from service.pipeline.tracing import (
+    TraceSettings,
+    _hermite,
+    closest_strands_rad,
+    spread_seeds,
+    trace_fibre,
+)
 from tests.service.pipeline.fibre_support import pose_fibre
 from training.evaluate.references.iiwa14 import pose_smm
 
@@ -98,3 +104,42 @@ def test_every_path_point_is_exact_where_it_is_returned(iiwa14_pose: ServedModel
             for end in (q[0], q[-1]):
                 assert np.minimum(end - lower, upper - end)[~periodic].min() <= 1e-12
         assert gaps.max() <= SETTINGS.path_spacing_rad
+
+
+Curves = list[tuple[np.ndarray, bool]]
+
+
+def _curves(*curves: tuple[np.ndarray, bool]) -> tuple[Curves, np.ndarray]:
+    """The curves with every joint periodic (the tracer's torus)."""
+    return list(curves), np.ones(curves[0][0].shape[1], dtype=bool)
+
+
+def test_closest_strands_are_two_curves_or_a_hairpin_never_neighbours() -> None:
+    s = np.linspace(0.0, 2.0, 81)[:, None]  # 0.025 rad steps
+    line = np.concatenate([s, np.zeros_like(s)], axis=1)  # (81, 2)
+    within = 0.165  # the fronts' meeting distance at h = 0.15
+    # One straight curve: only neighbours along it are near each other.
+    assert closest_strands_rad(*_curves((line, False)), within) == np.inf
+    # A parallel twin 0.04 rad away (and one 0.3 rad away, beyond the meeting distance).
+    twin = line + np.array([0.0, 0.04])
+    assert closest_strands_rad(*_curves((line, False), (twin, False)), within) == pytest.approx(
+        0.04
+    )
+    far = line + np.array([0.0, 0.3])
+    assert closest_strands_rad(*_curves((line, False), (far, False)), within) == np.inf
+    # A hairpin: out along the line and back 0.1 rad beside it, one curve.
+    hairpin = np.concatenate([line, (line + np.array([0.0, 0.1]))[::-1]])
+    assert closest_strands_rad(*_curves((hairpin, False)), within) == pytest.approx(0.1)
+    # A closed circle of radius 1: its first and last points are neighbours across the
+    # closing step, not strands.
+    theta = np.linspace(0.0, 2 * np.pi, 252, endpoint=False)[:, None]
+    circle = np.concatenate([np.cos(theta), np.sin(theta)], axis=1)
+    assert closest_strands_rad(*_curves((circle, True)), within) == np.inf
+    # A limited joint does not wrap: a twin a whole turn away on it is far.
+    limited = [(line, False), (twin + np.array([0.0, 2 * np.pi]), False)]
+    assert closest_strands_rad(limited, np.array([True, False]), within) == np.inf
+    # On the torus: a twin read a whole turn away is as near as one beside it.
+    turned = twin + np.array([2 * np.pi, -2 * np.pi])
+    assert closest_strands_rad(*_curves((line, False), (turned, False)), within) == pytest.approx(
+        0.04
+    )
