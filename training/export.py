@@ -260,7 +260,10 @@ def export_model(
     # service loads it.
     served = load_model(staging, threads=config.threads)
     if config.sweep_targets > 0:
-        swept = sweep_defaults(served, config.sweep_targets, config.sweep_seed)
+        swept = sweep_defaults(
+            served, config.sweep_targets, config.sweep_seed,
+            progress=lambda line: print(f"[{manifest.model_id}] {line}", flush=True),
+        )  # fmt: skip
         manifest = manifest.model_copy(update={"defaults": swept.defaults})
         manifest_path.write_text(manifest.model_dump_json(indent=2) + "\n")
         served = replace(served, manifest=manifest)

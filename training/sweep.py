@@ -59,8 +59,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Literal, get_args
@@ -486,8 +487,16 @@ def _connectivity(model: ServedModel, setting: Setting) -> ConnectivitySpec:
     )
 
 
+def _quiet(line: str) -> None:
+    del line
+
+
 def sweep_defaults(
-    model: ServedModel, targets: int, seed: int, plan: SweepPlan = SweepPlan()
+    model: ServedModel,
+    targets: int,
+    seed: int,
+    plan: SweepPlan = SweepPlan(),
+    progress: Callable[[str], None] = _quiet,
 ) -> SweepResult:
     """Choose the model's sampler steps, DLS steps, num_samples and connectivity step by the
     rule of the module docstring, starting from its manifest's defaults; the rest of them
@@ -507,6 +516,7 @@ def sweep_defaults(
                                orientation_wxyz=drawn.orientation_wxyz[0]))  # fmt: skip
     # warm-up above: onnxruntime's first-call allocations stay out of the timings.
     reference = plan.reference_setting(redundancy)
+    progress(f"sweep: dense reference ({reference.describe()}) on {targets} targets")
     references = [
         reference_answer(
             _answer(model, reference, drawn, i, seed + REFERENCE_SEED_OFFSET + i),
@@ -531,6 +541,7 @@ def sweep_defaults(
                     ]
                 )
             rows.append(Candidate(axis, setting, measured[setting]))
+            progress(f"sweep: {_figures(rows[-1])} ({time.perf_counter() - start_s:.0f} s)")
         best = pick(rows)
         table += rows
         reasons[_REASON_KEY[axis]] = axis_reason(rows, best, seed, plan, redundancy)
@@ -564,8 +575,15 @@ def sweep_defaults(
 def choose_defaults(
     model_dir: Path, targets: int, seed: int, plan: SweepPlan = SweepPlan(), threads: int = 1
 ) -> SweepResult:
-    """`sweep_defaults` on the model in `model_dir`, loaded as the service loads it."""
-    return sweep_defaults(load_model(model_dir, threads=threads), targets, seed, plan)
+    """`sweep_defaults` on the model in `model_dir`, loaded as the service loads it (its
+    progress on standard error)."""
+    return sweep_defaults(
+        load_model(model_dir, threads=threads), targets, seed, plan, progress=_to_stderr
+    )
+
+
+def _to_stderr(line: str) -> None:
+    print(line, file=sys.stderr, flush=True)
 
 
 # -- the reasons -------------------------------------------------------------------------------

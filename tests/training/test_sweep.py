@@ -8,8 +8,9 @@ dense reference of the bundled planar 3R; on the connectivity axis a longer step
 cheaper candidate; a sweep of the bundled planar3r-position model with a tiny budget
 chooses by that rule on every axis, sets the chosen trace step (and nothing else of the
 connectivity), keeps damping and tolerances, returns defaults that validate as `Defaults`
-and serve a query, writes reasons that quote every candidate measured, and a table that is
-strict JSON; a model id with no measured entry starts from generic defaults chosen by r.
+and serve a query, writes reasons that quote every candidate measured, reports its
+progress a line per candidate, and a table that is strict JSON; a model id with no
+measured entry starts from generic defaults chosen by r.
 """
 
 from __future__ import annotations
@@ -141,9 +142,12 @@ def planar() -> ServedModel:
     return load_model(REPO_MODELS_DIR / "planar3r-position", threads=1)
 
 
+PROGRESS: list[str] = []
+
+
 @pytest.fixture(scope="module")
 def swept(planar: ServedModel) -> SweepResult:
-    return sweep_defaults(planar, TINY_TARGETS, SEED, TINY_PLAN)
+    return sweep_defaults(planar, TINY_TARGETS, SEED, TINY_PLAN, progress=PROGRESS.append)
 
 
 def planar_query(model: ServedModel, seed: int) -> Query:
@@ -222,6 +226,10 @@ def test_the_reasons_quote_every_candidate_and_the_table_is_json(swept: SweepRes
     assert set(reasons) == {
         "num_samples", "sampler", "correction_steps", "damping", "connectivity", "tolerance",
     }  # fmt: skip
+    # Progress: the reference, then one line per row of the table, with its figures.
+    assert len(PROGRESS) == 1 + len(swept.table) and "dense reference" in PROGRESS[0]
+    for line, row in zip(PROGRESS[1:], swept.table, strict=True):
+        assert line.startswith(f"sweep: {row.value}: keep rate ")
     table = json.loads(json.dumps(swept.as_json(), allow_nan=False))
     assert len(table["table"]) == len(swept.table) == 8
     assert table["plan"]["reference_samples"] == 2000
