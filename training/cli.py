@@ -30,7 +30,7 @@ from service.manifest import REPO_MODELS_DIR
 from training.checkpoint import BEST_FILE, HISTORY_FILE, load_best, save_best
 from training.config import TrainConfig, preset
 from training.data import build_flow_data
-from training.export import export_model, refresh_kinematics
+from training.export import export_model, git_commit, refresh_kinematics
 from training.kinematics import ForwardKinematics, joint_spec, load_chain
 from training.robots import RobotSpec, register_urdf, robot_file, robot_spec
 from training.train import build_model, train
@@ -156,6 +156,7 @@ def main(argv: list[str] | None = None) -> None:
         print(f"[{manifest.model_id}] kinematics refreshed: {json.dumps(manifest.files, indent=1)}")
         return
     config = config_from_args(args, robot.name)
+    code_commit = git_commit()  # the code this run imported, before HEAD can move
     best = None if args.from_checkpoint is None else load_best(args.from_checkpoint)
     if best is not None:
         config = best.config  # the data (and so the normalisation) follows from it
@@ -198,6 +199,7 @@ def main(argv: list[str] | None = None) -> None:
         config=config,
         result=result,
         command=command,
+        code_commit=code_commit,
     )
     print(json.dumps(manifest.model_dump(include={"quality"}), indent=1))
 

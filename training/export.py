@@ -187,12 +187,20 @@ def check_chain_parity(fk: ForwardKinematics, path: Path, joints: JointSpec) -> 
 
 
 def git_commit() -> str:
+    """HEAD, with "+dirty" when the code the run imports (service/, training/) differs from
+    it; "unknown" outside a git checkout. Called when a run starts: a run takes hours, and
+    HEAD may move while it does."""
     try:
-        return subprocess.run(
+        head = subprocess.run(
             ["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True
         ).stdout.strip()
+        changed = subprocess.run(
+            ["git", "status", "--porcelain", "--untracked-files=no", "--", "service", "training"],
+            capture_output=True, text=True, check=True,
+        ).stdout.strip()  # fmt: skip
     except (OSError, subprocess.CalledProcessError):
         return "unknown"
+    return f"{head}+dirty" if changed else head
 
 
 def export_model(
@@ -206,6 +214,7 @@ def export_model(
     config: TrainConfig,
     result: TrainResult,
     command: str,
+    code_commit: str,
 ) -> Manifest:
     """Write flow.onnx, kinematics.onnx, chain.json and manifest.json into `model_dir`; measure.
 
@@ -249,7 +258,7 @@ def export_model(
             best_validation_loss=result.best_validation_loss,
             best_epoch=result.best_epoch,
             torch_version=torch.__version__,
-            git_commit=git_commit(),
+            git_commit=code_commit,
             config=config.as_dict(),
         ),
         created_utc=dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),

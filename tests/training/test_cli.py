@@ -89,6 +89,10 @@ def test_a_urdf_never_seen_trains_exports_and_is_served(tmp_path: Path) -> None:
         (models / "small_arm-position" / "manifest.json").read_text()
     )
     assert manifest.training.command == shlex.join(["smm-train", *command[3:]])
+    # Provenance: the commit the run started from (+dirty if its code had changes).
+    head = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True)
+    expected = head.stdout.strip() if head.returncode == 0 else "unknown"
+    assert manifest.training.git_commit.removesuffix("+dirty") == expected
     assert manifest.joints.names == ["j1", "j2", "j3", "j4"]
     # Its serving defaults were chosen by the built-in sweep, every candidate measured.
     swept = [
