@@ -21,3 +21,10 @@ def bundled_robots() -> list[str]:
 def served_robots_message() -> str:
     """The tail of the 404 for an unknown robot."""
     return "served robots: " + ", ".join(bundled_robots())
+
+
+def default_num_samples(model_id: str) -> int:
+    """The samples a request without num_samples gets from the bundled model (its sweep's
+    choice)."""
+    manifest = json.loads((REPO_MODELS_DIR / model_id / MANIFEST_FILE).read_text())
+    return int(manifest["defaults"]["num_samples"])

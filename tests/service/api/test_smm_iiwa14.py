@@ -16,6 +16,7 @@ import pytest
 from fastapi.testclient import TestClient
 from scipy.spatial.transform import Rotation
 
+from tests.support.bundled import default_num_samples
 from tests.support.iiwa14_dh import LIMITS_RAD, iiwa14_pose, rotation_angle_rad
 
 TASKS = ("pose", "position")
@@ -62,9 +63,10 @@ def test_every_configuration_reaches_the_target_within_the_limits(
             assert rotation_angle_rad(reached[:, :3, :3], goal_rotation).max() <= 1e-6
         assert np.all(np.abs(q) <= LIMITS_RAD)
         counts = answer["counts"]
-        assert counts["sampled"] == 1000
+        default = default_num_samples(f"iiwa14-{task}")
+        assert counts["sampled"] == default
         outcomes = ("accepted", "rejected_tolerance", "rejected_joint_limits")
-        assert sum(counts[k] for k in outcomes) == 1000
+        assert sum(counts[k] for k in outcomes) == default
         assert sum(c["size"] for c in answer["components"]) == counts["accepted"] == len(q)
 
 
