@@ -1,0 +1,67 @@
+"""merges (is a reported merge real?): the straight projected path at a fine step joins two
+points of one exact iiwa pose component (the closed-form S-R-S arc) and never two points
+of two different exact components, however near; on the Panda position report's target 29
+the check finds the merge the report lists and joins its two reference components, which
+the reference (a 0.36 rad link radius on a grid) keeps apart; a merge is settled as a
+reference split only when its joined pairs connect all of its reference components."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from service.manifest import REPO_MODELS_DIR
+from service.models.registry import ServedModel, load_model
+from service.pipeline.joint_space import joint_distance
+from training.evaluate.merges import (
+    MergeCheck,
+    fibre_of,
+    joined_on_fibre,
+    report_target,
+    settled,
+)
+from training.evaluate.references.iiwa14 import pose_smm
+
+
+@pytest.fixture(scope="module")
+def iiwa14_pose() -> ServedModel:
+    return load_model(REPO_MODELS_DIR / "iiwa14-pose", threads=1)
+
+
+def test_one_exact_component_is_joined_two_never(iiwa14_pose: ServedModel) -> None:
+    lower, upper, periodic = iiwa14_pose.manifest.joints.arrays()
+    q_target = np.random.default_rng(3).uniform(0.7 * lower, 0.7 * upper)
+    fibre = fibre_of(iiwa14_pose, q_target)
+    fk = iiwa14_pose.kinematics(q_target[None])
+    exact = [c.q_rad for c in pose_smm(fk.position_m[0], fk.rotation[0]) if len(c.q_rad) > 40]
+    assert len(exact) >= 2
+    # Along one arc: two points about 0.3 rad apart, joined.
+    arc = exact[0]
+    steps = np.concatenate([[0.0], np.cumsum(joint_distance(arc[1:], arc[:-1], periodic))])
+    far = int(np.searchsorted(steps, 0.3))
+    assert joined_on_fibre(fibre, arc[0], arc[far], lower, upper, periodic)
+    # Across two arcs: the nearest pair between them, never joined.
+    for other in exact[1:]:
+        gaps = joint_distance(exact[0][:, None, :], other[None, :, :], periodic)
+        i, j = np.unravel_index(np.argmin(gaps), gaps.shape)
+        assert not joined_on_fibre(fibre, exact[0][i], other[j], lower, upper, periodic)
+
+
+def test_the_panda_position_reference_splits_target_29() -> None:
+    model = load_model(REPO_MODELS_DIR / "panda-position", threads=1)
+    checks = report_target(model, 29)
+    assert checks, "the report lists a merge on target 29"
+    joined = [c for c in checks if c.joined]
+    assert joined and all(c.gap_rad > 1.0 for c in joined)  # far apart, yet one component
+
+
+def test_a_merge_is_settled_only_when_its_joined_pairs_connect_every_component() -> None:
+    def check(a: int, b: int, joined: bool) -> MergeCheck:
+        return MergeCheck(0, 0, (a, b), (0.5, 0.5), 1.0, joined)
+
+    assert settled([check(0, 1, True)])
+    assert not settled([check(0, 1, False)])
+    # 0-3 and 1-3 joined, 1-4 joined: all four one component, whatever else failed.
+    assert settled([check(0, 1, False), check(0, 3, True), check(1, 3, True), check(1, 4, True)])
+    # 0-1 joined, 2-3 joined, nothing between: two groups, unsettled.
+    assert not settled([check(0, 1, True), check(2, 3, True), check(1, 2, False)])
