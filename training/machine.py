@@ -10,7 +10,7 @@ from __future__ import annotations
 import os
 import platform
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 
@@ -48,7 +48,7 @@ class Machine:
 
     def ended(self) -> Machine:
         """The same record with the load average at the end of the run."""
-        return Machine(self.cpu, self.cores, self.python, self.load_1min_start, load_average_1min())
+        return replace(self, load_1min_end=load_average_1min())
 
     def describe(self) -> str:
         text = f"{self.cpu}, {self.cores} cores, Python {self.python}"

@@ -37,8 +37,7 @@ from service.pipeline.arrays import BoolArray, FloatArray
 from service.pipeline.fibre import Fibre
 from service.pipeline.joint_space import joint_distance
 from service.pipeline.local_planner import PlannerSettings, edges_on_fibre
-from service.pipeline.targets import Target
-from training.evaluate.methods import MethodTarget, flow_target
+from training.evaluate.methods import MethodTarget, flow_target, reference_target
 from training.evaluate.metrics import counted_components, exact_labels
 from training.evaluate.report import REPORTS_DIR
 from training.evaluate.targets import uniform_configurations
@@ -62,13 +61,8 @@ class MergeCheck:
 
 def fibre_of(model: ServedModel, q_target: FloatArray) -> Fibre:
     """The fibre of the target that q_target (n,) reaches, as the service projects onto it."""
+    target, _ = reference_target(model, q_target)
     manifest = model.manifest
-    fk = model.kinematics(q_target[None])
-    target = Target(
-        position_m=fk.position_m[0, manifest.task.position_axes],
-        rotation=fk.rotation[0] if manifest.task.orientation else None,
-        condition=np.zeros(1, np.float32),  # the projection needs no condition
-    )
     return Fibre(target, manifest.task, model.kinematics, manifest.defaults.damping)
 
 
