@@ -67,6 +67,7 @@ def row(
     recall: float | None = 1.0,
     answered: int = 20,
     axis: Axis = "sampler_steps",
+    merges: float = 0.0,
 ) -> Candidate:
     setting = Setting(
         sampler_steps=20, correction_steps=6, num_samples=1000, connectivity_step_rad=0.15
@@ -79,6 +80,7 @@ def row(
             answered=answered,
             keep_rate=keep_rate,
             count_right=count_right,
+            merges_per_target=merges,
             recall=recall,
             coverage_p95_rad=0.05,
             median_total_ms=float(value),
@@ -110,6 +112,16 @@ def test_the_rule_picks_the_cheapest_candidate_within_the_margins() -> None:
     step: Axis = "connectivity_step_rad"
     assert pick([row(0.075, 0.7, 1.0, axis=step), row(0.3, 0.7, 0.96, axis=step)]).value == 0.3
     assert pick([row(0.15, 0.7, 1.0, axis=step), row(0.3, 0.7, 0.90, axis=step)]).value == 0.15
+    # A merge has no margin: a step merging on one target in 20 loses although its count
+    # right is within the margin (the iiwa position's 0.6 rad step); a split does not.
+    merging = row(0.6, 0.7, 0.95, axis=step, merges=0.05)
+    assert pick([row(0.15, 0.7, 1.0, axis=step), merging]).value == 0.15
+    assert pick([row(0.15, 0.7, 1.0, axis=step), row(0.6, 0.7, 0.95, axis=step)]).value == 0.6
+    # Every candidate merging alike constrains nothing; outside the margins, fewer merges
+    # break a tie of count right.
+    assert pick([row(3, 0.7, 0.9, merges=0.05), row(6, 0.7, 0.9, merges=0.05)]).value == 3
+    tie = [row(3, 0.9, 0.5, merges=0.1), row(6, 0.5, 0.5), row(10, 0.95, 0.4)]
+    assert pick(tie).value == 6
     with pytest.raises(ValueError, match="one axis"):
         pick([row(10, 0.7, 1.0), row(3, 0.7, 1.0, axis="correction_steps")])
     with pytest.raises(ValueError, match="one axis"):
@@ -175,7 +187,11 @@ def test_the_dense_reference_coverage_is_the_brute_force_nearest_distance(
     assert np.allclose(measured.coverage_rad, expected)
     # The same answer judged against itself as a reference: every component found, count right.
     itself = agreement(answer, reference_answer(answer, 3, manifest.redundancy), periodic)
-    assert itself.count_right and itself.found == itself.counted == len(answer.components)
+    assert (
+        itself.count_right
+        and itself.merges == 0
+        and itself.found == itself.counted == len(answer.components)
+    )
     assert np.allclose(itself.coverage_rad, 0.0)
 
 
