@@ -1,7 +1,16 @@
 """Stage 2: sample configurations by integrating the learned velocity field from t=0 to 1.
 
-q_0 ~ N(0, I) in normalised joint coordinates; explicit Euler,
-q_{k+1} = q_k + dt * v(q_k, t_k, x); then back to radians.
+q_0 ~ N(0, I) in normalised joint coordinates (the joint range is [-1, 1]); explicit Euler,
+q_{k+1} = q_k + dt * v(q_k, t_k, x), each step held inside the envelope
+|q_t| <= (1 - t) Z + t + ENVELOPE_MARGIN (Z the largest |q_0| drawn); then back to radians.
+
+The envelope is the set the straight interpolant (1 - t) q_0 + t q_1 of every draw stays in,
+widened by a whole joint range. A sample of the learned field never meets it, except where
+the field is asked far outside its training data: from an extreme draw (|q_0| ~ 5) the
+network can return a velocity that pushes further out, and explicit Euler then grows the
+sample exponentially to inf and NaN within a few steps (measured on the iiwa14 position
+model: 2 samples in 200,000, report targets 177 and 185). Held at the envelope, such a
+sample ends as a finite configuration that correction and acceptance judge like any other.
 """
 
 from __future__ import annotations
@@ -14,6 +23,9 @@ from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.joint_space import wrap_periodic
 from service.pipeline.types import VelocityField
 
+# Normalised joint ranges beyond the interpolants' hull that a sample may go (one range).
+ENVELOPE_MARGIN = 1.0
+
 
 def euler_integrate(
     velocity: VelocityField,
@@ -22,14 +34,19 @@ def euler_integrate(
     steps: int,
     deadline: Deadline = NO_DEADLINE,
 ) -> Float32Array:  # (N, n)
-    """Integrate dq/dt = v(q, t, x) over t in [0, 1] with `steps` explicit Euler steps."""
+    """Integrate dq/dt = v(q, t, x) over t in [0, 1] with `steps` explicit Euler steps,
+    each step held inside the envelope of the module docstring."""
     dt = np.float32(1.0 / steps)
     q_t = q_0
     t = np.empty((q_0.shape[0], 1), dtype=np.float32)
+    largest_draw = float(np.abs(q_0).max(initial=0.0))
     for k in range(steps):
         deadline.check("sample")
         t.fill(k * dt)
         q_t = q_t + dt * velocity(q_t, t, condition)
+        t_next = (k + 1) / steps
+        envelope = np.float32((1.0 - t_next) * largest_draw + t_next + ENVELOPE_MARGIN)
+        np.clip(q_t, -envelope, envelope, out=q_t)
     return q_t
 
 

@@ -1,10 +1,11 @@
-"""sampling: Euler integration follows the flow exactly, and samples are seeded and wrapped."""
+"""sampling: Euler integration follows the flow exactly, a field that pushes a draw outwards
+cannot take it to inf or NaN, and samples are seeded and wrapped."""
 
 import numpy as np
 
 from service.manifest import AffineNormalisation
 from service.models.registry import ServedModel
-from service.pipeline.sampling import euler_integrate, sample_configurations
+from service.pipeline.sampling import ENVELOPE_MARGIN, euler_integrate, sample_configurations
 
 Q_1 = np.array([[0.3, -0.7]], dtype=np.float32)
 
@@ -18,6 +19,27 @@ def test_euler_on_the_exact_field_lands_on_the_data_point() -> None:
     q_0 = np.random.default_rng(0).standard_normal((64, 2)).astype(np.float32)
     landed = euler_integrate(exact_field, q_0, np.zeros((64, 0), np.float32), steps=10)
     np.testing.assert_allclose(landed, np.broadcast_to(Q_1, (64, 2)), atol=1e-5)
+
+
+def exploding_field(q_t: np.ndarray, t: np.ndarray, condition: np.ndarray) -> np.ndarray:
+    """Outwards and growing with |q|, as the iiwa14 position network far outside its data
+    (its velocity went 6, 23, 741, 1.5e5 over four Euler steps from a 4.9-sigma draw)."""
+    return (q_t * np.abs(q_t) ** 2).astype(np.float32)
+
+
+def test_a_field_that_pushes_outwards_ends_finite_inside_the_envelope() -> None:
+    q_0 = np.random.default_rng(1).standard_normal((200, 7)).astype(np.float32)
+    q_0[0, 3] = -4.9
+    condition = np.zeros((200, 0), np.float32)
+    # Plain explicit Euler on this field overflows to inf / NaN (float32).
+    with np.errstate(over="ignore", invalid="ignore"):
+        plain = q_0.copy()
+        for _ in range(20):
+            plain = plain + np.float32(0.05) * exploding_field(plain, plain[:, :1], condition)
+    assert not np.isfinite(plain).all()
+    landed = euler_integrate(exploding_field, q_0, condition, steps=20)
+    assert np.isfinite(landed).all()
+    assert np.abs(landed).max() <= 1.0 + ENVELOPE_MARGIN + 1e-6
 
 
 def test_samples_are_seeded_denormalised_and_wrapped(planar3r: ServedModel) -> None:
