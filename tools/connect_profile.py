@@ -67,7 +67,7 @@ def main() -> None:
         wxyz = orientation_wxyz(fk.rotation[0]) if manifest.task.orientation else None
         target = encode_target(manifest.task, manifest.condition, position, wxyz)
         samples = sample_configurations(
-            model.velocity, target.condition, defaults.num_samples, defaults.sampler.steps,
+            model.velocity, target.condition, defaults.num_samples, defaults.sampler,
             manifest.joint_normalisation, periodic, np.random.default_rng(i),
         )  # fmt: skip
         correction = correct(

@@ -37,16 +37,19 @@ from training.sweep import (
     AXES,
     COUNT_RIGHT_MARGIN,
     KEEP_RATE_MARGIN,
+    TIME_POWER_GAIN,
     Axis,
     Candidate,
     Measures,
     Setting,
     SweepPlan,
     SweepResult,
+    TimePowerRow,
     agreement,
     coverage_distances,
     nearest_reference,
     pick,
+    pick_time_power,
     reference_answer,
     sweep_defaults,
 )
@@ -126,6 +129,19 @@ def test_the_rule_picks_the_cheapest_candidate_within_the_margins() -> None:
         pick([row(10, 0.7, 1.0), row(3, 0.7, 1.0, axis="correction_steps")])
     with pytest.raises(ValueError, match="one axis"):
         pick([])
+
+
+def test_the_time_grid_stays_uniform_unless_another_power_lowers_the_raw_error_enough() -> None:
+    def powers(*errors: float) -> list[TimePowerRow]:
+        return [TimePowerRow(p, e, 10 * e) for p, e in zip((1.0, 1.5, 2.0), errors, strict=True)]
+
+    # The iiwa14 pose's measured figures (mm): 23.1 uniform, 15.0 at 1.5, 17.0 at 2.
+    assert pick_time_power(powers(23.1, 15.0, 17.0)).time_power == 1.5
+    # Exactly the gain is enough; a hair less is noise (the Panda models: 1-2 %).
+    assert pick_time_power(powers(1.0, 1.0 - TIME_POWER_GAIN, 1.2)).time_power == 1.5
+    assert pick_time_power(powers(1.0, 0.99, 0.97)).time_power == 1.0
+    with pytest.raises(ValueError, match="at least one"):
+        pick_time_power([])
 
 
 def brute_force_nearest(query: np.ndarray, data: np.ndarray, periodic: np.ndarray) -> np.ndarray:
@@ -220,6 +236,11 @@ def test_the_sweep_chooses_by_the_rule_and_its_defaults_serve(
         update={"trace_step_rad": chosen.connectivity_step_rad}
     )
     assert (defaults.damping, defaults.tolerance_position_m) == (start.damping, 1e-6)
+    # The grid's power: chosen by its rule from one row per candidate, before the axes.
+    assert [r.time_power for r in swept.time_power_table] == list(TINY_PLAN.time_powers)
+    assert defaults.sampler.time_power == chosen.time_power
+    assert pick_time_power(swept.time_power_table).time_power == chosen.time_power
+    assert all(r.setting.time_power == chosen.time_power for r in swept.table)
 
     served = replace(planar, manifest=planar.manifest.model_copy(update={"defaults": defaults}))
     answer = run(served, planar_query(served, 0))
@@ -239,15 +260,21 @@ def test_the_reasons_quote_every_candidate_and_the_table_is_json(swept: SweepRes
         for candidate in TINY_PLAN.candidates(axis, redundancy=1):
             assert f"{candidate}: keep rate " in reason, (candidate, reason)
     assert "0.15 rad connectivity step" in reasons["sampler"]  # the reference's finest step
+    assert "Time grid: time power " in reasons["sampler"]
+    for power in TINY_PLAN.time_powers:
+        assert f"{power:g}: mean raw error " in reasons["sampler"]
     assert set(reasons) == {
         "num_samples", "sampler", "correction_steps", "damping", "connectivity", "tolerance",
     }  # fmt: skip
     # Progress: the reference, then one line per row of the table, with its figures.
-    assert len(PROGRESS) == 1 + len(swept.table) and "dense reference" in PROGRESS[0]
-    for line, row in zip(PROGRESS[1:], swept.table, strict=True):
+    powers = len(TINY_PLAN.time_powers)
+    assert len(PROGRESS) == 1 + powers + len(swept.table) and "dense reference" in PROGRESS[0]
+    assert all("time power" in line for line in PROGRESS[1 : 1 + powers])
+    for line, row in zip(PROGRESS[1 + powers :], swept.table, strict=True):
         assert line.startswith(f"sweep: {row.value}: keep rate ")
     table = json.loads(json.dumps(swept.as_json(), allow_nan=False))
     assert len(table["table"]) == len(swept.table) == 8
+    assert len(table["time_power_table"]) == powers
     assert table["plan"]["reference_samples"] == 2000
     assert Defaults.model_validate(table["defaults"]) == swept.defaults
 

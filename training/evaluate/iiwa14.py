@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from service.manifest import REPO_MODELS_DIR, SamplerSpec
+from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
 from service.pipeline.run import run
 from service.pipeline.types import Query
@@ -225,7 +225,7 @@ def sweep(
     for steps, dls in sampler_and_correction:
         changes: dict[str, object] = {}
         if steps is not None:
-            changes["sampler"] = SamplerSpec(method="euler", steps=steps)
+            changes["sampler"] = model.manifest.defaults.sampler.model_copy(update={"steps": steps})
         if dls is not None:
             changes["correction_steps"] = dls
         candidate = with_defaults(model, **changes)

@@ -149,7 +149,7 @@ def flow_target(
     target = encode_target(manifest.task, manifest.condition, position, wxyz)
     _, _, periodic = manifest.joints.arrays()
     q_raw = sample_configurations(
-        model.velocity, target.condition, num_samples, manifest.defaults.sampler.steps,
+        model.velocity, target.condition, num_samples, manifest.defaults.sampler,
         manifest.joint_normalisation, periodic, np.random.default_rng(seed),
     )  # fmt: skip
     raw_p, raw_o = task_error_norms(model.kinematics(q_raw), target, manifest.task)

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from service.manifest import REPO_MODELS_DIR, SamplerSpec
+from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
 from service.pipeline.joint_space import joint_distance
 from service.pipeline.run import run
@@ -104,7 +104,9 @@ def sweep(model: ServedModel, num_targets: int) -> list[dict[str, object]]:
     """Count accuracy, coverage, keep rate and time for candidate sampler steps."""
     rows: list[dict[str, object]] = []
     for steps in (5, 10, 20, 50, 100):
-        candidate = with_defaults(model, sampler=SamplerSpec(method="euler", steps=steps))
+        candidate = with_defaults(
+            model, sampler=model.manifest.defaults.sampler.model_copy(update={"steps": steps})
+        )
         report = check(candidate, num_targets)
         rows.append(
             {

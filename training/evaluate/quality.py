@@ -3,7 +3,7 @@
 Held-out targets are the FK of configurations drawn uniformly within the joint limits
 with a seed distinct from training. Raw errors are over *all* samples (not only the
 kept ones, unlike the paper), at the serving default sampler and at the paper's 100
-Euler steps; the keep rate is the fraction accepted after the default correction at
+uniform Euler steps; the keep rate is the fraction accepted after the default correction at
 the default tolerances.
 """
 
@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from service.manifest import Quality, RawError
+from service.manifest import Quality, RawError, SamplerSpec
 from service.models.registry import ServedModel
 from service.pipeline.acceptance import accept
 from service.pipeline.correction import correct, task_error_norms
@@ -20,13 +20,13 @@ from service.pipeline.targets import encode_target
 from training.evaluate.served import orientation_wxyz
 from training.evaluate.targets import held_out_targets
 
-PAPER_SAMPLER_STEPS = 100
+PAPER_SAMPLER = SamplerSpec(method="euler", steps=100, time_power=1.0)
 # The paper reports its FM rows over samples with e = (e_p + e_o) / 2 < 0.02 only.
 PAPER_KEPT_BELOW = 0.02
 
 
 def summarise_raw(
-    steps: int,
+    sampler: SamplerSpec,
     position_m: np.ndarray,  # (T, N) error of N samples for each of T targets
     orientation_rad: np.ndarray,  # (T, N)
     reach_m: float,
@@ -40,7 +40,8 @@ def summarise_raw(
     e = (e_p + e_o) / 2 if pose else e_p
     kept = e < PAPER_KEPT_BELOW  # (T, N)
     return RawError(
-        sampler_steps=steps,
+        sampler_steps=sampler.steps,
+        sampler_time_power=sampler.time_power,
         position_error_mm_mean=float(position_mm.mean()),
         position_error_mm_median=float(np.median(position_mm)),
         position_error_pct_reach_mean=float(position_m.mean() / reach_m * 100),
@@ -64,10 +65,10 @@ def measure_quality(served: ServedModel, num_targets: int, samples: int, seed: i
     lower, upper, periodic = manifest.joints.arrays()
     targets = held_out_targets(served, num_targets, seed)
     # The serving default first (it is also corrected), then the paper's sampler.
-    sampler_steps = [defaults.sampler.steps]
-    if defaults.sampler.steps != PAPER_SAMPLER_STEPS:
-        sampler_steps.append(PAPER_SAMPLER_STEPS)
-    errors: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {s: [] for s in sampler_steps}
+    samplers = [defaults.sampler]
+    if defaults.sampler != PAPER_SAMPLER:
+        samplers.append(PAPER_SAMPLER)
+    errors: list[list[tuple[np.ndarray, np.ndarray]]] = [[] for _ in samplers]
     kept, solved = 0, 0
     for i in range(num_targets):
         target = encode_target(
@@ -76,18 +77,18 @@ def measure_quality(served: ServedModel, num_targets: int, samples: int, seed: i
             targets.position_m[i, task.position_axes].tolist(),
             orientation_wxyz(targets.rotation[i]) if task.orientation else None,
         )
-        for steps in sampler_steps:
+        for sampler, sampler_errors in zip(samplers, errors, strict=True):
             q_raw = sample_configurations(
                 served.velocity,
                 target.condition,
                 samples,
-                steps,
+                sampler,
                 manifest.joint_normalisation,
                 periodic,
                 np.random.default_rng(seed + 1 + i),
             )
-            errors[steps].append(task_error_norms(served.kinematics(q_raw), target, task))
-            if steps != defaults.sampler.steps:
+            sampler_errors.append(task_error_norms(served.kinematics(q_raw), target, task))
+            if sampler != defaults.sampler:
                 continue
             correction = correct(
                 q_raw, target, task, served.kinematics, defaults.correction_steps,
@@ -106,13 +107,13 @@ def measure_quality(served: ServedModel, num_targets: int, samples: int, seed: i
 
     raw = [
         summarise_raw(
-            steps,
-            np.stack([p for p, _ in errors[steps]]),
-            np.stack([o for _, o in errors[steps]]),
+            sampler,
+            np.stack([p for p, _ in sampler_errors]),
+            np.stack([o for _, o in sampler_errors]),
             manifest.reach_m,
             task.orientation,
         )
-        for steps in sampler_steps
+        for sampler, sampler_errors in zip(samplers, errors, strict=True)
     ]
     return Quality(
         held_out_targets=num_targets,

@@ -1,11 +1,19 @@
-"""sampling: Euler integration follows the flow exactly, a field that pushes a draw outwards
-cannot take it to inf or NaN, and samples are seeded and wrapped."""
+"""sampling: Euler integration follows the flow exactly, its time grid goes from 0 to 1 with
+steps shortening towards 1 above power 1 (and then integrates a field that steepens near
+t = 1 more accurately, against the closed form), a field that pushes a draw outwards cannot
+take it to inf or NaN, and samples are seeded and wrapped."""
 
 import numpy as np
+import pytest
 
-from service.manifest import AffineNormalisation
+from service.manifest import AffineNormalisation, SamplerSpec
 from service.models.registry import ServedModel
-from service.pipeline.sampling import ENVELOPE_MARGIN, euler_integrate, sample_configurations
+from service.pipeline.sampling import (
+    ENVELOPE_MARGIN,
+    euler_integrate,
+    sample_configurations,
+    time_grid,
+)
 
 Q_1 = np.array([[0.3, -0.7]], dtype=np.float32)
 
@@ -19,6 +27,36 @@ def test_euler_on_the_exact_field_lands_on_the_data_point() -> None:
     q_0 = np.random.default_rng(0).standard_normal((64, 2)).astype(np.float32)
     landed = euler_integrate(exact_field, q_0, np.zeros((64, 0), np.float32), steps=10)
     np.testing.assert_allclose(landed, np.broadcast_to(Q_1, (64, 2)), atol=1e-5)
+
+
+def test_the_time_grid_runs_from_0_to_1_and_shortens_its_steps_towards_1() -> None:
+    np.testing.assert_allclose(time_grid(4), [0.0, 0.25, 0.5, 0.75, 1.0])
+    grid = time_grid(20, 1.5)
+    steps = np.diff(grid)
+    assert grid[0] == 0.0 and grid[-1] == 1.0 and np.all(steps > 0)
+    assert np.all(np.diff(steps) < 0)  # each step shorter than the one before
+    np.testing.assert_allclose(grid[10], 1 - 0.5**1.5)
+    with pytest.raises(ValueError, match="time_power"):
+        time_grid(10, 0.5)
+
+
+def steepening_field(q_t: np.ndarray, t: np.ndarray, condition: np.ndarray) -> np.ndarray:
+    """dq/dt = 8 t^7, whose flow from q_0 ends at q_0 + 1 (closed form)."""
+    return np.broadcast_to(8 * t**7, q_t.shape).astype(np.float32)
+
+
+def test_a_grid_dense_near_1_follows_a_field_that_steepens_there_more_closely() -> None:
+    q_0 = np.zeros((3, 2), np.float32)
+    condition = np.zeros((3, 0), np.float32)
+    error = {
+        p: float(
+            np.abs(euler_integrate(steepening_field, q_0, condition, 10, time_power=p) - 1).max()
+        )
+        for p in (1.0, 1.5, 2.0)
+    }
+    # Uniform Euler is the left Riemann sum of 8 t^7: 1 - 0.8 sum_k (k / 10)^7 = 0.353566.
+    assert error[1.0] == pytest.approx(0.353566, abs=1e-5)
+    assert error[1.5] < 0.75 * error[1.0] and error[2.0] < 0.75 * error[1.0]
 
 
 def exploding_field(q_t: np.ndarray, t: np.ndarray, condition: np.ndarray) -> np.ndarray:
@@ -50,7 +88,7 @@ def test_samples_are_seeded_denormalised_and_wrapped(planar3r: ServedModel) -> N
 
     def draw(seed: int, normalisation: AffineNormalisation) -> np.ndarray:
         return sample_configurations(
-            planar3r.velocity, condition, 100, 5, normalisation, periodic,
+            planar3r.velocity, condition, 100, SamplerSpec(steps=5), normalisation, periodic,
             np.random.default_rng(seed),
         )  # fmt: skip
 

@@ -9,15 +9,20 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from service.manifest import SamplerSpec
 from service.models.registry import ServedModel
-from training.evaluate.quality import PAPER_SAMPLER_STEPS, measure_quality, summarise_raw
+from training.evaluate.quality import PAPER_SAMPLER, measure_quality, summarise_raw
+
+TWENTY = SamplerSpec(steps=20)
 
 
 def test_quality_reports_both_samplers_and_reproduces_for_a_seed(planar3r: ServedModel) -> None:
     quality = measure_quality(planar3r, num_targets=3, samples=100, seed=5)
-    default_steps = planar3r.manifest.defaults.sampler.steps
-    paper = [PAPER_SAMPLER_STEPS] if default_steps != PAPER_SAMPLER_STEPS else []
-    assert [r.sampler_steps for r in quality.raw] == [default_steps, *paper]
+    default = planar3r.manifest.defaults.sampler
+    paper = [PAPER_SAMPLER] if default != PAPER_SAMPLER else []
+    assert [(r.sampler_steps, r.sampler_time_power) for r in quality.raw] == [
+        (s.steps, s.time_power) for s in [default, *paper]
+    ]
     assert quality.held_out_targets == 3 and quality.samples_per_target == 100
     assert 0.0 < quality.keep_rate <= 1.0 and quality.targets_with_solution == 1.0
     assert all(r.orientation_error_deg_mean is None for r in quality.raw)  # position task
@@ -29,7 +34,7 @@ def test_paper_figures_follow_their_definitions_on_hand_made_errors() -> None:
     over targets of each target's smallest e_p (here, reach 2 m)."""
     position_m = np.array([[0.02, 0.08, 0.2], [0.04, 0.01, 0.5]])  # (T=2, N=3)
     orientation_rad = np.array([[0.0, 0.0, 0.0], [0.05 * np.pi, 0.0, 0.0]])
-    raw = summarise_raw(20, position_m, orientation_rad, reach_m=2.0, pose=True)
+    raw = summarise_raw(TWENTY, position_m, orientation_rad, reach_m=2.0, pose=True)
     # e_p = [[.01, .04, .1], [.02, .005, .25]], e_o = [[0, 0, 0], [.05, 0, 0]]
     # e = [[.005, .02, .05], [.035, .0025, .125]]: kept (< 0.02) are (0, 0) and (1, 1)
     assert raw.kept_only_fraction == pytest.approx(2 / 6)
@@ -37,7 +42,7 @@ def test_paper_figures_follow_their_definitions_on_hand_made_errors() -> None:
     assert raw.kept_only_orientation_error_pct_mean == pytest.approx(0.0)
     assert raw.best_of_n_position_error_pct_reach_mean == pytest.approx((1.0 + 0.5) / 2)
     assert raw.position_error_pct_reach_mean == pytest.approx(e_p_mean(position_m, 2.0))
-    position_only = summarise_raw(20, position_m, orientation_rad * 0, reach_m=2.0, pose=False)
+    position_only = summarise_raw(TWENTY, position_m, orientation_rad * 0, reach_m=2.0, pose=False)
     assert position_only.kept_only_fraction == pytest.approx(2 / 6)  # e = e_p: .01, .005
     assert position_only.kept_only_orientation_error_pct_mean is None
 
