@@ -32,7 +32,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from training.evaluate.references.iiwa14 import PositionSmm
+from training.evaluate.references.iiwa14 import MIN_SHARE, PositionSmm
 
 # Franka's modified DH table (frame i from i - 1: Rx(alpha) Tx(a) Rz(q) Tz(d)).
 A_M = np.array([0.0, 0.0, 0.0, 0.0825, -0.0825, 0.0, 0.088])
@@ -341,7 +341,11 @@ def position_smm(
     4.5 h ~ 0.36 rad to be merged. Pieces closer than that count as one component, the
     same rule as the iiwa's contact radius. Where the gain is larger (next to a fold of
     the IK, or q2 ~ 0 where joints 1 and 3 are coaxial) a component can fall apart into
-    slivers, which stay under MIN_SHARE and are not counted.
+    slivers, which stay under MIN_SHARE and are not counted, or into pieces that are
+    counted: the radius alone split one component in two on 11 of the 19 merges the first
+    Panda position report charged to the service (`training.evaluate.merges`). So pieces
+    are then joined on the fibre itself (`join_by_walks`): two pieces are one component
+    when a straight walk between their closest nodes stays on the fibre.
     """
     rotation = orientation_grid(sphere_steps, psi_steps)
     spacing_rad = float(np.sqrt(4 * np.pi / sphere_steps))
@@ -363,6 +367,7 @@ def position_smm(
     first = np.broadcast_to(np.arange(len(q6))[:, None], index.shape)[near]
     graph = coo_matrix((np.ones(len(first)), (first, index[near])), shape=(len(q6), len(q6)))
     _, component = connected_components(graph, directed=False)
+    component = join_by_walks(position_m, q6, component)
     share = np.bincount(component) / len(component)
     rng = np.random.default_rng(seed)
     drawn = rng.choice(len(q6), size=num_points)
@@ -370,3 +375,105 @@ def position_smm(
     return PositionSmm(
         np.concatenate([q6[drawn], q7[:, None]], axis=1), component[drawn], share, spacing_rad
     )
+
+
+# The walk that joins two pieces of the 4-D reference (the projected local planner of
+# constrained planning, OMPL's discreteGeodesic, here on the DH table alone): steps of
+# WALK_STEP_RAD along the q1..q6 segment, each brought back to the position by
+# Gauss-Newton to within WALK_TOLERANCE_M (the service's tolerance), inside the limits,
+# no step longer than WALK_STRETCH x the step and no walk longer than WALK_STRETCH x the
+# chord. Pieces whose closest nodes are more than JOIN_GAP_RAD apart are not tried.
+WALK_STEP_RAD = 0.003
+WALK_TOLERANCE_M = 1e-6
+WALK_STRETCH = 2.0
+WALK_NEWTON_ITERATIONS = 6
+JOIN_GAP_RAD = 2.0
+
+
+def tcp_position_and_jacobian(q6_rad: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(B, 3) TCP positions and (B, 3, 6) their Jacobian in q1..q6, q7 = 0 (q7 does not
+    move the TCP): column i is z_i x (p - o_i) for joint i's axis z_i through o_i."""
+    frames = joint_frames(np.concatenate([q6_rad, np.zeros((len(q6_rad), 1))], axis=1))
+    tcp = frames[:, 7, :3, 3]  # (B, 3)
+    axis, origin = frames[:, :6, :3, 2], frames[:, :6, :3, 3]  # (B, 6, 3)
+    return tcp, np.cross(axis, tcp[:, None] - origin).transpose(0, 2, 1)
+
+
+def walks_join(
+    position_m: np.ndarray,  # (3,)
+    q_from_rad: np.ndarray,  # (E, 6) on the fibre, in the chart
+    q_to_rad: np.ndarray,  # (E, 6)
+) -> np.ndarray:  # (E,) bool
+    """Whether a straight projected walk (the constants above) joins each pair, in lockstep."""
+    num = len(q_from_rad)
+    reached = np.zeros(num, dtype=bool)
+    chord = np.linalg.norm(q_to_rad - q_from_rad, axis=1)  # (E,)
+    q, travelled, walking = q_from_rad.copy(), np.zeros(num), np.ones(num, dtype=bool)
+    for _ in range(int(np.ceil(WALK_STRETCH * chord.max(initial=0.0) / WALK_STEP_RAD)) + 2):
+        remaining = q_to_rad - q  # (E, 6)
+        distance = np.linalg.norm(remaining, axis=1)
+        arrived = walking & (distance <= WALK_STEP_RAD)
+        reached |= arrived
+        walking &= ~arrived
+        if not walking.any():
+            break
+        index = np.flatnonzero(walking)
+        step = q[index] + WALK_STEP_RAD * remaining[index] / distance[index, None]  # (A, 6)
+        error = np.full(len(index), np.inf)
+        pending = np.arange(len(index))  # rows not yet within the tolerance
+        for iteration in range(WALK_NEWTON_ITERATIONS + 1):
+            tcp, jacobian = tcp_position_and_jacobian(step[pending])  # (P, 3), (P, 3, 6)
+            residual = tcp - position_m
+            error[pending] = np.linalg.norm(residual, axis=1)
+            moving = error[pending] > WALK_TOLERANCE_M
+            if iteration == WALK_NEWTON_ITERATIONS or not moving.any():
+                break
+            pending = pending[moving]
+            newton = np.linalg.pinv(jacobian[moving])  # (P, 6, 3)
+            step[pending] -= np.einsum("pij,pj->pi", newton, residual[moving])
+        moved = np.linalg.norm(step - q[index], axis=1)
+        inside = np.all((step >= LOWER_RAD[:6]) & (step <= UPPER_RAD[:6]), axis=1)
+        ok = (
+            (error <= WALK_TOLERANCE_M)
+            & inside
+            & (moved <= WALK_STRETCH * WALK_STEP_RAD)
+            & (np.linalg.norm(q_to_rad[index] - step, axis=1) < distance[index])
+            & (travelled[index] + moved <= WALK_STRETCH * chord[index])
+        )
+        walking[index[~ok]] = False
+        q[index[ok]] = step[ok]
+        travelled[index[ok]] += moved[ok]
+    return reached
+
+
+def join_by_walks(
+    position_m: np.ndarray,  # (3,)
+    q6_rad: np.ndarray,  # (F, 6) the fibre's nodes
+    component: np.ndarray,  # (F,) their pieces by the link radius
+) -> np.ndarray:  # (F,) pieces joined by walks, relabelled 0..C-1
+    """Join every two counted pieces (MIN_SHARE of the nodes or more) whose closest nodes
+    (at most JOIN_GAP_RAD apart) a straight projected walk (`walks_join`) joins. A failed
+    walk proves nothing: pieces stay apart for want of such a walk. Slivers are not tried
+    (hundreds of them next to a fold; they are not counted either way)."""
+    pieces = int(component.max()) + 1 if len(component) else 0
+    counted = np.flatnonzero(np.bincount(component, minlength=pieces) >= MIN_SHARE * len(component))
+    if len(counted) < 2:
+        return component
+    trees = {c: cKDTree(q6_rad[component == c]) for c in counted.tolist()}
+    members = {c: np.flatnonzero(component == c) for c in counted.tolist()}
+    pairs, ends = [], []
+    for a, b in itertools.combinations(counted.tolist(), 2):
+        small, large = (a, b) if len(members[a]) <= len(members[b]) else (b, a)
+        gap, nearest = trees[large].query(q6_rad[members[small]])
+        best = int(np.argmin(gap))
+        if gap[best] <= JOIN_GAP_RAD:
+            pairs.append((a, b))
+            ends.append((members[small][best], members[large][nearest[best]]))
+    if not pairs:
+        return component
+    start, end = (np.array(column) for column in zip(*ends, strict=True))
+    joined = walks_join(position_m, q6_rad[start], q6_rad[end])
+    edges = np.array(pairs)[joined]
+    graph = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(pieces, pieces))
+    _, merged = connected_components(graph, directed=False)
+    return merged[component]
