@@ -161,7 +161,12 @@ class TrainingRecord(_Strict):
     best_validation_loss: float
     best_epoch: int
     torch_version: str
-    git_commit: str
+    git_commit: str = Field(description="the commit the training run started from")
+    export_git_commit: str | None = Field(
+        default=None,
+        description="the commit that exported, swept and measured the model, when not the "
+        "training's (smm-train --from-checkpoint re-exports a run's best.pt with newer code)",
+    )
     config: dict[str, object]
 
 

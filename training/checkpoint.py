@@ -59,6 +59,9 @@ class BestCheckpoint:
     best_epoch: int
     wall_time_s: float
     command: str
+    # The commit the run started from (training.export.git_commit); None in a best.pt
+    # written before runs stored it.
+    git_commit: str | None = None
 
     def result(self, model: VelocityField) -> TrainResult:
         """`model` (built from `config`) with these weights, as a TrainResult."""
@@ -79,9 +82,12 @@ def _atomic_save(payload: dict[str, Any], path: Path) -> None:
     os.replace(partial, path)
 
 
-def save_best(path: Path, result: TrainResult, config: TrainConfig, command: str) -> None:
+def save_best(
+    path: Path, result: TrainResult, config: TrainConfig, command: str, git_commit: str
+) -> None:
     _atomic_save(
         {
+            "git_commit": git_commit,
             "state_dict": result.model.state_dict(),
             "best_validation_loss": result.best_validation_loss,
             "best_epoch": result.best_epoch,
@@ -102,6 +108,7 @@ def load_best(path: Path) -> BestCheckpoint:
         best_epoch=checkpoint["best_epoch"],
         wall_time_s=checkpoint["wall_time_s"],
         command=checkpoint["command"],
+        git_commit=checkpoint.get("git_commit"),
     )
 
 

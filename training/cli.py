@@ -26,8 +26,8 @@ from pathlib import Path
 
 import torch
 
-from service.manifest import REPO_MODELS_DIR
-from training.checkpoint import BEST_FILE, HISTORY_FILE, load_best, save_best
+from service.manifest import MANIFEST_FILE, REPO_MODELS_DIR, Manifest
+from training.checkpoint import BEST_FILE, HISTORY_FILE, BestCheckpoint, load_best, save_best
 from training.config import TrainConfig, preset
 from training.data import build_flow_data
 from training.export import export_model, git_commit, refresh_kinematics
@@ -175,14 +175,16 @@ def main(argv: list[str] | None = None) -> None:
 
     print(f"[{model_id}] labelling {config.samples} configurations with pytorch-kinematics")
     data = build_flow_data(fk, joints, task, config.samples, config.seed)
+    training_commit = code_commit
     if best is not None:
         result, command = best.result(build_model(config, data)), best.command
+        training_commit = best.git_commit or earlier_training_commit(models_dir / model_id, best)
     else:
         run_dir = args.runs_dir / model_id
         print(f"[{model_id}] training {config.epochs} epochs on {config.device}")
         result = train(config, data, run_dir=run_dir, resume=args.resume)
         command = shlex.join(["smm-train", *(a for a in argv if a != "--resume")])
-        save_best(run_dir / BEST_FILE, result, config, command)
+        save_best(run_dir / BEST_FILE, result, config, command, code_commit)
         (run_dir / HISTORY_FILE).write_text(json.dumps(result.history, indent=1))
     print(
         f"[{model_id}] best validation loss {result.best_validation_loss:.5f} "
@@ -199,9 +201,24 @@ def main(argv: list[str] | None = None) -> None:
         config=config,
         result=result,
         command=command,
-        code_commit=code_commit,
+        code_commit=training_commit,
+        export_commit=code_commit,
     )
     print(json.dumps(manifest.model_dump(include={"quality"}), indent=1))
+
+
+def earlier_training_commit(model_dir: Path, best: BestCheckpoint) -> str:
+    """For a best.pt written before runs stored their commit: the training commit that the
+    model's current manifest records, when that manifest came from the same run (same
+    command, best epoch and validation loss); otherwise "unknown"."""
+    try:
+        record = Manifest.model_validate_json((model_dir / MANIFEST_FILE).read_bytes()).training
+    except (OSError, ValueError):
+        return "unknown"
+    same_run = (record.command, record.best_epoch, record.best_validation_loss) == (
+        best.command, best.best_epoch, best.best_validation_loss,
+    )  # fmt: skip
+    return record.git_commit if same_run else "unknown"
 
 
 if __name__ == "__main__":

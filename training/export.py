@@ -215,6 +215,7 @@ def export_model(
     result: TrainResult,
     command: str,
     code_commit: str,
+    export_commit: str | None = None,
 ) -> Manifest:
     """Write flow.onnx, kinematics.onnx, chain.json and manifest.json into `model_dir`; measure.
 
@@ -259,6 +260,7 @@ def export_model(
             best_epoch=result.best_epoch,
             torch_version=torch.__version__,
             git_commit=code_commit,
+            export_git_commit=None if export_commit == code_commit else export_commit,
             config=config.as_dict(),
         ),
         created_utc=dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),

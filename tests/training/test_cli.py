@@ -6,6 +6,10 @@ and is served through the documented command alone: `--urdf` writes its robot fi
 URDF copy, the manifest records the command and a measured reach, and every configuration
 the service returns reaches the target by the test's own numpy FK, inside the limits.
 
+`--from-checkpoint` re-exports a run's best.pt and records the run's commit as the
+training's, the exporting commit beside it; a best.pt from before runs stored their commit
+takes the commit of the manifest that the same run exported, and no other.
+
 `--refresh-kinematics` re-exports only the kinematics of an existing model directory: it
 gains chain.json, its flow is untouched, and the service serves it by the chain.
 """
@@ -14,18 +18,22 @@ import json
 import shlex
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
-from service.manifest import CHAIN_FILE, Manifest
+from service.manifest import CHAIN_FILE, REPO_MODELS_DIR, Manifest
 from service.models.chain import SerialChainKinematics
 from service.models.registry import load_model, sha256_of
 from tests.support.app import make_client
 from tests.support.chains import model_without_chain
 from tests.support.small_arm import JOINTS, arm_pose, write_arm
-from training.cli import main
+from tests.support.tiny_training import TINY
+from training.checkpoint import BestCheckpoint
+from training.cli import earlier_training_commit, main
 from training.evaluate.references.planar3r import planar3r_position
 from training.robots import robot_spec
 
@@ -65,6 +73,37 @@ def test_tiny_model_trains_exports_and_is_served(tmp_path: Path) -> None:
     q = np.array([q for c in answer["components"] for q in c["configurations"]]).reshape(-1, 3)
     # Even a barely trained flow, once corrected, returns only exact configurations.
     assert np.all(np.linalg.norm(planar3r_position(q) - target, axis=1) <= 1e-6)
+
+    # Re-exported from its best.pt by later code: the run's commit stays the training's.
+    best_path = runs / "planar3r-position" / "best.pt"
+    best = torch.load(best_path, weights_only=False)
+    assert best["git_commit"] == manifest.training.git_commit
+    best["git_commit"] = "0123abc"  # as if the run had started from another commit
+    torch.save(best, best_path)
+    again = [*command[:3], "--robot", "planar3r", "--task", "position",
+             "--from-checkpoint", str(best_path), *command[7 + 4 :]]  # fmt: skip
+    result = subprocess.run(again, capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr[-3000:]
+    record = Manifest.model_validate_json((model_dir / "manifest.json").read_text()).training
+    assert record.git_commit == "0123abc"
+    assert record.export_git_commit == manifest.training.git_commit  # this checkout's
+    assert record.command == manifest.training.command
+
+
+def test_a_best_checkpoint_without_a_commit_takes_the_same_runs_manifest_commit(
+    tmp_path: Path,
+) -> None:
+    bundled = REPO_MODELS_DIR / "planar3r-position" / "manifest.json"
+    (tmp_path / "manifest.json").write_bytes(bundled.read_bytes())
+    record = Manifest.model_validate_json(bundled.read_bytes()).training
+    same_run = BestCheckpoint(
+        config=TINY, state_dict={}, best_validation_loss=record.best_validation_loss,
+        best_epoch=record.best_epoch, wall_time_s=1.0, command=record.command,
+    )  # fmt: skip
+    assert earlier_training_commit(tmp_path, same_run) == record.git_commit
+    other_run = replace(same_run, best_epoch=record.best_epoch + 1)
+    assert earlier_training_commit(tmp_path, other_run) == "unknown"
+    assert earlier_training_commit(tmp_path / "absent", same_run) == "unknown"
 
 
 def test_a_urdf_never_seen_trains_exports_and_is_served(tmp_path: Path) -> None:
