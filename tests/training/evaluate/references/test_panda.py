@@ -275,3 +275,42 @@ def test_a_feasible_walk_along_the_position_fibre_stays_in_one_component(
         assert np.linalg.norm(path[:, :6] - q_target[:6], axis=1).max() > 0.5  # it moved
         nearest = cKDTree(fibre.q_rad[:, :6]).query(path[:, :6])[1]
         assert len(set(fibre.component[nearest].tolist())) == 1
+
+
+def test_a_straight_walk_joins_two_points_of_one_fibre_and_never_reaches_off_it(
+    chain: UrdfChain, position_cases: list
+) -> None:
+    """The reference's join (`panda.walks_join`, on the DH table) against the test's own
+    URDF chain: two points 20 steps apart on a null-space walk of the fibre are joined; a
+    configuration 0.3 rad off the fibre (centimetres off the target) is never reached."""
+    starts, ends, offs = [], [], []
+    rng = np.random.default_rng(3)
+    for i, (q_target, position, _) in enumerate(position_cases):
+        path = _walk_on_position_fibre(chain, q_target, steps=20, seed=10 + i)
+        starts.append(path[0, :6])
+        ends.append(path[-1, :6])
+        off = path[-1] + rng.normal(size=7) * 0.3 / np.sqrt(7)
+        assert np.linalg.norm(chain.pose(off[None])[0, :3, 3] - position) > 0.01
+        offs.append(np.clip(off, LOWER, UPPER)[:6])
+        assert panda.walks_join(position, np.array(starts[-1:]), np.array(ends[-1:])).all()
+        assert not panda.walks_join(position, np.array(starts[-1:]), np.array(offs[-1:])).any()
+    assert min(np.linalg.norm(a - b) for a, b in zip(starts, ends, strict=True)) > 0.2
+
+
+def test_a_component_cut_in_two_by_its_labels_is_joined_again_by_walks(
+    position_cases: list,
+) -> None:
+    """A counted component whose nodes are relabelled as two pieces on either side of its
+    median q1 (a split as the link radius makes one) comes back as one; the other
+    components keep their membership."""
+    for _, position, fibre in position_cases:
+        q6 = fibre.q_rad[:5000, :6]
+        labels = fibre.component[:5000].copy()
+        largest = int(np.bincount(labels).argmax())
+        members = labels == largest
+        cut = members & (q6[:, 0] > np.median(q6[members, 0]))
+        labels[cut] = labels.max() + 1
+        joined = panda.join_by_walks(position, q6, labels)
+        assert len(set(joined[members].tolist())) == 1
+        for other in set(fibre.component[:5000].tolist()) - {largest}:
+            assert len(set(joined[fibre.component[:5000] == other].tolist())) == 1
