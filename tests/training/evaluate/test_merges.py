@@ -1,9 +1,11 @@
 """merges (is a reported merge real?): the straight projected path at a fine step joins two
 points of one exact iiwa pose component (the closed-form S-R-S arc) and never two points
-of two different exact components, however near; on the Panda position report's target 29
-the check finds the merge the report lists and joins its two reference components, which
-the reference (a 0.36 rad link radius on a grid) keeps apart; a merge is settled as a
-reference split only when its joined pairs connect all of its reference components."""
+of two different exact components, however near; on the Panda position report's target 98
+the check finds the merge the report lists and joins all three of its reference
+components, which the reference (a 0.36 rad link radius on a grid, then straight walks
+between the pieces' closest nodes) keeps apart (its target 29, the first such case, the
+reference now joins itself); a merge is settled as a reference split only when its joined
+pairs connect all of its reference components."""
 
 from __future__ import annotations
 
@@ -47,12 +49,12 @@ def test_one_exact_component_is_joined_two_never(iiwa14_pose: ServedModel) -> No
         assert not joined_on_fibre(fibre, exact[0][i], other[j], lower, upper, periodic)
 
 
-def test_the_panda_position_reference_splits_target_29() -> None:
+def test_the_panda_position_reference_splits_target_98() -> None:
     model = load_model(REPO_MODELS_DIR / "panda-position", threads=1)
-    checks = report_target(model, 29)
-    assert checks, "the report lists a merge on target 29"
-    joined = [c for c in checks if c.joined]
-    assert joined and all(c.gap_rad > 1.0 for c in joined)  # far apart, yet one component
+    checks = report_target(model, 98)
+    assert checks, "the report lists a merge on target 98"
+    assert settled(checks)  # every reference component of the merge joined on the fibre
+    assert max(c.gap_rad for c in checks if c.joined) > 1.0  # far apart, yet one component
 
 
 def test_a_merge_is_settled_only_when_its_joined_pairs_connect_every_component() -> None:
