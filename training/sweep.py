@@ -96,6 +96,7 @@ from service.pipeline.targets import encode_target
 from service.pipeline.types import Query, SmmResult
 from training.defaults import CONNECTIVITY_REASON
 from training.evaluate.metrics import median_stage_ms
+from training.evaluate.quality import summarise_raw
 from training.evaluate.served import orientation_wxyz, stage_times_ms, with_defaults
 from training.evaluate.targets import held_out_targets
 
@@ -573,14 +574,17 @@ def raw_error(
             manifest.joint_normalisation, periodic, np.random.default_rng(seed + i),
         )  # fmt: skip
         errors.append(task_error_norms(model.kinematics(q_raw), target, task))
-    position_m = np.concatenate([p for p, _ in errors])  # (T N,)
-    e = position_m / manifest.reach_m
-    if task.orientation:
-        e = (e + np.concatenate([o for _, o in errors]) / np.pi) / 2
+    raw = summarise_raw(
+        sampler, np.stack([p for p, _ in errors]), np.stack([o for _, o in errors]),
+        manifest.reach_m, task.orientation,
+    )  # fmt: skip
+    e_pct = raw.position_error_pct_reach_mean
+    if raw.orientation_error_pct_mean is not None:
+        e_pct = (e_pct + raw.orientation_error_pct_mean) / 2
     return TimePowerRow(
         time_power=sampler.time_power,
-        raw_error_pct_reach=float(e.mean() * 100),
-        raw_position_error_mm=float(position_m.mean() * 1e3),
+        raw_error_pct_reach=e_pct,
+        raw_position_error_mm=raw.position_error_mm_mean,
     )
 
 
