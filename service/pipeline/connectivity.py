@@ -3,7 +3,9 @@
 r = 1: every curve through a sample that reaches the target (inside the limits or not)
 is traced whole and cut by the limits (tracing.py); each piece is a component with its
 ordered path, and each accepted sample joins the piece it lies on. Pieces no sample hit
-are components too (size 0): they exist, and a planner may want them.
+are components too (size 0): they exist, and a planner may want them. Pieces that end
+off the limits (a front stopped next to a singular value) are spliced where the
+projected local planner walks from one end to the other (splicing.py).
 r > 1, and any r = 1 sample that no traced piece passes through: a roadmap whose edges
 are checked by the projected local planner (roadmap.py), with nodes added on the chain's
 coaxial sets (coaxial.py), where twin branches meet, when components are left apart.
@@ -30,6 +32,12 @@ from service.pipeline.fibre import Fibre, smallest_singular_value
 from service.pipeline.joint_space import JointBox, joint_difference, joint_distance
 from service.pipeline.local_planner import PlannerSettings
 from service.pipeline.roadmap import RoadmapSettings, roadmap_labels
+from service.pipeline.splicing import (
+    SpliceSettings,
+    attach_by_walk,
+    open_ends,
+    splice_paths,
+)
 from service.pipeline.tracing import (
     MEET_FACTOR,
     TracedPiece,
@@ -96,6 +104,23 @@ def connect(
             complete &= more_complete
             sigma = min(sigma, more_sigma)
             owner = _owner_path(correction.q_rad[accepted], paths, periodic, on_curve_rad)
+        # A piece that ends off the limits is where a front stopped or a cut went wrong:
+        # splice the pieces the fibre joins (splicing.py); an end left open means the
+        # curve is not whole.
+        walk = splice_settings(spec, tolerance_position_m, tolerance_orientation_rad)
+        spliced = splice_paths(
+            fibre, paths, lower_rad, upper_rad, periodic, walk, deadline, coaxial_sets
+        )
+        if len(spliced) < len(paths):
+            paths = spliced
+            owner = _owner_path(correction.q_rad[accepted], paths, periodic, on_curve_rad)
+        stray = np.flatnonzero(owner < 0)
+        if len(stray):  # samples on no path: attached where a walk leads to one
+            owner[stray] = attach_by_walk(
+                fibre, correction.q_rad[accepted[stray]], paths, lower_rad, upper_rad,
+                periodic, walk, deadline, coaxial_sets,
+            )  # fmt: skip
+        complete &= not open_ends(paths, lower_rad, upper_rad, periodic)
         min_sigma = min(min_sigma, sigma)
         # Strands closer than the fronts' meeting distance may have been joined or told
         # apart wrongly: the structure there is not resolved (tracing.closest_strands_rad).
@@ -129,6 +154,10 @@ def connect(
 # curvature x 0.05^2 / 8 (3e-4 rad at a curvature of 1), while a twin curve near a
 # singular value may pass 0.02 rad from it.
 ON_CURVE_FRACTION = 0.2
+# The splice walk steps h / this: under the closest twins the walk must tell apart (a hop
+# is a step longer than lambda x delta; the Panda's stopped ends lie 0.005 to 0.09 rad
+# apart at h = 0.15).
+SPLICE_DIVISIONS = 32
 
 
 def _traced_paths(
@@ -150,13 +179,14 @@ def _traced_paths(
     complete = trace.complete
     paths: list[ComponentPath] = []
     for piece in trace.pieces:
-        path, all_exact = _exact_path(
+        pieces, whole = _exact_paths(
             piece, fibre.task, tolerance_position_m, tolerance_orientation_rad, periodic,
-            spec.path_spacing_rad,
+            spec.path_spacing_rad, 2.0 * spec.trace_step_rad,
         )  # fmt: skip
-        complete &= all_exact
-        if len(path.q_rad) and not _duplicate(path, paths, periodic, spec.path_spacing_rad):
-            paths.append(path)
+        complete &= whole
+        for path in pieces:
+            if not _duplicate(path, paths, periodic, spec.path_spacing_rad):
+                paths.append(path)
     return paths, complete, trace.min_singular_value
 
 
@@ -201,6 +231,24 @@ def trace_settings(spec: ConnectivitySpec) -> TraceSettings:
     )
 
 
+def splice_settings(
+    spec: ConnectivitySpec, tolerance_position_m: float, tolerance_orientation_rad: float
+) -> SpliceSettings:
+    """Open ends within one trace step are candidates; the walk between them is the local
+    planner's (lambda, tolerance) at steps of h / SPLICE_DIVISIONS."""
+    return SpliceSettings(
+        reach_rad=spec.trace_step_rad,
+        planner=PlannerSettings(
+            delta_rad=spec.trace_step_rad / SPLICE_DIVISIONS,
+            lambda_=spec.lambda_,
+            projection_tolerance=spec.projection_tolerance,
+        ),
+        spacing_rad=spec.path_spacing_rad,
+        tolerance_position_m=tolerance_position_m,
+        tolerance_orientation_rad=tolerance_orientation_rad,
+    )
+
+
 def planner_settings(spec: ConnectivitySpec) -> PlannerSettings:
     return PlannerSettings(
         delta_rad=spec.delta_rad,
@@ -219,38 +267,60 @@ def roadmap_settings(spec: ConnectivitySpec) -> RoadmapSettings:
     )
 
 
-def _exact_path(
+def _exact_paths(
     piece: TracedPiece,
     task: TaskSpec,
     tolerance_position_m: float,
     tolerance_orientation_rad: float,
     periodic: BoolArray,
     spacing_rad: float,
-) -> tuple[ComponentPath, bool]:
-    """The piece as a path of exact points only, and whether it is whole: no point had to
-    be left out and no gap exceeds the spacing.
+    cut_rad: float,
+) -> tuple[list[ComponentPath], bool]:
+    """The piece as paths of exact points only, and whether it came whole: no point had
+    to be left out and no step exceeds the spacing.
 
     A point Newton could not bring within tolerance (next to a singular point of the
-    fibre) is left out rather than returned inexact; the component stays whole, and the
-    caller flags the target as near-singular (the gap there may exceed the spacing).
+    fibre) is left out rather than returned inexact: the gap it leaves is a continuation
+    step, which the trace checked (under 2 h), and the caller flags the target as
+    near-singular. A step longer than `cut_rad` (2 h) is no continuation step: fronts
+    were chained across two strands (measured on a Panda pose target: 0.58 rad, between
+    two exact components), so nothing shows the fibre joins its ends and the path is cut
+    there; the splice step joins the pieces again where the local planner walks between
+    them (splicing.py).
     """
     position_error, orientation_error = error_norms(piece.error, task)
     exact = (position_error <= tolerance_position_m) & (
         orientation_error <= tolerance_orientation_rad
     )
     q = piece.path_rad[exact]
-    gaps = joint_distance(q[1:], q[:-1], periodic)  # (P - 1,)
-    if piece.closed and len(q) > 1:
-        gaps = np.append(gaps, joint_distance(q[-1], q[0], periodic))
-    arc = float(gaps.sum())
-    path = ComponentPath(
-        q_rad=q,
-        position_error_m=position_error[exact],
-        orientation_error_rad=orientation_error[exact],
-        closed=piece.closed,
-        arc_length_rad=arc,
-    )
-    return path, bool(exact.all()) and gaps.max(initial=0.0) <= spacing_rad
+    position, orientation = position_error[exact], orientation_error[exact]
+    steps = joint_distance(q[1:], q[:-1], periodic)  # (P - 1,)
+    closing = float(joint_distance(q[-1], q[0], periodic)) if piece.closed and len(q) > 1 else 0
+    whole = bool(exact.all()) and max(steps.max(initial=0.0), closing) <= spacing_rad
+    cuts = np.flatnonzero(steps > cut_rad) + 1  # a piece starts at each
+    closed = piece.closed
+    if closed and (len(cuts) or closing > cut_rad):  # the loop opens at a long step
+        closed = False
+        if closing <= cut_rad:  # at the first inner one: the closing step is kept
+            start = int(cuts[0])
+            turn = np.roll(np.arange(len(q)), -start)
+            q, position, orientation = q[turn], position[turn], orientation[turn]
+            cuts = cuts[1:] - start
+    paths = []
+    for rows in np.split(np.arange(len(q)), cuts):
+        if not len(rows):
+            continue
+        arc = float(joint_distance(q[rows][1:], q[rows][:-1], periodic).sum())
+        paths.append(
+            ComponentPath(
+                q_rad=q[rows],
+                position_error_m=position[rows],
+                orientation_error_rad=orientation[rows],
+                closed=closed,
+                arc_length_rad=arc + (closing if closed else 0.0),
+            )
+        )
+    return paths, whole
 
 
 def _owner_path(

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from service.pipeline.arrays import BoolArray, FloatArray
+from service.pipeline.arrays import BoolArray, FloatArray, IntArray
 from service.pipeline.coaxial import crossings_on_fibre
 from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.fibre import Fibre, project
@@ -50,10 +50,40 @@ def edges_on_fibre(
     coaxial: Sequence[CoaxialSet] = (),  # sets a step may cross only where the fibre does
 ) -> BoolArray:  # (E,) True where a path on the fibre joins the two ends
     """Walk every edge on the fibre in lockstep; True for the edges that reach their end."""
+    return walk_on_fibre(
+        fibre, q_from_rad, q_to_rad, lower_rad, upper_rad, periodic, settings, lambda_,
+        deadline, coaxial, record=False,
+    ).reached  # fmt: skip
+
+
+@dataclass(frozen=True)
+class Walks:
+    """Where each edge's walk went: whether it reached its end, and (when recorded) the
+    projected points it stepped through, in order (the start and the end not included)."""
+
+    reached: BoolArray  # (E,)
+    points_rad: list[FloatArray]  # per edge (k_e, n), empty unless recorded
+
+
+def walk_on_fibre(
+    fibre: Fibre,
+    q_from_rad: FloatArray,  # (E, n) on the fibre
+    q_to_rad: FloatArray,  # (E, n) on the fibre
+    lower_rad: FloatArray,  # (n,)
+    upper_rad: FloatArray,  # (n,)
+    periodic: BoolArray,  # (n,)
+    settings: PlannerSettings,
+    lambda_: float | None = None,
+    deadline: Deadline = NO_DEADLINE,
+    coaxial: Sequence[CoaxialSet] = (),
+    record: bool = True,
+) -> Walks:
+    """`edges_on_fibre`, keeping the walks' points when `record` (to build a path from)."""
     num_edges = len(q_from_rad)
     reached = np.zeros(num_edges, dtype=bool)
+    steps: list[tuple[IntArray, FloatArray]] = []  # per step: which edges moved, to where
     if num_edges == 0:
-        return reached
+        return Walks(reached, [])
     stretch = settings.lambda_ if lambda_ is None else lambda_
     delta = settings.delta_rad
     goal = q_from_rad + joint_difference(q_to_rad, q_from_rad, periodic)  # (E, n) unwrapped
@@ -101,4 +131,12 @@ def edges_on_fibre(
         walking[index[~ok]] = False
         q[index[ok]] = q_new[ok]
         travelled[index[ok]] += moved[ok]
-    return reached
+        if record:
+            steps.append((index[ok], q_new[ok]))
+    if not record:
+        return Walks(reached, [])
+    edge = np.concatenate([np.zeros(0, dtype=np.int64), *(rows for rows, _ in steps)])
+    points = np.concatenate([np.zeros((0, q.shape[1])), *(qs for _, qs in steps)])
+    order = np.argsort(edge, kind="stable")  # each edge's points in step order
+    bounds = np.searchsorted(edge[order], np.arange(num_edges + 1))
+    return Walks(reached, [points[order[bounds[e] : bounds[e + 1]]] for e in range(num_edges)])

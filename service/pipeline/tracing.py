@@ -18,7 +18,8 @@ traced point keeps what the kinematics measured there (error, Jacobian, tangent)
 point is evaluated twice.
 
 A front that cannot go on (the corrector fails, a step jumps, the step budget runs out)
-leaves its curve open there; such a trace, a fibre whose Jacobian comes near rank
+leaves its curve open there (the connect stage splices such pieces where the fibre joins
+them: splicing.py); such a trace, a fibre whose Jacobian comes near rank
 deficiency, and two strands of the fibre closer than the fronts' meeting distance
 (`closest_strands_rad`: the meeting test cannot always tell them apart; next to a
 singular value the fibre can run as twin strands a few hundredths of a radian apart, or

@@ -6,13 +6,28 @@ import numpy as np
 
 from service.models.registry import ServedModel
 from service.pipeline.fibre import Fibre, project
+from service.pipeline.joint_space import joint_distance
 from service.pipeline.targets import Target
+from training.evaluate.references.planar3r import closed_form_smm
 
 
 def planar_fibre(model: ServedModel, target_m: np.ndarray) -> Fibre:
     manifest = model.manifest
     target = Target(position_m=target_m, rotation=None, condition=np.zeros(1, np.float32))
     return Fibre(target=target, task=manifest.task, kinematics=model.kinematics, damping=1e-3)
+
+
+def ordered_planar_loop(target_m: np.ndarray, every_rad: float) -> np.ndarray:
+    """(k, 3) the one loop of a planar 3R target opposite phi = 0 (so that each elbow
+    branch of the closed form is one run of phi) in order along it: the elbow-up branch,
+    then the elbow-down branch backwards, thinned to points about `every_rad` apart."""
+    (loop,) = closed_form_smm(target_m, phi_step_rad=1e-4)
+    half = len(loop) // 2
+    ordered = np.concatenate([loop[:half], loop[half:][::-1]])
+    periodic = np.ones(3, dtype=bool)
+    steps = joint_distance(ordered[1:], ordered[:-1], periodic)
+    arc = np.concatenate([[0.0], np.cumsum(steps)])
+    return ordered[np.unique(np.searchsorted(arc, np.arange(0.0, arc[-1], every_rad)))]
 
 
 def pose_fibre(model: ServedModel, q_target: np.ndarray) -> Fibre:

@@ -3,7 +3,8 @@ cut by the limits, ordered paths that are exact, inside the limits and finely sp
 checked against the closed forms (planar 3R) and the S-R-S IK components (iiwa pose),
 also where twin curves run a few hundredths of a radian apart and where one piece was
 traced twice; where twins run closer than the trace can resolve (the planar 3R within
-1e-4 of rho = 1) the answer says near_singular; r > 1: the roadmap joins one component
+1e-4 of rho = 1) the answer says near_singular; a traced loop is cut only where a step
+is longer than a continuation step (2 h); r > 1: the roadmap joins one component
 across sampling gaps and keeps two apart."""
 
 import numpy as np
@@ -11,9 +12,12 @@ import pytest
 
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
+from service.pipeline.connectivity import _exact_paths
 from service.pipeline.joint_space import joint_distance
 from service.pipeline.run import run
+from service.pipeline.tracing import TracedPiece
 from service.pipeline.types import Query, SmmResult
+from tests.service.pipeline.fibre_support import ordered_planar_loop
 from tests.support.iiwa14_dh import iiwa14_pose as dh_pose
 from training.evaluate.references.iiwa14 import pose_smm
 from training.evaluate.references.planar3r import planar3r_position
@@ -34,7 +38,9 @@ def check_paths(
     """Every component has a path: in the limits, spaced <= 0.05 rad, closed or at limits.
 
     Next to a singular point (the answer says near_singular) a point Newton cannot make
-    exact is left out, so a gap there may reach the tracing step (0.15 rad).
+    exact is left out, so a gap there may reach twice the tracing step (0.3 rad), and a
+    path is cut where the trace could not show the fibre joins two points, so an open
+    end may lie off the limits.
     """
     spacing = 0.3 if result.structure.near_singular else SPACING_RAD
     for component in result.components:
@@ -45,7 +51,7 @@ def check_paths(
         gaps = joint_distance(q[1:], q[:-1], periodic)
         if path.closed:
             gaps = np.append(gaps, joint_distance(q[-1], q[0], periodic))
-        else:
+        elif not result.structure.near_singular:
             # An open component ends at the joint limits: some joint sits on a limit there.
             for end in (q[0], q[-1]):
                 slack = np.minimum(end - lower, upper - end)[~periodic]
@@ -165,3 +171,30 @@ def test_a_piece_traced_twice_is_returned_once(iiwa14_pose: ServedModel) -> None
             assert (
                 min(np.abs(ends[i] - ends[j]).max(), np.abs(ends[i] - ends[j][::-1]).max()) > 1e-3
             )
+
+
+@pytest.mark.parametrize(
+    ("removed", "pieces", "closed"), [(0, 1, True), (4, 1, True), (12, 1, False)]
+)
+def test_a_loop_is_cut_only_where_a_step_is_longer_than_a_continuation_step(
+    planar3r: ServedModel, removed: int, pieces: int, closed: bool
+) -> None:
+    """A traced loop with points left out: a gap under 2 h (0.3 rad) is a step the trace
+    checked and the loop stays one closed path (not whole: flagged); a longer gap shows
+    nothing, and the loop opens there into one path that starts just after it."""
+    target = np.array([-1.5, -0.1])
+    q = ordered_planar_loop(target, every_rad=0.03)
+    error = planar3r_position(q) - target
+    keep = np.ones(len(q), dtype=bool)
+    keep[50 : 50 + removed] = False
+    piece = TracedPiece(path_rad=q[keep], error=error[keep], closed=True)
+    periodic = np.ones(3, dtype=bool)
+    paths, whole = _exact_paths(
+        piece, planar3r.manifest.task, 1e-6, 1e-6, periodic, SPACING_RAD, 0.3
+    )
+    assert len(paths) == 1 and paths[0].closed == closed
+    assert whole == (removed == 0)
+    if not closed:
+        np.testing.assert_array_equal(paths[0].q_rad[0], q[50 + removed])
+        np.testing.assert_array_equal(paths[0].q_rad[-1], q[49])
+    assert len(paths[0].q_rad) == keep.sum()
