@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pytorch_kinematics as pk
@@ -141,27 +141,55 @@ def _answered(
 def flow_target(
     model: ServedModel, q_target: np.ndarray, num_samples: int, seed: int
 ) -> MethodTarget:
+    """The service's answer (`served_target`) with the flow's raw samples' errors: the
+    same draw as the pipeline's (same sampler, seed and count), sampled again untimed."""
     manifest = model.manifest
-    fk = model.kinematics(q_target[None])
-    pose = manifest.task.orientation
-    position = fk.position_m[0, manifest.task.position_axes].tolist()
-    wxyz = orientation_wxyz(fk.rotation[0]) if pose else None
-    target = encode_target(manifest.task, manifest.condition, position, wxyz)
+    answer = served_target(model, q_target, num_samples, seed)
+    target = _target_of(model, q_target).encoded
     _, _, periodic = manifest.joints.arrays()
     q_raw = sample_configurations(
         model.velocity, target.condition, num_samples, manifest.defaults.sampler,
         manifest.joint_normalisation, periodic, np.random.default_rng(seed),
     )  # fmt: skip
     raw_p, raw_o = task_error_norms(model.kinematics(q_raw), target, manifest.task)
+    return replace(answer, raw_position_m=raw_p, raw_orientation_rad=raw_o)
+
+
+def served_target(
+    model: ServedModel, q_target: np.ndarray, num_samples: int, seed: int
+) -> MethodTarget:
+    """The service's pipeline answer to the target q_target reaches, as a client asks it
+    (position, quaternion); no raw-sample errors (empty), its time the pipeline's own."""
+    manifest = model.manifest
+    target = _target_of(model, q_target)
     query = Query.for_model(
-        manifest, position_m=position, orientation_wxyz=wxyz, num_samples=num_samples,
-        seed=seed, include_paths=True,
+        manifest, position_m=target.position, orientation_wxyz=target.wxyz,
+        num_samples=num_samples, seed=seed, include_paths=True,
     )  # fmt: skip
     result = run(model, query)
+    none = np.zeros(0)
+    components = [(c.configurations_rad, c.path) for c in result.components]
     return _answered(
-        model, target, raw_p, raw_o, [(c.configurations_rad, c.path) for c in result.components],
-        num_samples, stage_times_ms(result), result.structure.near_singular,
+        model, target.encoded, none, none, components, num_samples, stage_times_ms(result),
+        result.structure.near_singular,
     )  # fmt: skip
+
+
+@dataclass(frozen=True)
+class _Asked:
+    """A target as a client sends it."""
+
+    position: list[float]
+    wxyz: tuple[float, float, float, float] | None
+    encoded: Target  # as the pipeline encodes it
+
+
+def _target_of(model: ServedModel, q_target: np.ndarray) -> _Asked:
+    manifest = model.manifest
+    fk = model.kinematics(q_target[None])
+    position = fk.position_m[0, manifest.task.position_axes].tolist()
+    wxyz = orientation_wxyz(fk.rotation[0]) if manifest.task.orientation else None
+    return _Asked(position, wxyz, encode_target(manifest.task, manifest.condition, position, wxyz))
 
 
 def raw_samples_target(answer: MethodTarget) -> MethodTarget:

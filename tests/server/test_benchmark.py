@@ -1,0 +1,51 @@
+"""tools.benchmark: the command writes a report (JSON and Markdown) with every configuration
+for every size, over HTTP too, whose figures are the evaluation's (planar 3R: the count
+against the closed form); random-restart DLS is run to at least the service's number of
+valid configurations per target."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from service.models.registry import ServedModel
+from tools.benchmark import PAPER, RESTART, SERVICE, restarts_to_match
+from training.evaluate.targets import uniform_configurations
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_the_command_writes_every_configuration_and_size(tmp_path: Path) -> None:
+    command = [
+        sys.executable, "-m", "tools.benchmark", "--models", "planar3r-position",
+        "--sizes", "100", "200", "--targets", "2", "--out", str(tmp_path),
+    ]  # fmt: skip
+    subprocess.run(command, cwd=ROOT, check=True, capture_output=True, timeout=600)
+    report = json.loads((tmp_path / "benchmark.json").read_text())
+    entry = report["models"]["planar3r-position"]
+    assert set(entry["sizes"]) == {"100", "200"}
+    for n, row in entry["sizes"].items():
+        for name in (SERVICE, PAPER, RESTART):
+            run = row[name]
+            assert 0 < run["median_ms"] <= run["p95_ms"]
+            assert run["figures"]["count_right"] == 1.0  # the closed form's count, both targets
+            assert run["valid_configurations_mean"] <= (int(n) if name != RESTART else np.inf)
+        assert (
+            row[RESTART]["valid_configurations_mean"] >= row[SERVICE]["valid_configurations_mean"]
+        )
+        assert row["http"]["median_ms"] > 0
+    text = (tmp_path / "benchmark.md").read_text()
+    assert text.count("| planar3r-position |") == 2 * 3 + 2  # 3 configurations + HTTP, 2 sizes
+    assert report["machine"]["cores"] >= 1
+
+
+def test_restarts_reach_the_valid_count_asked_for(planar3r: ServedModel) -> None:
+    lower, upper, _ = planar3r.manifest.joints.arrays()
+    q_targets = uniform_configurations(lower, upper, 2, seed=7)
+    timed = restarts_to_match(planar3r, q_targets, valid=[80, 120], num_samples=40)
+    assert [a.kept >= wanted for a, wanted in zip(timed.answers, [80, 120], strict=True)] == [
+        True,
+        True,
+    ]

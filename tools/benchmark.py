@@ -1,0 +1,308 @@
+"""Speed benchmark: every bundled model, warm, on one machine in one run, with the truth.
+
+    python -m tools.benchmark                      # -> docs/benchmark/benchmark.{json,md}
+    python -m tools.benchmark --models iiwa14-pose --sizes 1000 --targets 5 --no-http
+
+For each model and N in --sizes, over a fixed target set (the evaluation's held-out
+targets: FK of configurations uniform in the limits, seed 7, the first --targets):
+
+- the service's pipeline in process, with the model's defaults and the onnxruntime
+  threads the service itself would use on this machine (`Settings`), median and p95 of
+  the whole answer and of each stage;
+- the paper's configuration (100 uniform Euler steps, fp32, 3 DLS steps) run by the same
+  code, the same way;
+- random-restart DLS (pytorch-kinematics, uniform restarts, the service's acceptance and
+  connect stage) to the same number of valid configurations as the service returned: the
+  restarts are scaled once by the measured yield, and that run is the one timed;
+- the service over HTTP: `smm-serve` as a real uvicorn process on 127.0.0.1 (default
+  settings), one request at a time, the client's wall time per answer.
+
+Beside every time, the evaluation's figures for that configuration on the same targets
+(training/evaluate: count right, splits and merges per target, recall of the exact
+components, coverage p95), so that speed and truth are read together. The report names
+the machine and its load; compare times only within one report.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import httpx
+import numpy as np
+
+from service.config import Settings
+from service.manifest import REPO_MODELS_DIR, SamplerSpec
+from service.models.registry import ServedModel, load_model
+from tools.local_server import LocalServer
+from training.evaluate.methods import MethodTarget, restart_target, served_target
+from training.evaluate.metrics import (
+    component_agreement,
+    found_components,
+    median_stage_ms,
+    nearest_distance,
+    p95_stage_ms,
+)
+from training.evaluate.served import orientation_wxyz, with_defaults
+from training.evaluate.targets import uniform_configurations
+from training.evaluate.truth import Truth, ground_truth
+from training.kinematics import load_chain
+from training.machine import Machine
+from training.robots import robot_spec
+
+OUT_DIR = Path(__file__).resolve().parents[1] / "docs" / "benchmark"
+SIZES = (250, 1000, 4000)
+# The paper's configuration (seed Table 4): 100 Euler steps on the uniform grid, 3 DLS.
+PAPER_SAMPLER = SamplerSpec(steps=100, time_power=1.0)
+PAPER_DLS_STEPS = 3
+MATCH_ROUNDS = 4  # rescaled restart runs at most, to reach the service's valid count
+SERVICE, PAPER, RESTART = "service", "paper (100 Euler, 3 DLS)", "random-restart DLS"
+
+
+@dataclass(frozen=True)
+class Timed:
+    """One configuration over the targets: its answers as the evaluation reads them."""
+
+    answers: list[MethodTarget]
+
+    def times(self) -> dict[str, object]:
+        total = [a.time_ms for a in self.answers]
+        stages = [a.stage_ms for a in self.answers if a.stage_ms]
+        return {
+            "median_ms": float(np.median(total)),
+            "p95_ms": float(np.percentile(total, 95)),
+            "median_stage_ms": median_stage_ms(stages) if stages else None,
+            "p95_stage_ms": p95_stage_ms(stages) if stages else None,
+            "valid_configurations_mean": float(np.mean([a.kept for a in self.answers])),
+        }
+
+
+def figures(model: ServedModel, answers: Sequence[MethodTarget], truths: Sequence[Truth]) -> dict:
+    """The evaluation's component figures of one configuration over the targets."""
+    _, _, periodic = model.manifest.joints.arrays()
+    agreements = [component_agreement(a, t) for a, t in zip(answers, truths, strict=True)]
+    known = [g for g in agreements if g is not None]
+    pairs = list(zip(answers, truths, strict=True))
+    coverage = np.concatenate([nearest_distance(t.points, a.returned, periodic) for a, t in pairs])
+    result: dict[str, object] = {
+        "count_right": float(np.mean([g.right for g in known])),
+        "coverage_p95_rad": float(np.percentile(coverage, 95)),
+    }
+    if known and known[0].splits is not None:
+        found = [found_components(a, t) for a, t in zip(answers, truths, strict=True)]
+        result["splits_per_target"] = float(np.mean([g.splits for g in known]))
+        result["merges_per_target"] = float(np.mean([g.merges for g in known]))
+        result["recall"] = float(np.concatenate(found).mean())
+    return result
+
+
+def in_process(model: ServedModel, q_targets: np.ndarray, num_samples: int) -> Timed:
+    served_target(model, q_targets[0], num_samples, seed=0)  # warm-up
+    return Timed([served_target(model, q, num_samples, seed=i) for i, q in enumerate(q_targets)])
+
+
+def restarts_to_match(
+    model: ServedModel, q_targets: np.ndarray, valid: Sequence[int], num_samples: int
+) -> Timed:
+    """Random-restart DLS with at least as many valid configurations per target as
+    `valid`: from num_samples restarts, the restarts are scaled by the measured yield
+    (and 10 % more) until a run has enough; that run is the one timed."""
+    robot = robot_spec(model.manifest.robot)
+    chain = load_chain(REPO_MODELS_DIR / robot.urdf, robot.end_effector_link, robot.base_link)
+    restart_target(model, chain, q_targets[0], min(num_samples, 100), seed=0)  # warm-up
+    answers = []
+    for i, (q, wanted) in enumerate(zip(q_targets, valid, strict=True)):
+        restarts = num_samples
+        answer = restart_target(model, chain, q, restarts, seed=i)
+        for _ in range(MATCH_ROUNDS):
+            if answer.kept >= wanted:
+                break
+            restarts = int(np.ceil(1.1 * restarts * wanted / max(answer.kept, 1)))
+            answer = restart_target(model, chain, q, restarts, seed=i)
+        answers.append(answer)
+    return Timed(answers)
+
+
+def over_http(
+    server: LocalServer, model: ServedModel, q_targets: np.ndarray, num_samples: int
+) -> dict[str, float]:
+    """Client wall time per answer, one request at a time, and the server's own total."""
+    manifest = model.manifest
+    bodies = []
+    for i, q in enumerate(q_targets):
+        fk = model.kinematics(q[None])
+        target: dict[str, object] = {
+            "position": fk.position_m[0, manifest.task.position_axes].tolist()
+        }
+        if manifest.task.orientation:
+            w, x, y, z = orientation_wxyz(fk.rotation[0])
+            target["orientation"] = {"w": w, "x": x, "y": y, "z": z}
+        bodies.append(
+            {"robot": manifest.robot, "task": manifest.task.name, "target": target,
+             "num_samples": num_samples, "seed": i}
+        )  # fmt: skip
+    wall, server_total = [], []
+    with httpx.Client(base_url=server.url, timeout=120.0) as client:
+        client.post("/smm", json=bodies[0]).raise_for_status()  # warm-up
+        for body in bodies:
+            start = time.perf_counter()
+            response = client.post("/smm", json=body)
+            wall.append((time.perf_counter() - start) * 1e3)
+            response.raise_for_status()
+            server_total.append(float(response.json()["timings_ms"]["total"]))
+    return {
+        "median_ms": float(np.median(wall)),
+        "p95_ms": float(np.percentile(wall, 95)),
+        "server_median_ms": float(np.median(server_total)),
+    }
+
+
+def benchmark_model(
+    model: ServedModel,
+    num_targets: int,
+    sizes: Sequence[int],
+    seed: int,
+    server: LocalServer | None,
+    progress: Callable[[str], None],
+) -> dict[str, object]:
+    manifest = model.manifest
+    lower, upper, _ = manifest.joints.arrays()
+    q_targets = uniform_configurations(lower, upper, num_targets, seed)
+    truths = [ground_truth(model, q, seed + i) for i, q in enumerate(q_targets)]
+    paper = with_defaults(model, sampler=PAPER_SAMPLER, correction_steps=PAPER_DLS_STEPS)
+    rows: dict[str, object] = {}
+    for n in sizes:
+        progress(f"{manifest.model_id} N={n}")
+        service = in_process(model, q_targets, n)
+        paper_run = in_process(paper, q_targets, n)
+        restart = restarts_to_match(model, q_targets, [a.kept for a in service.answers], n)
+        row: dict[str, object] = {
+            name: {**run.times(), "figures": figures(model, run.answers, truths)}
+            for name, run in ((SERVICE, service), (PAPER, paper_run), (RESTART, restart))
+        }
+        if server is not None:
+            row["http"] = over_http(server, model, q_targets, n)
+        rows[str(n)] = row
+    return {"model": model.reference, "targets": num_targets, "sizes": rows}
+
+
+def markdown(report: dict) -> str:
+    machine = Machine.from_json(report["machine"])
+    lines = [
+        "# Benchmark: time and truth, warm, on one machine in one run",
+        "",
+        f"Produced by `{report['command'].strip()}` on {machine.describe()}. "
+        f"onnxruntime threads per session: {report['onnx_threads']} "
+        "(the service's own setting on this machine). Targets per model: "
+        f"{report['targets']} held-out (seed {report['seed']}). Times are comparable only "
+        "within this report.",
+        "",
+        "| model | N | configuration | median ms | p95 ms | sample | correct | connect | valid "
+        "configs | count right | splits / target | merges / target | recall | coverage p95 rad |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for model_id, entry in report["models"].items():
+        for n, row in entry["sizes"].items():
+            for name in (SERVICE, PAPER, RESTART):
+                run = row[name]
+                stage = run["median_stage_ms"] or {}
+                f = run["figures"]
+                sample = stage.get("sample", stage.get("solve"))
+                lines.append(
+                    f"| {model_id} | {n} | {name} | {run['median_ms']:.1f} | {run['p95_ms']:.1f} | "
+                    f"{_ms(sample)} | {_ms(stage.get('correct'))} | "
+                    f"{_ms(stage.get('connect'))} | {run['valid_configurations_mean']:.0f} | "
+                    f"{f['count_right']:.3g} | {_num(f.get('splits_per_target'))} | "
+                    f"{_num(f.get('merges_per_target'))} | {_num(f.get('recall'))} | "
+                    f"{f['coverage_p95_rad']:.3g} |"
+                )
+    if any("http" in row for e in report["models"].values() for row in e["sizes"].values()):
+        lines += [
+            "",
+            "Over HTTP (`smm-serve` on 127.0.0.1, default settings, one request at a time; "
+            "client wall time, and the server's own `timings_ms.total`):",
+            "",
+            "| model | N | median ms | p95 ms | server median ms | in process median ms |",
+            "|---|---|---|---|---|---|",
+        ]
+        for model_id, entry in report["models"].items():
+            for n, row in entry["sizes"].items():
+                if "http" in row:
+                    h = row["http"]
+                    lines.append(
+                        f"| {model_id} | {n} | {h['median_ms']:.1f} | {h['p95_ms']:.1f} | "
+                        f"{h['server_median_ms']:.1f} | {row[SERVICE]['median_ms']:.1f} |"
+                    )
+    lines += [
+        "",
+        "Stages: sample (the flow's Euler steps; `solve` for restart DLS), correct (DLS), "
+        "connect (components on the fibre); the median of each over the targets, so they "
+        "need not add up to the median of the whole. Valid configs: configurations within "
+        "tolerance and the limits per target (restart DLS is run to the service's count). "
+        "Figures against the exact ground truth of `training/evaluate` (definitions: "
+        "docs/reports/iiwa14-pose.md); recall: the fraction of exact components holding a "
+        "returned configuration.",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def _ms(value: object) -> str:
+    return "-" if value is None else f"{float(value):.1f}"  # type: ignore[arg-type]
+
+
+def _num(value: object) -> str:
+    return "-" if value is None else f"{float(value):.3g}"  # type: ignore[arg-type]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawTextHelpFormatter
+    )
+    bundled = sorted(p.name for p in REPO_MODELS_DIR.iterdir() if (p / "manifest.json").exists())
+    parser.add_argument("--models", nargs="+", default=bundled, choices=bundled)
+    parser.add_argument("--sizes", nargs="+", type=int, default=list(SIZES))
+    parser.add_argument("--targets", type=int, default=20)
+    parser.add_argument("--seed", type=int, default=7)
+    parser.add_argument("--no-http", action="store_true", help="skip the HTTP measurement")
+    parser.add_argument("--out", type=Path, default=OUT_DIR)
+    args = parser.parse_args()
+    threads = Settings().onnx_threads_per_session
+    machine = Machine.now()
+    report: dict = {
+        "command": "python -m tools.benchmark "
+        + " ".join(
+            [f"--models {' '.join(args.models)}"] * (args.models != bundled)
+            + [f"--sizes {' '.join(map(str, args.sizes))}"] * (tuple(args.sizes) != SIZES)
+            + [f"--targets {args.targets}"] * (args.targets != 20)
+            + ["--no-http"] * args.no_http
+        ),
+        "onnx_threads": threads,
+        "targets": args.targets,
+        "seed": args.seed,
+        "models": {},
+    }
+    server = None if args.no_http else LocalServer().start()
+    try:
+        for model_id in args.models:
+            model = load_model(REPO_MODELS_DIR / model_id, threads=threads)
+            report["models"][model_id] = benchmark_model(
+                model, args.targets, args.sizes, args.seed, server,
+                lambda line: print(line, flush=True),
+            )  # fmt: skip
+    finally:
+        if server is not None:
+            server.stop()
+    report["machine"] = machine.ended().as_json()
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "benchmark.json").write_text(json.dumps(report, indent=1) + "\n")
+    (args.out / "benchmark.md").write_text(markdown(report))
+    print(markdown(report))
+
+
+if __name__ == "__main__":
+    main()
