@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -203,7 +204,7 @@ def markdown(report: dict) -> str:
     lines = [
         "# Benchmark: time and truth, warm, on one machine in one run",
         "",
-        f"Produced by `{report['command'].strip()}` on {machine.describe()}. "
+        f"Produced by `{report['command']}` on {machine.describe()}. "
         f"onnxruntime threads per session: {report['onnx_threads']} "
         "(the service's own setting on this machine). Targets per model: "
         f"{report['targets']} held-out (seed {report['seed']}). Times are comparable only "
@@ -342,13 +343,7 @@ def main() -> None:
     threads = Settings().onnx_threads_per_session
     machine = Machine.now()
     report: dict = {
-        "command": "python -m tools.benchmark "
-        + " ".join(
-            [f"--models {' '.join(args.models)}"] * (args.models != bundled)
-            + [f"--sizes {' '.join(map(str, args.sizes))}"] * (tuple(args.sizes) != SIZES)
-            + [f"--targets {args.targets}"] * (args.targets != 20)
-            + ["--no-http"] * args.no_http
-        ),
+        "command": " ".join(["python -m tools.benchmark", *sys.argv[1:]]),
         "onnx_threads": threads,
         "targets": args.targets,
         "seed": args.seed,

@@ -54,15 +54,20 @@ class SpliceSettings:
 
 
 @dataclass(frozen=True)
-class _Gap:
-    """Exact points filling the gap between two spliced ends, in order from the first."""
+class _Points:
+    """Exact points in order with their errors: a gap's filling or a piece's path."""
 
     q_rad: FloatArray  # (g, n)
     position_error_m: FloatArray  # (g,)
     orientation_error_rad: FloatArray  # (g,)
 
-    def reversed(self) -> _Gap:
-        return _Gap(self.q_rad[::-1], self.position_error_m[::-1], self.orientation_error_rad[::-1])
+    def reversed(self) -> _Points:
+        backwards = slice(None, None, -1)
+        return _Points(
+            self.q_rad[backwards],
+            self.position_error_m[backwards],
+            self.orientation_error_rad[backwards],
+        )
 
 
 @dataclass(frozen=True)
@@ -121,7 +126,7 @@ def splice_paths(
         fibre, q_end[a], q_end[b], lower_rad, upper_rad, periodic, settings.planner,
         deadline=deadline, coaxial=coaxial,
     )  # fmt: skip
-    joins: dict[int, tuple[int, _Gap]] = {}  # end -> (the end it joins, points between)
+    joins: dict[int, tuple[int, _Points]] = {}  # end -> (the end it joins, points between)
     for p in np.flatnonzero(walks.reached)[np.argsort(length[walks.reached], kind="stable")]:
         i, j = int(a[p]), int(b[p])
         if i in joins or j in joins:
@@ -151,7 +156,7 @@ def _gap_points(
     upper_rad: FloatArray,  # (n,)
     periodic: BoolArray,
     settings: SpliceSettings,
-) -> _Gap | None:  # None: a point could not be made exact inside the limits
+) -> _Points | None:  # None: a point could not be made exact inside the limits
     """Points of the walk, thinned so that no step of a -> points -> b exceeds the
     spacing, each taken onto the fibre by undamped Newton and checked against the
     tolerance and the limits."""
@@ -160,7 +165,7 @@ def _gap_points(
     arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(chain, axis=0), axis=1))])
     count = int(np.ceil(arc[-1] / (0.9 * settings.spacing_rad))) - 1  # inner points needed
     if count <= 0:
-        return _Gap(chain[:0], np.zeros(0), np.zeros(0))
+        return _Points(chain[:0], np.zeros(0), np.zeros(0))
     picks = np.unique(np.searchsorted(arc, arc[-1] * np.arange(1, count + 1) / (count + 1)))
     picks = picks[(picks > 0) & (picks < len(chain) - 1)]
     polished = project(
@@ -180,13 +185,13 @@ def _gap_points(
     )  # fmt: skip
     if not exact.all() or steps.max() > settings.spacing_rad:
         return None
-    return _Gap(q, position, orientation)
+    return _Points(q, position, orientation)
 
 
 def _chains(
     paths: list[ComponentPath],
     ends: list[_End],
-    joins: dict[int, tuple[int, _Gap]],
+    joins: dict[int, tuple[int, _Points]],
     periodic: BoolArray,
 ) -> list[ComponentPath]:
     """Each run of paths joined end to end as one path (closed when it comes back round);
@@ -203,7 +208,7 @@ def _chains(
             end_of.get((start, True)) not in joins
         )  # fmt: skip
         parts: list[tuple[ComponentPath, bool]] = []  # (path, walked backwards)
-        gaps: list[_Gap] = []
+        gaps: list[_Points] = []
         path, backwards, closed = start, entered_last, False
         while True:
             used[path] = True
@@ -228,7 +233,7 @@ def _chains(
 
 
 def _chain_starts(
-    paths: list[ComponentPath], ends: list[_End], joins: dict[int, tuple[int, _Gap]]
+    paths: list[ComponentPath], ends: list[_End], joins: dict[int, tuple[int, _Points]]
 ) -> list[int]:
     """Paths in an order that starts every open chain at one of its ends: paths with an
     unjoined end first, then the rest (loops of spliced pieces)."""
@@ -240,13 +245,13 @@ def _chain_starts(
 
 
 def _joined(
-    parts: list[tuple[ComponentPath, bool]], gaps: list[_Gap], closed: bool, periodic: BoolArray
+    parts: list[tuple[ComponentPath, bool]], gaps: list[_Points], closed: bool, periodic: BoolArray
 ) -> ComponentPath:
     """Pieces (each forwards or backwards) with the gap points between them, as one path
     (a loop ends with the gap that closes it)."""
-    blocks: list[_Gap] = []
+    blocks: list[_Points] = []
     for index, (path, backwards) in enumerate(parts):
-        piece = _Gap(path.q_rad, path.position_error_m, path.orientation_error_rad)
+        piece = _Points(path.q_rad, path.position_error_m, path.orientation_error_rad)
         blocks.append(piece.reversed() if backwards else piece)
         if index < len(gaps):
             blocks.append(gaps[index])
