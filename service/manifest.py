@@ -20,6 +20,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 REPO_MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
 MANIFEST_FILE = "manifest.json"
 FLOW_FILE = "flow.onnx"
+FLOW_INT8_FILE = "flow_int8.onnx"
 KINEMATICS_FILE = "kinematics.onnx"
 CHAIN_FILE = "chain.json"
 
@@ -99,11 +100,24 @@ class ConditionSpec(_Strict):
     normalisation: AffineNormalisation
 
 
+Precision = Literal["float32", "int8"]
+# The flow network file of each precision: the float32 export, and its int8 dynamic
+# quantisation (training/quantise.py), same inputs and outputs.
+FLOW_FILES: dict[str, str] = {"float32": FLOW_FILE, "int8": FLOW_INT8_FILE}
+
+
 class SamplerSpec(_Strict):
     """How stage 2 integrates the flow: explicit Euler over the time grid
-    t_k = 1 - (1 - k / steps) ** time_power (service/pipeline/sampling.py)."""
+    t_k = 1 - (1 - k / steps) ** time_power (service/pipeline/sampling.py), with the
+    flow network of `precision`."""
 
     method: Literal["euler"] = "euler"
+    precision: Precision = Field(
+        default="float32",
+        description="float32: flow.onnx as trained; int8: flow_int8.onnx, its weights "
+        "quantised to int8 with activations quantised per batch (onnxruntime dynamic "
+        "quantisation), chosen by the sweep when its samples are as good",
+    )
     steps: int = Field(ge=1)
     time_power: float = Field(
         default=1.0,
@@ -178,6 +192,7 @@ class RawError(_Strict):
 
     sampler_steps: int
     sampler_time_power: float = 1.0  # the Euler grid's power (SamplerSpec.time_power)
+    sampler_precision: Precision = "float32"  # the flow network's (SamplerSpec.precision)
     position_error_mm_mean: float
     position_error_mm_median: float
     position_error_pct_reach_mean: float

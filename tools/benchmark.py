@@ -9,6 +9,8 @@ targets: FK of configurations uniform in the limits, seed 7, the first --targets
 - the service's pipeline in process, with the model's defaults and the onnxruntime
   threads the service itself would use on this machine (`Settings`), median and p95 of
   the whole answer and of each stage;
+- the same with the float32 flow network where the defaults serve the int8 one (what
+  int8 alone changes, in time and in truth);
 - the paper's configuration (100 uniform Euler steps, fp32, 3 DLS steps) run by the same
   code, the same way;
 - random-restart DLS (pytorch-kinematics, uniform restarts, the service's acceptance and
@@ -63,6 +65,7 @@ PAPER_SAMPLER = SamplerSpec(steps=100, time_power=1.0)
 PAPER_DLS_STEPS = 3
 MATCH_ROUNDS = 4  # rescaled restart runs at most, to reach the service's valid count
 SERVICE, PAPER, RESTART = "service", "paper (100 Euler, 3 DLS)", "random-restart DLS"
+FLOAT32 = "service, float32 network"
 
 
 @dataclass(frozen=True)
@@ -178,15 +181,20 @@ def benchmark_model(
     q_targets = uniform_configurations(lower, upper, num_targets, seed)
     truths = [ground_truth(model, q, seed + i) for i, q in enumerate(q_targets)]
     paper = with_defaults(model, sampler=PAPER_SAMPLER, correction_steps=PAPER_DLS_STEPS)
+    sampler = manifest.defaults.sampler
+    float32 = with_defaults(model, sampler=sampler.model_copy(update={"precision": "float32"}))
     rows: dict[str, object] = {}
     for n in sizes:
         progress(f"{manifest.model_id} N={n}")
         service = in_process(model, q_targets, n)
-        paper_run = in_process(paper, q_targets, n)
-        restart = restarts_to_match(model, q_targets, [a.kept for a in service.answers], n)
+        runs = {SERVICE: service}
+        if manifest.defaults.sampler.precision != "float32":
+            runs[FLOAT32] = in_process(float32, q_targets, n)
+        runs[PAPER] = in_process(paper, q_targets, n)
+        runs[RESTART] = restarts_to_match(model, q_targets, [a.kept for a in service.answers], n)
         row: dict[str, object] = {
             name: {**run.times(), "figures": figures(model, run.answers, truths)}
-            for name, run in ((SERVICE, service), (PAPER, paper_run), (RESTART, restart))
+            for name, run in runs.items()
         }
         if server is not None:
             row["http"] = over_http(server, model, q_targets, n)
@@ -195,6 +203,7 @@ def benchmark_model(
         "model": model.reference,
         "targets": num_targets,
         "sampler_steps": manifest.defaults.sampler.steps,
+        "sampler_precision": manifest.defaults.sampler.precision,
         "sizes": rows,
     }
 
@@ -216,7 +225,9 @@ def markdown(report: dict) -> str:
     ]
     for model_id, entry in report["models"].items():
         for n, row in entry["sizes"].items():
-            for name in (SERVICE, PAPER, RESTART):
+            for name in (SERVICE, FLOAT32, PAPER, RESTART):
+                if name not in row:
+                    continue
                 run = row[name]
                 stage = run["median_stage_ms"] or {}
                 f = run["figures"]
@@ -300,17 +311,20 @@ def _where_the_time_goes(report: dict) -> list[str]:
         "Where the service's time goes (N = 1000, medians): the share of each stage and the "
         "cost of one evaluation of the flow network for the N samples (sample / Euler steps):",
         "",
-        "| model | Euler steps | ms per network evaluation | sample % | correct % | connect % |",
-        "|---|---|---|---|---|---|",
+        "| model | Euler steps | network | ms per network evaluation | sample % | correct % "
+        "| connect % |",
+        "|---|---|---|---|---|---|---|",
     ]
     for model_id, entry in report["models"].items():
         row = entry["sizes"].get("1000")
         if row is None:
             continue
         run, steps = row[SERVICE], entry["sampler_steps"]
+        precision = entry.get("sampler_precision", "float32")
         stage, total = run["median_stage_ms"] or {}, run["median_ms"]
         lines.append(
-            f"| {model_id} | {steps} | {stage.get('sample', float('nan')) / steps:.1f} | "
+            f"| {model_id} | {steps} | {precision} | "
+            f"{stage.get('sample', float('nan')) / steps:.1f} | "
             + " | ".join(f"{100 * stage.get(s, float('nan')) / total:.0f}" for s in STAGES)
             + " |"
         )

@@ -4,8 +4,9 @@ The kinematics go out twice from the same pytorch-kinematics chain: kinematics.o
 traced FK and Jacobian) and chain.json (the chain as data, for the service's numpy
 kernel). Parity is checked on random inputs: onnxruntime and the numpy kernel must
 reproduce torch (flow in float32, kinematics in float64) or the export fails loudly and
-nothing is left half-written. `refresh_kinematics` re-exports only the kinematics of an
-existing model directory (its flow untouched).
+nothing is left half-written. The flow also goes out in int8 (training/quantise.py, with
+its own guard); the sweep decides which of the two serves. `refresh_kinematics`
+re-exports only the kinematics of an existing model directory (its flow untouched).
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ import torch
 from service.manifest import (
     CHAIN_FILE,
     FLOW_FILE,
+    FLOW_INT8_FILE,
     KINEMATICS_FILE,
     MANIFEST_FILE,
     ChainSpec,
@@ -53,6 +55,7 @@ from training.kinematics import (
     measured_reach_m,
 )
 from training.model import VelocityField
+from training.quantise import quantise_flow
 from training.robots import RobotSpec
 from training.sweep import sweep_defaults
 
@@ -217,7 +220,8 @@ def export_model(
     code_commit: str,
     export_commit: str | None = None,
 ) -> Manifest:
-    """Write flow.onnx, kinematics.onnx, chain.json and manifest.json into `model_dir`; measure.
+    """Write flow.onnx, flow_int8.onnx, kinematics.onnx, chain.json and manifest.json into
+    `model_dir`; choose the serving defaults (the sweep) and measure.
 
     The manifest's reach L is measured on the chain (`measured_reach_m`: the farthest the
     end effector gets from the base-link origin within the limits), not typed in.
@@ -230,6 +234,7 @@ def export_model(
     shutil.rmtree(staging, ignore_errors=True)
     staging.mkdir(parents=True)
     export_flow(result.model, staging / FLOW_FILE, joints.count, data.condition.shape[1])
+    quantise_flow(staging / FLOW_FILE, staging / FLOW_INT8_FILE)
     export_kinematics(fk, staging / KINEMATICS_FILE, joints)
     export_chain(fk, staging / CHAIN_FILE, joints)
     model_id = f"{robot.name}-{task.name}"
@@ -246,7 +251,8 @@ def export_model(
             names=condition_names(task), normalisation=data.condition_normalisation
         ),
         files={
-            name: sha256_of(staging / name) for name in (FLOW_FILE, KINEMATICS_FILE, CHAIN_FILE)
+            name: sha256_of(staging / name)
+            for name in (FLOW_FILE, FLOW_INT8_FILE, KINEMATICS_FILE, CHAIN_FILE)
         },
         defaults=serving_defaults(model_id, task, joints.count - task.dimension),
         training=TrainingRecord(

@@ -36,13 +36,16 @@ components downstream differ too little between powers for the agreement measure
 tell them apart on 20 targets, while the raw error does (iiwa14 pose 8x model, 20 steps:
 23.1 mm uniform, 15.0 mm at p = 1.5).
 
-Candidates, one axis at a time: Euler sampler steps {10, 20, 50}, then DLS correction
+Candidates, one axis at a time: the flow network's precision {32-bit, 8-bit} (float32
+flow.onnx or its int8 quantisation flow_int8.onnx, training/quantise.py, when the model
+has one), then Euler sampler steps {2, 4, 8, 20}, then DLS correction
 steps {3, 6, 10}, then num_samples {500, 1000, 2000}, then the connectivity step: for
 r = 1 the continuation step h of the trace {0.075, 0.15, 0.3} rad, for r > 1 the local
 planner's delta {0.15, 0.3, 0.6} rad. An axis is swept with the others at their values so
 far (the model's starting defaults, `training.defaults.serving_defaults`, replaced by each
 axis's choice as it is made), so the last axis measures exactly the chosen setting. Cost
-grows with the value of the first three axes (sampler steps x N network evaluations, DLS
+grows with the value of the first four axes (the network's bits, sampler steps x N network
+evaluations, DLS
 steps x N Jacobians, N) and shrinks with the connectivity step (a curve of length L takes
 L / h continuation steps, an edge of length l takes l / delta projections), so "cheaper"
 means the smaller count or the longer step. A longer step is also the riskier one: the
@@ -52,11 +55,23 @@ reference that decides components with the finest candidate step is what shows i
 
 Rule, applied per axis by `pick`: among the candidates answering as many targets as the
 best one (every target whenever any candidate does), take the cheapest whose keep rate is
-within KEEP_RATE_MARGIN, count right within COUNT_RIGHT_MARGIN and recall within
-RECALL_MARGIN of the best candidate's on that axis, and that merges no more reference
+within the axis's keep-rate margin (`keep_rate_margin`), count right within
+COUNT_RIGHT_MARGIN, recall within RECALL_MARGIN and coverage p95 within COVERAGE_MARGIN
+(relative) of the best candidate's on that axis, and that merges no more reference
 components than the candidate merging fewest (MERGES_MARGIN). When none is within all the
 margins, take the best count right (then the fewer merges, the keep rate, the recall; ties
 to the cheaper).
+
+The keep-rate margin is KEEP_RATE_MARGIN on every axis but the sampler's steps, where it
+is SAMPLER_KEEP_RATE_MARGIN. Fewer Euler steps land more samples where the DLS steps do
+not converge: the answer holds fewer configurations, not wrong components, and what a
+planner needs of the samples is judged directly by count right, merges, recall and
+coverage (for r = 1 the samples only seed the traced curves, which come whole; for
+r > 1 fewer samples cover the fibre less, which the coverage margin catches). Measured on
+the iiwa14 pose model (20 targets of the benchmark, N = 1000, int8): keep rate 87 % at 20
+steps, 85 % at 8, 76 % at 4, 33 % at 2, with every component found at 2 to 20, and 93,
+67 and 56 ms per answer at 8, 4 and 2 steps against 176 ms at 20. A one-point margin
+kept 20 steps.
 
 Merges have no margin of their own: a merge promises a self-motion that does not exist
 (the planner's motion fails halfway), where a split only hides one, and the count-right
@@ -70,6 +85,8 @@ and radii, the path spacing of the contract), taken from the per-r table of
 `training.defaults`.
 
     python -m training.sweep --model-dir models/iiwa14-pose --targets 20 [--out sweep.json]
+    python -m training.sweep --model-dir models/iiwa14-pose \\
+        --axes flow_precision_bits,sampler_steps --write   # re-sweep some axes, keep the rest
 """
 
 from __future__ import annotations
@@ -85,7 +102,15 @@ from typing import Literal, get_args
 
 import numpy as np
 
-from service.manifest import ConnectivitySpec, Defaults, SamplerSpec
+from service.manifest import (
+    FLOW_INT8_FILE,
+    MANIFEST_FILE,
+    ConnectivitySpec,
+    Defaults,
+    Manifest,
+    Precision,
+    SamplerSpec,
+)
 from service.models.registry import ServedModel, load_model
 from service.pipeline.arrays import BoolArray, FloatArray, IntArray
 from service.pipeline.correction import task_error_norms
@@ -104,6 +129,11 @@ from training.evaluate.targets import held_out_targets
 # models' sweeps saw between 20 and 50 Euler steps; one target in 20 of count right; two
 # points of recall is one reference component in 50.
 KEEP_RATE_MARGIN = 0.01
+# The sampler steps' keep-rate margin (the module docstring says why it is wider).
+SAMPLER_KEEP_RATE_MARGIN = 0.15
+# Coverage p95 may exceed the best candidate's by this fraction of it: the 20-target
+# p95 moves by ~1-3 % between settings that find the same components (the bundled sweeps).
+COVERAGE_MARGIN = 0.10
 COUNT_RIGHT_MARGIN = 0.05
 RECALL_MARGIN = 0.02
 # Merged reference components per target a candidate may have beyond the fewest on its axis.
@@ -118,21 +148,32 @@ MIN_COMPONENT_SHARE = 0.01
 # candidates' own.
 REFERENCE_SEED_OFFSET = 1_000_003
 
-Axis = Literal["sampler_steps", "correction_steps", "num_samples", "connectivity_step_rad"]
+Axis = Literal[
+    "flow_precision_bits",
+    "sampler_steps",
+    "correction_steps",
+    "num_samples",
+    "connectivity_step_rad",
+]
 AXES: tuple[Axis, ...] = get_args(Axis)
 # The Defaults reason each axis writes, and how its value reads in a reason.
 _REASON_KEY: dict[Axis, str] = {
+    "flow_precision_bits": "sampler_precision",
     "sampler_steps": "sampler",
     "correction_steps": "correction_steps",
     "num_samples": "num_samples",
     "connectivity_step_rad": "connectivity",
 }
 _UNIT: dict[Axis, str] = {
+    "flow_precision_bits": "bit flow",
     "sampler_steps": "Euler steps",
     "correction_steps": "DLS steps",
     "num_samples": "samples",
     "connectivity_step_rad": "rad connectivity step",
 }
+# The flow network's precision as the flow_precision_bits axis counts it, and back.
+_BITS: dict[Precision, int] = {"float32": 32, "int8": 8}
+_PRECISION: dict[int, Precision] = {bits: precision for precision, bits in _BITS.items()}
 # Axes whose cost falls as their value grows (a longer step takes fewer of them).
 _LONGER_IS_CHEAPER: frozenset[Axis] = frozenset({"connectivity_step_rad"})
 
@@ -153,7 +194,8 @@ class SweepPlan:
     """The candidates of each axis and the reference's budget."""
 
     time_powers: tuple[float, ...] = (1.0, 1.5, 2.0)  # the first is the uniform grid
-    sampler_steps: tuple[int, ...] = (10, 20, 50)
+    flow_precision_bits: tuple[int, ...] = (32, 8)  # 8 only where the model has int8
+    sampler_steps: tuple[int, ...] = (2, 4, 8, 20)
     correction_steps: tuple[int, ...] = (3, 6, 10)
     num_samples: tuple[int, ...] = (500, 1000, 2000)
     trace_step_rad: tuple[float, ...] = (0.075, 0.15, 0.3)  # r = 1
@@ -191,18 +233,25 @@ class Setting:
     num_samples: int
     connectivity_step_rad: float  # trace step h (r = 1) or planner delta (r > 1)
     time_power: float = 1.0  # of the sampler's time grid, chosen before the axes
+    flow_precision_bits: int = 32  # 32: flow.onnx (float32), 8: flow_int8.onnx
 
     @classmethod
     def of(cls, defaults: Defaults, redundancy: int) -> Setting:
         step = getattr(defaults.connectivity, connectivity_step_field(redundancy))
+        bits = _BITS[defaults.sampler.precision]
         return cls(
             defaults.sampler.steps, defaults.correction_steps, defaults.num_samples, step,
-            defaults.sampler.time_power,
+            defaults.sampler.time_power, bits,
         )  # fmt: skip
 
     @property
     def sampler(self) -> SamplerSpec:
-        return SamplerSpec(method="euler", steps=self.sampler_steps, time_power=self.time_power)
+        return SamplerSpec(
+            method="euler",
+            steps=self.sampler_steps,
+            time_power=self.time_power,
+            precision=_PRECISION[self.flow_precision_bits],
+        )
 
     def value(self, axis: Axis) -> float:
         value: float = getattr(self, axis)
@@ -317,6 +366,8 @@ class SweepResult:
             "plan": {**asdict(self.plan), "reference_samples": self.plan.reference_samples},
             "margins": {
                 "keep_rate": KEEP_RATE_MARGIN,
+                "sampler_steps_keep_rate": SAMPLER_KEEP_RATE_MARGIN,
+                "coverage_p95_relative": COVERAGE_MARGIN,
                 "count_right": COUNT_RIGHT_MARGIN,
                 "recall": RECALL_MARGIN,
                 "merges_per_target": MERGES_MARGIN,
@@ -349,13 +400,16 @@ def pick(rows: Sequence[Candidate]) -> Candidate:
     best_keep = max(row.measures.keep_rate for row in rows)
     best_count = max(row.measures.count_right for row in rows)
     best_recall = max((_recall(row) for row in rows), default=0.0)
+    best_coverage = min(_coverage(row) for row in rows)
     fewest_merges = min(row.measures.merges_per_target for row in rows)
+    keep_margin = keep_rate_margin(rows[0].axis)
     within = [
         row
         for row in answering
-        if row.measures.keep_rate >= best_keep - KEEP_RATE_MARGIN
+        if row.measures.keep_rate >= best_keep - keep_margin
         and row.measures.count_right >= best_count - COUNT_RIGHT_MARGIN
         and _recall(row) >= best_recall - RECALL_MARGIN
+        and _coverage(row) <= best_coverage * (1.0 + COVERAGE_MARGIN)
         and row.measures.merges_per_target <= fewest_merges + MERGES_MARGIN
     ]
     if within:
@@ -381,6 +435,17 @@ def pick_time_power(rows: Sequence[TimePowerRow]) -> TimePowerRow:
     if lowest.raw_error_pct_reach <= (1.0 - TIME_POWER_GAIN) * rows[0].raw_error_pct_reach:
         return lowest
     return rows[0]
+
+
+def keep_rate_margin(axis: Axis) -> float:
+    """How far below the best keep rate a candidate of `axis` may be (module docstring)."""
+    return SAMPLER_KEEP_RATE_MARGIN if axis == "sampler_steps" else KEEP_RATE_MARGIN
+
+
+def _coverage(row: Candidate) -> float:
+    """Coverage p95 for the rule: no reference configuration to cover puts none behind."""
+    coverage = row.measures.coverage_p95_rad
+    return 0.0 if coverage is None else coverage
 
 
 def _recall(row: Candidate) -> float:
@@ -570,7 +635,7 @@ def raw_error(
     ):
         target = encode_target(task, manifest.condition, position, wxyz)
         q_raw = sample_configurations(
-            model.velocity, target.condition, num_samples, sampler,
+            model.networks[sampler.precision], target.condition, num_samples, sampler,
             manifest.joint_normalisation, periodic, np.random.default_rng(seed + i),
         )  # fmt: skip
         errors.append(task_error_norms(model.kinematics(q_raw), target, task))
@@ -598,12 +663,17 @@ def sweep_defaults(
     seed: int,
     plan: SweepPlan = SweepPlan(),
     progress: Callable[[str], None] = _quiet,
+    axes: Sequence[Axis] = AXES,
 ) -> SweepResult:
-    """Choose the model's sampler steps, DLS steps, num_samples and connectivity step by the
-    rule of the module docstring, starting from its manifest's defaults; the rest of them
-    is kept."""
+    """Choose the model's flow precision, sampler steps (and the time grid with them), DLS
+    steps, num_samples and connectivity step by the rule of the module docstring, starting
+    from its manifest's defaults; only `axes` are swept (in AXES order), the rest is kept."""
     if targets < 1:
         raise ValueError(f"a sweep needs at least 1 target, got {targets}")
+    unknown = [axis for axis in axes if axis not in AXES]
+    if unknown or not axes:
+        raise ValueError(f"unknown or no axes {list(axes)}; choose from {list(AXES)}")
+    axes = [axis for axis in AXES if axis in axes]
     manifest = model.manifest
     redundancy = manifest.redundancy
     for axis in AXES:
@@ -630,17 +700,18 @@ def sweep_defaults(
     table: list[Candidate] = []
     reasons: dict[str, str] = {}
     chosen = Setting.of(manifest.defaults, redundancy)
-    powers = []
-    for power in plan.time_powers:
-        sampler = chosen.sampler.model_copy(update={"time_power": power})
-        powers.append(raw_error(model, sampler, drawn, chosen.num_samples, seed))
-        progress(f"sweep: time power {power:g}: {_raw_figures(powers[-1])}")
-    power_choice = pick_time_power(powers)
-    chosen = replace(chosen, time_power=power_choice.time_power)
-    power_reason = time_power_reason(powers, power_choice, chosen, seed)
-    for axis in AXES:
+    powers: list[TimePowerRow] = []
+    if "sampler_steps" in axes:
+        for power in plan.time_powers:
+            sampler = chosen.sampler.model_copy(update={"time_power": power})
+            powers.append(raw_error(model, sampler, drawn, chosen.num_samples, seed))
+            progress(f"sweep: time power {power:g}: {_raw_figures(powers[-1])}")
+        power_choice = pick_time_power(powers)
+        chosen = replace(chosen, time_power=power_choice.time_power)
+        power_reason = time_power_reason(powers, power_choice, chosen, seed)
+    for axis in axes:
         rows = []
-        for value in plan.candidates(axis, redundancy):
+        for value in _candidates(plan, axis, manifest):
             setting = chosen.with_value(axis, value)
             if setting not in measured:
                 measured[setting] = summarise(
@@ -655,11 +726,13 @@ def sweep_defaults(
         table += rows
         reasons[_REASON_KEY[axis]] = axis_reason(rows, best, seed, plan, redundancy)
         chosen = best.setting
-    reasons["sampler"] = f"{reasons['sampler']}. Time grid: {power_reason}"
-    reasons["connectivity"] = (
-        f"{connectivity_step_field(redundancy)} = {reasons['connectivity']}; the other "
-        f"parameters from the per-r table of training/defaults.py: {CONNECTIVITY_REASON}"
-    )
+    if "sampler_steps" in axes:
+        reasons["sampler"] = f"{reasons['sampler']}. Time grid: {power_reason}"
+    if "connectivity_step_rad" in axes:
+        reasons["connectivity"] = (
+            f"{connectivity_step_field(redundancy)} = {reasons['connectivity']}; the other "
+            f"parameters from the per-r table of training/defaults.py: {CONNECTIVITY_REASON}"
+        )
     defaults = Defaults.model_validate(
         {
             **manifest.defaults.model_dump(),
@@ -683,14 +756,40 @@ def sweep_defaults(
     )
 
 
+def _candidates(plan: SweepPlan, axis: Axis, manifest: Manifest) -> tuple[float, ...]:
+    """The plan's candidates of `axis` that the model can serve: 8 bits only with an int8
+    network (models exported before training/quantise.py have none)."""
+    values = plan.candidates(axis, manifest.redundancy)
+    if axis == "flow_precision_bits" and FLOW_INT8_FILE not in manifest.files:
+        values = tuple(v for v in values if v == _BITS["float32"]) or (_BITS["float32"],)
+    return values
+
+
 def choose_defaults(
-    model_dir: Path, targets: int, seed: int, plan: SweepPlan = SweepPlan(), threads: int = 1
+    model_dir: Path,
+    targets: int,
+    seed: int,
+    plan: SweepPlan = SweepPlan(),
+    threads: int = 1,
+    axes: Sequence[Axis] = AXES,
 ) -> SweepResult:
     """`sweep_defaults` on the model in `model_dir`, loaded as the service loads it (its
     progress on standard error)."""
     return sweep_defaults(
-        load_model(model_dir, threads=threads), targets, seed, plan, progress=_to_stderr
-    )
+        load_model(model_dir, threads=threads), targets, seed, plan, progress=_to_stderr,
+        axes=axes,
+    )  # fmt: skip
+
+
+def write_defaults(model_dir: Path, defaults: Defaults) -> Manifest:
+    """Replace the serving defaults in `model_dir`'s manifest (nothing else in it changes)
+    and check that the model still loads as the service loads it."""
+    path = model_dir / MANIFEST_FILE
+    manifest = Manifest.model_validate_json(path.read_bytes())
+    manifest = manifest.model_copy(update={"defaults": defaults})
+    path.write_text(manifest.model_dump_json(indent=2, exclude_unset=True) + "\n")
+    load_model(model_dir, threads=1)
+    return manifest
 
 
 def _to_stderr(line: str) -> None:
@@ -733,6 +832,11 @@ def time_power_reason(
     )
 
 
+def _points(fraction: float) -> str:
+    points = fraction * 100
+    return f"{points:g} point" + ("" if points == 1 else "s")
+
+
 def axis_reason(
     rows: Sequence[Candidate], best: Candidate, seed: int, plan: SweepPlan, redundancy: int
 ) -> str:
@@ -742,9 +846,10 @@ def axis_reason(
     reference = plan.reference_setting(redundancy)
     return (
         f"{best.value} {_UNIT[axis]} by the rule of training/sweep.py (the cheapest "
-        f"candidate answering the most targets within {KEEP_RATE_MARGIN * 100:g} point of the "
-        f"best keep rate, {COUNT_RIGHT_MARGIN * 100:g} points of the best count right and "
-        f"{RECALL_MARGIN * 100:g} points of the best recall, merging no more than the "
+        f"candidate answering the most targets within {_points(keep_rate_margin(axis))} "
+        f"of the best keep rate, {COUNT_RIGHT_MARGIN * 100:g} points of the best "
+        f"count right, {RECALL_MARGIN * 100:g} points of the best recall and "
+        f"{COVERAGE_MARGIN * 100:g} % of the best coverage p95, merging no more than the "
         f"fewest); "
         f"{m.targets} held-out targets (FK of random configurations, seed {seed}), with "
         f"{best.setting.describe(leaving_out=axis)}, against a dense reference of the same "
@@ -761,12 +866,30 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=11, help="seed of the held-out targets")
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--out", type=Path, help="write the sweep table as JSON here")
+    parser.add_argument(
+        "--axes",
+        default=",".join(AXES),
+        help=f"comma-separated axes to sweep, the rest kept (default: all of {', '.join(AXES)})",
+    )
+    parser.add_argument(
+        "--write", action="store_true", help="write the chosen defaults into the manifest"
+    )
     args = parser.parse_args()
-    result = choose_defaults(args.model_dir, args.targets, args.seed, threads=args.threads)
+    axes = [axis.strip() for axis in args.axes.split(",") if axis.strip()]
+    unknown = [axis for axis in axes if axis not in AXES]
+    if unknown:
+        parser.error(f"--axes: unknown {unknown}; choose from {list(AXES)}")
+    result = choose_defaults(
+        args.model_dir, args.targets, args.seed, threads=args.threads,
+        axes=[axis for axis in AXES if axis in axes],
+    )  # fmt: skip
     text = json.dumps(result.as_json(), indent=1)
     if args.out:
         args.out.write_text(text + "\n")
     print(text)
+    if args.write:
+        write_defaults(args.model_dir, result.defaults)
+        print(f"defaults written to {args.model_dir / MANIFEST_FILE}", file=sys.stderr)
 
 
 if __name__ == "__main__":

@@ -22,7 +22,14 @@ import numpy as np
 from pydantic import ValidationError
 
 from service.errors import ModelUnavailableError, ModelVerificationError, UnknownModelError
-from service.manifest import CHAIN_FILE, FLOW_FILE, KINEMATICS_FILE, MANIFEST_FILE, Manifest
+from service.manifest import (
+    CHAIN_FILE,
+    FLOW_FILE,
+    FLOW_FILES,
+    KINEMATICS_FILE,
+    MANIFEST_FILE,
+    Manifest,
+)
 from service.models.chain import SerialChainKinematics
 from service.models.sessions import OnnxKinematics, OnnxVelocityField, open_session
 from service.pipeline.coaxial import find_coaxial_sets
@@ -46,10 +53,21 @@ def sha256_of(path: Path) -> str:
 @dataclass(frozen=True)
 class ServedModel:
     manifest: Manifest
-    velocity: OnnxVelocityField
+    networks: dict[str, OnnxVelocityField]  # the flow of each precision the manifest lists
     kinematics: Kinematics  # SerialChainKinematics (chain.json) or OnnxKinematics
     coaxial_sets: tuple[CoaxialSet, ...]  # where the chain's twin branches meet (coaxial.py)
     version: str  # first 12 hex digits of the sha256 over the model's file digests
+
+    @property
+    def velocity(self) -> OnnxVelocityField:
+        """The flow network of the sampler's precision (`SamplerSpec.precision`)."""
+        precision = self.manifest.defaults.sampler.precision
+        if precision not in self.networks:
+            raise ModelVerificationError(
+                f"{self.manifest.model_id}: sampler precision {precision!r} has no network; "
+                f"choose from {sorted(self.networks)}"
+            )
+        return self.networks[precision]
 
     @property
     def reference(self) -> str:
@@ -103,7 +121,8 @@ def load_model(model_dir: Path, threads: int) -> ServedModel:
         manifest = Manifest.model_validate_json(manifest_path.read_bytes())
     except (OSError, ValidationError) as error:
         raise ModelVerificationError(f"{manifest_path}: unreadable manifest: {error}") from error
-    for required in (FLOW_FILE, KINEMATICS_FILE):
+    precision_file = FLOW_FILES[manifest.defaults.sampler.precision]
+    for required in (FLOW_FILE, KINEMATICS_FILE, precision_file):
         if required not in manifest.files:
             raise ModelVerificationError(f"{manifest_path}: does not list {required}")
     for name, expected in sorted(manifest.files.items()):
@@ -116,7 +135,11 @@ def load_model(model_dir: Path, threads: int) -> ServedModel:
         kinematics = _load_chain(model_dir / CHAIN_FILE, manifest, onnx_kinematics)
     return ServedModel(
         manifest=manifest,
-        velocity=OnnxVelocityField(open_session(model_dir / FLOW_FILE, threads)),
+        networks={
+            precision: OnnxVelocityField(open_session(model_dir / name, threads))
+            for precision, name in FLOW_FILES.items()
+            if name in manifest.files
+        },
         kinematics=kinematics,
         coaxial_sets=tuple(find_coaxial_sets(kinematics, *manifest.joints.arrays())),
         version=hashlib.sha256(combined.encode()).hexdigest()[:12],

@@ -20,10 +20,24 @@ KINEMATICS_INPUT = "q"
 KINEMATICS_OUTPUTS = ("position", "rotation", "jacobian")
 
 
-def open_session(path: Path, threads: int) -> ort.InferenceSession:
+def session_options(threads: int) -> ort.SessionOptions:
+    """`threads` intra-op threads (0: onnxruntime's default, all cores), one inter-op.
+
+    The intra-op workers do not spin between calls: a spinning worker keeps its core busy
+    for a while after every network evaluation, which on a small machine steals that
+    core from the numpy stages of the same request (correction, connect) and from the
+    other request in flight.
+    """
     options = ort.SessionOptions()
-    options.intra_op_num_threads = threads  # 0: onnxruntime's default (all cores)
+    options.intra_op_num_threads = threads
     options.inter_op_num_threads = 1
+    options.add_session_config_entry("session.intra_op.allow_spinning", "0")
+    options.add_session_config_entry("session.inter_op.allow_spinning", "0")
+    return options
+
+
+def open_session(path: Path, threads: int) -> ort.InferenceSession:
+    options = session_options(threads)
     return ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
 
 

@@ -1,7 +1,7 @@
 """tools.benchmark: the command writes a report (JSON and Markdown) with every configuration
-for every size, over HTTP too, whose figures are the evaluation's (planar 3R: the count
-against the closed form); random-restart DLS is run to at least the service's number of
-valid configurations per target."""
+for every size (the float32 network beside an int8 default), over HTTP too, whose figures
+are the evaluation's (planar 3R: the count against the closed form); random-restart DLS is
+run to at least the service's number of valid configurations per target."""
 
 import json
 import subprocess
@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from service.models.registry import ServedModel
-from tools.benchmark import PAPER, RESTART, SERVICE, restarts_to_match
+from tools.benchmark import FLOAT32, PAPER, RESTART, SERVICE, restarts_to_match
 from training.evaluate.targets import uniform_configurations
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -26,8 +26,11 @@ def test_the_command_writes_every_configuration_and_size(tmp_path: Path) -> None
     report = json.loads((tmp_path / "benchmark.json").read_text())
     entry = report["models"]["planar3r-position"]
     assert set(entry["sizes"]) == {"100", "200"}
+    # The float32 network beside the service's own where the defaults serve int8.
+    names = [SERVICE, PAPER, RESTART] + ([FLOAT32] if entry["sampler_precision"] == "int8" else [])
     for n, row in entry["sizes"].items():
-        for name in (SERVICE, PAPER, RESTART):
+        assert set(row) == {*names, "http"}
+        for name in names:
             run = row[name]
             assert 0 < run["median_ms"] <= run["p95_ms"]
             assert run["figures"]["count_right"] == 1.0  # the closed form's count, both targets
@@ -37,7 +40,8 @@ def test_the_command_writes_every_configuration_and_size(tmp_path: Path) -> None
         )
         assert row["http"]["median_ms"] > 0
     text = (tmp_path / "benchmark.md").read_text()
-    assert text.count("| planar3r-position |") == 2 * 3 + 2  # 3 configurations + HTTP, 2 sizes
+    # every configuration and HTTP, at 2 sizes
+    assert text.count("| planar3r-position |") == 2 * len(names) + 2
     assert report["machine"]["cores"] >= 1
 
 

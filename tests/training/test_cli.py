@@ -57,7 +57,9 @@ def test_tiny_model_trains_exports_and_is_served(tmp_path: Path) -> None:
     assert manifest.training.command.startswith("smm-train --robot planar3r")
     assert np.isfinite(manifest.training.best_validation_loss)
     assert manifest.quality is not None and manifest.quality.held_out_targets == 4
-    assert sorted(manifest.files) == ["chain.json", "flow.onnx", "kinematics.onnx"]
+    assert sorted(manifest.files) == [
+        "chain.json", "flow.onnx", "flow_int8.onnx", "kinematics.onnx",
+    ]  # fmt: skip
     for name, digest in manifest.files.items():
         assert sha256_of(model_dir / name) == digest
     assert (runs / "planar3r-position" / "best.pt").is_file()

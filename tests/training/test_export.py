@@ -21,7 +21,6 @@ import torch
 from service.manifest import (
     CHAIN_FILE,
     FLOW_FILE,
-    KINEMATICS_FILE,
     MANIFEST_FILE,
     REPO_MODELS_DIR,
     ChainSpec,
@@ -112,7 +111,7 @@ def test_refresh_writes_the_chain_the_registry_serves_and_touches_nothing_else(
     assert {k: v for k, v in after.items() if k != "files"} == {
         k: v for k, v in before.items() if k != "files"
     }
-    assert list(after["files"]) == [FLOW_FILE, KINEMATICS_FILE, CHAIN_FILE]
+    assert list(after["files"]) == [*before["files"], CHAIN_FILE]
     assert after["files"][FLOW_FILE] == flow_sha == sha256_of(model_dir / FLOW_FILE)
     assert sorted(p.name for p in model_dir.parent.iterdir()) == [PLANAR3R_DIR.name, "robots"]
     served = load_model(model_dir, threads=1)  # verifies every sha256 and chain vs onnx

@@ -36,7 +36,9 @@ from training.evaluate.served import returned_configurations, with_defaults
 from training.sweep import (
     AXES,
     COUNT_RIGHT_MARGIN,
+    COVERAGE_MARGIN,
     KEEP_RATE_MARGIN,
+    SAMPLER_KEEP_RATE_MARGIN,
     TIME_POWER_GAIN,
     Axis,
     Candidate,
@@ -69,8 +71,9 @@ def row(
     count_right: float,
     recall: float | None = 1.0,
     answered: int = 20,
-    axis: Axis = "sampler_steps",
+    axis: Axis = "correction_steps",
     merges: float = 0.0,
+    coverage_rad: float | None = 0.05,
 ) -> Candidate:
     setting = Setting(
         sampler_steps=20, correction_steps=6, num_samples=1000, connectivity_step_rad=0.15
@@ -85,14 +88,15 @@ def row(
             count_right=count_right,
             merges_per_target=merges,
             recall=recall,
-            coverage_p95_rad=0.05,
+            coverage_p95_rad=coverage_rad,
             median_total_ms=float(value),
         ),
     )
 
 
 def test_the_rule_picks_the_cheapest_candidate_within_the_margins() -> None:
-    # The iiwa pose's committed figures: 10 steps is 3.1 points of keep rate behind.
+    # 3.1 points of keep rate behind is out (the iiwa pose's Euler steps, when that axis
+    # had the common margin).
     assert pick([row(10, 0.659, 0.95), row(20, 0.690, 0.95), row(50, 0.697, 0.95)]).value == 20
     # Exactly at the margins is within them; the order of the rows does not matter.
     at_margin = row(10, 0.70 - KEEP_RATE_MARGIN, 0.90 - COUNT_RIGHT_MARGIN, recall=0.98)
@@ -126,9 +130,40 @@ def test_the_rule_picks_the_cheapest_candidate_within_the_margins() -> None:
     tie = [row(3, 0.9, 0.5, merges=0.1), row(6, 0.5, 0.5), row(10, 0.95, 0.4)]
     assert pick(tie).value == 6
     with pytest.raises(ValueError, match="one axis"):
-        pick([row(10, 0.7, 1.0), row(3, 0.7, 1.0, axis="correction_steps")])
+        pick([row(10, 0.7, 1.0), row(3, 0.7, 1.0, axis="sampler_steps")])
     with pytest.raises(ValueError, match="one axis"):
         pick([])
+
+
+def test_the_sampler_steps_trade_keep_rate_but_not_coverage_or_components() -> None:
+    steps: Axis = "sampler_steps"
+    # The iiwa pose's measured keep rates (int8): 4 steps is 11 points behind 20, inside
+    # the sampler's margin; 2 steps (54 points behind) is out.
+    measured = [row(2, 0.33, 1.0, axis=steps), row(4, 0.76, 1.0, axis=steps),
+                row(8, 0.85, 1.0, axis=steps), row(20, 0.87, 1.0, axis=steps)]  # fmt: skip
+    assert pick(measured).value == 4
+    assert pick([row(4, 0.87 - SAMPLER_KEEP_RATE_MARGIN, 1.0, axis=steps),
+                 row(20, 0.87, 1.0, axis=steps)]).value == 4  # fmt: skip
+    assert pick([row(4, 0.87 - SAMPLER_KEEP_RATE_MARGIN - 0.01, 1.0, axis=steps),
+                 row(20, 0.87, 1.0, axis=steps)]).value == 20  # fmt: skip
+    # The components still judge: a split or a lost component is out however fast.
+    assert pick([row(4, 0.80, 0.90, axis=steps), row(20, 0.87, 1.0, axis=steps)]).value == 20
+    assert pick([row(4, 0.8, 1.0, 0.9, axis=steps), row(20, 0.87, 1.0, axis=steps)]).value == 20
+    # Coverage p95 beyond COVERAGE_MARGIN of the best is out, on every axis; at it, in.
+    worse = 0.05 * (1 + COVERAGE_MARGIN)
+    assert pick([row(4, 0.80, 1.0, axis=steps, coverage_rad=worse * 1.01),
+                 row(20, 0.87, 1.0, axis=steps)]).value == 20  # fmt: skip
+    assert pick([row(4, 0.80, 1.0, axis=steps, coverage_rad=worse),
+                 row(20, 0.87, 1.0, axis=steps)]).value == 4  # fmt: skip
+    assert pick([row(3, 0.7, 1.0, coverage_rad=worse * 1.01), row(6, 0.7, 1.0)]).value == 6
+    # No coverage measured (nothing to cover) constrains nothing.
+    assert (
+        pick([row(3, 0.7, 1.0, coverage_rad=None), row(6, 0.7, 1.0, coverage_rad=None)]).value == 3
+    )
+    # The network's precision: 8 bits is the cheaper, within the common margins.
+    bits: Axis = "flow_precision_bits"
+    assert pick([row(32, 0.87, 1.0, axis=bits), row(8, 0.868, 1.0, axis=bits)]).value == 8
+    assert pick([row(32, 0.87, 1.0, axis=bits), row(8, 0.85, 1.0, axis=bits)]).value == 32
 
 
 def test_the_time_grid_stays_uniform_unless_another_power_lowers_the_raw_error_enough() -> None:
@@ -231,6 +266,7 @@ def test_the_sweep_chooses_by_the_rule_and_its_defaults_serve(
         chosen.correction_steps,
         chosen.num_samples,
     )
+    assert defaults.sampler.precision == {32: "float32", 8: "int8"}[chosen.flow_precision_bits]
     assert start.connectivity == CONNECTIVITY_CURVES
     assert defaults.connectivity == CONNECTIVITY_CURVES.model_copy(
         update={"trace_step_rad": chosen.connectivity_step_rad}
@@ -250,12 +286,14 @@ def test_the_sweep_chooses_by_the_rule_and_its_defaults_serve(
 
 def test_the_reasons_quote_every_candidate_and_the_table_is_json(swept: SweepResult) -> None:
     reasons = swept.defaults.reasons
-    keys = ("sampler", "correction_steps", "num_samples", "connectivity")
+    keys = ("sampler_precision", "sampler", "correction_steps", "num_samples", "connectivity")
     for axis, key in zip(AXES, keys, strict=True):
         reason = reasons[key]
         prefix = "trace_step_rad = " if key == "connectivity" else ""
         assert reason.startswith(f"{prefix}{swept.chosen.value(axis)} "), reason
-        assert "against a dense reference of the same pipeline (50 Euler steps" in reason
+        assert "against a dense reference of the same pipeline (32 bit flow, 50 Euler steps" in (
+            reason
+        )
         assert f"{TINY_TARGETS} held-out targets" in reason
         for candidate in TINY_PLAN.candidates(axis, redundancy=1):
             assert f"{candidate}: keep rate " in reason, (candidate, reason)
@@ -265,6 +303,7 @@ def test_the_reasons_quote_every_candidate_and_the_table_is_json(swept: SweepRes
         assert f"{power:g}: mean raw error " in reasons["sampler"]
     assert set(reasons) == {
         "num_samples", "sampler", "correction_steps", "damping", "connectivity", "tolerance",
+        "sampler_precision",
     }  # fmt: skip
     # Progress: the reference, then one line per row of the table, with its figures.
     powers = len(TINY_PLAN.time_powers)
@@ -273,10 +312,32 @@ def test_the_reasons_quote_every_candidate_and_the_table_is_json(swept: SweepRes
     for line, row in zip(PROGRESS[1 + powers :], swept.table, strict=True):
         assert line.startswith(f"sweep: {row.value}: keep rate ")
     table = json.loads(json.dumps(swept.as_json(), allow_nan=False))
-    assert len(table["table"]) == len(swept.table) == 8
+    assert len(table["table"]) == len(swept.table) == 10
     assert len(table["time_power_table"]) == powers
     assert table["plan"]["reference_samples"] == 2000
     assert Defaults.model_validate(table["defaults"]) == swept.defaults
+
+
+def test_a_sweep_of_some_axes_keeps_the_rest_and_offers_int8_only_where_it_exists(
+    planar: ServedModel,
+) -> None:
+    float32_only = replace(
+        planar,
+        manifest=planar.manifest.model_copy(
+            update={"files": {k: v for k, v in planar.manifest.files.items() if "int8" not in k}}
+        ),
+    )
+    result = sweep_defaults(float32_only, 1, SEED, TINY_PLAN, axes=["flow_precision_bits"])
+    assert [(r.axis, r.value) for r in result.table] == [("flow_precision_bits", 32)]
+    assert result.time_power_table == []  # the sampler's steps were not swept
+    start = planar.manifest.defaults
+    assert result.defaults.model_dump(exclude={"reasons"}) == start.model_dump(exclude={"reasons"})
+    assert {k: v for k, v in result.defaults.reasons.items() if k != "sampler_precision"} == (
+        start.reasons
+    )
+    assert result.defaults.reasons["sampler_precision"].startswith("32 bit flow by the rule")
+    with pytest.raises(ValueError, match="choose from"):
+        sweep_defaults(planar, 1, SEED, TINY_PLAN, axes=["sampler"])  # type: ignore[list-item]
 
 
 def test_a_new_model_id_starts_from_generic_defaults_by_redundancy() -> None:

@@ -41,6 +41,7 @@ def summarise_raw(
     kept = e < PAPER_KEPT_BELOW  # (T, N)
     return RawError(
         sampler_steps=sampler.steps,
+        sampler_precision=sampler.precision,
         sampler_time_power=sampler.time_power,
         position_error_mm_mean=float(position_mm.mean()),
         position_error_mm_median=float(np.median(position_mm)),
@@ -79,7 +80,7 @@ def measure_quality(served: ServedModel, num_targets: int, samples: int, seed: i
         )
         for sampler, sampler_errors in zip(samplers, errors, strict=True):
             q_raw = sample_configurations(
-                served.velocity,
+                served.networks[sampler.precision],
                 target.condition,
                 samples,
                 sampler,

@@ -1,4 +1,5 @@
-"""kinematics.onnx (planar 3R): FK equals the closed form, Jacobian equals finite differences.
+"""kinematics.onnx (planar 3R): FK equals the closed form, Jacobian equals finite differences;
+every session is opened with the threads asked and with workers that do not spin.
 
 The session is opened on the bundled model's kinematics.onnx directly: the registry serves
 its chain.json kernel (tests/service/models/test_chain.py), and kinematics.onnx is what
@@ -46,3 +47,11 @@ def test_jacobian_matches_central_finite_differences(kinematics: OnnxKinematics)
 def test_batch_size_is_dynamic(kinematics: OnnxKinematics) -> None:
     for batch in (1, 7, 2048):
         assert kinematics(np.zeros((batch, 3))).jacobian.shape == (batch, 6, 3)
+
+
+def test_sessions_take_the_threads_asked_and_do_not_spin() -> None:
+    session = open_session(PLANAR3R_DIR / KINEMATICS_FILE, threads=2)
+    options = session.get_session_options()
+    assert (options.intra_op_num_threads, options.inter_op_num_threads) == (2, 1)
+    for pool in ("intra_op", "inter_op"):
+        assert options.get_session_config_entry(f"session.{pool}.allow_spinning") == "0"
