@@ -1,7 +1,9 @@
 """One query through the pipeline: target -> sample -> correct -> accept -> connect -> components.
 
 Each stage is timed under its name in `STAGES`; the result accounts for every sample
-(see `SampleCounts`).
+(see `SampleCounts`). The pieces `encode`, `sample` and `answer_samples` are what `run`
+calls in order; `batch.run_batch` calls the same pieces for many queries of one model,
+so a target's answer in a batch is the one `run` gives it.
 """
 
 from __future__ import annotations
@@ -9,25 +11,33 @@ from __future__ import annotations
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
+from typing import Literal
 
 import numpy as np
 
 from service.pipeline.acceptance import accept
+from service.pipeline.arrays import FloatArray
 from service.pipeline.components import summarise_all
 from service.pipeline.connectivity import connect
 from service.pipeline.correction import correct
 from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.fibre import Fibre
 from service.pipeline.sampling import sample_configurations
-from service.pipeline.targets import encode_target
+from service.pipeline.targets import Target, encode_target
 from service.pipeline.types import Query, SampleCounts, SmmModel, SmmResult, Stage, StageTimings
 
 
 class Stopwatch:
-    """Wall time per stage, measured by `with watch.stage(name):` blocks."""
+    """Wall time per stage, measured by `with watch.stage(name):` blocks.
 
-    def __init__(self) -> None:
+    `total`: "wall", the time since the watch was made (one query run from start to
+    end); "stages", the sum of the stages (a target of a batch, whose stages do not run
+    back to back).
+    """
+
+    def __init__(self, total: Literal["wall", "stages"] = "wall") -> None:
         self._start_s = time.perf_counter()
+        self._total = total
         self._stage_ms: dict[Stage, float] = {}
 
     @contextmanager
@@ -37,34 +47,52 @@ class Stopwatch:
         self._stage_ms[name] = (time.perf_counter() - start_s) * 1e3
 
     def timings(self) -> StageTimings:
-        total_ms = (time.perf_counter() - self._start_s) * 1e3
+        if self._total == "stages":
+            total_ms = sum(self._stage_ms.values())
+        else:
+            total_ms = (time.perf_counter() - self._start_s) * 1e3
         return StageTimings(stage_ms=dict(self._stage_ms), total_ms=total_ms)
 
 
-def run(model: SmmModel, query: Query, deadline: Deadline = NO_DEADLINE) -> SmmResult:
-    """Stages 1-5 for one query; past `deadline`, DeadlineExceededError names the stage."""
+def encode(model: SmmModel, query: Query) -> Target:
+    """Stage 1: the query's target and the flow's condition for it."""
+    return encode_target(
+        task=model.manifest.task,
+        condition=model.manifest.condition,
+        position_m=query.position_m,
+        orientation_wxyz=query.orientation_wxyz,
+    )
+
+
+def sample(
+    model: SmmModel, query: Query, target: Target, deadline: Deadline = NO_DEADLINE
+) -> FloatArray:  # (N, n) rad
+    """Stage 2: the query's num_samples flow samples, drawn from its seed."""
+    manifest = model.manifest
+    return sample_configurations(
+        velocity=model.velocity,
+        condition=target.condition,
+        num_samples=query.num_samples,
+        sampler=manifest.defaults.sampler,
+        joint_normalisation=manifest.joint_normalisation,
+        periodic=manifest.joints.arrays()[2],
+        rng=np.random.default_rng(query.seed),
+        deadline=deadline,
+    )
+
+
+def answer_samples(
+    model: SmmModel,
+    query: Query,
+    target: Target,
+    q_sampled_rad: FloatArray,  # (N, n) from `sample`
+    watch: Stopwatch,
+    deadline: Deadline = NO_DEADLINE,
+) -> SmmResult:
+    """Stages 3-6 on the query's samples, each timed on `watch`: correct, accept, connect,
+    summarise."""
     manifest, defaults = model.manifest, model.manifest.defaults
     lower_rad, upper_rad, periodic = manifest.joints.arrays()
-    watch = Stopwatch()
-
-    with watch.stage("encode"):
-        target = encode_target(
-            task=manifest.task,
-            condition=manifest.condition,
-            position_m=query.position_m,
-            orientation_wxyz=query.orientation_wxyz,
-        )
-    with watch.stage("sample"):
-        q_sampled_rad = sample_configurations(
-            velocity=model.velocity,
-            condition=target.condition,
-            num_samples=query.num_samples,
-            sampler=defaults.sampler,
-            joint_normalisation=manifest.joint_normalisation,
-            periodic=periodic,
-            rng=np.random.default_rng(query.seed),
-            deadline=deadline,
-        )
     with watch.stage("correct"):
         correction = correct(
             q_rad=q_sampled_rad,
@@ -120,3 +148,13 @@ def run(model: SmmModel, query: Query, deadline: Deadline = NO_DEADLINE) -> SmmR
         structure=connection.structure,
         timings=watch.timings(),
     )
+
+
+def run(model: SmmModel, query: Query, deadline: Deadline = NO_DEADLINE) -> SmmResult:
+    """Stages 1-5 for one query; past `deadline`, DeadlineExceededError names the stage."""
+    watch = Stopwatch()
+    with watch.stage("encode"):
+        target = encode(model, query)
+    with watch.stage("sample"):
+        q_sampled_rad = sample(model, query, target, deadline)
+    return answer_samples(model, query, target, q_sampled_rad, watch, deadline)
