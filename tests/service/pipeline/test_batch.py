@@ -1,0 +1,187 @@
+"""batch: every query of a batch gets `run`'s answer to the bit (samples, corrected
+configurations, components, paths, counts), whether the flow samples ahead in worker
+threads or not, on the planar 3R and the iiwa14 pose; a target's timings add up its
+stages; a deadline that passes mid-batch returns the queries answered before it, in
+order, and names the stage it stopped."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from service.manifest import REPO_MODELS_DIR, Manifest
+from service.models.registry import ServedModel, load_model
+from service.pipeline.batch import run_batch
+from service.pipeline.deadline import Deadline
+from service.pipeline.run import run
+from service.pipeline.types import (
+    CoaxialSet,
+    Kinematics,
+    Query,
+    SmmResult,
+    VelocityField,
+)
+from training.evaluate.served import orientation_wxyz
+
+
+def assert_same_answer(batch: SmmResult, single: SmmResult) -> None:
+    """Bitwise on every array; equal on every count and flag; timings aside."""
+    assert batch.counts == single.counts
+    assert batch.structure == single.structure
+    assert len(batch.components) == len(single.components)
+    for a, b in zip(batch.components, single.components, strict=True):
+        for name in ("representative_rad", "configurations_rad", "joint_min_rad", "joint_max_rad"):
+            assert np.array_equal(getattr(a, name), getattr(b, name)), name
+        assert a.size == b.size and a.closed == b.closed
+        assert a.max_position_error_m == b.max_position_error_m
+        assert a.max_orientation_error_rad == b.max_orientation_error_rad
+        assert a.distance_to_reference_rad == b.distance_to_reference_rad
+        assert a.arc_length_rad == b.arc_length_rad
+        assert (a.path is None) == (b.path is None)
+        if a.path is not None and b.path is not None:
+            assert np.array_equal(a.path.q_rad, b.path.q_rad)
+
+
+def planar_queries(model: ServedModel) -> list[Query]:
+    """Targets along a path, seeds and sizes that differ, one out of reach, one with options."""
+    manifest = model.manifest
+    return [
+        Query.for_model(manifest, position_m=[0.5, 0.0], num_samples=300, seed=0),
+        Query.for_model(manifest, position_m=[0.5, 0.2], num_samples=200, seed=11),
+        Query.for_model(manifest, position_m=[3.5, 0.0], num_samples=100, seed=2),
+        Query.for_model(
+            manifest,
+            position_m=[0.3, -0.6],
+            num_samples=250,
+            seed=5,
+            reference_rad=[0.1, 1.9, 2.6],
+            max_configurations_per_component=7,
+            include_paths=False,
+            tolerance_position_m=1e-8,
+        ),
+        Query.for_model(manifest, position_m=[0.3, -0.6], num_samples=250, seed=6),
+    ]
+
+
+@pytest.mark.parametrize("sampling_threads", [0, 1, 2])
+def test_each_answer_is_the_single_query_answer_bitwise(
+    planar3r: ServedModel, sampling_threads: int
+) -> None:
+    queries = planar_queries(planar3r)
+    batch = run_batch(planar3r, queries, sampling_threads=sampling_threads)
+    assert batch.complete and batch.deadline_error is None
+    assert len(batch.results) == len(queries)
+    for query, result in zip(queries, batch.results, strict=True):
+        assert_same_answer(result, run(planar3r, query))
+    assert [r.counts.sampled for r in batch.results] == [300, 200, 100, 250, 250]
+    assert not batch.results[2].components  # out of reach: no_solution, in its place
+
+
+def test_a_changed_seed_changes_only_its_own_answer(planar3r: ServedModel) -> None:
+    """The test above can fail: answers are not equal for any two seeds."""
+    queries = planar_queries(planar3r)
+    other = Query.for_model(planar3r.manifest, position_m=[0.5, 0.2], num_samples=200, seed=12)
+    batch = run_batch(planar3r, [queries[0], other])
+    assert_same_answer(batch.results[0], run(planar3r, queries[0]))
+    with pytest.raises(AssertionError):
+        assert_same_answer(batch.results[1], run(planar3r, queries[1]))
+
+
+@pytest.fixture(scope="module")
+def iiwa14_pose() -> ServedModel:
+    return load_model(REPO_MODELS_DIR / "iiwa14-pose", threads=1)
+
+
+def test_iiwa14_pose_answers_are_the_single_answers_bitwise(iiwa14_pose: ServedModel) -> None:
+    manifest = iiwa14_pose.manifest
+    lower, upper, _ = manifest.joints.arrays()
+    q_targets = np.random.default_rng(3).uniform(lower, upper, size=(3, len(lower)))
+    queries = []
+    for seed, q in enumerate(q_targets):
+        fk = iiwa14_pose.kinematics(q[None])
+        queries.append(
+            Query.for_model(
+                manifest,
+                position_m=fk.position_m[0].tolist(),
+                orientation_wxyz=orientation_wxyz(fk.rotation[0]),
+                num_samples=80,
+                seed=seed,
+            )
+        )
+    batch = run_batch(iiwa14_pose, queries, sampling_threads=1)
+    for query, result in zip(queries, batch.results, strict=True):
+        assert result.components  # every target is the FK of a configuration: reachable
+        assert_same_answer(result, run(iiwa14_pose, query))
+
+
+def test_a_targets_timings_add_up_its_stages(planar3r: ServedModel) -> None:
+    batch = run_batch(planar3r, planar_queries(planar3r)[:2])
+    for result in batch.results:
+        timings = result.timings
+        assert timings.total_ms == pytest.approx(sum(timings.stage_ms.values()))
+        assert set(timings.stage_ms) == {
+            "encode",
+            "sample",
+            "correct",
+            "accept",
+            "connect",
+            "summarise",
+        }
+    assert batch.total_ms > 0
+
+
+@dataclass(frozen=True)
+class SlowSecondTarget:
+    """The planar model, whose flow sleeps past `deadline` when asked about `slow_condition`."""
+
+    model: ServedModel
+    slow_condition: np.ndarray
+    deadline: Deadline
+
+    @property
+    def manifest(self) -> Manifest:
+        return self.model.manifest
+
+    @property
+    def velocity(self) -> VelocityField:
+        def velocity(q_t: np.ndarray, t: np.ndarray, condition: np.ndarray) -> np.ndarray:
+            if np.array_equal(condition[0], self.slow_condition):
+                time.sleep(max(0.0, self.deadline.remaining_s()) + 0.01)
+            return self.model.velocity(q_t, t, condition)
+
+        return velocity
+
+    @property
+    def kinematics(self) -> Kinematics:
+        return self.model.kinematics
+
+    @property
+    def coaxial_sets(self) -> tuple[CoaxialSet, ...]:
+        return self.model.coaxial_sets
+
+
+def test_a_deadline_mid_batch_returns_the_answers_before_it(planar3r: ServedModel) -> None:
+    queries = [
+        Query.for_model(planar3r.manifest, position_m=position, num_samples=50, seed=1)
+        for position in ([0.5, 0.0], [0.5, 0.2], [0.5, 0.4])
+    ]
+    deadline = Deadline.after(2.0)
+    second = planar3r.manifest.condition.normalisation.normalise(np.array([[0.5, 0.2]]))[0]
+    slow = SlowSecondTarget(planar3r, second.astype(np.float32), deadline)
+    batch = run_batch(slow, queries, deadline, sampling_threads=0)
+    assert not batch.complete and batch.deadline_error is not None
+    assert batch.deadline_error.stage == "sample"
+    assert len(batch.results) == 1  # the first target, answered before the deadline
+    assert_same_answer(batch.results[0], run(planar3r, queries[0]))
+
+
+def test_an_expired_deadline_answers_nothing_whatever_the_threads(planar3r: ServedModel) -> None:
+    queries = planar_queries(planar3r)[:3]
+    expired = Deadline(budget_s=1.0, expires_at_s=time.monotonic() - 1.0)
+    for sampling_threads in (0, 2):
+        batch = run_batch(planar3r, queries, expired, sampling_threads=sampling_threads)
+        assert batch.results == [] and batch.deadline_error is not None
+        assert batch.deadline_error.stage == "sample"
