@@ -31,6 +31,30 @@ class Settings(BaseSettings):
     max_num_samples: int = Field(
         10_000, ge=1, description="Largest num_samples a request may ask for (413 beyond)."
     )
+    max_batch_targets: int = Field(
+        64,
+        ge=1,
+        description="Most targets in one POST /smm/batch (413 beyond). A batch holds one "
+        "computation slot for all its targets, one after another, so this bounds how long it "
+        "keeps the slot from other requests; 64 targets with reference configurations are "
+        "about 30 KB, inside max_body_bytes.",
+    )
+    max_batch_samples: int = Field(
+        64_000,
+        ge=1,
+        description="Largest sum of num_samples over a batch's targets (413 beyond; each "
+        "target also within max_num_samples): 64 targets at the bundled models' largest "
+        "default (1000 samples), which the slowest of them (iiwa14 position, ~0.4 s a target "
+        "on 2 cores) answers within request_deadline_s.",
+    )
+    batch_sampling_threads: int = Field(
+        1,
+        ge=0,
+        description="Threads that sample a POST /smm/batch's next targets (the flow "
+        "network) while its earlier ones are corrected and connected; 0 runs each target's "
+        "stages one after another. onnxruntime releases the GIL, so on an otherwise idle "
+        "server a batch uses two cores.",
+    )
     onnx_threads: int = Field(
         0,
         ge=0,

@@ -36,6 +36,17 @@ class RequestFieldError(SmmError):
         self.message = message
 
 
+class RequestFieldErrors(SmmError):
+    """Several request fields invalid for the chosen model (422), reported together (the
+    targets of a batch: one bad target does not hide the others' errors)."""
+
+    status_code = 422
+
+    def __init__(self, errors: list[RequestFieldError]) -> None:
+        super().__init__("; ".join(error.message for error in errors))
+        self.errors = errors
+
+
 class LimitExceededError(SmmError):
     """A request asks for more work than the configured limit (413)."""
 

@@ -15,6 +15,10 @@ from service.pipeline.types import TimedSpan
 
 # JSON has no NaN or infinity; refuse them where a parser lets them through.
 Finite = Annotated[float, Field(allow_inf_nan=False)]
+# The options of a query, constrained once: POST /smm and each target of POST /smm/batch.
+NumSamples = Annotated[int, Field(ge=1)]
+Seed = Annotated[int, Field(ge=0, le=2**63 - 1)]
+MaxConfigurations = Annotated[int, Field(ge=1)]
 
 
 class _Request(BaseModel):
@@ -63,19 +67,18 @@ class SmmRequest(_Request):
     robot: str = Field(examples=["planar3r"])
     task: str = Field(examples=["position"])
     target: TargetIn
-    num_samples: int | None = Field(
-        None, ge=1, description="Flow samples to draw (default: the model's; 413 above the limit)."
+    num_samples: NumSamples | None = Field(
+        None, description="Flow samples to draw (default: the model's; 413 above the limit)."
     )
-    seed: int = Field(0, ge=0, le=2**63 - 1, description="The same seed gives the same answer.")
+    seed: Seed = Field(0, description="The same seed gives the same answer.")
     tolerance: ToleranceIn = Field(default_factory=ToleranceIn)
     reference_configuration: list[Finite] | None = Field(
         None,
         description="Joint angles in radians (model joint order); components are then ordered "
         "by their distance to it and report their nearest member.",
     )
-    max_configurations_per_component: int | None = Field(
+    max_configurations_per_component: MaxConfigurations | None = Field(
         None,
-        ge=1,
         description="Cap on configurations returned per component (a covering subset by "
         "farthest-point sampling); `size` still counts every member. Default: all.",
     )
@@ -151,6 +154,108 @@ class SmmResponse(BaseModel):
     )
 
 
+class BatchTargetIn(_Request):
+    """One target of a batch: the `target` of a POST /smm body, and any of that body's
+    options to use for this target instead of the batch's."""
+
+    target: TargetIn
+    num_samples: NumSamples | None = Field(None, description="Default: the batch's.")
+    seed: Seed | None = Field(None, description="Default: the batch's.")
+    tolerance: ToleranceIn | None = Field(
+        None, description="Default: the batch's (replaced whole, not field by field)."
+    )
+    reference_configuration: list[Finite] | None = Field(
+        None,
+        description="Default: the batch's; the previous waypoint's configuration, say, to "
+        "order this target's components by their distance to it.",
+    )
+    max_configurations_per_component: MaxConfigurations | None = Field(
+        None, description="Default: the batch's."
+    )
+    include_paths: bool | None = Field(None, description="Default: the batch's.")
+
+
+# The options a batch target may give for itself, in SmmRequest's names.
+BATCH_TARGET_OPTIONS = (
+    "num_samples",
+    "seed",
+    "tolerance",
+    "reference_configuration",
+    "max_configurations_per_component",
+    "include_paths",
+)
+
+
+class SmmBatchRequest(_Request):
+    """Many targets of one model. Each target is answered as POST /smm answers the body
+    `request_for(index)`: the batch's robot and task, the target, and every option the
+    target gives (not null) or else the batch's."""
+
+    robot: str = Field(examples=["planar3r"])
+    task: str = Field(examples=["position"])
+    targets: list[BatchTargetIn] = Field(
+        min_length=1,
+        description="The targets, answered in this order (413 above the server's "
+        "SMM_MAX_BATCH_TARGETS, 64 by default).",
+        examples=[[{"target": {"position": [0.5, 0.0]}}, {"target": {"position": [0.5, 0.1]}}]],
+    )
+    num_samples: NumSamples | None = Field(
+        None,
+        description="Flow samples per target (default: the model's; 413 above the limit per "
+        "target, or above SMM_MAX_BATCH_SAMPLES over all the targets).",
+    )
+    seed: Seed = Field(0, description="The same seed gives the same answer.")
+    tolerance: ToleranceIn = Field(default_factory=ToleranceIn)
+    reference_configuration: list[Finite] | None = Field(
+        None, description="As in POST /smm, for every target that gives none."
+    )
+    max_configurations_per_component: MaxConfigurations | None = Field(
+        None, description="As in POST /smm."
+    )
+    include_paths: bool = Field(True, description="As in POST /smm.")
+
+    def request_for(self, index: int) -> SmmRequest:
+        """The POST /smm body whose answer is this batch's answer for `targets[index]`."""
+        item = self.targets[index]
+        options = {}
+        for name in BATCH_TARGET_OPTIONS:
+            own = getattr(item, name)
+            options[name] = getattr(self, name) if own is None else own
+        return SmmRequest(robot=self.robot, task=self.task, target=item.target, **options)
+
+
+class BatchItemOut(BaseModel):
+    index: int = Field(description="The target's position in the request's `targets`.")
+    status: Literal["ok", "no_solution", "deadline_exceeded"] = Field(
+        description="ok or no_solution: the answer's own status; deadline_exceeded: the "
+        "request's deadline passed before this target was answered (no answer; send it again)."
+    )
+    answer: SmmResponse | None = Field(
+        description="Exactly POST /smm's answer to this target with the same options and "
+        "seed (timings aside: their total is the sum of its stages, which a batch does not "
+        "run back to back)."
+    )
+
+
+class SmmBatchResponse(BaseModel):
+    robot: str
+    task: str
+    model: str = Field(description="<model-id>@<first 12 hex of the model files' digest>")
+    joint_names: list[str]
+    redundancy: int
+    status: Literal["complete", "partial"] = Field(
+        description="complete: every target answered; partial: the request's deadline "
+        "stopped the batch, and the targets from the first unanswered one on have status "
+        "deadline_exceeded."
+    )
+    results: list[BatchItemOut] = Field(description="One per target, in the request's order.")
+    timings_ms: dict[TimedSpan, float] = Field(
+        description="Per stage, the sum over the answered targets, in ms; total: the wall "
+        "time of the whole batch (less than the sum of the stages where sampling ran beside "
+        "the other stages)."
+    )
+
+
 class RobotOut(BaseModel):
     robot: str
     task: str
@@ -196,8 +301,11 @@ class ReadinessResponse(BaseModel):
     )
 
 
-def error_responses(*statuses: int) -> dict[int | str, dict[str, Any]]:
-    """OpenAPI entries for the error statuses a route can answer, with their meaning."""
+def error_responses(
+    *statuses: int, meanings: dict[int, str] | None = None
+) -> dict[int | str, dict[str, Any]]:
+    """OpenAPI entries for the error statuses a route can answer, with their meaning
+    (`meanings`: a route's own meaning of a status, instead of POST /smm's)."""
     meaning = {
         400: "The body could not be parsed at all.",
         401: "SMM_API_KEY is set and the request did not present it.",
@@ -207,6 +315,7 @@ def error_responses(*statuses: int) -> dict[int | str, dict[str, Any]]:
         503: "At capacity (Retry-After says when to retry), or the model failed verification.",
         504: "The request ran past SMM_REQUEST_DEADLINE_S.",
     }
+    meaning.update(meanings or {})
     responses: dict[int | str, dict[str, Any]] = {}
     for status in statuses:
         responses[status] = {"model": ErrorResponse, "description": meaning[status]}

@@ -31,8 +31,19 @@ def to_query(body: SmmRequest, model: ServedModel, max_num_samples: int) -> Quer
     Every check runs here, before the request waits for or takes a computation slot:
     the shape checks first (422), then the server's limit on the work asked for (413).
     """
+    query = query_for_model(body, model)
+    if query.num_samples > max_num_samples:
+        raise LimitExceededError(
+            f"num_samples must be at most {max_num_samples} on this server, got {query.num_samples}"
+        )
+    return query
+
+
+def query_for_model(body: SmmRequest, model: ServedModel) -> Query:
+    """The request as the model's Query, defaults filled in; RequestFieldError (422) for a
+    shape the model refuses."""
     orientation = body.target.orientation
-    query = Query.for_model(
+    return Query.for_model(
         model.manifest,
         position_m=body.target.position,
         orientation_wxyz=None if orientation is None else orientation.wxyz(),
@@ -44,11 +55,6 @@ def to_query(body: SmmRequest, model: ServedModel, max_num_samples: int) -> Quer
         max_configurations_per_component=body.max_configurations_per_component,
         include_paths=body.include_paths,
     )
-    if query.num_samples > max_num_samples:
-        raise LimitExceededError(
-            f"num_samples must be at most {max_num_samples} on this server, got {query.num_samples}"
-        )
-    return query
 
 
 def _component_out(index: int, summary: ComponentSummary) -> ComponentOut:

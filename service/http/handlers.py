@@ -13,21 +13,30 @@ from fastapi import FastAPI, Request
 from fastapi.encoders import jsonable_encoder
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from pydantic import BaseModel
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from service.api.schemas import SmmRequest
+from service.api.schemas import SmmBatchRequest, SmmRequest
 from service.config import Settings
-from service.errors import OverloadedError, RequestFieldError, SmmError
+from service.errors import OverloadedError, RequestFieldError, RequestFieldErrors, SmmError
 from service.http.validation import explain
+
+# The request model of each route that takes a body: validation messages quote its schema.
+REQUEST_MODELS: dict[str, type[BaseModel]] = {"/smm": SmmRequest, "/smm/batch": SmmBatchRequest}
+
+
+def _field_error(error: RequestFieldError) -> dict[str, object]:
+    return {"loc": list(error.location), "msg": error.message, "type": "value_error"}
 
 
 def _error_response(request: Request, error: Exception) -> JSONResponse:
     assert isinstance(error, SmmError)
+    # A request field error takes the shape of FastAPI's own validation errors, so
+    # clients parse one format.
     if isinstance(error, RequestFieldError):
-        # The same shape as FastAPI's own validation errors, so clients parse one format.
-        detail: object = [
-            {"loc": list(error.location), "msg": error.message, "type": "value_error"}
-        ]
+        detail: object = [_field_error(error)]
+    elif isinstance(error, RequestFieldErrors):
+        detail = [_field_error(e) for e in error.errors]
     else:
         detail = str(error)
     headers = None
@@ -53,8 +62,9 @@ def _validation_error_response(request: Request, error: Exception) -> JSONRespon
     # is NaN or infinity: made JSON-safe here.
     assert isinstance(error, RequestValidationError)
     settings: Settings = request.app.state.settings
-    limits = {"num_samples": f"<= {settings.max_num_samples} (this server's limit)"}
-    schema = SmmRequest.model_json_schema()
+    per_query = f"<= {settings.max_num_samples} (this server's limit)"
+    limits = {"num_samples": per_query, "targets.num_samples": per_query}
+    schema = REQUEST_MODELS.get(request.url.path, SmmRequest).model_json_schema()
     errors = [explain(e, schema, limits) for e in jsonable_encoder(error.errors())]
     return JSONResponse({"detail": _json_safe(errors)}, status_code=422)
 

@@ -30,8 +30,9 @@ def served_openapi(app: FastAPI) -> dict[str, Any]:
     registry: Registry | None = getattr(app.state, "registry", None)
     if registry is None:  # not loaded yet: plain strings, and do not cache
         return schema
-    request = schema["components"]["schemas"]["SmmRequest"]["properties"]
-    request["robot"]["enum"] = sorted({m.manifest.robot for m in registry.all()})
-    request["task"]["enum"] = sorted({m.manifest.task.name for m in registry.all()})
+    for name in ("SmmRequest", "SmmBatchRequest"):
+        request = schema["components"]["schemas"][name]["properties"]
+        request["robot"]["enum"] = sorted({m.manifest.robot for m in registry.all()})
+        request["task"]["enum"] = sorted({m.manifest.task.name for m in registry.all()})
     app.openapi_schema = schema
     return schema

@@ -113,8 +113,9 @@ def explain(
 ) -> dict[str, Any]:
     """One pydantic error with its message rewritten to name the field and the allowance.
 
-    `server_limits`: extra bounds on numbers, by field path, that come from the server's
-    settings rather than the schema (`{"num_samples": "<= 10000 (this server's limit)"}`).
+    `server_limits`: extra bounds on numbers, by field path without list indices, that
+    come from the server's settings rather than the schema (`{"num_samples": "<= 10000
+    (this server's limit)"}`; `targets.num_samples` for every target of a batch).
     """
     location: tuple[str | int, ...] = tuple(error.get("loc", ()))
     kind = error.get("type", "")
@@ -133,6 +134,7 @@ def explain(
         message = f"unknown field {location[-1]!r} ({message})"
     else:
         node = node_at(root, location)
-        allowance = None if node is None else describe(node, root, server_limits.get(path))
+        limit = server_limits.get(field_path([p for p in location if not isinstance(p, int)]))
+        allowance = None if node is None else describe(node, root, limit)
     text = f"{path}: {message}" + (f"; allowed: {allowance}" if allowance else "")
     return {**error, "msg": text}

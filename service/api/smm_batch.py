@@ -1,0 +1,171 @@
+"""POST /smm/batch: the self-motion manifolds of many targets of one model, in one request.
+
+A planner asks for the SMMs along a path. Each target's answer is exactly POST /smm's for
+the body `SmmBatchRequest.request_for(index)` (same checks, same seed, same answer); the
+batch validates every target before it takes a computation slot, reports every bad
+target in one 422, and holds one slot for the whole computation (`pipeline/batch.py`).
+"""
+
+from __future__ import annotations
+
+import time
+
+from fastapi import APIRouter, Request, Response
+from starlette.concurrency import run_in_threadpool
+
+from service.api.deps import AdmissionDep, MetricsDep, RegistryDep, SettingsDep
+from service.api.schemas import (
+    BatchItemOut,
+    SmmBatchRequest,
+    SmmBatchResponse,
+    error_responses,
+)
+from service.api.smm import query_for_model, to_response
+from service.config import Settings
+from service.errors import (
+    DeadlineExceededError,
+    LimitExceededError,
+    OverloadedError,
+    RequestFieldError,
+    RequestFieldErrors,
+)
+from service.models.registry import ServedModel
+from service.pipeline.batch import BatchResult, run_batch
+from service.pipeline.deadline import Deadline
+from service.pipeline.types import STAGES, Query, TimedSpan
+
+router = APIRouter(prefix="/smm", tags=["smm"])
+
+
+def _at_target(error: RequestFieldError, body: SmmBatchRequest, index: int) -> RequestFieldError:
+    """The error of target `index`'s POST /smm body, located in the batch: at
+    `targets[index]` when the field is the target's own, else at the batch's field."""
+    field = error.location[1]
+    if field != "target" and getattr(body.targets[index], str(field)) is None:
+        return error  # an option the target took from the batch
+    return RequestFieldError(
+        ("body", "targets", index, *error.location[1:]), f"targets[{index}].{error.message}"
+    )
+
+
+def to_queries(body: SmmBatchRequest, model: ServedModel, settings: Settings) -> list[Query]:
+    """Every target's Query, with the checks POST /smm makes, all before the batch waits
+    for or takes a slot: shapes first (one 422 listing every bad target, each error once),
+    then the server's limits on the work asked for (413)."""
+    queries: list[Query] = []
+    errors: dict[tuple[tuple[str | int, ...], str], RequestFieldError] = {}
+    for index in range(len(body.targets)):
+        try:
+            queries.append(query_for_model(body.request_for(index), model))
+        except RequestFieldError as error:
+            located = _at_target(error, body, index)
+            errors.setdefault((located.location, located.message), located)
+    if errors:
+        raise RequestFieldErrors(list(errors.values()))
+    if len(queries) > settings.max_batch_targets:
+        raise LimitExceededError(
+            f"targets must hold at most {settings.max_batch_targets} targets on this server "
+            f"(SMM_MAX_BATCH_TARGETS), got {len(queries)}"
+        )
+    for index, query in enumerate(queries):
+        if query.num_samples > settings.max_num_samples:
+            own = body.targets[index].num_samples is not None
+            field = f"targets[{index}].num_samples" if own else "num_samples"
+            raise LimitExceededError(
+                f"{field} must be at most {settings.max_num_samples} on this server, got "
+                f"{query.num_samples}"
+            )
+    total = sum(query.num_samples for query in queries)
+    if total > settings.max_batch_samples:
+        raise LimitExceededError(
+            f"the targets' num_samples must add up to at most {settings.max_batch_samples} on "
+            f"this server (SMM_MAX_BATCH_SAMPLES), got {total}"
+        )
+    return queries
+
+
+def to_batch_response(model: ServedModel, count: int, batch: BatchResult) -> SmmBatchResponse:
+    manifest = model.manifest
+    results = []
+    for index in range(count):
+        if index < len(batch.results):
+            answer = to_response(model, batch.results[index])
+            results.append(BatchItemOut(index=index, status=answer.status, answer=answer))
+        else:
+            results.append(BatchItemOut(index=index, status="deadline_exceeded", answer=None))
+    timings: dict[TimedSpan, float] = {
+        stage: sum(r.timings.stage_ms.get(stage, 0.0) for r in batch.results) for stage in STAGES
+    }
+    timings["total"] = batch.total_ms
+    return SmmBatchResponse(
+        robot=manifest.robot,
+        task=manifest.task.name,
+        model=model.reference,
+        joint_names=manifest.joints.names,
+        redundancy=manifest.redundancy,
+        status="complete" if batch.complete else "partial",
+        results=results,
+        timings_ms=timings,
+    )
+
+
+def answer_batch(
+    model: ServedModel, queries: list[Query], deadline: Deadline, sampling_threads: int
+) -> tuple[bytes, BatchResult]:
+    """Run the batch and encode its JSON answer (in a worker thread: both are CPU work).
+    A batch stopped by the deadline before its first answer is a 504, as POST /smm's."""
+    batch = run_batch(model, queries, deadline, sampling_threads)
+    if batch.deadline_error is not None and not batch.results:
+        raise batch.deadline_error
+    response = to_batch_response(model, len(queries), batch)
+    return response.model_dump_json().encode(), batch
+
+
+@router.post(
+    "/batch",
+    response_model=SmmBatchResponse,
+    responses=error_responses(
+        400,
+        401,
+        404,
+        413,
+        415,
+        503,
+        504,
+        meanings={
+            413: "Body over SMM_MAX_BODY_BYTES, more targets than SMM_MAX_BATCH_TARGETS, a "
+            "target's num_samples over SMM_MAX_NUM_SAMPLES, or their sum over "
+            "SMM_MAX_BATCH_SAMPLES.",
+            504: "The request ran past SMM_REQUEST_DEADLINE_S before its first target was "
+            "answered (past it later, the answer is a 200 with status partial).",
+        },
+    ),
+)
+async def post_smm_batch(
+    body: SmmBatchRequest,
+    request: Request,
+    registry: RegistryDep,
+    settings: SettingsDep,
+    admission: AdmissionDep,
+    metrics: MetricsDep,
+) -> Response:
+    deadline = Deadline.after(settings.request_deadline_s)
+    model = registry.get(body.robot, body.task)
+    request.state.model = model.manifest.model_id  # the metrics' and access log's model label
+    queries = to_queries(body, model, settings)
+    arrived_s = time.perf_counter()
+    try:
+        async with admission.slot(deadline.remaining_s()):
+            metrics.queue_wait.observe(time.perf_counter() - arrived_s)
+            content, batch = await run_in_threadpool(
+                answer_batch, model, queries, deadline, settings.batch_sampling_threads
+            )
+    except OverloadedError as error:
+        metrics.rejected.labels(error.reason).inc()
+        raise
+    except DeadlineExceededError:
+        metrics.rejected.labels("deadline").inc()
+        raise
+    for result in batch.results:
+        metrics.observe_pipeline(model.manifest.model_id, result.timings, result.counts)
+    return Response(content=content, media_type="application/json")
