@@ -1,0 +1,174 @@
+"""Batch against singles: K targets as one POST /smm/batch against K POST /smm one after another.
+
+    python -m tools.batch_benchmark --model iiwa14-pose --targets 64 --num-samples 1000
+
+Over HTTP, as a planner would ask (`smm-serve` as a real uvicorn process on 127.0.0.1,
+`tools.local_server.LocalServer`, like tools/benchmark.py's `over_http`): the targets are
+the FK of configurations uniform in the joint limits (the evaluation's held-out targets,
+seed 7), target i with seed i. Each round sends the K single requests one after another,
+then the one batch; the client's wall time of each, median over the rounds, and their
+ratio (singles / batch: how many times faster the batch answers the same targets). Every
+batch answer must equal its single answer (JSON equal, timings aside): the figures are
+only reported beside that check. Compare times only within one run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import httpx
+import numpy as np
+
+from service.config import Settings
+from service.manifest import REPO_MODELS_DIR
+from service.models.registry import ServedModel, load_model
+from tools.local_server import LocalServer
+from training.evaluate.served import orientation_wxyz
+from training.evaluate.targets import uniform_configurations
+from training.machine import Machine
+
+ROUNDS = 3
+TIMEOUT_S = 600.0
+
+
+def target_of(model: ServedModel, q_rad: np.ndarray) -> dict[str, Any]:
+    """The request's `target` reached by the configuration `q_rad` (n,): its FK."""
+    manifest = model.manifest
+    fk = model.kinematics(q_rad[None])
+    target: dict[str, Any] = {"position": fk.position_m[0, manifest.task.position_axes].tolist()}
+    if manifest.task.orientation:
+        w, x, y, z = orientation_wxyz(fk.rotation[0])
+        target["orientation"] = {"w": w, "x": x, "y": y, "z": z}
+    return target
+
+
+def without_timings(answer: dict[str, Any]) -> dict[str, Any]:
+    return {key: value for key, value in answer.items() if key != "timings_ms"}
+
+
+def mismatched_targets(batch: dict[str, Any], singles: Sequence[dict[str, Any]]) -> list[int]:
+    """Indices whose batch answer differs from the single answer (timings aside)."""
+    results = batch["results"]
+    if len(results) != len(singles):
+        return list(range(max(len(results), len(singles))))
+    return [
+        i
+        for i, (result, answer) in enumerate(zip(results, singles, strict=True))
+        if result["answer"] is None or without_timings(result["answer"]) != without_timings(answer)
+    ]
+
+
+def batch_against_singles(
+    model: ServedModel,
+    q_targets: np.ndarray,  # (K, n) configurations whose FK are the targets
+    num_samples: int,
+    rounds: int = ROUNDS,
+    server: LocalServer | None = None,
+    progress: Callable[[str], None] = lambda line: None,
+) -> dict[str, Any]:
+    """Time K targets as one POST /smm/batch against K POST /smm one after another.
+
+    `server`: a running LocalServer to ask (its limits must admit the batch); None starts
+    one with the default settings but the batch limits and deadline raised to fit the K
+    targets. Returns the medians over `rounds` of the client's wall time of the K singles
+    and of the batch, their ratio, the server's own batch timings, and whether every
+    batch answer equalled its single answer (`mismatched`: the indices that did not).
+    """
+    manifest = model.manifest
+    targets = [target_of(model, q) for q in q_targets]
+    common = {"robot": manifest.robot, "task": manifest.task.name, "num_samples": num_samples}
+    singles = [{**common, "target": t, "seed": i} for i, t in enumerate(targets)]
+    batch_targets = [{"target": t, "seed": i} for i, t in enumerate(targets)]
+    batch = {**common, "targets": batch_targets}
+    own = server is None
+    if server is None:
+        server = LocalServer(
+            max_batch_targets=max(len(targets), 1),
+            max_batch_samples=max(len(targets) * num_samples, 1),
+            max_num_samples=max(num_samples, Settings().max_num_samples),
+            request_deadline_s=TIMEOUT_S,
+            max_body_bytes=max(65_536, 2 * len(json.dumps(batch))),
+        ).start()
+    singles_ms: list[float] = []
+    batch_ms: list[float] = []
+    mismatched: set[int] = set()
+    server_timings: list[dict[str, float]] = []
+    try:
+        with httpx.Client(base_url=server.url, timeout=TIMEOUT_S) as client:
+            client.post("/smm", json=singles[0]).raise_for_status()  # warm-up
+            warm = client.post("/smm/batch", json={**common, "targets": batch_targets[:2]})
+            warm.raise_for_status()
+            for r in range(rounds):
+                progress(f"{manifest.model_id}: round {r + 1} of {rounds}")
+                start = time.perf_counter()
+                single_answers = []
+                for body in singles:
+                    response = client.post("/smm", json=body)
+                    response.raise_for_status()
+                    single_answers.append(response.json())
+                singles_ms.append((time.perf_counter() - start) * 1e3)
+                start = time.perf_counter()
+                response = client.post("/smm/batch", json=batch)
+                response.raise_for_status()
+                answer = response.json()
+                batch_ms.append((time.perf_counter() - start) * 1e3)
+                mismatched.update(mismatched_targets(answer, single_answers))
+                server_timings.append(answer["timings_ms"])
+    finally:
+        if own:
+            server.stop()
+    singles_median = float(np.median(singles_ms))
+    batch_median = float(np.median(batch_ms))
+    return {
+        "model": model.reference,
+        "targets": len(targets),
+        "num_samples": num_samples,
+        "rounds": rounds,
+        "singles_median_ms": singles_median,
+        "batch_median_ms": batch_median,
+        "singles_over_batch": singles_median / batch_median,
+        "singles_ms": singles_ms,
+        "batch_ms": batch_ms,
+        "server_batch_median_ms": {
+            span: float(np.median([t[span] for t in server_timings])) for span in server_timings[0]
+        },
+        "identical": not mismatched,
+        "mismatched": sorted(mismatched),
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawTextHelpFormatter
+    )
+    bundled = sorted(p.name for p in REPO_MODELS_DIR.iterdir() if (p / "manifest.json").exists())
+    parser.add_argument("--model", required=True, choices=bundled)
+    parser.add_argument("--targets", type=int, default=64)
+    parser.add_argument("--num-samples", type=int, default=1000)
+    parser.add_argument("--rounds", type=int, default=ROUNDS)
+    parser.add_argument("--seed", type=int, default=7)
+    args = parser.parse_args()
+    model = load_model(REPO_MODELS_DIR / args.model, threads=1)
+    lower, upper, _ = model.manifest.joints.arrays()
+    q_targets = uniform_configurations(lower, upper, args.targets, args.seed)
+    machine = Machine.now()
+    result = batch_against_singles(
+        model, q_targets, args.num_samples, args.rounds, progress=lambda s: print(s, flush=True)
+    )
+    result["machine"] = machine.ended().as_json()
+    print(json.dumps(result, indent=1))
+    print(
+        f"{args.model}, {args.targets} targets x {args.num_samples} samples, over HTTP: "
+        f"{args.targets} single requests {result['singles_median_ms']:.0f} ms, one batch "
+        f"{result['batch_median_ms']:.0f} ms (median of {args.rounds}): the batch "
+        f"{result['singles_over_batch']:.2f}x as fast; answers identical: {result['identical']} "
+        f"({Machine.from_json(result['machine']).describe()})"
+    )
+
+
+if __name__ == "__main__":
+    main()
