@@ -2,7 +2,8 @@
 
 Schemathesis generates requests from the server's own /openapi.json, schema-valid ones
 and schema-violating ones, for every documented operation, and sends them to a real
-uvicorn process. Most of those stop at validation (a position of the wrong length for
+uvicorn process (POST /smm/batch too, on a server that admits 4 targets of at most 200
+samples). Most of those stop at validation (a position of the wrong length for
 the model, say), so a second generator shapes bodies after each served model (from GET
 /robots) with arbitrary finite numbers everywhere, to drive the pipeline itself with
 extreme targets, references and tolerances. Every response must be no 5xx, have a
@@ -31,15 +32,18 @@ from schemathesis.specs.openapi.checks import (
     status_code_conformance,
 )
 
-from tests.server.conftest import FUZZ_MAX_NUM_SAMPLES
+from tests.server.conftest import FUZZ_MAX_BATCH_TARGETS, FUZZ_MAX_NUM_SAMPLES
 from tools.local_server import LocalServer
 
 FINITE = st.floats(allow_nan=False, allow_infinity=False)
 
 MIN_REQUESTS = 500
 EXAMPLES = {GenerationMode.POSITIVE: 450, GenerationMode.NEGATIVE: 250}
+# POST /smm/batch: its targets go through POST /smm's checks, so fewer examples suffice.
+BATCH_EXAMPLES = {GenerationMode.POSITIVE: 100, GenerationMode.NEGATIVE: 60}
 OTHER_OPERATION_EXAMPLES = 10
 MODEL_SHAPED_EXAMPLES = 150
+MODEL_SHAPED_BATCH_EXAMPLES = 30
 TIME_BUDGET_S = 240.0  # a generous bound: the run takes ~30 s on 2 cores
 CHECKS = [
     not_a_server_error,
@@ -94,6 +98,17 @@ def model_shaped_body(model: dict[str, Any]) -> st.SearchStrategy[dict[str, Any]
     )
 
 
+def model_shaped_batch(model: dict[str, Any]) -> st.SearchStrategy[dict[str, Any]]:
+    """Batches of 1 to FUZZ_MAX_BATCH_TARGETS model-shaped bodies' targets and options."""
+
+    def as_batch(bodies: list[dict[str, Any]]) -> dict[str, Any]:
+        targets = [{k: v for k, v in b.items() if k not in ("robot", "task")} for b in bodies]
+        return {"robot": model["robot"], "task": model["task"], "targets": targets}
+
+    bodies = st.lists(model_shaped_body(model), min_size=1, max_size=FUZZ_MAX_BATCH_TARGETS)
+    return bodies.map(as_batch)
+
+
 def test_generated_requests_get_no_5xx_and_documented_answers(server: LocalServer) -> None:
     schema = schemathesis.openapi.from_url(f"{server.url}/openapi.json")
     statuses: Counter[int] = Counter()
@@ -121,6 +136,8 @@ def test_generated_requests_get_no_5xx_and_documented_answers(server: LocalServe
     smm = schema["/smm"]["POST"]
     for mode, examples in EXAMPLES.items():
         fuzz(smm, mode, examples)
+    for mode, examples in BATCH_EXAMPLES.items():
+        fuzz(schema["/smm/batch"]["POST"], mode, examples)
     for path in ("/robots", "/healthz", "/readyz", "/metrics"):
         fuzz(schema[path]["GET"], GenerationMode.POSITIVE, OTHER_OPERATION_EXAMPLES)
 
@@ -142,6 +159,25 @@ def test_generated_requests_get_no_5xx_and_documented_answers(server: LocalServe
         case.validate_response(response, checks=CHECKS)
 
     model_shaped()
+
+    batch = schema["/smm/batch"]["POST"]
+
+    @given(body=st.one_of([model_shaped_batch(m) for m in models]))
+    @settings(
+        max_examples=MODEL_SHAPED_BATCH_EXAMPLES,
+        deadline=None,
+        database=None,
+        phases=[Phase.explicit, Phase.generate],
+        suppress_health_check=list(HealthCheck),
+    )
+    def model_shaped_batches(body: dict[str, Any]) -> None:
+        assert time.monotonic() - start < TIME_BUDGET_S, "fuzz ran past its time budget"
+        case = batch.Case(body=body, media_type="application/json")
+        response = case.call(base_url=server.url, timeout=60)
+        statuses[response.status_code] += 1
+        case.validate_response(response, checks=CHECKS)
+
+    model_shaped_batches()
 
     total = sum(statuses.values())
     print(f"fuzz: {total} requests in {time.monotonic() - start:.0f} s, by status {dict(statuses)}")
