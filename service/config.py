@@ -48,12 +48,13 @@ class Settings(BaseSettings):
         "on 2 cores) answers within request_deadline_s.",
     )
     batch_sampling_threads: int = Field(
-        1,
+        0,
         ge=0,
         description="Threads that sample a POST /smm/batch's next targets (the flow "
-        "network) while its earlier ones are corrected and connected; 0 runs each target's "
-        "stages one after another. onnxruntime releases the GIL, so on an otherwise idle "
-        "server a batch uses two cores.",
+        "network, which releases the GIL) while its earlier ones are corrected and "
+        "connected; 0 runs each target's stages one after another, so a batch, like a "
+        "request, keeps to one core per computation slot. 1 may help a server with idle "
+        "cores; on this 2-core machine, with another job on one core, it did not.",
     )
     onnx_threads: int = Field(
         0,

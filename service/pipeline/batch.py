@@ -2,11 +2,13 @@
 
 Every query goes through the pieces of `run.py` (target -> sample -> correct -> accept ->
 connect -> components) with its own seed, so its answer is the one `run` gives it, to
-the bit. What the batch changes is when the work is done: the flow network (stage 2,
-most of a query's time) samples the next queries in `sampling_threads` worker threads
-while the calling thread corrects, connects and summarises the earlier ones in order.
-onnxruntime releases the GIL while it evaluates the network, so on two cores the two
-overlap.
+the bit. With `sampling_threads` above 0 the flow network (stage 2) samples the next
+queries in worker threads while the calling thread corrects, connects and summarises
+the earlier ones in order: onnxruntime releases the GIL while it evaluates the network,
+so with a core to spare the two overlap (two threads evaluating the network at once did
+twice the work of one, measured on an idle 2-core machine). The service's default is 0:
+measured end to end with another job on one of the two cores, sampling ahead gained
+nothing, and a computation slot is meant to hold one core.
 
 Why the targets' samples are not concatenated into one network call per Euler step:
 measured with one onnxruntime thread (2-core AMD EPYC), a call costs the same per row
@@ -63,7 +65,7 @@ def run_batch(
     model: SmmModel,
     queries: Sequence[Query],
     deadline: Deadline = NO_DEADLINE,
-    sampling_threads: int = 1,
+    sampling_threads: int = 0,
 ) -> BatchResult:
     """Answer every query in order; `results[i]` equals `run(model, queries[i])` but for
     its timings, whose total is the sum of its stages (they do not run back to back).
