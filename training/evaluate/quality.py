@@ -5,14 +5,24 @@ with a seed distinct from training. Raw errors are over *all* samples (not only 
 kept ones, unlike the paper), at the serving default sampler and at the paper's 100
 uniform Euler steps; the keep rate is the fraction accepted after the default correction at
 the default tolerances.
+
+    python -m training.evaluate.quality --model-dir models/iiwa14-pose --write
+
+re-measures an exported model's quality with its current defaults (after a sweep changed
+them) into its manifest; the paper sampler's row is kept from the manifest (the same
+float32 network, targets, seed and samples give the same row) instead of measured again.
 """
 
 from __future__ import annotations
 
+import argparse
+import json
+from pathlib import Path
+
 import numpy as np
 
-from service.manifest import Quality, RawError, SamplerSpec
-from service.models.registry import ServedModel
+from service.manifest import MANIFEST_FILE, Manifest, Quality, RawError, SamplerSpec
+from service.models.registry import ServedModel, load_model
 from service.pipeline.acceptance import accept
 from service.pipeline.correction import correct, task_error_norms
 from service.pipeline.sampling import sample_configurations
@@ -60,15 +70,31 @@ def summarise_raw(
     )
 
 
-def measure_quality(served: ServedModel, num_targets: int, samples: int, seed: int) -> Quality:
+def _same_sampler(row: RawError, sampler: SamplerSpec) -> bool:
+    return (row.sampler_steps, row.sampler_time_power, row.sampler_precision) == (
+        sampler.steps, sampler.time_power, sampler.precision,
+    )  # fmt: skip
+
+
+def measure_quality(
+    served: ServedModel,
+    num_targets: int,
+    samples: int,
+    seed: int,
+    paper_row: RawError | None = None,
+) -> Quality:
+    """`paper_row`: the paper sampler's row measured earlier on the same network, targets
+    (num_targets, seed) and samples, kept instead of measured again."""
     manifest = served.manifest
     task, defaults = manifest.task, manifest.defaults
     lower, upper, periodic = manifest.joints.arrays()
     targets = held_out_targets(served, num_targets, seed)
     # The serving default first (it is also corrected), then the paper's sampler.
     samplers = [defaults.sampler]
-    if defaults.sampler != PAPER_SAMPLER:
+    if defaults.sampler != PAPER_SAMPLER and paper_row is None:
         samplers.append(PAPER_SAMPLER)
+    if paper_row is not None and not _same_sampler(paper_row, PAPER_SAMPLER):
+        raise ValueError(f"paper_row was measured with another sampler: {paper_row}")
     errors: list[list[tuple[np.ndarray, np.ndarray]]] = [[] for _ in samplers]
     kept, solved = 0, 0
     for i in range(num_targets):
@@ -116,6 +142,8 @@ def measure_quality(served: ServedModel, num_targets: int, samples: int, seed: i
         )
         for sampler, sampler_errors in zip(samplers, errors, strict=True)
     ]
+    if paper_row is not None and defaults.sampler != PAPER_SAMPLER:
+        raw.append(paper_row)
     return Quality(
         held_out_targets=num_targets,
         samples_per_target=samples,
@@ -124,3 +152,39 @@ def measure_quality(served: ServedModel, num_targets: int, samples: int, seed: i
         targets_with_solution=solved / num_targets,
         measured_by="training.evaluate.quality.measure_quality (run by smm-train after export)",
     )
+
+
+def remeasure(model_dir: Path, threads: int = 1) -> Quality:
+    """`measure_quality` of an exported model with its current defaults, on the targets,
+    seed and samples its training config records, its paper-sampler row kept."""
+    manifest = Manifest.model_validate_json((model_dir / MANIFEST_FILE).read_bytes())
+    config = manifest.training.config
+    num_targets, samples = int(config["eval_targets"]), int(config["eval_samples_per_target"])  # type: ignore[call-overload]
+    known = manifest.quality
+    paper_row = None
+    if known is not None and (known.held_out_targets, known.samples_per_target) == (
+        num_targets, samples,
+    ):  # fmt: skip
+        paper_row = next((r for r in known.raw if _same_sampler(r, PAPER_SAMPLER)), None)
+    served = load_model(model_dir, threads=threads)
+    return measure_quality(served, num_targets, samples, int(config["eval_seed"]), paper_row)  # type: ignore[call-overload]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawTextHelpFormatter
+    )
+    parser.add_argument("--model-dir", required=True, type=Path)
+    parser.add_argument("--write", action="store_true", help="write it into the manifest")
+    args = parser.parse_args()
+    quality = remeasure(args.model_dir)
+    print(json.dumps(quality.model_dump(), indent=1))
+    if args.write:
+        path = args.model_dir / MANIFEST_FILE
+        manifest = Manifest.model_validate_json(path.read_bytes())
+        manifest = manifest.model_copy(update={"quality": quality})
+        path.write_text(manifest.model_dump_json(indent=2, exclude_unset=True) + "\n")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,7 +1,9 @@
 """quality: the figures an export records in its manifest, from the service's own stages.
 
 Raw errors at the serving sampler and at the paper's 100 Euler steps, a keep rate over
-every sample, and the same figures for the same seed.
+every sample, and the same figures for the same seed; a paper-sampler row measured before
+is kept as it was, and equals the one measured again; the raw error is the network's of
+the sampler's precision.
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ import pytest
 from service.manifest import SamplerSpec
 from service.models.registry import ServedModel
 from training.evaluate.quality import PAPER_SAMPLER, measure_quality, summarise_raw
+from training.evaluate.served import with_defaults
 
 TWENTY = SamplerSpec(steps=20)
 
@@ -27,6 +30,28 @@ def test_quality_reports_both_samplers_and_reproduces_for_a_seed(planar3r: Serve
     assert 0.0 < quality.keep_rate <= 1.0 and quality.targets_with_solution == 1.0
     assert all(r.orientation_error_deg_mean is None for r in quality.raw)  # position task
     assert measure_quality(planar3r, num_targets=3, samples=100, seed=5) == quality
+
+
+def test_a_known_paper_row_is_kept_and_is_the_row_measured_again(planar3r: ServedModel) -> None:
+    measured = measure_quality(planar3r, num_targets=3, samples=100, seed=5)
+    paper_row = measured.raw[-1]
+    assert (paper_row.sampler_steps, paper_row.sampler_precision) == (100, "float32")
+    kept = measure_quality(planar3r, num_targets=3, samples=100, seed=5, paper_row=paper_row)
+    assert kept == measured
+    with pytest.raises(ValueError, match="another sampler"):
+        measure_quality(planar3r, 3, 100, 5, paper_row=measured.raw[0])
+
+
+def test_the_raw_error_is_the_network_of_the_sampler_precision(planar3r: ServedModel) -> None:
+    def sampler_of(precision: str) -> ServedModel:
+        sampler = SamplerSpec(steps=20, precision=precision)  # type: ignore[arg-type]
+        return with_defaults(planar3r, sampler=sampler)
+
+    int8, float32 = (measure_quality(sampler_of(p), 3, 100, 5) for p in ("int8", "float32"))
+    assert (int8.raw[0].sampler_precision, float32.raw[0].sampler_precision) == ("int8", "float32")
+    # Different networks, so different errors, but the same paper row (float32 both).
+    assert int8.raw[0].position_error_mm_mean != float32.raw[0].position_error_mm_mean
+    assert int8.raw[1] == float32.raw[1]
 
 
 def test_paper_figures_follow_their_definitions_on_hand_made_errors() -> None:
