@@ -44,7 +44,7 @@ def test_a_known_paper_row_is_kept_and_is_the_row_measured_again(planar3r: Serve
 
 def test_the_raw_error_is_the_network_of_the_sampler_precision(planar3r: ServedModel) -> None:
     def sampler_of(precision: str) -> ServedModel:
-        sampler = SamplerSpec(steps=20, precision=precision)  # type: ignore[arg-type]
+        sampler = SamplerSpec(steps=20, precision=precision)
         return with_defaults(planar3r, sampler=sampler)
 
     int8, float32 = (measure_quality(sampler_of(p), 3, 100, 5) for p in ("int8", "float32"))
