@@ -1,6 +1,7 @@
 """Faults stay in their request: a network that returns NaN, served by the real app.
 
-A planar 3R model whose flow.onnx is a real ONNX graph that answers NaN for most
+A planar 3R model whose served flow network (flow.onnx, or flow_int8.onnx where its
+sampler's precision is int8) is a real ONNX graph that answers NaN for most
 samples (the square root of its input: NaN wherever a coordinate is negative) is
 served next to the healthy iiwa14 position model. Its requests get 200 with every
 sample accounted for and only exact configurations returned (checked by the closed-form
@@ -21,7 +22,7 @@ import numpy as np
 import onnx
 from onnx import TensorProto, helper
 
-from service.manifest import REPO_MODELS_DIR
+from service.manifest import FLOW_FILES, REPO_MODELS_DIR
 from tests.support.app import PLANAR3R_DIR, make_client
 from training.evaluate.references.planar3r import planar3r_position
 
@@ -57,9 +58,10 @@ def faulty_models(tmp_path: Path) -> Path:
     shutil.copytree(REPO_MODELS_DIR / "iiwa14-position", models / "iiwa14-position")
     planar = models / PLANAR3R_DIR.name
     shutil.copytree(PLANAR3R_DIR, planar)
-    nan_flow(planar / "flow.onnx", joints=3, condition=2)
     manifest = json.loads((planar / "manifest.json").read_text())
-    manifest["files"]["flow.onnx"] = hashlib.sha256((planar / "flow.onnx").read_bytes()).hexdigest()
+    served = FLOW_FILES[manifest["defaults"]["sampler"].get("precision", "float32")]
+    nan_flow(planar / served, joints=3, condition=2)
+    manifest["files"][served] = hashlib.sha256((planar / served).read_bytes()).hexdigest()
     (planar / "manifest.json").write_text(json.dumps(manifest))
     return models
 

@@ -137,7 +137,8 @@ def test_a_urdf_never_seen_trains_exports_and_is_served(tmp_path: Path) -> None:
     assert manifest.joints.names == ["j1", "j2", "j3", "j4"]
     # Its serving defaults were chosen by the built-in sweep, every candidate measured.
     swept = [
-        ("sampler", (10, 20, 50)),
+        ("sampler_precision", (32, 8)),
+        ("sampler", (2, 4, 8, 20)),
         ("num_samples", (500, 1000, 2000)),
         ("connectivity", (0.075, 0.15, 0.3)),  # r = 1: the trace's step
     ]

@@ -324,16 +324,26 @@ def test_a_sweep_of_some_axes_keeps_the_rest_and_offers_int8_only_where_it_exist
     float32_only = replace(
         planar,
         manifest=planar.manifest.model_copy(
-            update={"files": {k: v for k, v in planar.manifest.files.items() if "int8" not in k}}
+            update={
+                "files": {k: v for k, v in planar.manifest.files.items() if "int8" not in k},
+                "defaults": planar.manifest.defaults.model_copy(
+                    update={
+                        "sampler": planar.manifest.defaults.sampler.model_copy(
+                            update={"precision": "float32"}
+                        )
+                    }
+                ),
+            }
         ),
     )
     result = sweep_defaults(float32_only, 1, SEED, TINY_PLAN, axes=["flow_precision_bits"])
     assert [(r.axis, r.value) for r in result.table] == [("flow_precision_bits", 32)]
     assert result.time_power_table == []  # the sampler's steps were not swept
-    start = planar.manifest.defaults
+    start = float32_only.manifest.defaults
     assert result.defaults.model_dump(exclude={"reasons"}) == start.model_dump(exclude={"reasons"})
+    unchanged = {k: v for k, v in start.reasons.items() if k != "sampler_precision"}
     assert {k: v for k, v in result.defaults.reasons.items() if k != "sampler_precision"} == (
-        start.reasons
+        unchanged
     )
     assert result.defaults.reasons["sampler_precision"].startswith("32 bit flow by the rule")
     with pytest.raises(ValueError, match="choose from"):
