@@ -69,14 +69,16 @@ def batch_against_singles(
     rounds: int = ROUNDS,
     server: LocalServer | None = None,
     progress: Callable[[str], None] = lambda line: None,
+    **server_settings: Any,
 ) -> dict[str, Any]:
     """Time K targets as one POST /smm/batch against K POST /smm one after another.
 
     `server`: a running LocalServer to ask (its limits must admit the batch); None starts
     one with the default settings but the batch limits and deadline raised to fit the K
-    targets. Returns the medians over `rounds` of the client's wall time of the K singles
-    and of the batch, their ratio, the server's own batch timings, and whether every
-    batch answer equalled its single answer (`mismatched`: the indices that did not).
+    targets, and `server_settings` (Settings fields, `batch_sampling_threads=1`). Returns
+    the medians over `rounds` of the client's wall time of the K singles and of the batch,
+    their ratio, the server's own batch timings, and whether every batch answer equalled
+    its single answer (`mismatched`: the indices that did not).
     """
     manifest = model.manifest
     targets = [target_of(model, q) for q in q_targets]
@@ -92,6 +94,7 @@ def batch_against_singles(
             max_num_samples=max(num_samples, Settings().max_num_samples),
             request_deadline_s=TIMEOUT_S,
             max_body_bytes=max(65_536, 2 * len(json.dumps(batch))),
+            **server_settings,
         ).start()
     singles_ms: list[float] = []
     batch_ms: list[float] = []
@@ -124,6 +127,7 @@ def batch_against_singles(
     singles_median = float(np.median(singles_ms))
     batch_median = float(np.median(batch_ms))
     return {
+        "server_settings": server_settings,
         "model": model.reference,
         "targets": len(targets),
         "num_samples": num_samples,

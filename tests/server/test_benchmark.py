@@ -1,7 +1,8 @@
 """tools.benchmark: the command writes a report (JSON and Markdown) with every configuration
 for every size (the float32 network beside an int8 default), over HTTP too, whose figures
 are the evaluation's (planar 3R: the count against the closed form); random-restart DLS is
-run to at least the service's number of valid configurations per target."""
+run to at least the service's number of valid configurations per target; a batch of
+targets against its single requests, with identical answers, in the same report."""
 
 import json
 import subprocess
@@ -9,6 +10,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from service.models.registry import ServedModel
 from tools.benchmark import FLOAT32, PAPER, RESTART, SERVICE, restarts_to_match
@@ -21,6 +23,7 @@ def test_the_command_writes_every_configuration_and_size(tmp_path: Path) -> None
     command = [
         sys.executable, "-m", "tools.benchmark", "--models", "planar3r-position",
         "--sizes", "100", "200", "--targets", "2", "--out", str(tmp_path),
+        "--batch-model", "planar3r-position", "--batch-targets", "3",
     ]  # fmt: skip
     subprocess.run(command, cwd=ROOT, check=True, capture_output=True, timeout=600)
     report = json.loads((tmp_path / "benchmark.json").read_text())
@@ -43,6 +46,16 @@ def test_the_command_writes_every_configuration_and_size(tmp_path: Path) -> None
     # every configuration and HTTP, at 2 sizes
     assert text.count("| planar3r-position |") == 2 * len(names) + 2
     assert report["machine"]["cores"] >= 1
+    # The batch against its singles, by default and sampling ahead: the same answers.
+    for key, threads in (("batch", {}), ("batch_sampling_ahead", {"batch_sampling_threads": 1})):
+        batch = report[key]
+        assert batch["targets"] == 3 and batch["identical"] and batch["mismatched"] == []
+        assert batch["server_settings"] == threads
+        assert batch["singles_over_batch"] == pytest.approx(
+            batch["singles_median_ms"] / batch["batch_median_ms"]
+        )
+    assert text.count("| default (`SMM_BATCH_SAMPLING_THREADS=0`) |") == 1
+    assert text.count("| sampling ahead on the other core") == 1
 
 
 def test_restarts_reach_the_valid_count_asked_for(planar3r: ServedModel) -> None:
