@@ -1,7 +1,7 @@
 """Architecture: imports run one way (docs/architecture.md), and neither package has a cycle.
 
 service/ is layered, outermost first: the edge (main, config, healthcheck, http/, api/),
-observability/, models/, pipeline/, the contract (errors, manifest). A module imports its
+observability/, models/, pipeline/, the contract (errors, manifest, wire). A module imports its
 own layer or the layers inside it, never one outside; service/ never imports training/;
 training/ uses the service's contract, pipeline and models, never its edge. Every
 import counts, also one inside a function. The checks run over the real tree; the
@@ -21,7 +21,7 @@ ROOT = Path(__file__).resolve().parents[1]
 # service/ layers, innermost first: (layer, module prefixes). A module may import only
 # modules of its own layer or of a layer before it in this list.
 SERVICE_LAYERS: list[tuple[str, tuple[str, ...]]] = [
-    ("contract", ("service.errors", "service.manifest")),
+    ("contract", ("service.errors", "service.manifest", "service.wire")),
     ("pipeline", ("service.pipeline",)),
     ("models", ("service.models",)),
     ("observability", ("service.observability",)),

@@ -5,7 +5,7 @@ from __future__ import annotations
 from fastapi import APIRouter, Request
 from fastapi.responses import JSONResponse
 
-from service.api.schemas import FailedModelOut, LivenessResponse, ReadinessResponse
+from service.wire import FailedModelOut, LivenessResponse, ReadinessResponse
 
 router = APIRouter(tags=["health"])
 

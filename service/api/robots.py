@@ -5,8 +5,9 @@ from __future__ import annotations
 from fastapi import APIRouter
 
 from service.api.deps import RegistryDep
-from service.api.schemas import RobotOut, RobotsResponse, error_responses
+from service.api.schemas import error_responses
 from service.models.registry import ServedModel
+from service.wire import RobotOut, RobotsResponse
 
 router = APIRouter(prefix="/robots", tags=["robots"])
 

@@ -8,19 +8,13 @@ from fastapi import APIRouter, Request, Response
 from starlette.concurrency import run_in_threadpool
 
 from service.api.deps import AdmissionDep, MetricsDep, RegistryDep, SettingsDep
-from service.api.schemas import (
-    ComponentOut,
-    CountsOut,
-    SmmRequest,
-    SmmResponse,
-    StructureOut,
-    error_responses,
-)
+from service.api.schemas import error_responses
 from service.errors import DeadlineExceededError, LimitExceededError, OverloadedError
 from service.models.registry import ServedModel
 from service.pipeline.deadline import Deadline
 from service.pipeline.run import run
 from service.pipeline.types import ComponentSummary, Query, SmmResult
+from service.wire import ComponentOut, CountsOut, SmmRequest, SmmResponse, StructureOut
 
 router = APIRouter(prefix="/smm", tags=["smm"])
 

@@ -14,12 +14,7 @@ from fastapi import APIRouter, Request, Response
 from starlette.concurrency import run_in_threadpool
 
 from service.api.deps import AdmissionDep, MetricsDep, RegistryDep, SettingsDep
-from service.api.schemas import (
-    BatchItemOut,
-    SmmBatchRequest,
-    SmmBatchResponse,
-    error_responses,
-)
+from service.api.schemas import error_responses
 from service.api.smm import query_for_model, to_response
 from service.config import Settings
 from service.errors import (
@@ -33,6 +28,7 @@ from service.models.registry import ServedModel
 from service.pipeline.batch import BatchResult, run_batch
 from service.pipeline.deadline import Deadline
 from service.pipeline.types import STAGES, Query, TimedSpan
+from service.wire import BatchItemOut, SmmBatchRequest, SmmBatchResponse
 
 router = APIRouter(prefix="/smm", tags=["smm"])
 

@@ -16,10 +16,10 @@ from fastapi.responses import JSONResponse
 from pydantic import BaseModel
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from service.api.schemas import SmmBatchRequest, SmmRequest
 from service.config import Settings
 from service.errors import OverloadedError, RequestFieldError, RequestFieldErrors, SmmError
 from service.http.validation import explain
+from service.wire import SmmBatchRequest, SmmRequest
 
 # The request model of each route that takes a body: validation messages quote its schema.
 REQUEST_MODELS: dict[str, type[BaseModel]] = {"/smm": SmmRequest, "/smm/batch": SmmBatchRequest}

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from service.api.schemas import SmmRequest
 from service.http.validation import describe, explain, field_path, node_at
+from service.wire import SmmRequest
 
 SCHEMA = SmmRequest.model_json_schema()
 

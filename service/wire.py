@@ -1,0 +1,309 @@
+"""The HTTP contract's request and response models: the wire format, in one place.
+
+Shared by the server (`service.api` answers with them; the OpenAPI document is generated
+from them) and by the Python client (`service.client` sends and parses them), so the two
+cannot drift. Only pydantic here: the client imports this module without numpy, fastapi
+or onnxruntime (a test checks).
+
+Names follow one rule: a whole body ends in `Request` or `Response`, a part of one in `In`
+(inside a request) or `Out` (inside a response), so no wire model shares a name with the
+pipeline's types (`Target`, `SampleCounts`, ...).
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+# What `timings_ms` times: every pipeline stage in run order, and the whole run. Spelt out
+# here because the pipeline's `TimedSpan` (service/pipeline/types.py) lives with numpy; a
+# test checks the two are the same names in the same order.
+TimedSpan = Literal["encode", "sample", "correct", "accept", "connect", "summarise", "total"]
+
+# JSON has no NaN or infinity; refuse them where a parser lets them through.
+Finite = Annotated[float, Field(allow_inf_nan=False)]
+# The options of a query, constrained once: POST /smm and each target of POST /smm/batch.
+NumSamples = Annotated[int, Field(ge=1)]
+Seed = Annotated[int, Field(ge=0, le=2**63 - 1)]
+MaxConfigurations = Annotated[int, Field(ge=1)]
+
+
+class _Request(BaseModel):
+    # A misspelt option must not silently fall back to its default, and a string or a
+    # boolean is not a number (strict: no "0.5" -> 0.5 or true -> 1.0 coercion).
+    model_config = ConfigDict(extra="forbid", strict=True)
+
+
+class QuaternionIn(_Request):
+    """Unit quaternion w + xi + yj + zk, fields named so the order is never ambiguous."""
+
+    w: Finite
+    x: Finite
+    y: Finite
+    z: Finite
+
+    def wxyz(self) -> tuple[float, float, float, float]:
+        return (self.w, self.x, self.y, self.z)
+
+
+class TargetIn(_Request):
+    position: list[Finite] = Field(
+        min_length=1,
+        max_length=3,
+        description="End-effector position in metres, base frame; one value per constrained "
+        "axis (2 for a planar arm, 3 in space).",
+        examples=[[0.5, 0.0]],
+    )
+    orientation: QuaternionIn | None = Field(
+        None, description="Required for the pose task, refused for the position task."
+    )
+
+
+class ToleranceIn(_Request):
+    position: Annotated[float, Field(gt=0.0, le=0.1, allow_inf_nan=False)] | None = Field(
+        None, description="Largest accepted position error in metres (default: the model's)."
+    )
+    orientation: Annotated[float, Field(gt=0.0, le=3.14, allow_inf_nan=False)] | None = Field(
+        None,
+        description="Largest accepted orientation error in radians (pose task only; default: "
+        "the model's).",
+    )
+
+
+class SmmRequest(_Request):
+    robot: str = Field(examples=["planar3r"])
+    task: str = Field(examples=["position"])
+    target: TargetIn
+    num_samples: NumSamples | None = Field(
+        None, description="Flow samples to draw (default: the model's; 413 above the limit)."
+    )
+    seed: Seed = Field(0, description="The same seed gives the same answer.")
+    tolerance: ToleranceIn = Field(default_factory=ToleranceIn)
+    reference_configuration: list[Finite] | None = Field(
+        None,
+        description="Joint angles in radians (model joint order); components are then ordered "
+        "by their distance to it and report their nearest member.",
+    )
+    max_configurations_per_component: MaxConfigurations | None = Field(
+        None,
+        description="Cap on configurations returned per component (a covering subset by "
+        "farthest-point sampling); `size` still counts every member. Default: all.",
+    )
+    include_paths: bool = Field(
+        True,
+        description="For a 1-D self-motion (redundancy 1), return each component's ordered "
+        "`path`; false keeps answers small (`arc_length_rad` and `closed` stay).",
+    )
+
+
+class CountsOut(BaseModel):
+    sampled: int
+    accepted: int
+    rejected_tolerance: int
+    rejected_joint_limits: int
+
+
+class ComponentOut(BaseModel):
+    id: int
+    size: int = Field(description="Accepted configurations in this component.")
+    representative: list[float]
+    configurations: list[list[float]]
+    joint_min: list[float]
+    joint_max: list[float]
+    max_position_error: float = Field(description="metres")
+    max_orientation_error: float = Field(description="radians; 0 for a position task")
+    distance_to_reference: float | None = Field(description="joint metric, radians")
+    nearest_to_reference: list[float] | None
+    arc_length_rad: float | None = Field(
+        description="Redundancy 1: the component's length along the fibre (joint metric); "
+        "null otherwise."
+    )
+    closed: bool | None = Field(
+        description="Redundancy 1: true when the component is a whole loop inside the limits "
+        "(the path's last point joins its first); false when its ends are at joint limits."
+    )
+    path: list[list[float]] | None = Field(
+        description="Redundancy 1: the whole component, configurations in order along the "
+        "curve, consecutive ones at most 0.05 rad apart, every one within tolerance and "
+        "inside the limits. Null for redundancy above 1 or when include_paths is false."
+    )
+
+
+class StructureOut(BaseModel):
+    near_singular: bool = Field(
+        description="The target is near a singular value of the kinematics (the Jacobian "
+        "nearly loses rank on the fibre, a curve could not be traced through, or two "
+        "strands of the fibre run closer than the tracing resolves): components may touch "
+        "there, so their number may be ambiguous. Every returned configuration is still "
+        "exact and inside the limits."
+    )
+    min_singular_value: float | None = Field(
+        description="Smallest singular value of the task Jacobian seen on the fibre."
+    )
+    traced: bool = Field(
+        description="Components were decided by tracing the fibre whole (redundancy 1); "
+        "otherwise by a roadmap whose edges were checked on the fibre."
+    )
+
+
+class SmmResponse(BaseModel):
+    robot: str
+    task: str
+    model: str = Field(description="<model-id>@<first 12 hex of the model files' digest>")
+    joint_names: list[str]
+    redundancy: int
+    status: Literal["ok", "no_solution"]
+    counts: CountsOut
+    components: list[ComponentOut]
+    structure: StructureOut
+    timings_ms: dict[TimedSpan, float] = Field(
+        description="Wall time in ms of each pipeline stage, in order, and of the whole run."
+    )
+
+
+class BatchTargetIn(_Request):
+    """One target of a batch: the `target` of a POST /smm body, and any of that body's
+    options to use for this target instead of the batch's."""
+
+    target: TargetIn
+    num_samples: NumSamples | None = Field(None, description="Default: the batch's.")
+    seed: Seed | None = Field(None, description="Default: the batch's.")
+    tolerance: ToleranceIn | None = Field(
+        None, description="Default: the batch's (replaced whole, not field by field)."
+    )
+    reference_configuration: list[Finite] | None = Field(
+        None,
+        description="Default: the batch's; the previous waypoint's configuration, say, to "
+        "order this target's components by their distance to it.",
+    )
+    max_configurations_per_component: MaxConfigurations | None = Field(
+        None, description="Default: the batch's."
+    )
+    include_paths: bool | None = Field(None, description="Default: the batch's.")
+
+
+# The options a batch target may give for itself, in SmmRequest's names.
+BATCH_TARGET_OPTIONS = (
+    "num_samples",
+    "seed",
+    "tolerance",
+    "reference_configuration",
+    "max_configurations_per_component",
+    "include_paths",
+)
+
+
+class SmmBatchRequest(_Request):
+    """Many targets of one model. Each target is answered as POST /smm answers the body
+    `request_for(index)`: the batch's robot and task, the target, and every option the
+    target gives (not null) or else the batch's."""
+
+    robot: str = Field(examples=["planar3r"])
+    task: str = Field(examples=["position"])
+    targets: list[BatchTargetIn] = Field(
+        min_length=1,
+        description="The targets, answered in this order (413 above the server's "
+        "SMM_MAX_BATCH_TARGETS, 64 by default).",
+        examples=[[{"target": {"position": [0.5, 0.0]}}, {"target": {"position": [0.5, 0.1]}}]],
+    )
+    num_samples: NumSamples | None = Field(
+        None,
+        description="Flow samples per target (default: the model's; 413 above the limit per "
+        "target, or above SMM_MAX_BATCH_SAMPLES over all the targets).",
+    )
+    seed: Seed = Field(0, description="The same seed gives the same answer.")
+    tolerance: ToleranceIn = Field(default_factory=ToleranceIn)
+    reference_configuration: list[Finite] | None = Field(
+        None, description="As in POST /smm, for every target that gives none."
+    )
+    max_configurations_per_component: MaxConfigurations | None = Field(
+        None, description="As in POST /smm."
+    )
+    include_paths: bool = Field(True, description="As in POST /smm.")
+
+    def request_for(self, index: int) -> SmmRequest:
+        """The POST /smm body whose answer is this batch's answer for `targets[index]`."""
+        item = self.targets[index]
+        options = {}
+        for name in BATCH_TARGET_OPTIONS:
+            own = getattr(item, name)
+            options[name] = getattr(self, name) if own is None else own
+        return SmmRequest(robot=self.robot, task=self.task, target=item.target, **options)
+
+
+class BatchItemOut(BaseModel):
+    index: int = Field(description="The target's position in the request's `targets`.")
+    status: Literal["ok", "no_solution", "deadline_exceeded"] = Field(
+        description="ok or no_solution: the answer's own status; deadline_exceeded: the "
+        "request's deadline passed before this target was answered (no answer; send it again)."
+    )
+    answer: SmmResponse | None = Field(
+        description="Exactly POST /smm's answer to this target with the same options and "
+        "seed (timings aside: their total is the sum of its stages, which a batch does not "
+        "run back to back)."
+    )
+
+
+class SmmBatchResponse(BaseModel):
+    robot: str
+    task: str
+    model: str = Field(description="<model-id>@<first 12 hex of the model files' digest>")
+    joint_names: list[str]
+    redundancy: int
+    status: Literal["complete", "partial"] = Field(
+        description="complete: every target answered; partial: the request's deadline "
+        "stopped the batch, and the targets from the first unanswered one on have status "
+        "deadline_exceeded."
+    )
+    results: list[BatchItemOut] = Field(description="One per target, in the request's order.")
+    timings_ms: dict[TimedSpan, float] = Field(
+        description="Per stage, the sum over the answered targets, in ms; total: the wall "
+        "time of the whole batch (less than the sum of the stages where sampling ran beside "
+        "the other stages)."
+    )
+
+
+class RobotOut(BaseModel):
+    robot: str
+    task: str
+    model: str
+    joint_names: list[str]
+    joint_lower: list[float]
+    joint_upper: list[float]
+    periodic_joints: list[bool]
+    redundancy: int
+    target_position_length: int
+    orientation: bool
+    defaults: dict[str, object]
+    training: dict[str, object]
+    quality: dict[str, object] | None
+
+
+class RobotsResponse(BaseModel):
+    models: list[RobotOut]
+
+
+class ErrorResponse(BaseModel):
+    """Every error but a malformed body's (422) is `{"detail": "<what, and what is allowed>"}`."""
+
+    detail: str
+
+
+class LivenessResponse(BaseModel):
+    status: Literal["alive"]
+
+
+class FailedModelOut(BaseModel):
+    name: str = Field(description="The model directory's name (the model id).")
+    reason: str = Field(description="Why it failed verification, naming the file.")
+
+
+class ReadinessResponse(BaseModel):
+    status: Literal["ready", "not_ready", "loading", "draining"] = Field(
+        description="ready: every model found was loaded and verified (200); otherwise 503."
+    )
+    models: list[str] = Field(description="Served models, `<model-id>@<version>`.")
+    failed: list[FailedModelOut] = Field(
+        description="Models that failed verification at start-up and are not served."
+    )
