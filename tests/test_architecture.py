@@ -1,9 +1,10 @@
 """Architecture: imports run one way (docs/architecture.md), and neither package has a cycle.
 
-service/ is layered, outermost first: the edge (main, config, healthcheck, http/, api/),
-observability/, models/, pipeline/, the contract (errors, manifest, wire). A module imports its
-own layer or the layers inside it, never one outside; service/ never imports training/;
-training/ uses the service's contract, pipeline and models, never its edge. Every
+service/ is layered, outermost first: the Python client (client/), the edge (main, config,
+healthcheck, http/, api/), observability/, models/, pipeline/, the contract (errors,
+manifest, wire). A module imports its own layer or the layers inside it, never one
+outside; the client imports nothing of service/ but the contract; service/ never imports
+training/; training/ uses the service's contract, pipeline and models, never its edge. Every
 import counts, also one inside a function. The checks run over the real tree; the
 checker itself is tried on a synthetic tree first, so a test that cannot fail is caught.
 """
@@ -29,7 +30,10 @@ SERVICE_LAYERS: list[tuple[str, tuple[str, ...]]] = [
         "edge",
         ("service.http", "service.api", "service.main", "service.config", "service.healthcheck"),
     ),
+    # Runs in a planner's process, not the server's: it shares only the wire models.
+    ("client", ("service.client",)),
 ]
+CLIENT_MAY_IMPORT = ("contract", "client")
 PIPELINE = [name for name, _ in SERVICE_LAYERS].index("pipeline")
 # What training/ may import from service/: the shared schema, the domain, the loaded models.
 TRAINING_MAY_IMPORT = ("contract", "pipeline", "models")
@@ -209,6 +213,19 @@ def test_every_service_module_belongs_to_a_layer(graph: dict[str, set[str]]) -> 
 
 def test_imports_run_one_way(graph: dict[str, set[str]]) -> None:
     assert direction_violations(graph) == []
+
+
+def test_the_client_imports_only_the_contract(graph: dict[str, set[str]]) -> None:
+    allowed = {i for i, (name, _) in enumerate(SERVICE_LAYERS) if name in CLIENT_MAY_IMPORT}
+    client = [m for m in graph if m == "service.client" or m.startswith("service.client.")]
+    assert client, "no service.client modules found"
+    outside = [
+        f"{module} imports {imported}"
+        for module in client
+        for imported in sorted(graph[module])
+        if (layer := layer_of(imported)) is not None and layer not in allowed
+    ]
+    assert outside == []
 
 
 def test_no_import_cycle_in_service_or_training(graph: dict[str, set[str]]) -> None:
