@@ -1,0 +1,254 @@
+"""A planner's use of the service: from where the arm is, where to go for a new pose.
+
+The arm (KUKA iiwa14, the bundled `iiwa14-pose` model) holds configuration q and must
+reach a new target pose. This script asks the service for every way of reaching it, then
+
+1. takes the component nearest to q (`reference_configuration = q`: the service reports
+   each component's `distance_to_reference` and the member nearest to q), because the
+   arm can reach that component with the least joint motion;
+2. within it, picks the configuration with the largest joint-limit margin (the smallest
+   distance of any joint to its limit, limits from GET /robots), because that leaves the
+   most room to move on. Where members tie on it (on this pose q4 is the same on the
+   whole component, the elbow angle being fixed by the shoulder-wrist distance, so its
+   margin is every member's smallest), the next-smallest margin decides, and so on
+   (margins compared to 1e-6 rad);
+3. for a 1-D component (r = 1), walks the component's ordered `path` from the point
+   nearest to q to that configuration and reports the walk's length in the joint metric:
+   the self-motion that keeps the end effector on the target while the arm moves there.
+
+Runs with the client's dependencies only (httpx, pydantic; no numpy):
+
+    python examples/planner.py --url http://127.0.0.1:8000
+
+`--json PATH` also writes the request, the choice and the figures, for a program (the
+tests check the choice against the service's answer and an independent FK).
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import math
+import sys
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+from service.client import (
+    ComponentOut,
+    QuaternionIn,
+    RobotOut,
+    SmmClient,
+    SmmClientError,
+    SmmRequest,
+    TargetIn,
+)
+
+Configuration = list[float]
+
+# Where the arm is, and the pose it is asked to reach (the README's iiwa14 pose example:
+# made by a configuration 0.33 rad from this q, so its nearest component is close by).
+DEFAULT_Q = [0.0, 0.5, 0.0, -1.4, 0.0, 1.0, 0.0]
+DEFAULT_POSITION = [0.6501, 0.2011, 0.5018]
+DEFAULT_ORIENTATION = [0.2165, -0.1458, 0.9648, 0.0327]  # w, x, y, z
+
+
+def joint_distance(a: Sequence[float], b: Sequence[float], periodic: Sequence[bool]) -> float:
+    """The service's joint metric: Euclidean over joints, a periodic joint's difference
+    wrapped to (-pi, pi]."""
+    total = 0.0
+    for qa, qb, wraps in zip(a, b, periodic, strict=True):
+        d = qa - qb
+        if wraps:
+            d = math.remainder(d, 2 * math.pi)
+        total += d * d
+    return math.sqrt(total)
+
+
+def margins(q: Sequence[float], robot: RobotOut) -> list[tuple[float, int]]:
+    """(distance to the nearer limit in rad, joint index) of every limited joint, smallest
+    first. Periodic joints have no limit and do not count."""
+    return sorted(
+        (min(value - lower, upper - value), index)
+        for index, (value, lower, upper, wraps) in enumerate(
+            zip(q, robot.joint_lower, robot.joint_upper, robot.periodic_joints, strict=True)
+        )
+        if not wraps
+    )
+
+
+def margin_key(q: Sequence[float], robot: RobotOut) -> tuple[float, ...]:
+    """Larger is better: the smallest margin first, then the next (leximin), each rounded
+    to 1e-6 rad so that a joint constant on the component ties instead of deciding by its
+    rounding noise."""
+    return tuple(round(m, 6) for m, _ in margins(q, robot))
+
+
+def walk_length(
+    path: Sequence[Configuration], start: int, end: int, closed: bool, periodic: Sequence[bool]
+) -> tuple[float, int]:
+    """(length in rad, steps) of the walk along `path` from index `start` to `end`; on a
+    closed loop, the shorter way round."""
+
+    def run(indices: Sequence[int]) -> float:
+        return sum(
+            joint_distance(path[i], path[j], periodic) for i, j in itertools.pairwise(indices)
+        )
+
+    lo, hi = sorted((start, end))
+    forward = list(range(lo, hi + 1))
+    best = (run(forward), len(forward) - 1)
+    if closed:
+        around = [*range(hi, len(path)), *range(lo + 1)]  # hi .. last, first .. lo
+        best = min(best, (run(around), len(around) - 1))
+    return best
+
+
+def nearest_index(
+    points: Sequence[Configuration], q: Sequence[float], periodic: Sequence[bool]
+) -> int:
+    return min(range(len(points)), key=lambda i: joint_distance(points[i], q, periodic))
+
+
+@dataclass
+class Choice:
+    component_id: int
+    distance_to_reference_rad: float  # from q to the component's nearest member
+    components: int
+    configuration: Configuration
+    source: str  # "configurations" or "path": where in the component it was found
+    margin_rad: float  # the smallest joint-limit margin of the choice
+    limiting_joint: str
+    margins_rad: dict[str, float]  # every limited joint's margin, smallest first
+    nearest_margins_rad: dict[str, float]  # the same for the member nearest to q
+    max_position_error_m: float
+    max_orientation_error_rad: float
+    path_length_rad: float | None  # None: not a 1-D component with a path
+    path_steps: int | None
+    path_from_index: int | None
+    path_to_index: int | None
+    closed: bool | None
+
+
+def choose(component: ComponentOut, components: int, robot: RobotOut) -> Choice:
+    """The largest-margin member of `component`, and the walk to it along its path."""
+    periodic = robot.periodic_joints
+    candidates = [(q, "configurations") for q in component.configurations]
+    candidates += [(q, "path") for q in component.path or []]
+    best_q, source = max(candidates, key=lambda c: margin_key(c[0], robot))
+    assert component.nearest_to_reference is not None  # the request gives a reference
+
+    def named(q: Sequence[float]) -> dict[str, float]:
+        return {robot.joint_names[i]: m for m, i in margins(q, robot)}
+
+    chosen = named(best_q)
+    length = steps = start = end = None
+    if component.path:
+        start = nearest_index(component.path, component.nearest_to_reference, periodic)
+        end = nearest_index(component.path, best_q, periodic)
+        length, steps = walk_length(component.path, start, end, bool(component.closed), periodic)
+    return Choice(
+        component_id=component.id,
+        distance_to_reference_rad=component.distance_to_reference or 0.0,
+        components=components,
+        configuration=best_q,
+        source=source,
+        margin_rad=next(iter(chosen.values())),
+        limiting_joint=next(iter(chosen)),
+        margins_rad=chosen,
+        nearest_margins_rad=named(component.nearest_to_reference),
+        max_position_error_m=component.max_position_error,
+        max_orientation_error_rad=component.max_orientation_error,
+        path_length_rad=length,
+        path_steps=steps,
+        path_from_index=start,
+        path_to_index=end,
+        closed=component.closed,
+    )
+
+
+def rounded(q: Sequence[float]) -> str:
+    return "[" + ", ".join(f"{v:.4f}" for v in q) + "]"
+
+
+def listed(margins_rad: dict[str, float]) -> str:
+    return ", ".join(f"{name} {m:.4f}" for name, m in margins_rad.items())
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--url", default="http://127.0.0.1:8000")
+    parser.add_argument("--api-key", default=None, help="the server's SMM_API_KEY, if set")
+    parser.add_argument("--q", type=float, nargs=7, default=DEFAULT_Q, help="rad")
+    parser.add_argument("--position", type=float, nargs=3, default=DEFAULT_POSITION, help="m")
+    parser.add_argument(
+        "--orientation",
+        type=float,
+        nargs=4,
+        default=DEFAULT_ORIENTATION,
+        metavar=("W", "X", "Y", "Z"),
+    )
+    parser.add_argument("--num-samples", type=int, default=None, help="default: the model's")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--json", type=Path, default=None, help="also write the choice here")
+    args = parser.parse_args(argv)
+
+    w, x, y, z = args.orientation
+    request = SmmRequest(
+        robot="iiwa14",
+        task="pose",
+        target=TargetIn(position=args.position, orientation=QuaternionIn(w=w, x=x, y=y, z=z)),
+        num_samples=args.num_samples,
+        seed=args.seed,
+        reference_configuration=args.q,
+    )
+    try:
+        with SmmClient(args.url, api_key=args.api_key) as client:
+            robot = client.robot("iiwa14", "pose")
+            answer = client.smm(request)
+    except SmmClientError as error:
+        print(f"the service failed: {error}", file=sys.stderr)
+        return 1
+    print(f"q now:   {rounded(args.q)}")
+    print(f"target:  position {args.position} m, orientation (w, x, y, z) {args.orientation}")
+    if answer.status == "no_solution":
+        print(f"no configuration reaches the target within the limits ({answer.counts})")
+        return 2
+
+    nearest = min(answer.components, key=lambda c: c.distance_to_reference or 0.0)
+    choice = choose(nearest, len(answer.components), robot)
+    others = sorted(c.distance_to_reference or 0.0 for c in answer.components if c is not nearest)
+    runner_up = f"the next {others[0]:.4f} rad" if others else "the only one"
+    print(
+        f"service: {len(answer.components)} components ({answer.model}); the nearest to q is "
+        f"component {choice.component_id}, {choice.distance_to_reference_rad:.4f} rad away "
+        f"({runner_up})"
+    )
+    print(f"choice:  {rounded(choice.configuration)} (from the component's {choice.source})")
+    print(f"margins: {listed(choice.margins_rad)} rad to the nearer limit, smallest first")
+    print(f"         (the member nearest to q: {listed(choice.nearest_margins_rad)})")
+    print(
+        f"         reaches the target within {choice.max_position_error_m:.1e} m and "
+        f"{choice.max_orientation_error_rad:.1e} rad (the component's largest errors)"
+    )
+    if choice.path_length_rad is not None:
+        shape = "a closed loop" if choice.closed else "ends at joint limits"
+        print(
+            f"walk:    along the component's path ({shape}) from point {choice.path_from_index} "
+            f"(nearest to q) to point {choice.path_to_index}: {choice.path_length_rad:.4f} rad "
+            f"in {choice.path_steps} steps, the end effector on the target throughout"
+        )
+    print(
+        "why:     the nearest component needs the least joint motion to enter; within it, the "
+        "largest smallest margin (ties broken by the next) leaves the most room before a "
+        "joint limit"
+    )
+    if args.json is not None:
+        record = {"request": request.model_dump(mode="json"), "choice": asdict(choice)}
+        args.json.write_text(json.dumps(record, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
