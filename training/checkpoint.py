@@ -135,6 +135,11 @@ class RunState:
     epoch_start_generator: torch.Tensor | None = None
     next_batch: int = 0
     epoch_loss_sum: float = 0.0
+    # A distributed run (config.world_size > 1): `generator` is then the shuffle generator
+    # every process shares, and these hold each process's own, by rank: the state of its
+    # noise-and-time generator and its sum of the current epoch's batch losses.
+    rank_generators: list[torch.Tensor] | None = None
+    rank_epoch_loss_sums: list[float] | None = None
 
 
 def save_state(path: Path, state: RunState) -> None:
@@ -147,6 +152,15 @@ def load_state(path: Path, config: TrainConfig) -> RunState:
     """The run state in `path`; ValueError naming the fields when it was made by another config."""
     payload = torch.load(path, map_location="cpu", weights_only=False)
     saved = TrainConfig(**payload["config"])
+    if saved.world_size != config.world_size:
+        raise ValueError(
+            f"{path} was written by a run of {saved.world_size} training process(es), this "
+            f"run has {config.world_size}: a run continues only with as many as it started "
+            "with (each process's data shard and noise generator, and the length of the "
+            f"learning-rate schedule, follow from that number); resume it with {saved.world_size} "
+            "(torchrun's --nproc-per-node x --nnodes; plain smm-train is 1), or start afresh "
+            "without --resume"
+        )
     differing = [
         f"{f.name} ({getattr(saved, f.name)!r} there, {getattr(config, f.name)!r} now)"
         for f in fields(TrainConfig)

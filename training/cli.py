@@ -12,6 +12,13 @@ the checkpoints and the training history go to runs/<robot>-<task>/ (not in git)
 stopped run continues with the same command and `--resume`; `--from-checkpoint
 runs/<id>/best.pt` re-exports a trained flow without training; `--refresh-kinematics`
 re-exports only the kinematics (kinematics.onnx, chain.json) of an existing model.
+
+Several processes train one model under PyTorch's launcher (training/distributed.py):
+
+    torchrun --standalone --nproc-per-node 2 -m training.cli --robot planar3r --task position
+
+Each trains on its shard of the data; rank 0 alone writes the robot files, the run
+directory and the export (the sweep and quality measurement, after training).
 """
 
 from __future__ import annotations
@@ -21,20 +28,32 @@ import json
 import shlex
 import shutil
 import sys
-from dataclasses import fields, replace
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 
 import torch
 
-from service.manifest import MANIFEST_FILE, REPO_MODELS_DIR, Manifest
-from training.checkpoint import BEST_FILE, HISTORY_FILE, BestCheckpoint, load_best, save_best
+from service.manifest import MANIFEST_FILE, REPO_MODELS_DIR, JointSpec, Manifest, TaskSpec
+from training.checkpoint import (
+    BEST_FILE,
+    HISTORY_FILE,
+    BestCheckpoint,
+    TrainResult,
+    load_best,
+    save_best,
+)
 from training.config import TrainConfig, preset
-from training.data import build_flow_data
+from training.data import FlowData, build_flow_data
+from training.distributed import Processes, from_environment, process_group
 from training.export import export_model, git_commit, refresh_kinematics
 from training.kinematics import ForwardKinematics, joint_spec, load_chain
 from training.robots import RobotSpec, register_urdf, robot_file, robot_spec
 from training.train import build_model, train
 from training.urdf import read_serial_chain, require_redundancy
+
+# TrainConfig fields that are not flags: the robot and task have their own, and the number
+# of processes is the launcher's (torchrun --nproc-per-node).
+NOT_FLAGS = ("robot", "task", "world_size")
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
@@ -64,7 +83,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     parser.add_argument("--task", required=True, help="task name: position or pose")
     defaults = TrainConfig()
     for f in fields(TrainConfig):
-        if f.name not in ("robot", "task"):
+        if f.name not in NOT_FLAGS:
             flag = f"--{f.name.replace('_', '-')}"
             kind = type(getattr(defaults, f.name))
             if kind is bool:  # --flag / --no-flag (bool("False") would be True)
@@ -110,7 +129,7 @@ def config_from_args(args: argparse.Namespace, robot: str) -> TrainConfig:
     overrides = {
         f.name: getattr(args, f.name)
         for f in fields(TrainConfig)
-        if f.name not in ("robot", "task") and getattr(args, f.name) is not None
+        if f.name not in NOT_FLAGS and getattr(args, f.name) is not None
     }
     return replace(config, **overrides)
 
@@ -141,21 +160,63 @@ def register(args: argparse.Namespace) -> str:
     return robot.name
 
 
+def robot_or_error(args: argparse.Namespace) -> RobotSpec | str:
+    """The robot to train (registered first with `--urdf`), or why it cannot be trained."""
+    try:
+        robot = robot_in(args.models_dir, register(args))
+        robot.task(args.task)
+    except ValueError as error:  # a robot, URDF or task that cannot be trained: no traceback
+        return f"smm-train: error: {error}"
+    return robot
+
+
 def main(argv: list[str] | None = None) -> None:
     argv = sys.argv[1:] if argv is None else argv
     args = parse_args(argv)
+    processes = from_environment()
+    if processes.distributed and (args.from_checkpoint is not None or args.refresh_kinematics):
+        raise SystemExit(
+            "smm-train: error: --from-checkpoint and --refresh-kinematics train nothing: run "
+            "them as one process (smm-train, not torchrun)"
+        )
+    with process_group(processes, args.device or TrainConfig().device):
+        trained = train_or_load(args, argv, processes)
+    if trained is not None and processes.is_main:  # the other processes are done
+        export(trained)
+
+
+@dataclass(frozen=True)
+class Trained:
+    """A trained flow and everything its export needs."""
+
+    robot: RobotSpec
+    task: TaskSpec
+    joints: JointSpec
+    fk: ForwardKinematics
+    data: FlowData
+    config: TrainConfig
+    result: TrainResult
+    command: str
+    models_dir: Path
+    training_commit: str
+    code_commit: str
+
+
+def train_or_load(
+    args: argparse.Namespace, argv: list[str], processes: Processes
+) -> Trained | None:
+    """Train (every process, one shard each), or load `--from-checkpoint`; None after
+    `--refresh-kinematics`, which is all it does."""
     models_dir: Path = args.models_dir
-    try:
-        robot = robot_in(models_dir, register(args))
-        robot.task(args.task)
-    except ValueError as error:  # a robot, URDF or task that cannot be trained: no traceback
-        raise SystemExit(f"smm-train: error: {error}") from None
+    robot = processes.from_main(lambda: robot_or_error(args))  # rank 0 writes its files
+    if isinstance(robot, str):
+        raise SystemExit(robot)
     if args.refresh_kinematics:
         model_dir = models_dir / f"{robot.name}-{robot.task(args.task).name}"
         manifest = refresh_kinematics(model_dir, models_dir)
         print(f"[{manifest.model_id}] kinematics refreshed: {json.dumps(manifest.files, indent=1)}")
-        return
-    config = config_from_args(args, robot.name)
+        return None
+    config = replace(config_from_args(args, robot.name), world_size=processes.world_size)
     code_commit = git_commit()  # the code this run imported, before HEAD can move
     best = None if args.from_checkpoint is None else load_best(args.from_checkpoint)
     if best is not None:
@@ -173,7 +234,11 @@ def main(argv: list[str] | None = None) -> None:
     fk = ForwardKinematics(chain)
     joints = joint_spec(chain)
 
-    print(f"[{model_id}] labelling {config.samples} configurations with pytorch-kinematics")
+    def say(message: str) -> None:  # once, not once per process
+        if processes.is_main:
+            print(message)
+
+    say(f"[{model_id}] labelling {config.samples} configurations with pytorch-kinematics")
     data = build_flow_data(fk, joints, task, config.samples, config.seed)
     training_commit = code_commit
     if best is not None:
@@ -181,18 +246,14 @@ def main(argv: list[str] | None = None) -> None:
         training_commit = best.git_commit or earlier_training_commit(models_dir / model_id, best)
     else:
         run_dir = args.runs_dir / model_id
-        print(f"[{model_id}] training {config.epochs} epochs on {config.device}")
-        result = train(config, data, run_dir=run_dir, resume=args.resume)
-        command = shlex.join(["smm-train", *(a for a in argv if a != "--resume")])
-        save_best(run_dir / BEST_FILE, result, config, command, code_commit)
-        (run_dir / HISTORY_FILE).write_text(json.dumps(result.history, indent=1))
-    print(
-        f"[{model_id}] best validation loss {result.best_validation_loss:.5f} "
-        f"at epoch {result.best_epoch}, {result.wall_time_s:.0f} s; exporting"
-    )
-    manifest = export_model(
-        model_dir=models_dir / model_id,
-        models_dir=models_dir,
+        processes_note = f" in {processes.world_size} processes" if processes.distributed else ""
+        say(f"[{model_id}] training {config.epochs} epochs on {config.device}{processes_note}")
+        result = train(config, data, run_dir=run_dir, resume=args.resume, processes=processes)
+        command = shlex.join([*processes.launcher(), *(a for a in argv if a != "--resume")])
+        if processes.is_main:
+            save_best(run_dir / BEST_FILE, result, config, command, code_commit)
+            (run_dir / HISTORY_FILE).write_text(json.dumps(result.history, indent=1))
+    return Trained(
         robot=robot,
         task=task,
         joints=joints,
@@ -201,8 +262,33 @@ def main(argv: list[str] | None = None) -> None:
         config=config,
         result=result,
         command=command,
-        code_commit=training_commit,
-        export_commit=code_commit,
+        models_dir=models_dir,
+        training_commit=training_commit,
+        code_commit=code_commit,
+    )
+
+
+def export(trained: Trained) -> None:
+    """Export, sweep and measure the trained flow into models/<model-id>/."""
+    result, robot, task = trained.result, trained.robot, trained.task
+    model_id = f"{robot.name}-{task.name}"
+    print(
+        f"[{model_id}] best validation loss {result.best_validation_loss:.5f} "
+        f"at epoch {result.best_epoch}, {result.wall_time_s:.0f} s; exporting"
+    )
+    manifest = export_model(
+        model_dir=trained.models_dir / model_id,
+        models_dir=trained.models_dir,
+        robot=robot,
+        task=task,
+        joints=trained.joints,
+        fk=trained.fk,
+        data=trained.data,
+        config=trained.config,
+        result=result,
+        command=trained.command,
+        code_commit=trained.training_commit,
+        export_commit=trained.code_commit,
     )
     print(json.dumps(manifest.model_dump(include={"quality"}), indent=1))
 

@@ -37,6 +37,12 @@ class TrainConfig:
     device: str = "cpu"
     # torch intra-op threads on the CPU; 0 keeps torch's default.
     threads: int = 0
+    # Processes training this one model with DistributedDataParallel (training/distributed.py):
+    # set by the launcher (torchrun's --nproc-per-node x --nnodes), not a flag. Each process
+    # trains on its 1/world_size shard of every epoch with batch_size samples a step, so a
+    # step averages the gradients of world_size x batch_size samples and an epoch has
+    # world_size times fewer steps; the learning rate is not scaled. On CUDA, one GPU each.
+    world_size: int = 1
     # Issue 13 options, all off (the paper's recipe) until the evaluation shows they help.
     # Exponential moving average of the weights after every step (0 = off; 0.999 averages
     # over ~1000 steps): smooths the noise of the last steps, so validation, best.pt and
