@@ -18,11 +18,17 @@ What it checks, over HTTP on 127.0.0.1 against the image's CMD (run with
 - the server process runs as the image's non-root USER;
 - the image holds no torch, no pip, no compiler, no pip or apt download cache, and /app
   holds the models only;
-- SIGTERM stops the server gracefully (the app's "shut down" log line).
+- SIGTERM stops the server gracefully (the app's "shut down" log line);
+- then the image once more as the Kubernetes pod runs it (deploy/base/deployment.yaml: its
+  env, a read-only root file system and no writable volume, not even /tmp): a write to /
+  fails with EROFS even as root; the server's / is mounted read-only; the service's
+  imports find current bytecode in /opt/venv (none compiled at each start); /readyz 200
+  with every model; a checked POST /smm per model; the peak RSS with every computation
+  slot busy at SMM_MAX_NUM_SAMPLES stays under the pod's memory limit; SIGTERM drains.
 
 Figures, printed and written to docs/container.json (the README quotes them): the image
-size (and its base's), the cold start (server process start to /readyz answering 200)
-and the time of each step.
+size (and its base's), the cold start (server process start to /readyz answering 200),
+the read-only run's RSS (ready, and peak) and the time of each step.
 
 The base image is the real python:3.11-slim when a registry answers; otherwise a stand-in
 built with debootstrap from the Debian mirror (bookworm: Python 3.11), cached as a tarball
@@ -51,12 +57,14 @@ import time
 import urllib.error
 import urllib.request
 from collections.abc import Callable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
 
 import httpx
 import numpy as np
+import yaml
 from scipy.spatial.transform import Rotation
 
 from tests.support.iiwa14_dh import LIMITS_RAD as IIWA14_LIMITS_RAD
@@ -66,6 +74,7 @@ from tools.local_server import LOOPBACK, free_port
 
 ROOT = Path(__file__).resolve().parent.parent
 FIGURES = ROOT / "docs" / "container.json"
+DEPLOYMENT = ROOT / "deploy" / "base" / "deployment.yaml"
 BASE_IMAGE = "docker.io/library/python:3.11-slim"
 IMAGE = "localhost/smm-service:container-test"
 CACHE_DIR = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "smm-ci"
@@ -130,6 +139,12 @@ class Buildah:
     def popen(self, *args: str, output: TextIO) -> subprocess.Popen[bytes]:
         return subprocess.Popen(
             [*self.prefix, *args], stdout=output, stderr=subprocess.STDOUT, start_new_session=True
+        )
+
+    def result(self, *args: str, timeout_s: float = 120.0) -> subprocess.CompletedProcess[str]:
+        """`buildah args`, whatever its exit status: its status, stdout and stderr."""
+        return subprocess.run(
+            [*self.prefix, *args], capture_output=True, text=True, timeout=timeout_s
         )
 
     def status(self, *args: str, timeout_s: float = 60.0) -> int:
@@ -434,6 +449,13 @@ def uids(pid: int) -> list[int]:
     raise RuntimeError(f"no Uid line for pid {pid}")
 
 
+def gids(pid: int) -> list[int]:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("Gid:"):
+            return [int(g) for g in line.split()[1:]]
+    raise RuntimeError(f"no Gid line for pid {pid}")
+
+
 def image_config(buildah: Buildah, image: str) -> dict[str, Any]:
     """The image's Docker config: Cmd, Entrypoint, User, Env, Healthcheck."""
     inspected = json.loads(buildah("inspect", "--type", "image", image))
@@ -566,8 +588,12 @@ def run_container_checks(buildah: Buildah, store: Path, checks: Checks) -> dict[
             with checks.check("server process runs as the image's non-root USER") as note:
                 ids = uids(pid)
                 assert all(u != 0 for u in ids), f"uids {ids}"
-                assert str(ids[0]) == config.get("User"), f"uid {ids[0]}, USER {config.get('User')}"
-                note["detail"] = f"pid {pid} (on the host), uid {ids[0]}, command {command}"
+                user, _, group = str(config.get("User")).partition(":")
+                assert str(ids[0]) == user, f"uid {ids[0]}, USER {config.get('User')}"
+                assert not group or str(gids(pid)[0]) == group, f"gid {gids(pid)}, USER {user}"
+                note["detail"] = (
+                    f"pid {pid} (on the host), uid {ids[0]}, gid {gids(pid)[0]}, command {command}"
+                )
 
             with checks.check("HEALTHCHECK command exits 0 while the server runs") as note:
                 assert healthcheck[:1] == ["CMD"], f"HEALTHCHECK {healthcheck}"
@@ -611,6 +637,212 @@ def run_container_checks(buildah: Buildah, store: Path, checks: Checks) -> dict[
     if checks.failed:
         print("--- server log (tail) ---\n" + tail(log_path.read_text(errors="replace"), 40))
     return figures
+
+
+def deployment_env() -> dict[str, str]:
+    """The literal env of the Kubernetes Deployment's container (deploy/base/deployment.yaml)."""
+    documents = yaml.safe_load_all(DEPLOYMENT.read_text())
+    deployment = next(d for d in documents if d and d["kind"] == "Deployment")
+    [container] = deployment["spec"]["template"]["spec"]["containers"]
+    return {e["name"]: str(e["value"]) for e in container.get("env", [])}
+
+
+def deployment_memory_limit_bytes() -> int:
+    documents = yaml.safe_load_all(DEPLOYMENT.read_text())
+    deployment = next(d for d in documents if d and d["kind"] == "Deployment")
+    [container] = deployment["spec"]["template"]["spec"]["containers"]
+    quantity = str(container["resources"]["limits"]["memory"])
+    units = {"Ki": 2**10, "Mi": 2**20, "Gi": 2**30}
+    return int(quantity[:-2]) * units[quantity[-2:]] if quantity[-2:] in units else int(quantity)
+
+
+def root_mounts(pid: int) -> list[tuple[str, str]]:
+    """(mount point, per-mount options) of every mount a process sees, from its mountinfo."""
+    lines = Path(f"/proc/{pid}/mountinfo").read_text().splitlines()
+    return [(line.split()[4], line.split()[5]) for line in lines]
+
+
+def peak_rss_bytes(pid: int) -> int:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) * 1024
+    raise RuntimeError(f"no VmHWM line for pid {pid}")
+
+
+# Run inside the image: import what the server imports and list the modules whose source
+# would be compiled at import because no current bytecode lies beside it (the root is
+# read-only and PYTHONDONTWRITEBYTECODE is set, so nothing would be written: it would be
+# compiled again at every start).
+BYTECODE_PROBE = """
+import importlib.util, json, os, sys
+import service.main, service.api.smm, service.models.registry
+def current(spec):
+    try:
+        with open(spec.cached, "rb") as f:
+            head = f.read(16)
+        with open(spec.origin, "rb") as f:
+            source = f.read()
+    except OSError:
+        return False
+    if head[:4] != importlib.util.MAGIC_NUMBER:
+        return False
+    if int.from_bytes(head[4:8], "little") & 1:
+        return head[8:16] == importlib.util.source_hash(source)
+    st = os.stat(spec.origin)
+    return (int.from_bytes(head[8:12], "little"), int.from_bytes(head[12:16], "little")) == (
+        int(st.st_mtime) & 0xFFFFFFFF, st.st_size & 0xFFFFFFFF)
+modules = [m.__spec__ for m in list(sys.modules.values()) if getattr(m, "__spec__", None)]
+sources = [s for s in modules if s.origin and s.origin.endswith(".py") and s.cached]
+stale = [s.origin for s in sources if not current(s)]
+print(json.dumps({"modules": len(sources), "stale": stale}))
+"""
+
+
+# What `buildah run` itself mounts in a container; a pod's runtime mounts its own of these.
+RUNTIME_MOUNTS = (
+    "/proc",
+    "/sys",
+    "/dev",
+    "/etc/hosts",
+    "/etc/hostname",
+    "/etc/resolv.conf",
+    "/run/.containerenv",
+    "/run/secrets",
+)
+
+
+def run_read_only_checks(buildah: Buildah, store: Path, checks: Checks) -> dict[str, Any]:
+    """Run the image's CMD on a read-only root file system with the Kubernetes pod's env.
+
+    buildah run has no --read-only: the working container's root (a directory in the vfs
+    store) is bind-mounted read-only over itself, so the bind mount of the root that
+    `buildah run --isolation chroot` makes is read-only too (it inherits the flag). No
+    writable /tmp or other volume is given: what the pod needs writable, this run has not.
+    buildah 1.28 exits 2 after the command (a panic as it removes its mount points from the
+    read-only root), whatever the command's status: the checks read the command's output.
+    """
+    figures: dict[str, Any] = {}
+    config = image_config(buildah, IMAGE)
+    command = [*(config.get("Entrypoint") or []), *(config.get("Cmd") or [])]
+    container = buildah("from", "--pull=never", "--name", f"smm-test-ro-{os.getpid()}", IMAGE)
+    port = free_port()
+    pod_env = {**deployment_env(), "SMM_PORT": str(port)}
+    buildah("config", *[a for k, v in pod_env.items() for a in ("--env", f"{k}={v}")], container)
+    root = Path(buildah("mount", container))
+    # buildah binds files over /etc/hosts, /etc/resolv.conf, /etc/hostname and
+    # /run/.containerenv, creating any that is missing: on a read-only root it cannot, so
+    # they are made first (a pod's runtime binds its own over them the same way).
+    for mount_point in ("etc/hosts", "etc/resolv.conf", "etc/hostname", "run/.containerenv"):
+        (root / mount_point).touch()
+    subprocess.run(["mount", "--bind", str(root), str(root)], check=True)
+    subprocess.run(["mount", "-o", "remount,bind,ro", str(root)], check=True)
+    url = f"http://{LOOPBACK}:{port}"
+    log_path = store / "server-read-only.log"
+    try:
+        with checks.check("read-only root: a write to / fails with EROFS, even as root") as note:
+            probe = "open('/read-only-probe', 'w')"
+            result = buildah.result(
+                "run", "--isolation", "chroot", "--user", "0:0", container, "--",
+                "python", "-c", probe,
+            )  # fmt: skip
+            assert "OSError: [Errno 30] Read-only file system" in result.stderr, result.stderr[:500]
+            note["detail"] = "OSError: [Errno 30] Read-only file system"
+
+        with checks.check(
+            "read-only root: the service's imports find current bytecode in /opt/venv"
+        ) as note:
+            result = buildah.result(
+                "run", "--isolation", "chroot", container, "--", "python", "-c", BYTECODE_PROBE
+            )
+            assert result.stdout.startswith("{"), result.stderr[:500]
+            probe_out = json.loads(result.stdout.strip().splitlines()[-1])
+            ours = [p for p in probe_out["stale"] if p.startswith("/opt/venv/")]
+            assert not ours, f"{len(ours)} modules compiled at every start: {ours[:5]}"
+            note["detail"] = (
+                f"{probe_out['modules']} modules from source files; without current bytecode: "
+                f"0 in /opt/venv, {len(probe_out['stale'])} of the base's Python"
+            )
+
+        with log_path.open("w") as log:
+            server = buildah.popen(
+                "run", "--isolation", "chroot", container, "--", *command, output=log
+            )
+            try:
+                wait_ready(url, server, log_path)
+                pid = server_pid(server.pid)
+                figures["read_only_rss_ready_bytes"] = peak_rss_bytes(pid)
+                with checks.check(
+                    "read-only root: the server's / is read-only, no writable volume"
+                ) as note:
+                    mounts = root_mounts(pid)
+                    options = dict(mounts)
+                    assert options["/"].split(",")[0] == "ro", f"/ mounted {options['/']}"
+                    runtime = RUNTIME_MOUNTS
+                    writable = sorted(
+                        point
+                        for point, opts in mounts
+                        if opts.split(",")[0] == "rw" and not point.startswith(runtime)
+                    )
+                    assert not writable, f"writable mounts: {writable}"
+                    note["detail"] = f"/ {options['/']}; /tmp not writable either"
+                run_read_only_http_checks(url, pid, checks, figures)
+
+                with checks.check("read-only root: SIGTERM stops the server gracefully") as note:
+                    os.kill(pid, signal.SIGTERM)
+                    code = server.wait(timeout=60)
+                    log.flush()
+                    lines = json_lines(log_path.read_text(errors="replace"))
+                    assert any(line.get("message") == "shut down" for line in lines)
+                    note["detail"] = f"buildah run exited {code}"
+            finally:
+                stop(server)
+    finally:
+        subprocess.run(["umount", str(root)], check=False)
+    if checks.failed:
+        print(
+            "--- read-only server log (tail) ---\n" + tail(log_path.read_text(errors="replace"), 40)
+        )
+    return figures
+
+
+def run_read_only_http_checks(url: str, pid: int, checks: Checks, figures: dict[str, Any]) -> None:
+    """/readyz, a checked POST /smm per model, and the peak memory at full computation slots."""
+    with httpx.Client(base_url=url, timeout=60.0) as client:
+
+        def post(body: dict[str, Any], **kwargs: Any) -> httpx.Response:
+            return client.post("/smm", json=body, **kwargs)
+
+        served: dict[str, str] = {}
+        with checks.check("read-only root: GET /readyz 200, every bundled model verified") as note:
+            readiness = client.get("/readyz").json()
+            assert readiness["status"] == "ready", readiness
+            served = {m.split("@")[0]: m for m in readiness["models"]}
+            assert sorted(served) == bundled_models(), f"served {sorted(served)}"
+            note["detail"] = ", ".join(readiness["models"])
+
+        for model_id in bundled_models():
+            with checks.check(f"read-only root: POST /smm {model_id}, verified") as note:
+                _, note["detail"] = post_and_check(post, model_id, served, {})
+
+        # The pod's memory limit against the worst the settings allow: every computation
+        # slot busy with a request of SMM_MAX_NUM_SAMPLES samples of the model with the
+        # largest connect stage (iiwa14 position, a 4-D fibre).
+        settings_env = deployment_env()
+        slots = int(settings_env.get("SMM_MAX_IN_FLIGHT", "2"))
+        samples = int(settings_env.get("SMM_MAX_NUM_SAMPLES", "10000"))
+        limit = deployment_memory_limit_bytes()
+        with checks.check(
+            f"read-only root: peak RSS with {slots} x {samples}-sample requests under the "
+            "pod's memory limit"
+        ) as note:
+            body = {**TARGETS["iiwa14-position"]().body, "num_samples": samples}
+            with ThreadPoolExecutor(slots) as pool:
+                statuses = list(pool.map(lambda _: post(body).status_code, range(slots)))
+            assert statuses == [200] * slots, statuses
+            peak = peak_rss_bytes(pid)
+            figures["read_only_peak_rss_bytes"] = peak
+            assert peak < limit, f"peak RSS {peak / 2**20:.0f} MiB, limit {limit / 2**20:.0f} MiB"
+            note["detail"] = f"{peak / 2**20:.0f} MiB of {limit / 2**20:.0f} MiB"
 
 
 def json_lines(text: str) -> list[dict[str, Any]]:
@@ -674,15 +906,7 @@ def run_http_checks(
             with checks.check(
                 f"POST /smm {model_id}: answers verified by an independent FK"
             ) as note:
-                assert model_id in TARGETS, f"no independent check for bundled model {model_id}"
-                target = TARGETS[model_id]()
-                started = time.perf_counter()
-                response = post(target.body, headers=key)
-                elapsed_ms = (time.perf_counter() - started) * 1e3
-                assert response.status_code == 200, f"{response.status_code} {response.text[:300]}"
-                answer = response.json()
-                assert answer["model"] == served.get(model_id), answer["model"]
-                note["detail"] = check_answer(model_id, target, answer) + f", {elapsed_ms:.0f} ms"
+                elapsed_ms, note["detail"] = post_and_check(post, model_id, served, key)
                 figures.setdefault("first_request_ms", {})[model_id] = round(elapsed_ms)
 
         with checks.check("SMM_API_KEY from the environment: 401 without the key") as note:
@@ -696,6 +920,24 @@ def run_http_checks(
             assert response.status_code == 413, response.status_code
             note["detail"] = str(response.json()["detail"])[:120]
     return request_ids
+
+
+def post_and_check(
+    post: Callable[..., httpx.Response],
+    model_id: str,
+    served: dict[str, str],
+    headers: dict[str, str],
+) -> tuple[float, str]:
+    """POST /smm for a bundled model and check the answer by its independent FK; (ms, detail)."""
+    assert model_id in TARGETS, f"no independent check for bundled model {model_id}"
+    target = TARGETS[model_id]()
+    started = time.perf_counter()
+    response = post(target.body, headers=headers)
+    elapsed_ms = (time.perf_counter() - started) * 1e3
+    assert response.status_code == 200, f"{response.status_code} {response.text[:300]}"
+    answer = response.json()
+    assert answer["model"] == served.get(model_id), answer["model"]
+    return elapsed_ms, check_answer(model_id, target, answer) + f", {elapsed_ms:.0f} ms"
 
 
 def stop(server: subprocess.Popen[bytes]) -> None:
@@ -783,6 +1025,9 @@ def main(argv: list[str] | None = None) -> int:
             step = time.monotonic()
             figures.update(run_container_checks(buildah, store, checks))
             timings["run_and_checks_s"] = round(time.monotonic() - step, 1)
+            step = time.monotonic()
+            figures.update(run_read_only_checks(buildah, store, checks))
+            timings["read_only_run_s"] = round(time.monotonic() - step, 1)
     except Exception as error:  # a step that is not a check: the test fails, cleanly
         checks.results.append(("container test ran to the end", False, str(error)))
         print(f"FAIL {error}", flush=True)
