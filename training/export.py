@@ -57,6 +57,7 @@ from training.kinematics import (
 from training.model import VelocityField
 from training.quantise import quantise_flow
 from training.robots import RobotSpec
+from training.staging import staged_copy
 from training.sweep import sweep_defaults
 
 # float32 network: velocities reach a few hundred near t = 1, where float32 rounding
@@ -320,10 +321,7 @@ def refresh_kinematics(model_dir: Path, models_dir: Path, threads: int = 1) -> M
     joints = joint_spec(fk.chain)
     if joints != manifest.joints:
         raise ExportParityError(f"{urdf_path}: joints {joints} differ from the manifest's")
-    staging = model_dir.with_name(f".{model_dir.name}.staging")
-    shutil.rmtree(staging, ignore_errors=True)
-    shutil.copytree(model_dir, staging)
-    try:
+    with staged_copy(model_dir) as staging:
         export_kinematics(fk, staging / KINEMATICS_FILE, joints)
         export_chain(fk, staging / CHAIN_FILE, joints)
         names = [*manifest.files, *([] if CHAIN_FILE in manifest.files else [CHAIN_FILE])]
@@ -335,12 +333,4 @@ def refresh_kinematics(model_dir: Path, models_dir: Path, threads: int = 1) -> M
             manifest.model_dump_json(indent=2, exclude_unset=True) + "\n"
         )
         load_model(staging, threads=threads)  # verifies sha256 and chain.json vs kinematics.onnx
-    except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
-        raise
-    retired = model_dir.with_name(f".{model_dir.name}.retired")
-    shutil.rmtree(retired, ignore_errors=True)
-    model_dir.rename(retired)
-    staging.rename(model_dir)
-    shutil.rmtree(retired)
     return manifest

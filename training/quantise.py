@@ -20,7 +20,6 @@ quantisation, and nothing is written.
 from __future__ import annotations
 
 import argparse
-import shutil
 import tempfile
 from pathlib import Path
 
@@ -32,6 +31,7 @@ from onnxruntime.quantization import QuantType, quantize_dynamic
 from service.manifest import FLOW_FILE, FLOW_INT8_FILE, MANIFEST_FILE, Manifest
 from service.models.registry import load_model, sha256_of
 from service.models.sessions import FLOW_INPUTS, FLOW_OUTPUT
+from training.staging import staged_copy
 
 # Relative L2 difference of int8 from float32 velocities beyond which the quantisation is
 # broken (a wrong scale or layout gives ~1); the bundled models measure 0.06-0.08.
@@ -96,10 +96,7 @@ def add_int8(model_dir: Path, threads: int = 1) -> Manifest:
     """Write flow_int8.onnx into an exported model and list it in its manifest; the rest
     of the manifest (its defaults included) is unchanged. Done on a hidden copy, loaded as
     the service loads it, and swapped in only when that succeeds."""
-    staging = model_dir.with_name(f".{model_dir.name}.staging")
-    shutil.rmtree(staging, ignore_errors=True)
-    shutil.copytree(model_dir, staging)
-    try:
+    with staged_copy(model_dir) as staging:
         quantise_flow(staging / FLOW_FILE, staging / FLOW_INT8_FILE)
         manifest = Manifest.model_validate_json((staging / MANIFEST_FILE).read_bytes())
         files = {**manifest.files, FLOW_INT8_FILE: sha256_of(staging / FLOW_INT8_FILE)}
@@ -108,14 +105,6 @@ def add_int8(model_dir: Path, threads: int = 1) -> Manifest:
             manifest.model_dump_json(indent=2, exclude_unset=True) + "\n"
         )
         load_model(staging, threads=threads)
-    except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
-        raise
-    retired = model_dir.with_name(f".{model_dir.name}.retired")
-    shutil.rmtree(retired, ignore_errors=True)
-    model_dir.rename(retired)
-    staging.rename(model_dir)
-    shutil.rmtree(retired)
     return manifest
 
 
