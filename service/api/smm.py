@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
+from typing import TypeVar
 
 from fastapi import APIRouter, Request, Response
 from starlette.concurrency import run_in_threadpool
@@ -10,11 +12,15 @@ from starlette.concurrency import run_in_threadpool
 from service.api.deps import AdmissionDep, MetricsDep, RegistryDep, SettingsDep
 from service.api.schemas import error_responses
 from service.errors import DeadlineExceededError, LimitExceededError, OverloadedError
+from service.http.admission import Admission
 from service.models.registry import ServedModel
+from service.observability.metrics import Metrics
 from service.pipeline.deadline import Deadline
 from service.pipeline.run import run
 from service.pipeline.types import ComponentSummary, Query, SmmResult
 from service.wire import ComponentOut, CountsOut, SmmRequest, SmmResponse, StructureOut
+
+Computed = TypeVar("Computed")
 
 router = APIRouter(prefix="/smm", tags=["smm"])
 
@@ -92,6 +98,30 @@ def answer(model: ServedModel, query: Query, deadline: Deadline) -> tuple[bytes,
     return to_response(model, result).model_dump_json().encode(), result
 
 
+async def compute_in_slot(
+    admission: Admission,
+    metrics: Metrics,
+    deadline: Deadline,
+    work: Callable[..., Computed],
+    *args: object,
+) -> Computed:
+    """Wait for a computation slot (503 when the queue is full or the wait outlasts
+    `deadline`), then run `work(*args)` in a worker thread, so the event loop keeps
+    answering (probes, metrics, prompt 503s) while slots are busy; the wait is observed and
+    a rejection counted by its reason."""
+    arrived_s = time.perf_counter()
+    try:
+        async with admission.slot(deadline.remaining_s()):
+            metrics.queue_wait.observe(time.perf_counter() - arrived_s)
+            return await run_in_threadpool(work, *args)
+    except OverloadedError as error:
+        metrics.rejected.labels(error.reason).inc()
+        raise
+    except DeadlineExceededError:
+        metrics.rejected.labels("deadline").inc()
+        raise
+
+
 @router.post(
     "",
     response_model=SmmResponse,
@@ -109,18 +139,8 @@ async def post_smm(
     model = registry.get(body.robot, body.task)
     request.state.model = model.manifest.model_id  # the metrics' and access log's model label
     query = to_query(body, model, settings.max_num_samples)
-    arrived_s = time.perf_counter()
-    try:
-        async with admission.slot(deadline.remaining_s()):
-            metrics.queue_wait.observe(time.perf_counter() - arrived_s)
-            # The numerical work runs in a worker thread, so the event loop keeps
-            # answering (probes, metrics, prompt 503s) while slots are busy.
-            content, result = await run_in_threadpool(answer, model, query, deadline)
-    except OverloadedError as error:
-        metrics.rejected.labels(error.reason).inc()
-        raise
-    except DeadlineExceededError:
-        metrics.rejected.labels("deadline").inc()
-        raise
+    content, result = await compute_in_slot(
+        admission, metrics, deadline, answer, model, query, deadline
+    )
     metrics.observe_pipeline(model.manifest.model_id, result.timings, result.counts)
     return Response(content=content, media_type="application/json")

@@ -8,19 +8,14 @@ target in one 422, and holds one slot for the whole computation (`pipeline/batch
 
 from __future__ import annotations
 
-import time
-
 from fastapi import APIRouter, Request, Response
-from starlette.concurrency import run_in_threadpool
 
 from service.api.deps import AdmissionDep, MetricsDep, RegistryDep, SettingsDep
 from service.api.schemas import error_responses
-from service.api.smm import query_for_model, to_response
+from service.api.smm import compute_in_slot, query_for_model, to_response
 from service.config import Settings
 from service.errors import (
-    DeadlineExceededError,
     LimitExceededError,
-    OverloadedError,
     RequestFieldError,
     RequestFieldErrors,
 )
@@ -149,19 +144,10 @@ async def post_smm_batch(
     model = registry.get(body.robot, body.task)
     request.state.model = model.manifest.model_id  # the metrics' and access log's model label
     queries = to_queries(body, model, settings)
-    arrived_s = time.perf_counter()
-    try:
-        async with admission.slot(deadline.remaining_s()):
-            metrics.queue_wait.observe(time.perf_counter() - arrived_s)
-            content, batch = await run_in_threadpool(
-                answer_batch, model, queries, deadline, settings.batch_sampling_threads
-            )
-    except OverloadedError as error:
-        metrics.rejected.labels(error.reason).inc()
-        raise
-    except DeadlineExceededError:
-        metrics.rejected.labels("deadline").inc()
-        raise
+    content, batch = await compute_in_slot(
+        admission, metrics, deadline, answer_batch, model, queries, deadline,
+        settings.batch_sampling_threads,
+    )  # fmt: skip
     for result in batch.results:
         metrics.observe_pipeline(model.manifest.model_id, result.timings, result.counts)
     return Response(content=content, media_type="application/json")
