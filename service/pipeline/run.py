@@ -22,9 +22,18 @@ from service.pipeline.connectivity import connect
 from service.pipeline.correction import correct
 from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.fibre import Fibre
+from service.pipeline.limits import pull_into_limits
 from service.pipeline.sampling import sample_configurations
 from service.pipeline.targets import Target, encode_target
-from service.pipeline.types import Query, SampleCounts, SmmModel, SmmResult, Stage, StageTimings
+from service.pipeline.types import (
+    Correction,
+    Query,
+    SampleCounts,
+    SmmModel,
+    SmmResult,
+    Stage,
+    StageTimings,
+)
 
 
 class Stopwatch:
@@ -81,6 +90,48 @@ def sample(
     )
 
 
+def fibre_of(model: SmmModel, target: Target) -> Fibre:
+    """The target's fibre, projected onto with the model's kinematics and DLS damping."""
+    manifest = model.manifest
+    return Fibre(target, manifest.task, model.kinematics, manifest.defaults.damping)
+
+
+def correct_samples(
+    model: SmmModel,
+    target: Target,
+    q_sampled_rad: FloatArray,  # (N, n)
+    tolerance_position_m: float,
+    tolerance_orientation_rad: float,
+    deadline: Deadline = NO_DEADLINE,
+) -> Correction:
+    """Stage 3: the model's DLS steps on every sample, then for r > 1 the samples within
+    tolerance outside the limits pulled into them (limits.py)."""
+    manifest, defaults = model.manifest, model.manifest.defaults
+    lower_rad, upper_rad, periodic = manifest.joints.arrays()
+    correction = correct(
+        q_rad=q_sampled_rad,
+        target=target,
+        task=manifest.task,
+        kinematics=model.kinematics,
+        steps=defaults.correction_steps,
+        damping=defaults.damping,
+        periodic=periodic,
+        deadline=deadline,
+    )
+    if manifest.redundancy == 1:
+        return correction
+    return pull_into_limits(
+        correction=correction,
+        fibre=fibre_of(model, target),
+        lower_rad=lower_rad,
+        upper_rad=upper_rad,
+        periodic=periodic,
+        tolerance_position_m=tolerance_position_m,
+        tolerance_orientation_rad=tolerance_orientation_rad,
+        deadline=deadline,
+    )
+
+
 def answer_samples(
     model: SmmModel,
     query: Query,
@@ -89,19 +140,17 @@ def answer_samples(
     watch: Stopwatch,
     deadline: Deadline = NO_DEADLINE,
 ) -> SmmResult:
-    """Stages 3-6 on the query's samples, each timed on `watch`: correct, accept, connect,
-    summarise."""
+    """Stages 3-6 on the query's samples, each timed on `watch`: correct
+    (`correct_samples`), accept, connect, summarise."""
     manifest, defaults = model.manifest, model.manifest.defaults
     lower_rad, upper_rad, periodic = manifest.joints.arrays()
     with watch.stage("correct"):
-        correction = correct(
-            q_rad=q_sampled_rad,
-            target=target,
-            task=manifest.task,
-            kinematics=model.kinematics,
-            steps=defaults.correction_steps,
-            damping=defaults.damping,
-            periodic=periodic,
+        correction = correct_samples(
+            model,
+            target,
+            q_sampled_rad,
+            tolerance_position_m=query.tolerance_position_m,
+            tolerance_orientation_rad=query.tolerance_orientation_rad,
             deadline=deadline,
         )
     with watch.stage("accept"):
@@ -115,12 +164,7 @@ def answer_samples(
         )
     with watch.stage("connect"):
         connection = connect(
-            fibre=Fibre(
-                target=target,
-                task=manifest.task,
-                kinematics=model.kinematics,
-                damping=defaults.damping,
-            ),
+            fibre=fibre_of(model, target),
             correction=correction,
             acceptance=acceptance,
             lower_rad=lower_rad,

@@ -24,7 +24,8 @@ import numpy as np
 from service.manifest import MANIFEST_FILE, Manifest, Quality, RawError, SamplerSpec
 from service.models.registry import ServedModel, load_model
 from service.pipeline.acceptance import accept
-from service.pipeline.correction import correct, task_error_norms
+from service.pipeline.correction import task_error_norms
+from service.pipeline.run import correct_samples
 from service.pipeline.sampling import sample_configurations
 from service.pipeline.targets import encode_target
 from training.evaluate.served import orientation_wxyz
@@ -117,9 +118,9 @@ def measure_quality(
             sampler_errors.append(task_error_norms(served.kinematics(q_raw), target, task))
             if sampler != defaults.sampler:
                 continue
-            correction = correct(
-                q_raw, target, task, served.kinematics, defaults.correction_steps,
-                defaults.damping, periodic,
+            correction = correct_samples(
+                served, target, q_raw, defaults.tolerance_position_m,
+                defaults.tolerance_orientation_rad,
             )  # fmt: skip
             accepted = accept(
                 correction,
