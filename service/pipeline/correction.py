@@ -1,15 +1,19 @@
 """Stage 3: correct samples onto the fibre with damped-least-squares (DLS) steps, in float64.
 
 dq = J^T (J J^T + lambda^2 I)^-1 e, where e is the task error: the constrained
-position axes, then (pose task) the base-frame rotation vector log(R* R^T).
+position axes, then (pose task) the base-frame rotation vector log(R* R^T). `iterate` is
+the loop (rows that have converged take no further step), shared with the connect
+stage's Newton projections (fibre.py).
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from service.manifest import TaskSpec
-from service.pipeline.arrays import BoolArray, FloatArray
+from service.pipeline.arrays import BoolArray, FloatArray, IntArray
 from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.joint_space import wrap_periodic
 from service.pipeline.rotations import rotation_error
@@ -81,6 +85,61 @@ def error_norms(error: FloatArray, task: TaskSpec) -> tuple[FloatArray, FloatArr
     return position_error_m, np.linalg.norm(error[:, m_p:], axis=1)
 
 
+# q (B, n) -> task error e (B, m) and Jacobian J (B, m, n).
+Residual = Callable[[FloatArray], tuple[FloatArray, FloatArray]]
+# J (A, m, n), e (A, m) of the rows still moving, and which rows they are (A,) -> dq (A, n);
+# a NaN row where there is no step.
+StepRule = Callable[[FloatArray, FloatArray, IntArray], FloatArray]
+
+# A sample whose |e| is at most this takes no further DLS step. Newton converges
+# quadratically here, so the step it skips would move it by about |e| (1e-12 rad or m),
+# a millionth of the tolerance, and its answer is the same to that; on the iiwa14 pose at
+# N = 1000 (10 steps) half the rows have stopped after 5 steps and 90 % after 8, which
+# takes the stage from 13.7 to 10.8 ms.
+CONVERGED_ERROR = 1e-12
+
+
+def iterate(
+    q_rad: FloatArray,  # (B, n) configurations already evaluated
+    error: FloatArray,  # (B, m) their task errors
+    jacobian: FloatArray,  # (B, m, n) their Jacobians
+    residual: Residual,
+    step: StepRule,
+    iterations: int,
+    until: float | None = None,
+    deadline: Deadline = NO_DEADLINE,
+    stage: str = "correct",
+) -> tuple[FloatArray, FloatArray, FloatArray]:  # q (B, n), e (B, m), J (B, m, n)
+    """`iterations` steps q <- q + step(J, e), each evaluated: every returned
+    configuration is one at which `residual` measured the returned error and Jacobian.
+
+    With `until`, a row whose |e| is at most `until` takes no further step (a NaN row
+    never stops; its NaN step makes it NaN), and each step is one `residual` call over
+    the rows still moving; without, every row takes every step on whole arrays. A row
+    whose step is not finite becomes NaN. `deadline` is checked before each step.
+    """
+    if until is None:  # every row takes every step: whole arrays, no row bookkeeping
+        every = np.arange(len(q_rad))
+        for _ in range(iterations):
+            deadline.check(stage)
+            dq = step(jacobian, error, every)
+            q_rad = np.where(np.isfinite(dq), q_rad + dq, np.nan)
+            error, jacobian = residual(q_rad)
+        return q_rad, error, jacobian
+    q_rad, error, jacobian = q_rad.copy(), error.copy(), jacobian.copy()
+    moving = np.flatnonzero(~(np.linalg.norm(error, axis=1) <= until))  # (A,)
+    for _ in range(iterations):
+        if not len(moving):
+            break
+        deadline.check(stage)
+        dq = step(jacobian[moving], error[moving], moving)
+        q_a = np.where(np.isfinite(dq), q_rad[moving] + dq, np.nan)
+        error_a, jacobian_a = residual(q_a)
+        q_rad[moving], error[moving], jacobian[moving] = q_a, error_a, jacobian_a
+        moving = moving[~(np.linalg.norm(error_a, axis=1) <= until)]
+    return q_rad, error, jacobian
+
+
 def correct(
     q_rad: FloatArray,  # (N, n)
     target: Target,
@@ -91,7 +150,8 @@ def correct(
     periodic: BoolArray,  # (n,)
     deadline: Deadline = NO_DEADLINE,
 ) -> Correction:
-    """Apply `steps` DLS steps to every finite sample and measure the remaining errors.
+    """Up to `steps` DLS steps on every finite sample (a sample stops once its |e| is at
+    most CONVERGED_ERROR) and the remaining errors, measured where each sample ended.
 
     Samples with non-finite coordinates are left out of the arithmetic and get an
     infinite error, so acceptance rejects them without NaNs spreading; a sample that
@@ -110,15 +170,19 @@ def correct(
     if not finite.any():  # nothing to correct (and the kinematics needs a non-empty batch)
         return Correction(q_out, position_error_m, orientation_error_rad, jacobian_out)
 
+    def residual(q: FloatArray) -> tuple[FloatArray, FloatArray]:
+        return task_error(kinematics(q), target, task)
+
+    def step(jacobian: FloatArray, error: FloatArray, rows: IntArray) -> FloatArray:
+        return dls_step(jacobian, error, damping)
+
     q = q_rad[finite]
-    for _ in range(steps):
-        deadline.check("correct")
-        error, jacobian = task_error(kinematics(q), target, task)
-        q = wrap_periodic(q + dls_step(jacobian, error, damping), periodic)
-    fk = kinematics(q)
-    position_error_m[finite], orientation_error_rad[finite] = task_error_norms(fk, target, task)
-    jacobian_out[finite] = task_error(fk, target, task)[1]
-    q_out[finite] = q
+    q, error, jacobian = iterate(
+        q, *residual(q), residual, step, steps, until=CONVERGED_ERROR, deadline=deadline
+    )
+    position_error_m[finite], orientation_error_rad[finite] = error_norms(error, task)
+    jacobian_out[finite] = jacobian
+    q_out[finite] = wrap_periodic(q, periodic)
     return Correction(
         q_rad=q_out,
         position_error_m=position_error_m,

@@ -18,8 +18,8 @@ from typing import cast
 import numpy as np
 
 from service.manifest import TaskSpec
-from service.pipeline.arrays import BoolArray, FloatArray
-from service.pipeline.correction import dls_step, task_error
+from service.pipeline.arrays import BoolArray, FloatArray, IntArray
+from service.pipeline.correction import dls_step, iterate, task_error
 from service.pipeline.targets import Target
 from service.pipeline.types import Kinematics
 
@@ -91,27 +91,17 @@ def newton(
     Each step is one batched kinematics call over the rows still moving: every row with
     `until` None, else the rows whose |e| is above `until` (or not finite).
     """
-    if until is None:  # every row takes every step: whole arrays, no row bookkeeping
-        q, error, jacobian = start.q_rad, start.error, start.jacobian
-        for _ in range(iterations):
-            dq = _step(fibre, jacobian, error, locked, tangent)
-            q = np.where(np.isfinite(dq), q + dq, np.nan)
-            error, jacobian = fibre.residual(q)
-        return Projection(q_rad=q, error=error, jacobian=jacobian)
-    q, error, jacobian = start.q_rad.copy(), start.error.copy(), start.jacobian.copy()
-    moving = np.flatnonzero(~(start.error_norm <= until))  # (A,)
-    for _ in range(iterations):
-        if not len(moving):
-            break
-        dq = _step(
-            fibre, jacobian[moving], error[moving],
-            None if locked is None else locked[moving],
-            None if tangent is None else tangent[moving],
+
+    def step(jacobian: FloatArray, error: FloatArray, rows: IntArray) -> FloatArray:
+        return _step(
+            fibre, jacobian, error,
+            None if locked is None else locked[rows],
+            None if tangent is None else tangent[rows],
         )  # fmt: skip
-        q_a = np.where(np.isfinite(dq), q[moving] + dq, np.nan)
-        error_a, jacobian_a = fibre.residual(q_a)
-        q[moving], error[moving], jacobian[moving] = q_a, error_a, jacobian_a
-        moving = moving[~(np.linalg.norm(error_a, axis=1) <= until)]
+
+    q, error, jacobian = iterate(
+        start.q_rad, start.error, start.jacobian, fibre.residual, step, iterations, until
+    )
     return Projection(q_rad=q, error=error, jacobian=jacobian)
 
 

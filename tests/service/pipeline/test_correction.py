@@ -1,10 +1,11 @@
-"""correction: a DLS step follows its closed form and reduces the error; bad samples are fenced."""
+"""correction: a DLS step follows its closed form and reduces the error; a converged sample
+takes no further step while the others take every one; bad samples are fenced."""
 
 import numpy as np
 
 from service.manifest import TaskSpec
 from service.models.registry import ServedModel
-from service.pipeline.correction import correct, dls_step
+from service.pipeline.correction import CONVERGED_ERROR, correct, dls_step
 from service.pipeline.targets import Target
 from service.pipeline.types import KinematicsResult
 from training.evaluate.references.planar3r import planar3r_jacobian, planar3r_position
@@ -69,6 +70,26 @@ def test_correct_converges_with_the_exported_kinematics(planar3r: ServedModel) -
     assert closed_form_error.max() < 1e-9
     np.testing.assert_allclose(result.position_error_m, closed_form_error, atol=1e-12)
     assert np.all(np.abs(result.q_rad) <= np.pi)
+
+
+def test_a_converged_sample_stops_and_the_others_take_every_step() -> None:
+    q_on = np.array([0.3, 0.4, -0.2])
+    target = planar3r_position(q_on[None])[0]
+    q_off = q_on + np.array([0.2, -0.1, 0.1])  # far enough to need every step
+    result = correct(
+        np.stack([q_on, q_off]), target_at(target), POSITION_2D, closed_form_kinematics, 3,
+        1e-3, PERIODIC,
+    )  # fmt: skip
+    # On the fibre already (|e| ~ 1e-16 < CONVERGED_ERROR): not moved at all.
+    np.testing.assert_array_equal(result.q_rad[0], q_on)
+    # Off it: the three closed-form DLS steps, one after another (above CONVERGED_ERROR
+    # before each, so none is skipped).
+    q = q_off
+    for _ in range(3):
+        error = target - planar3r_position(q[None])
+        assert np.linalg.norm(error) > CONVERGED_ERROR
+        q = q + dls_step(planar3r_jacobian(q[None]), error, 1e-3)[0]
+    np.testing.assert_allclose(result.q_rad[1], q, atol=1e-14)
 
 
 def test_non_finite_samples_get_infinite_error_and_leave_the_others_alone() -> None:
