@@ -12,6 +12,7 @@ from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
 from service.pipeline.joint_space import joint_distance
 from service.pipeline.tracing import (
+    STRAND_ARC_FACTOR,
     TraceSettings,
     _hermite,
     closest_strands_rad,
@@ -112,6 +113,41 @@ Curves = list[tuple[np.ndarray, bool]]
 def _curves(*curves: tuple[np.ndarray, bool]) -> tuple[Curves, np.ndarray]:
     """The curves with every joint periodic (the tracer's torus)."""
     return list(curves), np.ones(curves[0][0].shape[1], dtype=bool)
+
+
+def brute_force_closest_strands(curves: Curves, periodic: np.ndarray, within_rad: float) -> float:
+    """closest_strands_rad's definition, every pair of points measured (O(P^2))."""
+    best = np.inf
+    for c, (q_c, closed_c) in enumerate(curves):
+        arc = np.concatenate([[0.0], np.cumsum(joint_distance(q_c[1:], q_c[:-1], periodic))])
+        total = arc[-1] + (float(joint_distance(q_c[0], q_c[-1], periodic)) if closed_c else 0)
+        for d, (q_d, _) in enumerate(curves):
+            gap = joint_distance(q_c[:, None, :], q_d[None, :, :], periodic)  # (P_c, P_d)
+            if c == d:
+                along = np.abs(arc[:, None] - arc[None, :])
+                if closed_c:
+                    along = np.minimum(along, total - along)
+                gap = np.where(along > STRAND_ARC_FACTOR * within_rad, gap, np.inf)
+            gap = gap[gap <= within_rad]
+            best = min(best, float(gap.min(initial=np.inf)))
+    return best
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_closest_strands_equal_every_pair_measured(seed: int) -> None:
+    """The grouped KD-tree misses no pair: random walks, closed or not, on a torus with
+    some limited joints, at step lengths from well under to over the distance asked."""
+    rng = np.random.default_rng(seed)
+    periodic = rng.random(3) < 0.5
+    curves = []
+    for _ in range(int(rng.integers(1, 4))):
+        step = rng.choice([0.01, 0.04, 0.1, 0.3])
+        q = np.cumsum(rng.normal(0, step, (int(rng.integers(1, 60)), 3)), axis=0)
+        curves.append((q + rng.normal(0, 0.3, 3), bool(rng.random() < 0.3)))
+    for within in (0.05, 0.165, 0.4):
+        assert closest_strands_rad(curves, periodic, within) == pytest.approx(
+            brute_force_closest_strands(curves, periodic, within), abs=1e-12
+        )
 
 
 def test_closest_strands_are_two_curves_or_a_hairpin_never_neighbours() -> None:
