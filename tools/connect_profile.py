@@ -23,8 +23,8 @@ from service.models.registry import load_model
 from service.pipeline.acceptance import accept
 from service.pipeline.arrays import FloatArray
 from service.pipeline.connectivity import connect
-from service.pipeline.correction import correct
 from service.pipeline.fibre import Fibre
+from service.pipeline.run import correct_samples
 from service.pipeline.sampling import sample_configurations
 from service.pipeline.targets import encode_target
 from service.pipeline.types import Kinematics, KinematicsResult
@@ -70,9 +70,9 @@ def main() -> None:
             model.velocity, target.condition, defaults.num_samples, defaults.sampler,
             manifest.joint_normalisation, periodic, np.random.default_rng(i),
         )  # fmt: skip
-        correction = correct(
-            samples, target, manifest.task, model.kinematics, defaults.correction_steps,
-            defaults.damping, periodic,
+        correction = correct_samples(
+            model, target, samples, defaults.tolerance_position_m,
+            defaults.tolerance_orientation_rad,
         )  # fmt: skip
         acceptance = accept(
             correction, defaults.tolerance_position_m, defaults.tolerance_orientation_rad,
