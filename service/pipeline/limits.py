@@ -24,15 +24,14 @@ limits (tracing.py), so this runs for r > 1 only.
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 
+from service.pipeline.acceptance import accept
 from service.pipeline.arrays import BoolArray, FloatArray
 from service.pipeline.correction import dls_step, error_norms
 from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.fibre import Fibre
-from service.pipeline.types import Correction
+from service.pipeline.types import Acceptance, Correction
 
 # Locked-joint DLS steps. A locked joint can move a sample by a radian or more, which
 # undoes the task by up to the arm's reach; on the iiwa14 and Panda position targets 6
@@ -64,17 +63,14 @@ def pull_into_limits(
     """`correction` with its samples that are within tolerance but outside the limits
     replaced by locked-joint DLS pulls of them that end within tolerance and inside the
     limits; every other row as it was."""
-    position_error_m, orientation_error_rad = (
-        correction.position_error_m,
-        correction.orientation_error_rad,
-    )
-    within_tolerance = (position_error_m <= tolerance_position_m) & (
-        orientation_error_rad <= tolerance_orientation_rad
-    )  # (N,)
-    rows = np.flatnonzero(
-        within_tolerance
-        & outside_limits(correction.q_rad, lower_rad, upper_rad, periodic).any(axis=1)
-    )  # (P,)
+
+    def gate(c: Correction) -> Acceptance:  # stage 4's own tolerance and limit masks
+        return accept(
+            c, tolerance_position_m, tolerance_orientation_rad, lower_rad, upper_rad, periodic
+        )
+
+    before = gate(correction)
+    rows = np.flatnonzero(before.within_tolerance & ~before.within_limits)  # (P,)
     if not len(rows):
         return correction
     q = correction.q_rad[rows]  # (P, n)
@@ -87,25 +83,15 @@ def pull_into_limits(
         free_jacobian = np.where(locked[:, None, :], 0.0, jacobian)  # (P, m, n)
         q = q + dls_step(free_jacobian, error, fibre.damping)
     error, jacobian = fibre.residual(q)
-    pulled_position_m, pulled_orientation_rad = error_norms(error, fibre.task)  # (P,), (P,)
-    kept = (
-        (pulled_position_m <= tolerance_position_m)
-        & (pulled_orientation_rad <= tolerance_orientation_rad)
-        & ~outside_limits(q, lower_rad, upper_rad, periodic).any(axis=1)
-        & np.all(np.isfinite(q), axis=1)
-    )  # (P,)
+    pulled = Correction(q, *error_norms(error, fibre.task), jacobian)  # (P,) rows
+    kept = gate(pulled).accepted  # (P,)
     if not kept.any():
         return correction
     into = rows[kept]
     q_out, jacobian_out = correction.q_rad.copy(), correction.jacobian.copy()
-    position_out, orientation_out = position_error_m.copy(), orientation_error_rad.copy()
+    position_out = correction.position_error_m.copy()
+    orientation_out = correction.orientation_error_rad.copy()
     q_out[into], jacobian_out[into] = q[kept], jacobian[kept]
-    position_out[into] = pulled_position_m[kept]
-    orientation_out[into] = pulled_orientation_rad[kept]
-    return replace(
-        correction,
-        q_rad=q_out,
-        position_error_m=position_out,
-        orientation_error_rad=orientation_out,
-        jacobian=jacobian_out,
-    )
+    position_out[into] = pulled.position_error_m[kept]
+    orientation_out[into] = pulled.orientation_error_rad[kept]
+    return Correction(q_out, position_out, orientation_out, jacobian_out)
