@@ -87,9 +87,10 @@ def error_norms(error: FloatArray, task: TaskSpec) -> tuple[FloatArray, FloatArr
 
 # q (B, n) -> task error e (B, m) and Jacobian J (B, m, n).
 Residual = Callable[[FloatArray], tuple[FloatArray, FloatArray]]
-# J (A, m, n), e (A, m) of the rows still moving, and which rows they are (A,) -> dq (A, n);
-# a NaN row where there is no step.
-StepRule = Callable[[FloatArray, FloatArray, IntArray], FloatArray]
+# J (A, m, n), e (A, m) of the rows still moving, and which rows they are (an index (A,),
+# or slice(None) for every row, so per-row data is a view, not a copy) -> dq (A, n); a NaN
+# row where there is no step.
+StepRule = Callable[[FloatArray, FloatArray, IntArray | slice], FloatArray]
 
 # A sample whose |e| is at most this takes no further DLS step. Newton converges
 # quadratically here, so the step it skips would move it by about |e| (1e-12 rad or m),
@@ -119,7 +120,7 @@ def iterate(
     whose step is not finite becomes NaN. `deadline` is checked before each step.
     """
     if until is None:  # every row takes every step: whole arrays, no row bookkeeping
-        every = np.arange(len(q_rad))
+        every = slice(None)
         for _ in range(iterations):
             deadline.check(stage)
             dq = step(jacobian, error, every)
@@ -173,7 +174,7 @@ def correct(
     def residual(q: FloatArray) -> tuple[FloatArray, FloatArray]:
         return task_error(kinematics(q), target, task)
 
-    def step(jacobian: FloatArray, error: FloatArray, rows: IntArray) -> FloatArray:
+    def step(jacobian: FloatArray, error: FloatArray, rows: IntArray | slice) -> FloatArray:
         return dls_step(jacobian, error, damping)
 
     q = q_rad[finite]

@@ -92,7 +92,7 @@ def newton(
     `until` None, else the rows whose |e| is above `until` (or not finite).
     """
 
-    def step(jacobian: FloatArray, error: FloatArray, rows: IntArray) -> FloatArray:
+    def step(jacobian: FloatArray, error: FloatArray, rows: IntArray | slice) -> FloatArray:
         return _step(
             fibre, jacobian, error,
             None if locked is None else locked[rows],
