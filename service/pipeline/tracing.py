@@ -410,12 +410,13 @@ def closest_strands_rad(
     # Groups of STRAND_GROUP consecutive points of a curve: members (G, STRAND_GROUP),
     # -1 past a curve's end, and each group's middle member, its point in the tree.
     index = np.concatenate([np.arange(len(q)) for q, _ in curves])  # (P,) within its curve
-    starts = np.flatnonzero(index % STRAND_GROUP == 0)  # (G,) each group's first point
+    first = index % STRAND_GROUP == 0  # (P,) a group starts here
+    starts = np.flatnonzero(first)  # (G,)
+    group = np.cumsum(first) - 1  # (P,)
+    size = np.bincount(group)  # (G,) 1 to STRAND_GROUP
     members = starts[:, None] + np.arange(STRAND_GROUP)  # (G, STRAND_GROUP)
-    members[(members >= len(points)) | (curve[np.minimum(members, len(points) - 1)]
-                                       != curve[starts][:, None])] = -1  # fmt: skip
-    middle = np.where(members[:, 1] >= 0, members[:, 1], members[:, 0])  # (G,)
-    group = np.repeat(np.arange(len(starts)), (members >= 0).sum(axis=1))  # (P,)
+    members[np.arange(STRAND_GROUP) >= size[:, None]] = -1
+    middle = starts + np.minimum(1, size - 1)  # (G,)
     delta = float(np.abs(s - s[middle[group]]).max())
     embedded = np.concatenate(  # (P, n + periodic joints)
         [points[:, ~periodic], np.cos(points[:, periodic]), np.sin(points[:, periodic])], axis=1
