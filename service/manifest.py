@@ -21,6 +21,8 @@ REPO_MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
 MANIFEST_FILE = "manifest.json"
 FLOW_FILE = "flow.onnx"
 FLOW_INT8_FILE = "flow_int8.onnx"
+REFLOW_FILE = "reflow.onnx"
+REFLOW_INT8_FILE = "reflow_int8.onnx"
 KINEMATICS_FILE = "kinematics.onnx"
 CHAIN_FILE = "chain.json"
 
@@ -101,17 +103,31 @@ class ConditionSpec(_Strict):
 
 
 Precision = Literal["float32", "int8"]
-# The flow network file of each precision: the float32 export, and its int8 dynamic
-# quantisation (training/quantise.py), same inputs and outputs.
-FLOW_FILES: dict[str, str] = {"float32": FLOW_FILE, "int8": FLOW_INT8_FILE}
+# Which trained field: "base", the flow trained by smm-train; "reflow", that flow reflowed
+# for few-step sampling (training/reflow.py).
+FlowKind = Literal["base", "reflow"]
+# The flow network file of each field and precision: the float32 export, and its int8
+# dynamic quantisation (training/quantise.py), same inputs and outputs.
+FLOW_FILES: dict[tuple[str, str], str] = {
+    ("base", "float32"): FLOW_FILE,
+    ("base", "int8"): FLOW_INT8_FILE,
+    ("reflow", "float32"): REFLOW_FILE,
+    ("reflow", "int8"): REFLOW_INT8_FILE,
+}
 
 
 class SamplerSpec(_Strict):
     """How stage 2 integrates the flow: explicit Euler over the time grid
     t_k = 1 - (1 - k / steps) ** time_power (service/pipeline/sampling.py), with the
-    flow network of `precision`."""
+    flow network of `flow` and `precision` (`file`)."""
 
     method: Literal["euler"] = "euler"
+    flow: FlowKind = Field(
+        default="base",
+        description="base: the flow trained by smm-train; reflow: that flow reflowed for "
+        "few-step sampling (training/reflow.py: straight paths from noise to the base "
+        "flow's own endpoints), chosen by the sweep when its samples are as good",
+    )
     precision: Precision = Field(
         default="float32",
         description="float32: flow.onnx as trained; int8: flow_int8.onnx, its weights "
@@ -126,6 +142,11 @@ class SamplerSpec(_Strict):
         description="1: uniform steps (the paper's); above 1 the steps shorten towards t = 1, "
         "where the learned field turns fastest (EDM's rho schedule, in flow time)",
     )
+
+    @property
+    def file(self) -> str:
+        """The flow network file this sampler evaluates."""
+        return FLOW_FILES[(self.flow, self.precision)]
 
 
 class ConnectivitySpec(_Strict):
@@ -191,6 +212,7 @@ class RawError(_Strict):
     """
 
     sampler_steps: int
+    sampler_flow: FlowKind = "base"  # which trained field (SamplerSpec.flow)
     sampler_time_power: float = 1.0  # the Euler grid's power (SamplerSpec.time_power)
     sampler_precision: Precision = "float32"  # the flow network's (SamplerSpec.precision)
     position_error_mm_mean: float
@@ -290,6 +312,24 @@ class FileRef(_Strict):
     sha256: str
 
 
+class ReflowRecord(_Strict):
+    """Provenance of reflow.onnx and reflow_int8.onnx (training/reflow.py)."""
+
+    command: str
+    config: dict[str, object]
+    teacher_sha256: str = Field(description="flow.onnx, the base flow that taught the reflow")
+    device: str
+    teacher_wall_time_s: float = Field(description="integrating the teacher pairs")
+    wall_time_s: float = Field(description="training the reflowed field")
+    best_step: int
+    one_step_endpoint_error: float = Field(
+        description="mean squared distance, in normalised joint units, of the one-step "
+        "endpoint from the teacher's on held-out pairs, at best_step"
+    )
+    torch_version: str
+    git_commit: str
+
+
 class Manifest(_Strict):
     format_version: Literal[1] = 1
     model_id: str
@@ -308,6 +348,7 @@ class Manifest(_Strict):
     files: dict[str, str] = Field(description="File name in the model directory -> sha256.")
     defaults: Defaults
     training: TrainingRecord
+    reflow: ReflowRecord | None = None
     quality: Quality | None = None
     created_utc: str
 

@@ -34,6 +34,8 @@ CHANGEABLE_ON_RESUME = frozenset(
         "sweep_targets",
         "sweep_seed",
         "checkpoint_minutes",
+        "reflow_steps",
+        "reflow_pairs",
     }
 )
 

@@ -47,6 +47,8 @@ from training.data import FlowData, build_flow_data
 from training.distributed import Processes, from_environment, process_group
 from training.export import export_model, git_commit, refresh_kinematics
 from training.kinematics import ForwardKinematics, joint_spec, load_chain
+from training.reflow import LAST_FILE as REFLOW_LAST_FILE
+from training.reflow import ReflowConfig, reflow_command, reflow_model
 from training.robots import RobotSpec, register_urdf, robot_file, robot_spec
 from training.train import build_model, train
 from training.urdf import read_serial_chain, require_redundancy
@@ -183,6 +185,29 @@ def main(argv: list[str] | None = None) -> None:
         trained = train_or_load(args, argv, processes)
     if trained is not None and processes.is_main:  # the other processes are done
         export(trained)
+        if trained.config.reflow_steps > 0:
+            reflow(trained, args.runs_dir, args.resume)
+
+
+def reflow(trained: Trained, runs_dir: Path, resume: bool) -> None:
+    """The exported model reflowed for few-step sampling (training/reflow.py); with
+    `resume`, a reflow that was stopped continues."""
+    config = trained.config
+    model_dir = trained.models_dir / f"{trained.robot.name}-{trained.task.name}"
+    reflow_config = ReflowConfig(
+        pairs=config.reflow_pairs,
+        validation_pairs=min(ReflowConfig().validation_pairs, max(1000, config.reflow_pairs // 10)),
+        steps=config.reflow_steps,
+        batch_size=config.batch_size,
+        threads=config.threads or ReflowConfig().threads,
+    )
+    started = (runs_dir / model_dir.name / "reflow" / REFLOW_LAST_FILE).is_file()
+    print(f"[{model_dir.name}] reflow for few-step sampling: {reflow_config}", flush=True)
+    manifest = reflow_model(
+        model_dir, runs_dir, reflow_config, resume and started,
+        reflow_command(model_dir, reflow_config),
+    )  # fmt: skip
+    print(json.dumps(manifest.model_dump(include={"defaults": {"sampler"}, "quality": True})))
 
 
 @dataclass(frozen=True)

@@ -105,6 +105,7 @@ import numpy as np
 from service.manifest import (
     FLOW_INT8_FILE,
     MANIFEST_FILE,
+    REFLOW_FILE,
     ConnectivitySpec,
     Defaults,
     Manifest,
@@ -129,8 +130,9 @@ from training.evaluate.targets import held_out_targets
 # models' sweeps saw between 20 and 50 Euler steps; one target in 20 of count right; two
 # points of recall is one reference component in 50.
 KEEP_RATE_MARGIN = 0.01
-# The sampler steps' keep-rate margin (the module docstring says why it is wider).
+# The sampler axes' keep-rate margin (the module docstring says why it is wider).
 SAMPLER_KEEP_RATE_MARGIN = 0.15
+SAMPLER_AXES: frozenset[str] = frozenset({"sampler_steps", "reflow_steps"})
 # Coverage p95 may exceed the best candidate's by this fraction of it: the 20-target
 # p95 moves by ~1-3 % between settings that find the same components (the bundled sweeps).
 COVERAGE_MARGIN = 0.10
@@ -151,6 +153,7 @@ REFERENCE_SEED_OFFSET = 1_000_003
 Axis = Literal[
     "flow_precision_bits",
     "sampler_steps",
+    "reflow_steps",
     "correction_steps",
     "num_samples",
     "connectivity_step_rad",
@@ -160,6 +163,7 @@ AXES: tuple[Axis, ...] = get_args(Axis)
 _REASON_KEY: dict[Axis, str] = {
     "flow_precision_bits": "sampler_precision",
     "sampler_steps": "sampler",
+    "reflow_steps": "sampler_flow",
     "correction_steps": "correction_steps",
     "num_samples": "num_samples",
     "connectivity_step_rad": "connectivity",
@@ -167,6 +171,7 @@ _REASON_KEY: dict[Axis, str] = {
 _UNIT: dict[Axis, str] = {
     "flow_precision_bits": "bit flow",
     "sampler_steps": "Euler steps",
+    "reflow_steps": "reflowed Euler steps (0: the base flow's)",
     "correction_steps": "DLS steps",
     "num_samples": "samples",
     "connectivity_step_rad": "rad connectivity step",
@@ -196,6 +201,9 @@ class SweepPlan:
     time_powers: tuple[float, ...] = (1.0, 1.5, 2.0)  # the first is the uniform grid
     flow_precision_bits: tuple[int, ...] = (32, 8)  # 8 only where the model has int8
     sampler_steps: tuple[int, ...] = (2, 4, 8, 20)
+    # 0: the base flow at the steps chosen above; k > 0: the reflowed flow at k uniform
+    # steps (only where the model has reflow.onnx, training/reflow.py).
+    reflow_steps: tuple[int, ...] = (0, 1, 2, 4)
     correction_steps: tuple[int, ...] = (3, 6, 10)
     num_samples: tuple[int, ...] = (500, 1000, 2000)
     trace_step_rad: tuple[float, ...] = (0.075, 0.15, 0.3)  # r = 1
@@ -234,32 +242,48 @@ class Setting:
     connectivity_step_rad: float  # trace step h (r = 1) or planner delta (r > 1)
     time_power: float = 1.0  # of the sampler's time grid, chosen before the axes
     flow_precision_bits: int = 32  # 32: flow.onnx (float32), 8: flow_int8.onnx
+    # 0: the base flow at sampler_steps on the grid of time_power; k > 0: the reflowed
+    # flow (reflow.onnx, or reflow_int8.onnx at 8 bits) at k uniform steps.
+    reflow_steps: int = 0
 
     @classmethod
     def of(cls, defaults: Defaults, redundancy: int) -> Setting:
         step = getattr(defaults.connectivity, connectivity_step_field(redundancy))
-        bits = _BITS[defaults.sampler.precision]
+        sampler = defaults.sampler
+        reflow_steps = sampler.steps if sampler.flow == "reflow" else 0
         return cls(
-            defaults.sampler.steps, defaults.correction_steps, defaults.num_samples, step,
-            defaults.sampler.time_power, bits,
+            sampler.steps, defaults.correction_steps, defaults.num_samples, step,
+            sampler.time_power, _BITS[sampler.precision], reflow_steps,
         )  # fmt: skip
 
     @property
     def sampler(self) -> SamplerSpec:
+        precision = _PRECISION[self.flow_precision_bits]
+        if self.reflow_steps:  # straight paths: the uniform grid
+            return SamplerSpec(flow="reflow", steps=self.reflow_steps, precision=precision)
         return SamplerSpec(
             method="euler",
             steps=self.sampler_steps,
             time_power=self.time_power,
-            precision=_PRECISION[self.flow_precision_bits],
+            precision=precision,
         )
 
     def value(self, axis: Axis) -> float:
         value: float = getattr(self, axis)
         return value
 
+    def cost(self, axis: Axis) -> float:
+        """What "cheaper" orders the candidates of `axis` by: the reflowed sampler's steps
+        against the base sampler's (network evaluations), the axis's value otherwise."""
+        if axis == "reflow_steps":
+            return float(self.reflow_steps or self.sampler_steps)
+        return cost(axis, self.value(axis))
+
     def with_value(self, axis: Axis, value: float) -> Setting:
         if axis == "connectivity_step_rad":
             return replace(self, connectivity_step_rad=float(value))
+        if axis == "sampler_steps":  # the base flow's steps: the base flow samples
+            return replace(self, sampler_steps=int(value), reflow_steps=0)
         return replace(self, **{axis: int(value)})
 
     def describe(self, *, leaving_out: Axis | None = None) -> str:
@@ -329,7 +353,7 @@ class Candidate:
 
     @property
     def cost(self) -> float:
-        return cost(self.axis, self.value)
+        return self.setting.cost(self.axis)
 
     def as_json(self) -> dict[str, object]:
         return {"axis": self.axis, **asdict(self.setting), **_finite(asdict(self.measures))}
@@ -439,7 +463,7 @@ def pick_time_power(rows: Sequence[TimePowerRow]) -> TimePowerRow:
 
 def keep_rate_margin(axis: Axis) -> float:
     """How far below the best keep rate a candidate of `axis` may be (module docstring)."""
-    return SAMPLER_KEEP_RATE_MARGIN if axis == "sampler_steps" else KEEP_RATE_MARGIN
+    return SAMPLER_KEEP_RATE_MARGIN if axis in SAMPLER_AXES else KEEP_RATE_MARGIN
 
 
 def _coverage(row: Candidate) -> float:
@@ -635,7 +659,7 @@ def raw_error(
     ):
         target = encode_target(task, manifest.condition, position, wxyz)
         q_raw = sample_configurations(
-            model.networks[sampler.precision], target.condition, num_samples, sampler,
+            model.network(sampler), target.condition, num_samples, sampler,
             manifest.joint_normalisation, periodic, np.random.default_rng(seed + i),
         )  # fmt: skip
         errors.append(task_error_norms(model.kinematics(q_raw), target, task))
@@ -678,8 +702,15 @@ def sweep_defaults(
     redundancy = manifest.redundancy
     for axis in AXES:
         values = plan.candidates(axis, redundancy)
-        if not values or min(values) <= 0 or (axis not in _LONGER_IS_CHEAPER and min(values) < 1):
-            raise ValueError(f"{axis}: candidates must be positive (counts at least 1), got {plan}")
+        if axis in _LONGER_IS_CHEAPER:
+            valid = bool(values) and min(values) > 0
+        else:  # counts; reflow_steps 0 is the base flow
+            valid = bool(values) and min(values) >= (0 if axis == "reflow_steps" else 1)
+        if not valid:
+            raise ValueError(
+                f"{axis}: candidates must be positive (counts at least 1, reflow steps at "
+                f"least 0), got {plan}"
+            )
     start_s = time.perf_counter()
     periodic = np.asarray(manifest.joints.periodic, dtype=bool)
     drawn = _targets(model, targets, seed)
@@ -703,7 +734,8 @@ def sweep_defaults(
     powers: list[TimePowerRow] = []
     if "sampler_steps" in axes:
         for power in plan.time_powers:
-            sampler = chosen.sampler.model_copy(update={"time_power": power})
+            base = replace(chosen, reflow_steps=0).sampler  # the grid is the base flow's
+            sampler = base.model_copy(update={"time_power": power})
             powers.append(raw_error(model, sampler, drawn, chosen.num_samples, seed))
             progress(f"sweep: time power {power:g}: {_raw_figures(powers[-1])}")
         power_choice = pick_time_power(powers)
@@ -762,6 +794,8 @@ def _candidates(plan: SweepPlan, axis: Axis, manifest: Manifest) -> tuple[float,
     values = plan.candidates(axis, manifest.redundancy)
     if axis == "flow_precision_bits" and FLOW_INT8_FILE not in manifest.files:
         values = tuple(v for v in values if v == _BITS["float32"]) or (_BITS["float32"],)
+    if axis == "reflow_steps" and REFLOW_FILE not in manifest.files:
+        values = (0,)
     return values
 
 

@@ -29,6 +29,7 @@ from service.manifest import (
     KINEMATICS_FILE,
     MANIFEST_FILE,
     Manifest,
+    SamplerSpec,
 )
 from service.models.chain import SerialChainKinematics
 from service.models.sessions import OnnxKinematics, OnnxVelocityField, open_session
@@ -53,21 +54,25 @@ def sha256_of(path: Path) -> str:
 @dataclass(frozen=True)
 class ServedModel:
     manifest: Manifest
-    networks: dict[str, OnnxVelocityField]  # the flow of each precision the manifest lists
+    networks: dict[str, OnnxVelocityField]  # by file: every flow network the manifest lists
     kinematics: Kinematics  # SerialChainKinematics (chain.json) or OnnxKinematics
     coaxial_sets: tuple[CoaxialSet, ...]  # where the chain's twin branches meet (coaxial.py)
     version: str  # first 12 hex digits of the sha256 over the model's file digests
 
+    def network(self, sampler: SamplerSpec) -> OnnxVelocityField:
+        """The flow network `sampler` evaluates (its `flow` and `precision`)."""
+        if sampler.file not in self.networks:
+            raise ModelVerificationError(
+                f"{self.manifest.model_id}: sampler flow {sampler.flow!r} in "
+                f"{sampler.precision!r} has no network ({sampler.file}); choose from the "
+                f"model's {sorted(self.networks)}"
+            )
+        return self.networks[sampler.file]
+
     @property
     def velocity(self) -> OnnxVelocityField:
-        """The flow network of the sampler's precision (`SamplerSpec.precision`)."""
-        precision = self.manifest.defaults.sampler.precision
-        if precision not in self.networks:
-            raise ModelVerificationError(
-                f"{self.manifest.model_id}: sampler precision {precision!r} has no network; "
-                f"choose from {sorted(self.networks)}"
-            )
-        return self.networks[precision]
+        """The flow network of the default sampler."""
+        return self.network(self.manifest.defaults.sampler)
 
     @property
     def reference(self) -> str:
@@ -121,8 +126,7 @@ def load_model(model_dir: Path, threads: int) -> ServedModel:
         manifest = Manifest.model_validate_json(manifest_path.read_bytes())
     except (OSError, ValidationError) as error:
         raise ModelVerificationError(f"{manifest_path}: unreadable manifest: {error}") from error
-    precision_file = FLOW_FILES[manifest.defaults.sampler.precision]
-    for required in (FLOW_FILE, KINEMATICS_FILE, precision_file):
+    for required in (FLOW_FILE, KINEMATICS_FILE, manifest.defaults.sampler.file):
         if required not in manifest.files:
             raise ModelVerificationError(f"{manifest_path}: does not list {required}")
     for name, expected in sorted(manifest.files.items()):
@@ -136,8 +140,8 @@ def load_model(model_dir: Path, threads: int) -> ServedModel:
     return ServedModel(
         manifest=manifest,
         networks={
-            precision: OnnxVelocityField(open_session(model_dir / name, threads))
-            for precision, name in FLOW_FILES.items()
+            name: OnnxVelocityField(open_session(model_dir / name, threads))
+            for name in FLOW_FILES.values()
             if name in manifest.files
         },
         kinematics=kinematics,

@@ -59,7 +59,8 @@ def faulty_models(tmp_path: Path) -> Path:
     planar = models / PLANAR3R_DIR.name
     shutil.copytree(PLANAR3R_DIR, planar)
     manifest = json.loads((planar / "manifest.json").read_text())
-    served = FLOW_FILES[manifest["defaults"]["sampler"].get("precision", "float32")]
+    sampler = manifest["defaults"]["sampler"]
+    served = FLOW_FILES[(sampler.get("flow", "base"), sampler.get("precision", "float32"))]
     nan_flow(planar / served, joints=3, condition=2)
     manifest["files"][served] = hashlib.sha256((planar / served).read_bytes()).hexdigest()
     (planar / "manifest.json").write_text(json.dumps(manifest))

@@ -45,6 +45,7 @@ def test_tiny_model_trains_exports_and_is_served(tmp_path: Path) -> None:
         "--robot", "planar3r", "--task", "position",
         "--samples", "4000", "--epochs", "2", "--sweep-targets", "0",
         "--eval-targets", "4", "--eval-samples-per-target", "200",
+        "--reflow-steps", "30", "--reflow-pairs", "3000",
         "--models-dir", str(models), "--runs-dir", str(runs),
     ]  # fmt: skip
     result = subprocess.run(command, capture_output=True, text=True, timeout=600)
@@ -58,8 +59,18 @@ def test_tiny_model_trains_exports_and_is_served(tmp_path: Path) -> None:
     assert np.isfinite(manifest.training.best_validation_loss)
     assert manifest.quality is not None and manifest.quality.held_out_targets == 4
     assert sorted(manifest.files) == [
-        "chain.json", "flow.onnx", "flow_int8.onnx", "kinematics.onnx",
+        "chain.json", "flow.onnx", "flow_int8.onnx", "kinematics.onnx", "reflow.onnx",
+        "reflow_int8.onnx",
     ]  # fmt: skip
+    # The reflow ran after the export, from the exported flow, and says how to repeat it.
+    assert manifest.reflow is not None and manifest.reflow.teacher_sha256 == manifest.files[
+        "flow.onnx"
+    ]
+    assert manifest.reflow.command == (
+        f"python -m training.reflow --model-dir {models / 'planar3r-position'} "
+        "--pairs 3000 --validation-pairs 1000 --steps 30 --batch-size 512"
+    )
+    assert np.isfinite(manifest.reflow.one_step_endpoint_error)
     for name, digest in manifest.files.items():
         assert sha256_of(model_dir / name) == digest
     assert (runs / "planar3r-position" / "best.pt").is_file()
@@ -116,7 +127,7 @@ def test_a_urdf_never_seen_trains_exports_and_is_served(tmp_path: Path) -> None:
         "--urdf", str(urdf), "--end-effector", "tool", "--base-link", "base",
         "--task", "position",
         "--samples", "4000", "--epochs", "2", "--hidden-width", "64", "--hidden-layers", "2",
-        "--sweep-targets", "2",
+        "--sweep-targets", "2", "--reflow-steps", "0",
         "--eval-targets", "4", "--eval-samples-per-target", "200",
         "--models-dir", str(models), "--runs-dir", str(runs),
     ]  # fmt: skip

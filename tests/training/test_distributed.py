@@ -158,7 +158,7 @@ def test_torchrun_trains_one_model_in_two_processes_that_is_exported_and_served(
         "--robot", "planar3r", "--task", "position",
         "--samples", "600", "--epochs", "2", "--hidden-width", "64", "--hidden-layers", "2",
         "--sweep-targets", "0", "--eval-targets", "4", "--eval-samples-per-target", "200",
-        "--models-dir", str(models), "--runs-dir", str(runs),
+        "--reflow-steps", "0", "--models-dir", str(models), "--runs-dir", str(runs),
     ]  # fmt: skip
     command = [
         sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc-per-node", "2",

@@ -78,7 +78,7 @@ def test_add_int8_lists_the_network_and_the_registry_serves_it(tmp_path: Path) -
     model_dir = _model_without_int8(tmp_path)
     before = Manifest.model_validate_json((model_dir / MANIFEST_FILE).read_bytes())
     model = load_model(model_dir, threads=1)
-    assert set(model.networks) == {"float32"}
+    assert set(model.networks) == {FLOW_FILE}
     with pytest.raises(ModelVerificationError, match="choose from"):
         _ = with_defaults(
             model,
@@ -89,12 +89,12 @@ def test_add_int8_lists_the_network_and_the_registry_serves_it(tmp_path: Path) -
     assert FLOW_INT8_FILE in after.files
     assert after.defaults == before.defaults  # serving is not switched by adding it
     model = load_model(model_dir, threads=1)
-    assert set(model.networks) == {"float32", "int8"}
+    assert set(model.networks) == {FLOW_FILE, FLOW_INT8_FILE}
     int8 = with_defaults(
         model, sampler=model.manifest.defaults.sampler.model_copy(update={"precision": "int8"})
     )
-    assert int8.velocity is model.networks["int8"]
-    assert model.velocity is model.networks["float32"]
+    assert int8.velocity is model.networks[FLOW_INT8_FILE]
+    assert model.velocity is model.networks[FLOW_FILE]
     rng = np.random.default_rng(0)
     q_t = rng.standard_normal((64, 3), dtype=np.float32)
     t = rng.uniform(0, 1, (64, 1)).astype(np.float32)

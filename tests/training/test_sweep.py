@@ -21,7 +21,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from service.manifest import REPO_MODELS_DIR, Defaults, SamplerSpec, TaskSpec
+from service.manifest import REFLOW_FILE, REPO_MODELS_DIR, Defaults, SamplerSpec, TaskSpec
 from service.models.registry import ServedModel, load_model
 from service.pipeline.joint_space import joint_distance
 from service.pipeline.run import run
@@ -58,7 +58,7 @@ from training.sweep import (
 
 # A tiny budget for the bundled planar 3R: two candidates an axis, a 2000-sample reference.
 TINY_PLAN = SweepPlan(
-    sampler_steps=(10, 20), correction_steps=(3, 6), num_samples=(250, 500),
+    sampler_steps=(10, 20), reflow_steps=(0, 1), correction_steps=(3, 6), num_samples=(250, 500),
     trace_step_rad=(0.15, 0.3),
 )  # fmt: skip
 TINY_TARGETS = 3
@@ -166,6 +166,46 @@ def test_the_sampler_steps_trade_keep_rate_but_not_coverage_or_components() -> N
     assert pick([row(32, 0.87, 1.0, axis=bits), row(8, 0.85, 1.0, axis=bits)]).value == 32
 
 
+def test_the_reflowed_sampler_competes_with_the_base_by_network_evaluations() -> None:
+    reflowed: Axis = "reflow_steps"
+    base = Setting(
+        sampler_steps=4, correction_steps=10, num_samples=1000, connectivity_step_rad=0.15,
+        time_power=2.0, flow_precision_bits=8,
+    )  # fmt: skip
+
+    def candidate(steps: int, keep_rate: float, count_right: float = 1.0) -> Candidate:
+        measures = row(steps, keep_rate, count_right, axis=reflowed).measures
+        return Candidate(reflowed, base.with_value(reflowed, steps), measures)
+
+    # Value 0 is the base flow at its own steps and grid; k > 0 the reflow, uniform grid.
+    assert base.with_value(reflowed, 0).sampler == SamplerSpec(
+        steps=4, time_power=2.0, precision="int8"
+    )
+    assert base.with_value(reflowed, 1).sampler == SamplerSpec(
+        flow="reflow", steps=1, time_power=1.0, precision="int8"
+    )
+    # Cost is network evaluations: one reflowed step is cheaper than four base steps, four
+    # reflowed steps cost as much as the base (which, listed first, keeps a tie).
+    assert [candidate(k, 0.8).cost for k in (0, 1, 2, 4)] == [4.0, 1.0, 2.0, 4.0]
+    assert pick([candidate(0, 0.81), candidate(1, 0.70), candidate(4, 0.85)]).value == 1
+    assert pick([candidate(0, 0.85), candidate(4, 0.85)]).value == 0
+    # Its keep rate trades within the sampler's margin, not beyond, and it must still
+    # find the same components.
+    assert (
+        pick([candidate(0, 0.81), candidate(1, 0.81 - SAMPLER_KEEP_RATE_MARGIN - 0.01)]).value == 0
+    )
+    assert pick([candidate(0, 0.81), candidate(1, 0.80, count_right=0.9)]).value == 0
+    # Sweeping the base flow's steps again samples the base flow.
+    assert base.with_value(reflowed, 1).with_value("sampler_steps", 8).sampler.flow == "base"
+    # A manifest whose default is the reflow starts the sweep from it.
+    planar = TaskSpec(name="position", position_axes=[0, 1], orientation=False)
+    defaults = serving_defaults("planar3r-position", planar, 1)
+    reflow_default = defaults.model_copy(
+        update={"sampler": SamplerSpec(flow="reflow", steps=2, precision="int8")}
+    )
+    assert Setting.of(reflow_default, 1).sampler == reflow_default.sampler
+
+
 def test_the_time_grid_stays_uniform_unless_another_power_lowers_the_raw_error_enough() -> None:
     def powers(*errors: float) -> list[TimePowerRow]:
         return [TimePowerRow(p, e, 10 * e) for p, e in zip((1.0, 1.5, 2.0), errors, strict=True)]
@@ -250,10 +290,14 @@ def test_the_sweep_chooses_by_the_rule_and_its_defaults_serve(
     planar: ServedModel, swept: SweepResult
 ) -> None:
     start = planar.manifest.defaults
+    start_files = planar.manifest.files
     chosen = swept.chosen
     for axis in AXES:
         rows = [r for r in swept.table if r.axis == axis]
-        assert [r.value for r in rows] == list(TINY_PLAN.candidates(axis, redundancy=1))
+        expected = list(TINY_PLAN.candidates(axis, redundancy=1))
+        if axis == "reflow_steps" and REFLOW_FILE not in start_files:
+            expected = [0]  # no reflowed network to sweep: the base flow alone
+        assert [r.value for r in rows] == expected
         assert pick(rows).setting == rows[[r.value for r in rows].index(chosen.value(axis))].setting
         assert all(r.measures.targets == TINY_TARGETS for r in rows)
     # The last axis measured exactly the chosen setting.
@@ -261,12 +305,13 @@ def test_the_sweep_chooses_by_the_rule_and_its_defaults_serve(
 
     defaults = Defaults.model_validate(swept.defaults.model_dump())
     assert defaults == swept.defaults
-    assert (defaults.sampler.steps, defaults.correction_steps, defaults.num_samples) == (
-        chosen.sampler_steps,
+    assert (defaults.sampler, defaults.correction_steps, defaults.num_samples) == (
+        chosen.sampler,
         chosen.correction_steps,
         chosen.num_samples,
     )
     assert defaults.sampler.precision == {32: "float32", 8: "int8"}[chosen.flow_precision_bits]
+    assert defaults.sampler.steps == (chosen.reflow_steps or chosen.sampler_steps)
     assert start.connectivity == CONNECTIVITY_CURVES
     assert defaults.connectivity == CONNECTIVITY_CURVES.model_copy(
         update={"trace_step_rad": chosen.connectivity_step_rad}
@@ -284,9 +329,16 @@ def test_the_sweep_chooses_by_the_rule_and_its_defaults_serve(
     assert answer.counts.accepted > 0 and answer.components
 
 
+def swept_without_reflow(swept: SweepResult) -> bool:
+    return [r.value for r in swept.table if r.axis == "reflow_steps"] == [0]
+
+
 def test_the_reasons_quote_every_candidate_and_the_table_is_json(swept: SweepResult) -> None:
     reasons = swept.defaults.reasons
-    keys = ("sampler_precision", "sampler", "correction_steps", "num_samples", "connectivity")
+    keys = (
+        "sampler_precision", "sampler", "sampler_flow", "correction_steps", "num_samples",
+        "connectivity",
+    )  # fmt: skip
     for axis, key in zip(AXES, keys, strict=True):
         reason = reasons[key]
         prefix = "trace_step_rad = " if key == "connectivity" else ""
@@ -295,7 +347,10 @@ def test_the_reasons_quote_every_candidate_and_the_table_is_json(swept: SweepRes
             reason
         )
         assert f"{TINY_TARGETS} held-out targets" in reason
-        for candidate in TINY_PLAN.candidates(axis, redundancy=1):
+        candidates = TINY_PLAN.candidates(axis, redundancy=1)
+        if axis == "reflow_steps" and swept_without_reflow(swept):
+            candidates = (0,)
+        for candidate in candidates:
             assert f"{candidate}: keep rate " in reason, (candidate, reason)
     assert "0.15 rad connectivity step" in reasons["sampler"]  # the reference's finest step
     assert "Time grid: time power " in reasons["sampler"]
@@ -303,7 +358,7 @@ def test_the_reasons_quote_every_candidate_and_the_table_is_json(swept: SweepRes
         assert f"{power:g}: mean raw error " in reasons["sampler"]
     assert set(reasons) == {
         "num_samples", "sampler", "correction_steps", "damping", "connectivity", "tolerance",
-        "sampler_precision",
+        "sampler_precision", "sampler_flow",
     }  # fmt: skip
     # Progress: the reference, then one line per row of the table, with its figures.
     powers = len(TINY_PLAN.time_powers)
@@ -312,7 +367,8 @@ def test_the_reasons_quote_every_candidate_and_the_table_is_json(swept: SweepRes
     for line, row in zip(PROGRESS[1 + powers :], swept.table, strict=True):
         assert line.startswith(f"sweep: {row.value}: keep rate ")
     table = json.loads(json.dumps(swept.as_json(), allow_nan=False))
-    assert len(table["table"]) == len(swept.table) == 10
+    reflow_rows = 1 if swept_without_reflow(swept) else 2
+    assert len(table["table"]) == len(swept.table) == 10 + reflow_rows
     assert len(table["time_power_table"]) == powers
     assert table["plan"]["reference_samples"] == 2000
     assert Defaults.model_validate(table["defaults"]) == swept.defaults

@@ -52,6 +52,7 @@ def summarise_raw(
     kept = e < PAPER_KEPT_BELOW  # (T, N)
     return RawError(
         sampler_steps=sampler.steps,
+        sampler_flow=sampler.flow,
         sampler_precision=sampler.precision,
         sampler_time_power=sampler.time_power,
         position_error_mm_mean=float(position_mm.mean()),
@@ -72,8 +73,9 @@ def summarise_raw(
 
 
 def _same_sampler(row: RawError, sampler: SamplerSpec) -> bool:
-    return (row.sampler_steps, row.sampler_time_power, row.sampler_precision) == (
-        sampler.steps, sampler.time_power, sampler.precision,
+    return (row.sampler_flow, row.sampler_steps, row.sampler_time_power,
+            row.sampler_precision) == (
+        sampler.flow, sampler.steps, sampler.time_power, sampler.precision,
     )  # fmt: skip
 
 
@@ -107,7 +109,7 @@ def measure_quality(
         )
         for sampler, sampler_errors in zip(samplers, errors, strict=True):
             q_raw = sample_configurations(
-                served.networks[sampler.precision],
+                served.network(sampler),
                 target.condition,
                 samples,
                 sampler,

@@ -1,0 +1,485 @@
+"""Few-step sampling: one round of reflow (Liu et al. 2023) on top of a trained flow.
+
+The base flow v maps noise to configurations along curved paths: each Euler step costs a
+network evaluation, and one step from noise lands on the conditional mean, which for
+several IK branches is no solution. Reflow straightens the paths without changing where
+they end:
+
+1. teacher pairs: for conditions x = FK(q), q Sobol-spread over the limits (the base
+   training's distribution, normalised by the manifest's own normalisation), and noise
+   z ~ N(0, I), integrate the base flow in float32 with `teacher_steps` Euler steps
+   (the service's own integrator, envelope included) to q_1 = Phi(z, x);
+2. the student, initialised as the base flow, learns the straight line between each pair:
+   q_t = (1 - t) z + t q_1, target velocity q_1 - z, at t = 0 for `zero_time_fraction` of
+   the pairs (where a one-step sampler evaluates it) and t ~ U(0, 1) otherwise (so two
+   or more uniform steps also land);
+3. export as reflow.onnx and reflow_int8.onnx beside the base flow, listed in the
+   manifest with a `reflow` record of how they were made; the sweep then measures the
+   reflowed sampler against the base one and the manifest's defaults say which serves.
+
+Unlike the base flow's independent coupling, the teacher's coupling is deterministic: a
+noise z has one endpoint, so the one-step map z -> q_1 is a function the student can
+learn, branch by branch; where two branches meet in noise space it must turn sharply,
+and samples drawn there land between branches (the correction and acceptance judge them
+like any other sample; the sweep measures what is lost).
+
+    python -m training.reflow --model-dir models/iiwa14-pose      # --resume continues
+
+The teacher pairs (runs/<model-id>/reflow/pairs.pt) and the training state (last.pt,
+written every `checkpoint_minutes`) stay out of git; a stopped run continues with
+`--resume` to the same weights, and a finished one re-exports.
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import json
+import math
+import os
+import shlex
+import sys
+import time
+from dataclasses import asdict, dataclass, fields, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from service.manifest import (
+    MANIFEST_FILE,
+    REFLOW_FILE,
+    REFLOW_INT8_FILE,
+    Manifest,
+    ReflowRecord,
+)
+from service.models.registry import load_model, sha256_of
+from service.pipeline.sampling import euler_integrate
+from training.data import Labeller
+from training.evaluate.quality import measure_quality
+from training.export import export_flow, git_commit
+from training.kinematics import ForwardKinematics, load_chain
+from training.model import VelocityField
+from training.quantise import quantise_flow
+from training.staging import staged_copy
+from training.sweep import Axis, sweep_defaults
+
+PAIRS_FILE = "pairs.pt"
+LAST_FILE = "last.pt"
+LOG_FILE = "log.jsonl"
+
+
+@dataclass(frozen=True)
+class ReflowConfig:
+    """One reflow run; each default says why."""
+
+    # Teacher pairs: half the base training's 2M pairs; the student sees each ~30 times.
+    pairs: int = 1_000_000
+    # Held out for the validation loss (the one-step endpoint error, below).
+    validation_pairs: int = 20_000
+    # The teacher's Euler steps and grid power: the base flow's endpoint to within a few
+    # mm of its 100-step endpoint (sampling.py: 15.0 mm at 20 steps, p = 1.5, vs 12.4 at
+    # 100 uniform steps on the iiwa14 pose), at a third of the 100 steps' cost.
+    teacher_steps: int = 32
+    teacher_time_power: float = 1.5
+    # Optimiser steps of `batch_size` pairs (the base training's batch size by default).
+    steps: int = 30_000
+    batch_size: int = 1024
+    # Fine-tuning: a tenth of the base training's starting rate, cosine to 0.
+    learning_rate: float = 1e-4
+    weight_decay: float = 1e-5
+    # Share of each batch trained at t = 0, the one-step sampler's only evaluation.
+    zero_time_fraction: float = 0.5
+    seed: int = 20261124
+    threads: int = 2
+    # bf16 autocast of the linear layers (as the base training on CPUs with bf16 units).
+    autocast_bf16: bool = True
+    checkpoint_minutes: float = 5.0
+    validate_every: int = 1000  # optimiser steps between validations
+
+    def as_dict(self) -> dict[str, object]:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class TeacherPairs:
+    """Noise, the base flow's endpoint from it, and the condition (normalised, float32)."""
+
+    z: torch.Tensor  # (P, n)
+    q_1: torch.Tensor  # (P, n)
+    condition: torch.Tensor  # (P, c)
+
+
+def base_flow(model_dir: Path) -> VelocityField:
+    """The trained base flow as a torch module, its weights read from flow.onnx (the
+    exporter keeps the state_dict's names), so a committed model reflows on a fresh clone."""
+    import onnx
+    from onnx import numpy_helper
+
+    manifest = Manifest.model_validate_json((model_dir / MANIFEST_FILE).read_bytes())
+    config = manifest.training.config
+    graph = onnx.load(str(model_dir / "flow.onnx")).graph
+    state = {i.name: torch.from_numpy(numpy_helper.to_array(i).copy()) for i in graph.initializer}
+    model = VelocityField(
+        joint_dim=manifest.joints.count,
+        condition_dim=len(manifest.condition.names),
+        hidden_width=int(str(config["hidden_width"])),
+        hidden_layers=int(str(config["hidden_layers"])),
+        time_embedding_dim=int(str(config["time_embedding_dim"])),
+        architecture=str(config.get("architecture", "mlp")),
+    )
+    model.load_state_dict(state, strict=True)
+    return model.eval()
+
+
+def numpy_field(model: VelocityField) -> Any:
+    """`model` as the service's VelocityField protocol: float32 arrays in and out."""
+
+    @torch.no_grad()
+    def velocity(q_t: np.ndarray, t: np.ndarray, condition: np.ndarray) -> np.ndarray:
+        out = model(torch.from_numpy(q_t), torch.from_numpy(t), torch.from_numpy(condition))
+        return out.numpy()
+
+    return velocity
+
+
+def teacher_pairs(
+    model_dir: Path, teacher: VelocityField, config: ReflowConfig, chunk: int = 8192
+) -> TeacherPairs:
+    """`config.pairs + config.validation_pairs` teacher pairs for the model in `model_dir`."""
+    manifest = Manifest.model_validate_json((model_dir / MANIFEST_FILE).read_bytes())
+    urdf = model_dir.parent / manifest.urdf.path
+    base_link = None
+    chain_file = model_dir / "chain.json"
+    if chain_file.is_file():
+        base_link = json.loads(chain_file.read_text()).get("base_link")
+    fk = ForwardKinematics(load_chain(urdf, manifest.end_effector_link, base_link))
+    labeller = Labeller(
+        fk=fk,
+        joints=manifest.joints,
+        task=manifest.task,
+        joint_normalisation=manifest.joint_normalisation,
+        condition_normalisation=manifest.condition.normalisation,
+    )
+    total = config.pairs + config.validation_pairs
+    condition = labeller(total, config.seed).condition  # (P, c)
+    # The Sobol order is spatially structured: shuffle so the validation tail is a fair draw.
+    generator = torch.Generator().manual_seed(config.seed)
+    condition = condition[torch.randperm(total, generator=generator)]
+    z = torch.randn(total, manifest.joints.count, generator=generator)  # (P, n)
+    q_1 = torch.empty_like(z)
+    velocity = numpy_field(teacher)
+    for start in tqdm(range(0, total, chunk), desc="teacher pairs", mininterval=5.0):
+        s = slice(start, start + chunk)
+        q_1[s] = torch.from_numpy(
+            euler_integrate(
+                velocity, z[s].numpy(), np.ascontiguousarray(condition[s].numpy()),
+                config.teacher_steps, time_power=config.teacher_time_power,
+            )
+        )  # fmt: skip
+    return TeacherPairs(z=z, q_1=q_1, condition=condition)
+
+
+def reflow_loss(
+    student: torch.nn.Module,
+    z: torch.Tensor,  # (B, n)
+    q_1: torch.Tensor,  # (B, n)
+    condition: torch.Tensor,  # (B, c)
+    t: torch.Tensor,  # (B, 1)
+) -> torch.Tensor:
+    """Mean squared error between v(q_t, t, x) and the straight line's velocity q_1 - z."""
+    q_t = (1 - t) * z + t * q_1
+    return torch.mean((student(q_t, t, condition).float() - (q_1 - z)) ** 2)
+
+
+def reflow_times(
+    count: int, zero_fraction: float, generator: torch.Generator
+) -> torch.Tensor:  # (count, 1)
+    """t = 0 for round(zero_fraction * count) rows, U(0, 1) for the rest."""
+    t = torch.rand(count, 1, generator=generator)
+    t[: round(zero_fraction * count)] = 0.0
+    return t
+
+
+@torch.no_grad()
+def endpoint_error(
+    student: torch.nn.Module, pairs: TeacherPairs, steps: int, batch: int = 8192
+) -> float:
+    """Mean squared distance (normalised joint units) between the student's `steps`-step
+    uniform Euler endpoint and the teacher's, over `pairs`."""
+    student.eval()
+    total = 0.0
+    for start in range(0, pairs.z.shape[0], batch):
+        s = slice(start, start + batch)
+        q = pairs.z[s].clone()
+        for k in range(steps):
+            t = torch.full((q.shape[0], 1), k / steps)
+            q = q + student(q, t, pairs.condition[s]) / steps
+        total += float(((q - pairs.q_1[s]) ** 2).sum(dim=1).sum())
+    return total / pairs.z.shape[0]
+
+
+@dataclass
+class ReflowState:
+    """last.pt: the run after `step` optimiser steps, enough to continue it exactly."""
+
+    config: dict[str, object]
+    step: int
+    model: dict[str, torch.Tensor]
+    optimizer: dict[str, Any]
+    scheduler: dict[str, Any]
+    generator: torch.Tensor
+    best_error: float
+    best_step: int
+    best_model: dict[str, torch.Tensor]
+    wall_time_s: float
+    teacher_wall_time_s: float
+
+
+def _save(path: Path, state: ReflowState) -> None:
+    partial = path.with_name(path.name + ".partial")
+    torch.save({f.name: getattr(state, f.name) for f in fields(ReflowState)}, partial)
+    os.replace(partial, path)
+
+
+def train_reflow(
+    model_dir: Path, run_dir: Path, config: ReflowConfig, resume: bool
+) -> tuple[VelocityField, ReflowState]:
+    """Pairs (cached in `run_dir`), then the student's training; the best-validation student."""
+    torch.manual_seed(config.seed)
+    teacher = base_flow(model_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    pairs_path, last_path = run_dir / PAIRS_FILE, run_dir / LAST_FILE
+    state: ReflowState | None = None
+    if resume:
+        if not last_path.is_file():
+            raise ValueError(f"nothing to resume: {last_path} does not exist")
+        state = ReflowState(**torch.load(last_path, map_location="cpu", weights_only=False))
+        if state.config != config.as_dict():
+            differing = sorted(k for k, v in config.as_dict().items() if state.config.get(k) != v)
+            raise ValueError(
+                f"{last_path} was written with other settings ({', '.join(differing)}); "
+                "resume with the same flags, or start afresh without --resume"
+            )
+    teacher_wall_time_s = 0.0 if state is None else state.teacher_wall_time_s
+    if resume and pairs_path.is_file():
+        pairs = TeacherPairs(**torch.load(pairs_path, map_location="cpu"))
+    else:
+        started = time.perf_counter()
+        pairs = teacher_pairs(model_dir, teacher, config)
+        teacher_wall_time_s = time.perf_counter() - started
+        torch.save(asdict(pairs), pairs_path)
+    train_rows = config.pairs
+    validation = TeacherPairs(*(x[train_rows:] for x in (pairs.z, pairs.q_1, pairs.condition)))
+    student = copy.deepcopy(teacher).train()
+    optimizer = torch.optim.AdamW(
+        student.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay
+    )
+    scheduler = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, T_max=config.steps)
+    generator = torch.Generator().manual_seed(config.seed + 1)
+    if state is None:
+        error = endpoint_error(student, validation, steps=1)
+        state = ReflowState(
+            config=config.as_dict(), step=0, model={}, optimizer={}, scheduler={},
+            generator=generator.get_state(), best_error=error, best_step=0,
+            best_model=copy.deepcopy(student.state_dict()), wall_time_s=0.0,
+            teacher_wall_time_s=teacher_wall_time_s,
+        )  # fmt: skip
+        print(f"one-step endpoint error of the base flow: {error:.4f}", flush=True)
+    else:
+        student.load_state_dict(state.model)
+        optimizer.load_state_dict(state.optimizer)
+        scheduler.load_state_dict(state.scheduler)
+        generator.set_state(state.generator)
+    session_start, last_saved = time.perf_counter(), time.perf_counter()
+    elapsed_before = state.wall_time_s
+
+    def checkpoint() -> None:
+        nonlocal last_saved
+        state.model = student.state_dict()
+        state.optimizer = optimizer.state_dict()
+        state.scheduler = scheduler.state_dict()
+        state.generator = generator.get_state()
+        state.wall_time_s = elapsed_before + time.perf_counter() - session_start
+        _save(last_path, state)
+        last_saved = time.perf_counter()
+
+    with (
+        (run_dir / LOG_FILE).open("a") as log,
+        tqdm(total=config.steps, initial=state.step, unit="step", mininterval=5.0) as progress,
+    ):
+        while state.step < config.steps:
+            student.train()
+            index = torch.randint(0, train_rows, (config.batch_size,), generator=generator)
+            t = reflow_times(config.batch_size, config.zero_time_fraction, generator)
+            with torch.autocast("cpu", dtype=torch.bfloat16, enabled=config.autocast_bf16):
+                loss = reflow_loss(
+                    student, pairs.z[index], pairs.q_1[index], pairs.condition[index], t
+                )
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            optimizer.step()
+            scheduler.step()
+            state.step += 1
+            progress.update(1)
+            if state.step % config.validate_every == 0 or state.step == config.steps:
+                error = endpoint_error(student, validation, steps=1)
+                row = {
+                    "step": state.step,
+                    "train_loss": loss.item(),
+                    "one_step_error": error,
+                    "wall_time_s": elapsed_before + time.perf_counter() - session_start,
+                }
+                log.write(json.dumps(row) + "\n")
+                log.flush()
+                progress.set_postfix(loss=f"{loss.item():.4f}", one_step=f"{error:.4f}")
+                if error < state.best_error:
+                    state.best_error, state.best_step = error, state.step
+                    state.best_model = copy.deepcopy(student.state_dict())
+            if time.perf_counter() - last_saved >= 60 * config.checkpoint_minutes:
+                checkpoint()
+    checkpoint()
+    student.load_state_dict(state.best_model)
+    return student.eval(), state
+
+
+def export_reflow(
+    model_dir: Path, student: VelocityField, state: ReflowState, config: ReflowConfig,
+    command: str, threads: int, sweep_targets: int, sweep_seed: int,
+    eval_targets: int, eval_samples_per_target: int, eval_seed: int,
+) -> Manifest:  # fmt: skip
+    """reflow.onnx and reflow_int8.onnx into `model_dir`, the manifest's `reflow` record,
+    then the sweep (which may choose the reflowed sampler) and the quality measurement;
+    all on a hidden copy swapped in only when it succeeds."""
+    with staged_copy(model_dir) as staging:
+        manifest = Manifest.model_validate_json((staging / MANIFEST_FILE).read_bytes())
+        export_flow(student, staging / REFLOW_FILE, manifest.joints.count,
+                    len(manifest.condition.names))  # fmt: skip
+        quantise_flow(staging / REFLOW_FILE, staging / REFLOW_INT8_FILE)
+        files = {
+            **manifest.files,
+            **{name: sha256_of(staging / name) for name in (REFLOW_FILE, REFLOW_INT8_FILE)},
+        }
+        record = ReflowRecord(
+            command=command,
+            config=config.as_dict(),
+            teacher_sha256=manifest.files["flow.onnx"],
+            device="cpu",
+            teacher_wall_time_s=round(state.teacher_wall_time_s, 1),
+            wall_time_s=round(state.wall_time_s, 1),
+            best_step=state.best_step,
+            one_step_endpoint_error=state.best_error,
+            torch_version=torch.__version__,
+            git_commit=git_commit(),
+        )
+        manifest = manifest.model_copy(update={"files": files, "reflow": record})
+        manifest_path = staging / MANIFEST_FILE
+        manifest_path.write_text(manifest.model_dump_json(indent=2, exclude_unset=True) + "\n")
+        served = load_model(staging, threads=threads)
+        if sweep_targets > 0:
+            swept = sweep_defaults(
+                served, sweep_targets, sweep_seed, axes=REFLOW_AXES,
+                progress=lambda line: print(f"[{manifest.model_id}] {line}", flush=True),
+            )  # fmt: skip
+            manifest = manifest.model_copy(update={"defaults": swept.defaults})
+            manifest_path.write_text(manifest.model_dump_json(indent=2) + "\n")
+            served = replace(served, manifest=manifest)
+        quality = measure_quality(served, eval_targets, eval_samples_per_target, eval_seed)
+        manifest = manifest.model_copy(update={"quality": quality})
+        manifest_path.write_text(manifest.model_dump_json(indent=2) + "\n")
+        load_model(staging, threads=threads)
+    return manifest
+
+
+# The sweep's axes a reflow re-measures: the base flow's precision and steps were chosen
+# when it was exported; whether the reflowed sampler serves, and what follows from it.
+REFLOW_AXES: tuple[Axis, ...] = (
+    "reflow_steps",
+    "correction_steps",
+    "num_samples",
+    "connectivity_step_rad",
+)
+
+
+def reflow_model(
+    model_dir: Path, runs_dir: Path, config: ReflowConfig, resume: bool, command: str,
+    sweep_targets: int | None = None,
+) -> Manifest:  # fmt: skip
+    """Train (or continue) the reflow of the model in `model_dir` and export it there; the
+    sweep and quality settings are the base training's (its manifest)."""
+    torch.set_num_threads(config.threads)
+    manifest = Manifest.model_validate_json((model_dir / MANIFEST_FILE).read_bytes())
+    base = manifest.training.config
+
+    def setting(name: str) -> int:
+        return int(str(base[name]))
+
+    run_dir = runs_dir / manifest.model_id / "reflow"
+    student, state = train_reflow(model_dir, run_dir, config, resume)
+    if not math.isfinite(state.best_error):
+        raise RuntimeError(f"{run_dir}: the reflowed field's endpoint error is not finite")
+    return export_reflow(
+        model_dir, student, state, config, command, threads=config.threads,
+        sweep_targets=setting("sweep_targets") if sweep_targets is None else sweep_targets,
+        sweep_seed=setting("sweep_seed"), eval_targets=setting("eval_targets"),
+        eval_samples_per_target=setting("eval_samples_per_target"),
+        eval_seed=setting("eval_seed"),
+    )  # fmt: skip
+
+
+def reflow_command(model_dir: Path, config: ReflowConfig) -> str:
+    """The command that reproduces `config`'s reflow of `model_dir` (non-default flags)."""
+    defaults = ReflowConfig()
+    flags = [
+        arg
+        for f in fields(ReflowConfig)
+        if getattr(config, f.name) != getattr(defaults, f.name)
+        for arg in (f"--{f.name.replace('_', '-')}", str(getattr(config, f.name)))
+    ]
+    return shlex.join(["python", "-m", "training.reflow", "--model-dir", str(model_dir), *flags])
+
+
+def parse_args(argv: list[str]) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(
+        prog="python -m training.reflow",
+        description="Reflow a trained flow for few-step sampling (module docstring).",
+    )
+    parser.add_argument("--model-dir", type=Path, required=True)
+    parser.add_argument("--runs-dir", type=Path, default=Path("runs"))
+    parser.add_argument("--resume", action="store_true")
+    defaults = ReflowConfig()
+    for f in fields(ReflowConfig):
+        kind = type(getattr(defaults, f.name))
+        if kind is bool:
+            parser.add_argument(
+                f"--{f.name.replace('_', '-')}", action=argparse.BooleanOptionalAction,
+                default=None,
+            )  # fmt: skip
+        else:
+            parser.add_argument(f"--{f.name.replace('_', '-')}", type=kind, default=None)
+    parser.add_argument(
+        "--sweep-targets", type=int, default=None,
+        help="targets of the sweep after export (default: the base training's, manifest)",
+    )  # fmt: skip
+    return parser.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = parse_args(sys.argv[1:] if argv is None else argv)
+    overrides = {
+        f.name: getattr(args, f.name)
+        for f in fields(ReflowConfig)
+        if getattr(args, f.name) is not None
+    }
+    config = replace(ReflowConfig(), **overrides)
+    manifest = reflow_model(
+        args.model_dir, args.runs_dir, config, args.resume,
+        reflow_command(args.model_dir, config), args.sweep_targets,
+    )  # fmt: skip
+    print(json.dumps(manifest.model_dump(include={"defaults", "quality"}), indent=1))
+
+
+if __name__ == "__main__":
+    main()
