@@ -63,9 +63,10 @@ def test_tiny_model_trains_exports_and_is_served(tmp_path: Path) -> None:
         "reflow_int8.onnx",
     ]  # fmt: skip
     # The reflow ran after the export, from the exported flow, and says how to repeat it.
-    assert manifest.reflow is not None and manifest.reflow.teacher_sha256 == manifest.files[
-        "flow.onnx"
-    ]
+    assert (
+        manifest.reflow is not None
+        and manifest.reflow.teacher_sha256 == manifest.files["flow.onnx"]
+    )
     assert manifest.reflow.command == (
         f"python -m training.reflow --model-dir {models / 'planar3r-position'} "
         "--pairs 3000 --validation-pairs 1000 --steps 30 --batch-size 512"

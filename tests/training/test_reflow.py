@@ -118,12 +118,12 @@ def test_a_stopped_run_resumes_to_the_weights_of_an_uninterrupted_one(
     calls = 0
     original = reflow.reflow_loss
 
-    def stops_at_step_17(*args: torch.Tensor) -> torch.Tensor:
+    def stops_at_step_17(student: torch.nn.Module, *batch: torch.Tensor) -> torch.Tensor:
         nonlocal calls
         calls += 1
         if calls == 17:
             raise KeyboardInterrupt
-        return original(*args)
+        return original(student, *batch)
 
     monkeypatch.setattr(reflow, "reflow_loss", stops_at_step_17)
     with pytest.raises(KeyboardInterrupt):
