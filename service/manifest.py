@@ -328,6 +328,11 @@ class ReflowRecord(_Strict):
     )
     torch_version: str
     git_commit: str
+    base_sampler: SamplerSpec | None = Field(
+        default=None,
+        description="the base flow's sampler the model served before the reflow (what the "
+        "sweep weighed the reflowed sampler against; tools/benchmark.py times both)",
+    )
 
 
 class Manifest(_Strict):

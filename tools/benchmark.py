@@ -70,6 +70,7 @@ PAPER_DLS_STEPS = 3
 MATCH_ROUNDS = 4  # rescaled restart runs at most, to reach the service's valid count
 SERVICE, PAPER, RESTART = "service", "paper (100 Euler, 3 DLS)", "random-restart DLS"
 FLOAT32 = "service, float32 network"
+BASE = "service, base flow"  # the reflowed sampler's base flow at the steps it replaced
 
 
 @dataclass(frozen=True)
@@ -187,6 +188,9 @@ def benchmark_model(
     paper = with_defaults(model, sampler=PAPER_SAMPLER, correction_steps=PAPER_DLS_STEPS)
     sampler = manifest.defaults.sampler
     float32 = with_defaults(model, sampler=sampler.model_copy(update={"precision": "float32"}))
+    base = None  # what the reflow alone changes: the base sampler it replaced
+    if sampler.flow == "reflow" and manifest.reflow and manifest.reflow.base_sampler:
+        base = with_defaults(model, sampler=manifest.reflow.base_sampler)
     rows: dict[str, object] = {}
     for n in sizes:
         progress(f"{manifest.model_id} N={n}")
@@ -194,6 +198,8 @@ def benchmark_model(
         runs = {SERVICE: service}
         if manifest.defaults.sampler.precision != "float32":
             runs[FLOAT32] = in_process(float32, q_targets, n)
+        if base is not None:
+            runs[BASE] = in_process(base, q_targets, n)
         runs[PAPER] = in_process(paper, q_targets, n)
         runs[RESTART] = restarts_to_match(model, q_targets, [a.kept for a in service.answers], n)
         row: dict[str, object] = {
@@ -208,6 +214,7 @@ def benchmark_model(
         "targets": num_targets,
         "sampler_steps": manifest.defaults.sampler.steps,
         "sampler_precision": manifest.defaults.sampler.precision,
+        "sampler_flow": manifest.defaults.sampler.flow,
         "sizes": rows,
     }
 
@@ -229,7 +236,7 @@ def markdown(report: dict) -> str:
     ]
     for model_id, entry in report["models"].items():
         for n, row in entry["sizes"].items():
-            for name in (SERVICE, FLOAT32, PAPER, RESTART):
+            for name in (SERVICE, FLOAT32, BASE, PAPER, RESTART):
                 if name not in row:
                     continue
                 run = row[name]
@@ -296,8 +303,9 @@ def _goals(report: dict) -> list[str]:
     lines = [
         "Goals (issue 14; N = 1000, in process, median):",
         "",
-        "| model | median ms | goal ms | x the paper's time | goal x | met |",
-        "|---|---|---|---|---|---|",
+        "| model | median ms | goal ms | x the paper's time | goal x | time met | truth against "
+        "the paper's configuration |",
+        "|---|---|---|---|---|---|---|",
     ]
     for model_id, most_ms, least_x in GOALS:
         row = report["models"].get(model_id, {}).get("sizes", {}).get("1000")
@@ -306,12 +314,37 @@ def _goals(report: dict) -> list[str]:
         ms = row[SERVICE]["median_ms"]
         speed_up = row[PAPER]["median_ms"] / ms
         met = ms <= most_ms and (least_x is None or speed_up >= least_x)
+        worse = worse_than(row[SERVICE]["figures"], row[PAPER]["figures"])
         lines.append(
             f"| {model_id} | {ms:.1f} | {most_ms:g} | {speed_up:.1f} | "
             f"{'-' if least_x is None else f'{least_x:g}'} | "
-            f"{'yes' if met else f'no: {ms / most_ms:.1f}x the goal'} |"
+            f"{'yes' if met else f'no: {ms / most_ms:.2f}x the goal'} | "
+            f"{'no worse' if not worse else 'worse: ' + '; '.join(worse)} |"
         )
     return lines
+
+
+# The evaluation's figures, and whether more is better.
+TRUTH_FIGURES = (
+    ("count_right", "count right", True),
+    ("splits_per_target", "splits", False),
+    ("merges_per_target", "merges", False),
+    ("recall", "recall", True),
+    ("coverage_p95_rad", "coverage p95 rad", False),
+)
+
+
+def worse_than(service: dict, paper: dict) -> list[str]:
+    """The figures on which the service's answers are worse than the paper's
+    configuration's, each as "name service vs paper" (a figure neither has is skipped)."""
+    worse = []
+    for key, name, more_is_better in TRUTH_FIGURES:
+        ours, theirs = service.get(key), paper.get(key)
+        if ours is None or theirs is None:
+            continue
+        if (ours < theirs) if more_is_better else (ours > theirs):
+            worse.append(f"{name} {ours:.3g} vs {theirs:.3g}")
+    return worse
 
 
 def _where_the_time_goes(report: dict) -> list[str]:
@@ -321,9 +354,9 @@ def _where_the_time_goes(report: dict) -> list[str]:
         "Where the service's time goes (N = 1000, medians): the share of each stage and the "
         "cost of one evaluation of the flow network for the N samples (sample / Euler steps):",
         "",
-        "| model | Euler steps | network | ms per network evaluation | sample % | correct % "
-        "| connect % |",
-        "|---|---|---|---|---|---|---|",
+        "| model | flow | Euler steps | network | ms per network evaluation | sample % "
+        "| correct % | connect % |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for model_id, entry in report["models"].items():
         row = entry["sizes"].get("1000")
@@ -333,7 +366,7 @@ def _where_the_time_goes(report: dict) -> list[str]:
         precision = entry.get("sampler_precision", "float32")
         stage, total = run["median_stage_ms"] or {}, run["median_ms"]
         lines.append(
-            f"| {model_id} | {steps} | {precision} | "
+            f"| {model_id} | {entry.get('sampler_flow', 'base')} | {steps} | {precision} | "
             f"{stage.get('sample', float('nan')) / steps:.1f} | "
             + " | ".join(f"{100 * stage.get(s, float('nan')) / total:.0f}" for s in STAGES)
             + " |"

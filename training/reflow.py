@@ -54,6 +54,7 @@ from service.manifest import (
     REFLOW_INT8_FILE,
     Manifest,
     ReflowRecord,
+    SamplerSpec,
 )
 from service.models.registry import load_model, sha256_of
 from service.pipeline.sampling import euler_integrate
@@ -345,6 +346,13 @@ def train_reflow(
     return student.eval(), state
 
 
+def base_sampler(manifest: Manifest) -> SamplerSpec | None:
+    """The base flow's sampler the model serves, or served before an earlier reflow."""
+    if manifest.defaults.sampler.flow == "base":
+        return manifest.defaults.sampler
+    return None if manifest.reflow is None else manifest.reflow.base_sampler
+
+
 def export_reflow(
     model_dir: Path, student: VelocityField, state: ReflowState, config: ReflowConfig,
     command: str, threads: int, sweep_targets: int, sweep_seed: int,
@@ -373,6 +381,7 @@ def export_reflow(
             one_step_endpoint_error=state.best_error,
             torch_version=torch.__version__,
             git_commit=git_commit(),
+            base_sampler=base_sampler(manifest),
         )
         manifest = manifest.model_copy(update={"files": files, "reflow": record})
         manifest_path = staging / MANIFEST_FILE
