@@ -38,8 +38,10 @@ tell them apart on 20 targets, while the raw error does (iiwa14 pose 8x model, 2
 
 Candidates, one axis at a time: the flow network's precision {32-bit, 8-bit} (float32
 flow.onnx or its int8 quantisation flow_int8.onnx, training/quantise.py, when the model
-has one), then Euler sampler steps {2, 4, 8, 20}, then DLS correction
-steps {3, 6, 10}, then num_samples {500, 1000, 2000}, then the connectivity step: for
+has one), then Euler sampler steps {2, 4, 8, 20}, then the reflowed flow at {1, 2, 4}
+uniform steps against that base sampler (0; only where the model has reflow.onnx,
+training/reflow.py; its cost is network evaluations, so one reflowed step is cheaper than
+four base steps and four cost the same), then DLS correction steps {3, 6, 10}, then num_samples {500, 1000, 2000}, then the connectivity step: for
 r = 1 the continuation step h of the trace {0.075, 0.15, 0.3} rad, for r > 1 the local
 planner's delta {0.15, 0.3, 0.6} rad. An axis is swept with the others at their values so
 far (the model's starting defaults, `training.defaults.serving_defaults`, replaced by each
@@ -62,8 +64,8 @@ components than the candidate merging fewest (MERGES_MARGIN). When none is withi
 margins, take the best count right (then the fewer merges, the keep rate, the recall; ties
 to the cheaper).
 
-The keep-rate margin is KEEP_RATE_MARGIN on every axis but the sampler's steps, where it
-is SAMPLER_KEEP_RATE_MARGIN. Fewer Euler steps land more samples where the DLS steps do
+The keep-rate margin is KEEP_RATE_MARGIN on every axis but the sampler's (Euler steps and
+reflowed steps), where it is SAMPLER_KEEP_RATE_MARGIN. Fewer Euler steps land more samples where the DLS steps do
 not converge: the answer holds fewer configurations, not wrong components, and what a
 planner needs of the samples is judged directly by count right, merges, recall and
 coverage (for r = 1 the samples only seed the traced curves, which come whole; for
