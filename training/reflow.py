@@ -58,6 +58,7 @@ from service.manifest import (
 )
 from service.models.registry import load_model, sha256_of
 from service.pipeline.sampling import euler_integrate
+from training.config import TrainConfig
 from training.data import Labeller
 from training.evaluate.quality import measure_quality
 from training.export import export_flow, git_commit
@@ -422,8 +423,8 @@ def reflow_model(
     manifest = Manifest.model_validate_json((model_dir / MANIFEST_FILE).read_bytes())
     base = manifest.training.config
 
-    def setting(name: str) -> int:
-        return int(str(base[name]))
+    def setting(name: str) -> int:  # a manifest from before a setting existed: its default
+        return int(str(base.get(name, getattr(TrainConfig(), name))))
 
     run_dir = runs_dir / manifest.model_id / "reflow"
     student, state = train_reflow(model_dir, run_dir, config, resume)

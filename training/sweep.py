@@ -41,7 +41,8 @@ flow.onnx or its int8 quantisation flow_int8.onnx, training/quantise.py, when th
 has one), then Euler sampler steps {2, 4, 8, 20}, then the reflowed flow at {1, 2, 4}
 uniform steps against that base sampler (0; only where the model has reflow.onnx,
 training/reflow.py; its cost is network evaluations, so one reflowed step is cheaper than
-four base steps and four cost the same), then DLS correction steps {3, 6, 10}, then num_samples {500, 1000, 2000}, then the connectivity step: for
+four base steps and four cost the same), then DLS correction steps {3, 6, 10}, then
+num_samples {500, 1000, 2000}, then the connectivity step: for
 r = 1 the continuation step h of the trace {0.075, 0.15, 0.3} rad, for r > 1 the local
 planner's delta {0.15, 0.3, 0.6} rad. An axis is swept with the others at their values so
 far (the model's starting defaults, `training.defaults.serving_defaults`, replaced by each
@@ -65,15 +66,15 @@ margins, take the best count right (then the fewer merges, the keep rate, the re
 to the cheaper).
 
 The keep-rate margin is KEEP_RATE_MARGIN on every axis but the sampler's (Euler steps and
-reflowed steps), where it is SAMPLER_KEEP_RATE_MARGIN. Fewer Euler steps land more samples where the DLS steps do
-not converge: the answer holds fewer configurations, not wrong components, and what a
-planner needs of the samples is judged directly by count right, merges, recall and
-coverage (for r = 1 the samples only seed the traced curves, which come whole; for
-r > 1 fewer samples cover the fibre less, which the coverage margin catches). Measured on
-the iiwa14 pose model (20 targets of the benchmark, N = 1000, int8): keep rate 87 % at 20
-steps, 85 % at 8, 76 % at 4, 33 % at 2, with every component found at 2 to 20, and 93,
-67 and 56 ms per answer at 8, 4 and 2 steps against 176 ms at 20. A one-point margin
-kept 20 steps.
+reflowed steps), where it is SAMPLER_KEEP_RATE_MARGIN. Fewer Euler steps land more samples
+where the DLS steps do not converge: the answer holds fewer configurations, not wrong
+components, and what a planner needs of the samples is judged directly by count right,
+merges, recall and coverage (for r = 1 the samples only seed the traced curves, which come
+whole; for r > 1 fewer samples cover the fibre less, which the coverage margin catches).
+Measured on the iiwa14 pose model (20 targets of the benchmark, N = 1000, int8): keep rate
+87 % at 20 steps, 85 % at 8, 76 % at 4, 33 % at 2, with every component found at 2 to 20,
+and 93, 67 and 56 ms per answer at 8, 4 and 2 steps against 176 ms at 20. A one-point
+margin kept 20 steps.
 
 Merges have no margin of their own: a merge promises a self-motion that does not exist
 (the planner's motion fails halfway), where a split only hides one, and the count-right
