@@ -72,7 +72,7 @@ def summarise_raw(
     )
 
 
-def _same_sampler(row: RawError, sampler: SamplerSpec) -> bool:
+def same_sampler(row: RawError, sampler: SamplerSpec) -> bool:
     return (row.sampler_flow, row.sampler_steps, row.sampler_time_power,
             row.sampler_precision) == (
         sampler.flow, sampler.steps, sampler.time_power, sampler.precision,
@@ -96,7 +96,7 @@ def measure_quality(
     samplers = [defaults.sampler]
     if defaults.sampler != PAPER_SAMPLER and paper_row is None:
         samplers.append(PAPER_SAMPLER)
-    if paper_row is not None and not _same_sampler(paper_row, PAPER_SAMPLER):
+    if paper_row is not None and not same_sampler(paper_row, PAPER_SAMPLER):
         raise ValueError(f"paper_row was measured with another sampler: {paper_row}")
     errors: list[list[tuple[np.ndarray, np.ndarray]]] = [[] for _ in samplers]
     kept, solved = 0, 0
@@ -168,7 +168,7 @@ def remeasure(model_dir: Path, threads: int = 1) -> Quality:
     if known is not None and (known.held_out_targets, known.samples_per_target) == (
         num_targets, samples,
     ):  # fmt: skip
-        paper_row = next((r for r in known.raw if _same_sampler(r, PAPER_SAMPLER)), None)
+        paper_row = next((r for r in known.raw if same_sampler(r, PAPER_SAMPLER)), None)
     served = load_model(model_dir, threads=threads)
     return measure_quality(served, num_targets, samples, int(config["eval_seed"]), paper_row)  # type: ignore[call-overload]
 
