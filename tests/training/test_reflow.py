@@ -10,6 +10,8 @@
 - The export lists reflow.onnx and reflow_int8.onnx with their record; the service serves
   the reflowed sampler, and its one-step answers reach the target by the planar arm's
   closed-form FK; a manifest asking for a reflow the directory lacks is refused by name.
+- The paper sampler's raw errors are reused only when measured on the same targets and
+  samples (the reflow leaves the base flow as it was).
 """
 
 import shutil
@@ -171,3 +173,14 @@ def test_a_manifest_asking_for_a_missing_reflow_is_refused_by_name(tmp_path: Pat
     name = REFLOW_INT8_FILE if sampler.precision == "int8" else REFLOW_FILE
     with pytest.raises(ModelVerificationError, match=name):
         load_model(model_dir, threads=1)
+
+
+def test_the_paper_samplers_row_is_kept_only_for_the_same_targets_and_samples() -> None:
+    manifest = Manifest.model_validate_json((PLANAR3R_DIR / MANIFEST_FILE).read_bytes())
+    assert manifest.quality is not None
+    targets, samples = manifest.quality.held_out_targets, manifest.quality.samples_per_target
+    row = reflow.paper_row(manifest, targets, samples)
+    assert row is not None and row in manifest.quality.raw
+    assert (row.sampler_flow, row.sampler_steps, row.sampler_precision) == ("base", 100, "float32")
+    assert reflow.paper_row(manifest, targets + 1, samples) is None
+    assert reflow.paper_row(manifest, targets, samples // 2) is None
