@@ -1,5 +1,6 @@
 """tools.benchmark: the command writes a report (JSON and Markdown) with every configuration
-for every size (the float32 network beside an int8 default), over HTTP too, whose figures
+for every size (the float32 network beside an int8 default, the base flow beside a reflowed
+one), over HTTP too, whose figures
 are the evaluation's (planar 3R: the count against the closed form); random-restart DLS is
 run to at least the service's number of valid configurations per target; a batch of
 targets against its single requests, with identical answers, in the same report; the
@@ -14,7 +15,7 @@ import numpy as np
 import pytest
 
 from service.models.registry import ServedModel
-from tools.benchmark import FLOAT32, PAPER, RESTART, SERVICE, restarts_to_match, worse_than
+from tools.benchmark import BASE, FLOAT32, PAPER, RESTART, SERVICE, restarts_to_match, worse_than
 from training.evaluate.targets import uniform_configurations
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -30,8 +31,10 @@ def test_the_command_writes_every_configuration_and_size(tmp_path: Path) -> None
     report = json.loads((tmp_path / "benchmark.json").read_text())
     entry = report["models"]["planar3r-position"]
     assert set(entry["sizes"]) == {"100", "200"}
-    # The float32 network beside the service's own where the defaults serve int8.
+    # The float32 network beside the service's own where the defaults serve int8, and the
+    # base flow beside a reflowed sampler.
     names = [SERVICE, PAPER, RESTART] + ([FLOAT32] if entry["sampler_precision"] == "int8" else [])
+    names += [BASE] if entry["sampler_flow"] == "reflow" else []
     for n, row in entry["sizes"].items():
         assert set(row) == {*names, "http"}
         for name in names:
