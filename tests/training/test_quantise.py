@@ -16,7 +16,14 @@ import pytest
 from onnx import numpy_helper
 
 from service.errors import ModelVerificationError
-from service.manifest import FLOW_FILE, FLOW_INT8_FILE, MANIFEST_FILE, Manifest
+from service.manifest import (
+    FLOW_FILE,
+    FLOW_INT8_FILE,
+    MANIFEST_FILE,
+    REFLOW_FILE,
+    REFLOW_INT8_FILE,
+    Manifest,
+)
 from service.models.registry import load_model
 from tests.support.app import PLANAR3R_DIR
 from training.evaluate.served import with_defaults
@@ -30,14 +37,16 @@ from training.quantise import (
 
 
 def _model_without_int8(tmp_path: Path) -> Path:
-    """A copy of the bundled planar model (and its robots/) without flow_int8.onnx."""
+    """A copy of the bundled planar model (and its robots/) with its float32 flow alone."""
     models = tmp_path / "models"
     shutil.copytree(PLANAR3R_DIR.parent / "robots", models / "robots")
     model_dir = models / PLANAR3R_DIR.name
     shutil.copytree(PLANAR3R_DIR, model_dir)
-    (model_dir / FLOW_INT8_FILE).unlink(missing_ok=True)
+    dropped = (FLOW_INT8_FILE, REFLOW_FILE, REFLOW_INT8_FILE)  # the float32 flow alone
+    for name in dropped:
+        (model_dir / name).unlink(missing_ok=True)
     manifest = Manifest.model_validate_json((model_dir / MANIFEST_FILE).read_bytes())
-    files = {k: v for k, v in manifest.files.items() if k != FLOW_INT8_FILE}
+    files = {k: v for k, v in manifest.files.items() if k not in dropped}
     defaults = manifest.defaults.model_copy(
         update={"sampler": manifest.defaults.sampler.model_copy(update={"precision": "float32"})}
     )

@@ -319,7 +319,8 @@ def test_the_sweep_chooses_by_the_rule_and_its_defaults_serve(
     assert (defaults.damping, defaults.tolerance_position_m) == (start.damping, 1e-6)
     # The grid's power: chosen by its rule from one row per candidate, before the axes.
     assert [r.time_power for r in swept.time_power_table] == list(TINY_PLAN.time_powers)
-    assert defaults.sampler.time_power == chosen.time_power
+    # the base flow's grid; a reflowed sampler's straight paths take the uniform one
+    assert defaults.sampler.time_power == (1.0 if chosen.reflow_steps else chosen.time_power)
     assert pick_time_power(swept.time_power_table).time_power == chosen.time_power
     assert all(r.setting.time_power == chosen.time_power for r in swept.table)
 
