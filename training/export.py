@@ -35,6 +35,7 @@ from service.manifest import (
     FileRef,
     JointSpec,
     Manifest,
+    RawError,
     TaskSpec,
     TrainingRecord,
 )
@@ -58,7 +59,7 @@ from training.model import VelocityField
 from training.quantise import quantise_flow
 from training.robots import RobotSpec
 from training.staging import staged_copy
-from training.sweep import sweep_defaults
+from training.sweep import AXES, Axis, sweep_defaults
 
 # float32 network: velocities reach a few hundred near t = 1, where float32 rounding
 # differences between torch and onnxruntime are ~1e-6 relative; compare like np.allclose.
@@ -272,26 +273,40 @@ def export_model(
         ),
         created_utc=dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
     )
-    manifest_path = staging / MANIFEST_FILE
-    manifest_path.write_text(manifest.model_dump_json(indent=2) + "\n")
-    # Defaults and quality are measured on exactly what ships: the model loaded as the
-    # service loads it.
-    served = load_model(staging, threads=config.threads)
-    if config.sweep_targets > 0:
+    (staging / MANIFEST_FILE).write_text(manifest.model_dump_json(indent=2) + "\n")
+    manifest = sweep_and_measure(
+        staging, manifest, config.threads, config.sweep_targets, config.sweep_seed,
+        config.eval_targets, config.eval_samples_per_target, config.eval_seed,
+    )  # fmt: skip
+    shutil.rmtree(model_dir, ignore_errors=True)
+    staging.rename(model_dir)
+    return manifest
+
+
+def sweep_and_measure(
+    model_dir: Path, manifest: Manifest, threads: int, sweep_targets: int, sweep_seed: int,
+    eval_targets: int, eval_samples_per_target: int, eval_seed: int,
+    axes: Sequence[Axis] = AXES, paper_row: RawError | None = None,
+) -> Manifest:  # fmt: skip
+    """Choose the serving defaults (the sweep over `axes`; none with 0 targets) and measure
+    quality on exactly what ships, the model in `model_dir` loaded as the service loads it;
+    each step written into its manifest. `paper_row`: the paper sampler's raw errors
+    already measured on the same network and targets (`measure_quality`)."""
+    manifest_path = model_dir / MANIFEST_FILE
+    served = load_model(model_dir, threads=threads)
+    if sweep_targets > 0:
         swept = sweep_defaults(
-            served, config.sweep_targets, config.sweep_seed,
+            served, sweep_targets, sweep_seed, axes=axes,
             progress=lambda line: print(f"[{manifest.model_id}] {line}", flush=True),
         )  # fmt: skip
         manifest = manifest.model_copy(update={"defaults": swept.defaults})
         manifest_path.write_text(manifest.model_dump_json(indent=2) + "\n")
         served = replace(served, manifest=manifest)
     quality = measure_quality(
-        served, config.eval_targets, config.eval_samples_per_target, config.eval_seed
+        served, eval_targets, eval_samples_per_target, eval_seed, paper_row=paper_row
     )
     manifest = manifest.model_copy(update={"quality": quality})
     manifest_path.write_text(manifest.model_dump_json(indent=2) + "\n")
-    shutil.rmtree(model_dir, ignore_errors=True)
-    staging.rename(model_dir)
     return manifest
 
 

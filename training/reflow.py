@@ -49,9 +49,12 @@ import torch
 from tqdm import tqdm
 
 from service.manifest import (
+    CHAIN_FILE,
+    FLOW_FILE,
     MANIFEST_FILE,
     REFLOW_FILE,
     REFLOW_INT8_FILE,
+    ChainSpec,
     Manifest,
     RawError,
     ReflowRecord,
@@ -59,15 +62,16 @@ from service.manifest import (
 )
 from service.models.registry import load_model, sha256_of
 from service.pipeline.sampling import euler_integrate
+from service.pipeline.types import VelocityField as NumpyVelocityField
 from training.config import TrainConfig
 from training.data import Labeller
-from training.evaluate.quality import PAPER_SAMPLER, measure_quality, same_sampler
-from training.export import export_flow, git_commit
+from training.evaluate.quality import PAPER_SAMPLER, same_sampler
+from training.export import export_flow, git_commit, sweep_and_measure
 from training.kinematics import ForwardKinematics, load_chain
 from training.model import VelocityField
 from training.quantise import quantise_flow
 from training.staging import staged_copy
-from training.sweep import Axis, sweep_defaults
+from training.sweep import Axis
 
 PAIRS_FILE = "pairs.pt"
 LAST_FILE = "last.pt"
@@ -123,7 +127,7 @@ def base_flow(model_dir: Path) -> VelocityField:
 
     manifest = Manifest.model_validate_json((model_dir / MANIFEST_FILE).read_bytes())
     config = manifest.training.config
-    graph = onnx.load(str(model_dir / "flow.onnx")).graph
+    graph = onnx.load(str(model_dir / FLOW_FILE)).graph
     state = {i.name: torch.from_numpy(numpy_helper.to_array(i).copy()) for i in graph.initializer}
     model = VelocityField(
         joint_dim=manifest.joints.count,
@@ -137,7 +141,7 @@ def base_flow(model_dir: Path) -> VelocityField:
     return model.eval()
 
 
-def numpy_field(model: VelocityField) -> Any:
+def numpy_field(model: VelocityField) -> NumpyVelocityField:
     """`model` as the service's VelocityField protocol: float32 arrays in and out."""
 
     @torch.no_grad()
@@ -154,10 +158,9 @@ def teacher_pairs(
     """`config.pairs + config.validation_pairs` teacher pairs for the model in `model_dir`."""
     manifest = Manifest.model_validate_json((model_dir / MANIFEST_FILE).read_bytes())
     urdf = model_dir.parent / manifest.urdf.path
-    base_link = None
-    chain_file = model_dir / "chain.json"
-    if chain_file.is_file():
-        base_link = json.loads(chain_file.read_text()).get("base_link")
+    base_link = None  # where the model's chain starts (chain.json's, as refresh_kinematics)
+    if CHAIN_FILE in manifest.files:
+        base_link = ChainSpec.model_validate_json((model_dir / CHAIN_FILE).read_bytes()).base_link
     fk = ForwardKinematics(load_chain(urdf, manifest.end_effector_link, base_link))
     labeller = Labeller(
         fk=fk,
@@ -390,7 +393,7 @@ def export_reflow(
         record = ReflowRecord(
             command=command,
             config=config.as_dict(),
-            teacher_sha256=manifest.files["flow.onnx"],
+            teacher_sha256=manifest.files[FLOW_FILE],
             device="cpu",
             teacher_wall_time_s=round(state.teacher_wall_time_s, 1),
             wall_time_s=round(state.wall_time_s, 1),
@@ -401,23 +404,14 @@ def export_reflow(
             base_sampler=base_sampler(manifest),
         )
         manifest = manifest.model_copy(update={"files": files, "reflow": record})
-        manifest_path = staging / MANIFEST_FILE
-        manifest_path.write_text(manifest.model_dump_json(indent=2, exclude_unset=True) + "\n")
-        served = load_model(staging, threads=threads)
-        if sweep_targets > 0:
-            swept = sweep_defaults(
-                served, sweep_targets, sweep_seed, axes=REFLOW_AXES,
-                progress=lambda line: print(f"[{manifest.model_id}] {line}", flush=True),
-            )  # fmt: skip
-            manifest = manifest.model_copy(update={"defaults": swept.defaults})
-            manifest_path.write_text(manifest.model_dump_json(indent=2) + "\n")
-            served = replace(served, manifest=manifest)
-        quality = measure_quality(
-            served, eval_targets, eval_samples_per_target, eval_seed,
+        (staging / MANIFEST_FILE).write_text(
+            manifest.model_dump_json(indent=2, exclude_unset=True) + "\n"
+        )
+        manifest = sweep_and_measure(
+            staging, manifest, threads, sweep_targets, sweep_seed, eval_targets,
+            eval_samples_per_target, eval_seed, axes=REFLOW_AXES,
             paper_row=paper_row(manifest, eval_targets, eval_samples_per_target),
         )  # fmt: skip
-        manifest = manifest.model_copy(update={"quality": quality})
-        manifest_path.write_text(manifest.model_dump_json(indent=2) + "\n")
         load_model(staging, threads=threads)
     return manifest
 
