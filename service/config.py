@@ -59,8 +59,11 @@ class Settings(BaseSettings):
     onnx_threads: int = Field(
         0,
         ge=0,
-        description="onnxruntime intra-op threads per session; 0 shares the cores among the "
-        "computations that may run at once (cores // (workers * max_in_flight), at least 1).",
+        description="onnxruntime intra-op threads per session; 0 gives each session the "
+        "process's share of the cores (cores // workers): a request alone runs the flow "
+        "network on every core, requests in flight at once share them (the workers do not "
+        "spin, so an idle one holds no core). Measured on 2 cores (tools.load, every model "
+        "mixed): against 1 thread, 1 client +32 % answers/s, 4 clients -4 %.",
     )
     log_level: LogLevel = Field(
         "info", description="Level of the service's JSON logs and of uvicorn's."
@@ -112,10 +115,10 @@ class Settings(BaseSettings):
 
     @property
     def onnx_threads_per_session(self) -> int:
-        """onnx_threads, or the cores shared among the computations that may run at once."""
+        """onnx_threads, or the process's share of the cores: cores // workers."""
         if self.onnx_threads:
             return self.onnx_threads
-        return max(1, (os.cpu_count() or 1) // (self.workers * self.max_in_flight))
+        return max(1, (os.cpu_count() or 1) // self.workers)
 
     api_key: SecretStr | None = Field(
         None,

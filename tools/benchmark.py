@@ -78,6 +78,9 @@ class Timed:
     """One configuration over the targets: its answers as the evaluation reads them."""
 
     answers: list[MethodTarget]
+    # Process CPU time per answer (every thread: onnxruntime's workers too), ms; what a
+    # core is busy for, where the wall time of a multi-threaded network is less.
+    cpu_ms: list[float] | None = None
 
     def times(self) -> dict[str, object]:
         total = [a.time_ms for a in self.answers]
@@ -85,6 +88,7 @@ class Timed:
         return {
             "median_ms": float(np.median(total)),
             "p95_ms": float(np.percentile(total, 95)),
+            "cpu_median_ms": None if self.cpu_ms is None else float(np.median(self.cpu_ms)),
             "median_stage_ms": median_stage_ms(stages) if stages else None,
             "p95_stage_ms": p95_stage_ms(stages) if stages else None,
             "valid_configurations_mean": float(np.mean([a.kept for a in self.answers])),
@@ -113,8 +117,14 @@ def figures(model: ServedModel, answers: Sequence[MethodTarget], truths: Sequenc
 
 
 def in_process(model: ServedModel, q_targets: np.ndarray, num_samples: int) -> Timed:
+    """The pipeline's answers, one target at a time, with the process CPU time of each."""
     served_target(model, q_targets[0], num_samples, seed=0)  # warm-up
-    return Timed([served_target(model, q, num_samples, seed=i) for i, q in enumerate(q_targets)])
+    answers, cpu_ms = [], []
+    for i, q in enumerate(q_targets):
+        start_s = time.process_time()
+        answers.append(served_target(model, q, num_samples, seed=i))
+        cpu_ms.append((time.process_time() - start_s) * 1e3)
+    return Timed(answers, cpu_ms)
 
 
 def restarts_to_match(
@@ -230,9 +240,10 @@ def markdown(report: dict) -> str:
         f"{report['targets']} held-out (seed {report['seed']}). Times are comparable only "
         "within this report.",
         "",
-        "| model | N | configuration | median ms | p95 ms | sample | correct | connect | valid "
-        "configs | count right | splits / target | merges / target | recall | coverage p95 rad |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| model | N | configuration | median ms | p95 ms | CPU ms | sample | correct | connect "
+        "| valid configs | count right | splits / target | merges / target | recall | coverage "
+        "p95 rad |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for model_id, entry in report["models"].items():
         for n, row in entry["sizes"].items():
@@ -245,7 +256,8 @@ def markdown(report: dict) -> str:
                 sample = stage.get("sample", stage.get("solve"))
                 lines.append(
                     f"| {model_id} | {n} | {name} | {run['median_ms']:.1f} | {run['p95_ms']:.1f} | "
-                    f"{_ms(sample)} | {_ms(stage.get('correct'))} | "
+                    f"{_ms(run.get('cpu_median_ms'))} | {_ms(sample)} | "
+                    f"{_ms(stage.get('correct'))} | "
                     f"{_ms(stage.get('connect'))} | {run['valid_configurations_mean']:.0f} | "
                     f"{f['count_right']:.3g} | {_num(f.get('splits_per_target'))} | "
                     f"{_num(f.get('merges_per_target'))} | {_num(f.get('recall'))} | "
@@ -273,6 +285,9 @@ def markdown(report: dict) -> str:
         lines += ["", *_batch(report["batch"], report.get("batch_sampling_ahead"))]
     lines += [
         "",
+        "CPU ms: the process's CPU time per answer (median; every thread, onnxruntime's "
+        "workers included, and the evaluation's reading of the answer), what a core is busy "
+        "for; the wall time is less where the network runs on several threads. "
         "Stages: sample (the flow's Euler steps; `solve` for restart DLS), correct (DLS), "
         "connect (components on the fibre); the median of each over the targets, so they "
         "need not add up to the median of the whole. Valid configs: configurations within "

@@ -53,11 +53,11 @@ def test_several_workers_each_build_the_app_by_name(
     assert options["access_log"] is False and options["timeout_graceful_shutdown"] == 13
 
 
-def test_default_onnx_threads_share_the_cores_among_workers_and_slots(
+def test_default_onnx_threads_share_the_cores_among_workers(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     monkeypatch.setattr("service.config.os.cpu_count", lambda: 8)
-    assert Settings(workers=1, max_in_flight=2).onnx_threads_per_session == 4
-    assert Settings(workers=2, max_in_flight=2).onnx_threads_per_session == 2
-    assert Settings(workers=4, max_in_flight=4).onnx_threads_per_session == 1
+    assert Settings(workers=1, max_in_flight=2).onnx_threads_per_session == 8
+    assert Settings(workers=2, max_in_flight=4).onnx_threads_per_session == 4
+    assert Settings(workers=16, max_in_flight=1).onnx_threads_per_session == 1
     assert Settings(workers=4, onnx_threads=3).onnx_threads_per_session == 3
