@@ -46,18 +46,12 @@ from service.manifest import REPO_MODELS_DIR, SamplerSpec
 from service.models.registry import ServedModel, load_model
 from tools.batch_benchmark import batch_against_singles
 from tools.local_server import LocalServer
+from training.evaluate.judge import figures, worse_than
 from training.evaluate.methods import MethodTarget, restart_target, served_target
-from training.evaluate.metrics import (
-    component_agreement,
-    counted_components,
-    found_components,
-    median_stage_ms,
-    nearest_distance,
-    p95_stage_ms,
-)
+from training.evaluate.metrics import median_stage_ms, p95_stage_ms
 from training.evaluate.served import orientation_wxyz, with_defaults
 from training.evaluate.targets import uniform_configurations
-from training.evaluate.truth import Truth, ground_truth
+from training.evaluate.truth import ground_truth
 from training.kinematics import load_chain
 from training.machine import Machine
 from training.robots import robot_spec
@@ -93,27 +87,6 @@ class Timed:
             "p95_stage_ms": p95_stage_ms(stages) if stages else None,
             "valid_configurations_mean": float(np.mean([a.kept for a in self.answers])),
         }
-
-
-def figures(model: ServedModel, answers: Sequence[MethodTarget], truths: Sequence[Truth]) -> dict:
-    """The evaluation's component figures of one configuration over the targets."""
-    _, _, periodic = model.manifest.joints.arrays()
-    agreements = [component_agreement(a, t) for a, t in zip(answers, truths, strict=True)]
-    known = [g for g in agreements if g is not None]
-    pairs = list(zip(answers, truths, strict=True))
-    coverage = np.concatenate([nearest_distance(t.points, a.returned, periodic) for a, t in pairs])
-    result: dict[str, object] = {
-        "count_right": float(np.mean([g.right for g in known])),
-        "coverage_p95_rad": float(np.percentile(coverage, 95)),
-    }
-    if known and known[0].splits is not None:
-        # Recall over the components the count counts: every one of a 1-D SMM, those of
-        # at least 1 % of a 4-D fibre.
-        found = [found_components(a, t)[counted_components(t)] for a, t in pairs]
-        result["splits_per_target"] = float(np.mean([g.splits for g in known]))
-        result["merges_per_target"] = float(np.mean([g.merges for g in known]))
-        result["recall"] = float(np.concatenate(found).mean())
-    return result
 
 
 def in_process(model: ServedModel, q_targets: np.ndarray, num_samples: int) -> Timed:
@@ -337,29 +310,6 @@ def _goals(report: dict) -> list[str]:
             f"{'no worse' if not worse else 'worse: ' + '; '.join(worse)} |"
         )
     return lines
-
-
-# The evaluation's figures, and whether more is better.
-TRUTH_FIGURES = (
-    ("count_right", "count right", True),
-    ("splits_per_target", "splits", False),
-    ("merges_per_target", "merges", False),
-    ("recall", "recall", True),
-    ("coverage_p95_rad", "coverage p95 rad", False),
-)
-
-
-def worse_than(service: dict, paper: dict) -> list[str]:
-    """The figures on which the service's answers are worse than the paper's
-    configuration's, each as "name service vs paper" (a figure neither has is skipped)."""
-    worse = []
-    for key, name, more_is_better in TRUTH_FIGURES:
-        ours, theirs = service.get(key), paper.get(key)
-        if ours is None or theirs is None:
-            continue
-        if (ours < theirs) if more_is_better else (ours > theirs):
-            worse.append(f"{name} {ours:.3g} vs {theirs:.3g}")
-    return worse
 
 
 def _where_the_time_goes(report: dict) -> list[str]:

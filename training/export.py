@@ -32,6 +32,7 @@ from service.manifest import (
     MANIFEST_FILE,
     ChainSpec,
     ConditionSpec,
+    Defaults,
     FileRef,
     JointSpec,
     Manifest,
@@ -40,13 +41,14 @@ from service.manifest import (
     TrainingRecord,
 )
 from service.models.chain import SerialChainKinematics
-from service.models.registry import load_model, sha256_of
+from service.models.registry import ServedModel, load_model, sha256_of
 from service.models.sessions import FLOW_INPUTS, FLOW_OUTPUT, KINEMATICS_INPUT, KINEMATICS_OUTPUTS
 from service.pipeline.targets import condition_names
 from training.checkpoint import TrainResult
 from training.config import TrainConfig
 from training.data import FlowData
 from training.defaults import serving_defaults
+from training.evaluate.judge import has_ground_truth, judge
 from training.evaluate.quality import measure_quality
 from training.kinematics import (
     ForwardKinematics,
@@ -287,19 +289,26 @@ def sweep_and_measure(
     model_dir: Path, manifest: Manifest, threads: int, sweep_targets: int, sweep_seed: int,
     eval_targets: int, eval_samples_per_target: int, eval_seed: int,
     axes: Sequence[Axis] = AXES, paper_row: RawError | None = None,
+    incumbent: Defaults | None = None,
 ) -> Manifest:  # fmt: skip
     """Choose the serving defaults (the sweep over `axes`; none with 0 targets) and measure
     quality on exactly what ships, the model in `model_dir` loaded as the service loads it;
     each step written into its manifest. `paper_row`: the paper sampler's raw errors
-    already measured on the same network and targets (`measure_quality`)."""
+    already measured on the same network and targets (`measure_quality`). `incumbent`:
+    the defaults served until now; the swept ones replace them only if judged no worse
+    against the exact SMMs (`judged_defaults`)."""
     manifest_path = model_dir / MANIFEST_FILE
     served = load_model(model_dir, threads=threads)
     if sweep_targets > 0:
-        swept = sweep_defaults(
-            served, sweep_targets, sweep_seed, axes=axes,
-            progress=lambda line: print(f"[{manifest.model_id}] {line}", flush=True),
-        )  # fmt: skip
-        manifest = manifest.model_copy(update={"defaults": swept.defaults})
+
+        def progress(line: str) -> None:
+            print(f"[{manifest.model_id}] {line}", flush=True)
+
+        swept = sweep_defaults(served, sweep_targets, sweep_seed, axes=axes, progress=progress)
+        defaults = swept.defaults
+        if incumbent is not None:
+            defaults = judged_defaults(served, defaults, incumbent, progress)
+        manifest = manifest.model_copy(update={"defaults": defaults})
         manifest_path.write_text(manifest.model_dump_json(indent=2) + "\n")
         served = replace(served, manifest=manifest)
     quality = measure_quality(
@@ -308,6 +317,47 @@ def sweep_and_measure(
     manifest = manifest.model_copy(update={"quality": quality})
     manifest_path.write_text(manifest.model_dump_json(indent=2) + "\n")
     return manifest
+
+
+def judged_defaults(
+    served: ServedModel, swept: Defaults, incumbent: Defaults,
+    progress: Callable[[str], None] = lambda line: None,
+) -> Defaults:  # fmt: skip
+    """The swept defaults if they serve what the incumbent did or are judged no worse
+    against the exact SMMs (training/evaluate/judge.py), else the incumbent's; the verdict
+    in reasons["judged"]. The sweep's 20 targets cannot see a rare lost component; the
+    judge's 200 report targets and 20 near-singular ones can. A robot without an exact
+    reference keeps the swept defaults, its reason saying they were not judged."""
+    swept_values = swept.model_dump(exclude={"reasons"})
+    incumbent_values = incumbent.model_dump(exclude={"reasons"})
+    if swept_values == incumbent_values:
+        return swept
+    if not has_ground_truth(served):
+        reason = (
+            f"not judged: no exact reference for robot {served.manifest.robot!r}; the "
+            "sweep's agreement with its dense answer alone chose these defaults over the "
+            "incumbent's"
+        )
+        return swept.model_copy(update={"reasons": {**swept.reasons, "judged": reason}})
+    judgement = judge(served, swept, incumbent, progress=progress)
+    changed = ", ".join(
+        f"{key} {incumbent_values[key]} -> {value}"
+        for key, value in swept_values.items()
+        if incumbent_values[key] != value
+    )
+    if judgement.no_worse:
+        reason = f"the sweep's change ({changed}) serves: {judgement.summary()}"
+        return swept.model_copy(update={"reasons": {**swept.reasons, "judged": reason}})
+    reason = (
+        f"the sweep's change ({changed}) does not serve, the incumbent defaults do: "
+        f"{judgement.summary()}; incumbent {_rounded(judgement.incumbent)}, swept "
+        f"{_rounded(judgement.candidate)}"
+    )
+    return incumbent.model_copy(update={"reasons": {**incumbent.reasons, "judged": reason}})
+
+
+def _rounded(figures: dict[str, float]) -> dict[str, float]:
+    return {key: float(f"{value:.4g}") for key, value in figures.items()}
 
 
 def refresh_kinematics(model_dir: Path, models_dir: Path, threads: int = 1) -> Manifest:

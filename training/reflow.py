@@ -55,6 +55,7 @@ from service.manifest import (
     REFLOW_FILE,
     REFLOW_INT8_FILE,
     ChainSpec,
+    Defaults,
     Manifest,
     RawError,
     ReflowRecord,
@@ -374,35 +375,26 @@ def paper_row(manifest: Manifest, targets: int, samples: int) -> RawError | None
 
 
 def export_reflow(
-    model_dir: Path, student: VelocityField, state: ReflowState, config: ReflowConfig,
-    command: str, threads: int, sweep_targets: int, sweep_seed: int,
-    eval_targets: int, eval_samples_per_target: int, eval_seed: int,
+    model_dir: Path, student: VelocityField | None, record: ReflowRecord, threads: int,
+    sweep_targets: int, sweep_seed: int, eval_targets: int, eval_samples_per_target: int,
+    eval_seed: int,
 ) -> Manifest:  # fmt: skip
-    """reflow.onnx and reflow_int8.onnx into `model_dir`, the manifest's `reflow` record,
-    then the sweep (which may choose the reflowed sampler) and the quality measurement;
-    all on a hidden copy swapped in only when it succeeds."""
+    """reflow.onnx and reflow_int8.onnx into `model_dir` (None: keep the ones there), the
+    manifest's `reflow` record, then the sweep (which may choose the reflowed sampler),
+    the judgement of its choice against the exact SMMs (the base flow's defaults serve
+    unless it is no worse, training/export.py `judged_defaults`) and the quality
+    measurement; all on a hidden copy swapped in only when it succeeds."""
     with staged_copy(model_dir) as staging:
         manifest = Manifest.model_validate_json((staging / MANIFEST_FILE).read_bytes())
-        export_flow(student, staging / REFLOW_FILE, manifest.joints.count,
-                    len(manifest.condition.names))  # fmt: skip
-        quantise_flow(staging / REFLOW_FILE, staging / REFLOW_INT8_FILE)
+        incumbent = base_defaults(manifest)
+        if student is not None:
+            export_flow(student, staging / REFLOW_FILE, manifest.joints.count,
+                        len(manifest.condition.names))  # fmt: skip
+            quantise_flow(staging / REFLOW_FILE, staging / REFLOW_INT8_FILE)
         files = {
             **manifest.files,
             **{name: sha256_of(staging / name) for name in (REFLOW_FILE, REFLOW_INT8_FILE)},
         }
-        record = ReflowRecord(
-            command=command,
-            config=config.as_dict(),
-            teacher_sha256=manifest.files[FLOW_FILE],
-            device="cpu",
-            teacher_wall_time_s=round(state.teacher_wall_time_s, 1),
-            wall_time_s=round(state.wall_time_s, 1),
-            best_step=state.best_step,
-            one_step_endpoint_error=state.best_error,
-            torch_version=torch.__version__,
-            git_commit=git_commit(),
-            base_sampler=base_sampler(manifest),
-        )
         manifest = manifest.model_copy(update={"files": files, "reflow": record})
         (staging / MANIFEST_FILE).write_text(
             manifest.model_dump_json(indent=2, exclude_unset=True) + "\n"
@@ -411,9 +403,42 @@ def export_reflow(
             staging, manifest, threads, sweep_targets, sweep_seed, eval_targets,
             eval_samples_per_target, eval_seed, axes=REFLOW_AXES,
             paper_row=paper_row(manifest, eval_targets, eval_samples_per_target),
+            incumbent=incumbent,
         )  # fmt: skip
         load_model(staging, threads=threads)
     return manifest
+
+
+def reflow_record(
+    manifest: Manifest, config: ReflowConfig, state: ReflowState, command: str
+) -> ReflowRecord:
+    """How the reflow of `manifest`'s model was made: by `command` with `config`."""
+    return ReflowRecord(
+        command=command,
+        config=config.as_dict(),
+        teacher_sha256=manifest.files[FLOW_FILE],
+        device="cpu",
+        teacher_wall_time_s=round(state.teacher_wall_time_s, 1),
+        wall_time_s=round(state.wall_time_s, 1),
+        best_step=state.best_step,
+        one_step_endpoint_error=state.best_error,
+        torch_version=torch.__version__,
+        git_commit=git_commit(),
+        base_sampler=base_sampler(manifest),
+    )
+
+
+def base_defaults(manifest: Manifest) -> Defaults:
+    """The base flow's serving defaults, which a reflowed sampler must be no worse than:
+    the manifest's own while they serve the base flow, else those with the base sampler
+    the reflow replaced."""
+    defaults = manifest.defaults
+    if defaults.sampler.flow == "base":
+        return defaults
+    sampler = base_sampler(manifest)
+    if sampler is None:
+        raise ValueError(f"{manifest.model_id}: serves a reflow without a base sampler record")
+    return defaults.model_copy(update={"sampler": sampler})
 
 
 # The sweep's axes a reflow re-measures: the base flow's precision and steps were chosen
@@ -428,10 +453,11 @@ REFLOW_AXES: tuple[Axis, ...] = (
 
 def reflow_model(
     model_dir: Path, runs_dir: Path, config: ReflowConfig, resume: bool, command: str,
-    sweep_targets: int | None = None,
+    sweep_targets: int | None = None, export_only: bool = False,
 ) -> Manifest:  # fmt: skip
-    """Train (or continue) the reflow of the model in `model_dir` and export it there; the
-    sweep and quality settings are the base training's (its manifest)."""
+    """Train (or continue) the reflow of the model in `model_dir` and export it there, or
+    (`export_only`) sweep, judge and measure the reflow it already has again; the sweep and
+    quality settings are the base training's (its manifest)."""
     torch.set_num_threads(config.threads)
     manifest = Manifest.model_validate_json((model_dir / MANIFEST_FILE).read_bytes())
     base = manifest.training.config
@@ -439,12 +465,22 @@ def reflow_model(
     def setting(name: str) -> int:  # a manifest from before a setting existed: its default
         return int(str(base.get(name, getattr(TrainConfig(), name))))
 
-    run_dir = runs_dir / manifest.model_id / "reflow"
-    student, state = train_reflow(model_dir, run_dir, config, resume)
-    if not math.isfinite(state.best_error):
-        raise RuntimeError(f"{run_dir}: the reflowed field's endpoint error is not finite")
+    student: VelocityField | None = None
+    if export_only:
+        if manifest.reflow is None or REFLOW_FILE not in manifest.files:
+            raise ValueError(
+                f"{model_dir}: no reflow to export again; train one first: "
+                f"python -m training.reflow --model-dir {model_dir}"
+            )
+        record = manifest.reflow.model_copy(update={"git_commit": git_commit()})
+    else:
+        run_dir = runs_dir / manifest.model_id / "reflow"
+        student, state = train_reflow(model_dir, run_dir, config, resume)
+        if not math.isfinite(state.best_error):
+            raise RuntimeError(f"{run_dir}: the reflowed field's endpoint error is not finite")
+        record = reflow_record(manifest, config, state, command)
     return export_reflow(
-        model_dir, student, state, config, command, threads=config.threads,
+        model_dir, student, record, threads=config.threads,
         sweep_targets=setting("sweep_targets") if sweep_targets is None else sweep_targets,
         sweep_seed=setting("sweep_seed"), eval_targets=setting("eval_targets"),
         eval_samples_per_target=setting("eval_samples_per_target"),
@@ -472,6 +508,11 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     parser.add_argument("--model-dir", type=Path, required=True)
     parser.add_argument("--runs-dir", type=Path, default=Path("runs"))
     parser.add_argument("--resume", action="store_true")
+    parser.add_argument(
+        "--export-only", action="store_true",
+        help="no training: sweep, judge against the exact SMMs and measure the model's "
+        "committed reflow.onnx again (after a change to the sweep, the judge or the pipeline)",
+    )  # fmt: skip
     defaults = ReflowConfig()
     for f in fields(ReflowConfig):
         kind = type(getattr(defaults, f.name))
@@ -499,7 +540,7 @@ def main(argv: list[str] | None = None) -> None:
     config = replace(ReflowConfig(), **overrides)
     manifest = reflow_model(
         args.model_dir, args.runs_dir, config, args.resume,
-        reflow_command(args.model_dir, config), args.sweep_targets,
+        reflow_command(args.model_dir, config), args.sweep_targets, args.export_only,
     )  # fmt: skip
     print(json.dumps(manifest.model_dump(include={"defaults", "quality"}), indent=1))
 

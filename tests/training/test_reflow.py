@@ -143,9 +143,10 @@ def test_a_stopped_run_resumes_to_the_weights_of_an_uninterrupted_one(
 def test_the_export_is_served_and_its_one_step_answers_are_exact(tmp_path: Path) -> None:
     model_dir = _planar_copy(tmp_path)
     student, state = reflow.train_reflow(model_dir, tmp_path / "run", SMALL, resume=False)
+    base = Manifest.model_validate_json((model_dir / MANIFEST_FILE).read_bytes())
+    record = reflow.reflow_record(base, SMALL, state, "python -m training.reflow --model-dir x")
     manifest = reflow.export_reflow(
-        model_dir, student, state, SMALL, "python -m training.reflow --model-dir x",
-        threads=1, sweep_targets=0, sweep_seed=1, eval_targets=3,
+        model_dir, student, record, threads=1, sweep_targets=0, sweep_seed=1, eval_targets=3,
         eval_samples_per_target=100, eval_seed=5,
     )  # fmt: skip
     assert {REFLOW_FILE, REFLOW_INT8_FILE} <= set(manifest.files)

@@ -1,0 +1,94 @@
+"""judge: serving defaults judged against the exact SMMs, and the export's use of it.
+
+- A candidate is worse exactly where one of the evaluation's figures is worse than the
+  incumbent's (coverage p95 only beyond its margin); a figure either lacks is skipped.
+- The near-singular targets of the planar 3R lie near its critical values, rho = 1 and
+  rho = 3 of the unit-link arm (the closed form), where few uniform targets do.
+- A candidate that returns one sample misses the second loop inside rho = 1 and is judged
+  worse on count right; the incumbent judged against itself is no worse.
+- `judged_defaults`: swept defaults equal to the incumbent's serve without a judgement;
+  worse ones give way to the incumbent's, the verdict with its figures in reasons;
+  a robot without an exact reference keeps the swept ones, saying they were not judged.
+"""
+
+from dataclasses import replace
+from functools import partial
+
+import numpy as np
+import pytest
+
+import training.export as export
+from service.models.registry import ServedModel
+from training.evaluate import judge as judging
+from training.evaluate.references.planar3r import planar3r_position
+from training.evaluate.targets import uniform_configurations
+
+SMALL = partial(judging.judge, targets=12, near_singular=4)
+
+
+def test_worse_exactly_where_a_figure_is_worse() -> None:
+    paper = {"count_right": 0.95, "splits_per_target": 0.05, "merges_per_target": 0.0,
+             "recall": 1.0, "coverage_p95_rad": 0.0173}  # fmt: skip
+    assert judging.worse_than(paper, paper) == []
+    better = {**paper, "count_right": 1.0, "splits_per_target": 0.0, "coverage_p95_rad": 0.01}
+    assert judging.worse_than(better, paper) == []
+    assert judging.worse_than({**paper, "coverage_p95_rad": 0.0174}, paper) == [
+        "coverage p95 rad 0.0174 vs 0.0173"
+    ]
+    # Within the margin coverage is not worse; beyond it, it is.
+    assert judging.worse_than({**paper, "coverage_p95_rad": 0.0180}, paper, 0.1) == []
+    assert judging.worse_than({**paper, "coverage_p95_rad": 0.0191}, paper, 0.1) != []
+    assert judging.worse_than({**paper, "merges_per_target": 0.05, "recall": 0.9}, paper) == [
+        "merges 0.05 vs 0", "recall 0.9 vs 1",
+    ]  # fmt: skip
+    # A figure the model has not (splits of planar 3R: None) is not compared.
+    assert judging.worse_than({**paper, "splits_per_target": None}, paper) == []
+
+
+def _critical_gap(q_rad: np.ndarray) -> np.ndarray:  # (T,) distance of rho to {1, 3}
+    rho = np.linalg.norm(planar3r_position(q_rad), axis=-1)
+    return np.minimum(np.abs(rho - 1.0), np.abs(rho - 3.0))
+
+
+def test_near_singular_planar_targets_lie_near_its_critical_values(planar3r: ServedModel) -> None:
+    q = judging.near_singular_configurations(planar3r, count=10, seed=3)
+    assert q.shape == (10, 3)
+    lower, upper, _ = planar3r.manifest.joints.arrays()
+    uniform = uniform_configurations(lower, upper, 500, seed=4)
+    # Within 0.05 of a critical value: all ten, against ~10 % of uniform targets (the
+    # chance that ten uniform ones all are: ~1e-10).
+    assert np.all(_critical_gap(q) < 0.05)
+    assert np.mean(_critical_gap(uniform) < 0.05) < 0.15
+
+
+def test_a_one_sample_candidate_is_judged_worse_and_the_incumbent_no_worse(
+    planar3r: ServedModel,
+) -> None:
+    incumbent = planar3r.manifest.defaults
+    one = incumbent.model_copy(update={"num_samples": 1})
+    verdict = SMALL(planar3r, one, incumbent)
+    assert verdict.candidate["count_right"] < verdict.incumbent["count_right"]
+    assert any(w.startswith("count right") for w in verdict.worse)
+    assert "worse than the incumbent" in verdict.summary()
+    same = SMALL(planar3r, incumbent, incumbent)
+    assert same.no_worse and same.candidate == same.incumbent
+
+
+def test_judged_defaults_keep_the_incumbent_unless_no_worse(
+    planar3r: ServedModel, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(export, "judge", SMALL)
+    incumbent = planar3r.manifest.defaults
+    reworded = incumbent.model_copy(update={"reasons": {"sampler": "other words"}})
+    assert export.judged_defaults(planar3r, reworded, incumbent) == reworded
+
+    one = incumbent.model_copy(update={"num_samples": 1})
+    kept = export.judged_defaults(planar3r, one, incumbent)
+    assert kept.model_dump(exclude={"reasons"}) == incumbent.model_dump(exclude={"reasons"})
+    assert "num_samples 1000 -> 1" in kept.reasons["judged"]
+    assert "does not serve" in kept.reasons["judged"]
+
+    unknown = replace(planar3r, manifest=planar3r.manifest.model_copy(update={"robot": "twin3r"}))
+    unjudged = export.judged_defaults(unknown, one, incumbent)
+    assert unjudged.num_samples == 1
+    assert unjudged.reasons["judged"].startswith("not judged: no exact reference for robot")

@@ -1,0 +1,193 @@
+"""Judging serving defaults against the exact SMMs: is a candidate's answer no worse?
+
+The sweep (training/sweep.py) compares settings on 20 targets with a dense answer of the
+same pipeline; it cannot see a rare loss. A reflowed few-step sampler chosen by it lost
+one of 24 exact components on one of 200 targets and merged the two loops of the planar
+3R at rho = 0.999, where they pass 0.1 rad apart: a sampler change that the sweep
+accepts is judged here before it serves (training/reflow.py).
+
+Targets: the evaluation report's held-out targets (FK of configurations uniform in the
+limits, seed 7, the first `targets`), then `near_singular` targets where components pass
+closest to each other: the configurations of smallest task-Jacobian singular value among
+NEAR_SINGULAR_DRAWS x as many uniform draws (another seed). Each target is answered by
+the candidate and by the incumbent defaults with the same seed, each at its own
+num_samples, and both answers are measured against the exact ground truth
+(training/evaluate/truth.py) with the evaluation's figures: count right, splits and
+merges per target, recall of the counted exact components, coverage p95. The candidate
+is worse if any figure is worse than the incumbent's (coverage p95 by more than
+COVERAGE_MARGIN of it: the p95 moves ~1-3 % between samplers that find the same
+components).
+
+Only robots with an exact reference can be judged (planar3r, iiwa14, panda);
+`has_ground_truth` says which.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from service.manifest import Defaults
+from service.models.registry import ServedModel
+from service.pipeline.arrays import FloatArray
+from training.evaluate.methods import MethodTarget, served_target
+from training.evaluate.metrics import (
+    component_agreement,
+    counted_components,
+    found_components,
+    nearest_distance,
+)
+from training.evaluate.targets import uniform_configurations
+from training.evaluate.truth import REFERENCES, Truth, ground_truth
+
+# The evaluation report's targets (training/evaluate/report.py).
+REPORT_SEED = 7
+REPORT_TARGETS = 200
+NEAR_SINGULAR = 20
+NEAR_SINGULAR_DRAWS = 50  # uniform draws per near-singular target kept
+COVERAGE_MARGIN = 0.10
+
+# The evaluation's figures, and whether more is better.
+TRUTH_FIGURES = (
+    ("count_right", "count right", True),
+    ("splits_per_target", "splits", False),
+    ("merges_per_target", "merges", False),
+    ("recall", "recall", True),
+    ("coverage_p95_rad", "coverage p95 rad", False),
+)
+
+
+def has_ground_truth(model: ServedModel) -> bool:
+    """Whether the model's robot has an exact reference to judge against."""
+    return model.manifest.robot == "planar3r" or model.manifest.robot in REFERENCES
+
+
+def figures(
+    model: ServedModel, answers: Sequence[MethodTarget], truths: Sequence[Truth]
+) -> dict[str, float]:
+    """The evaluation's component figures of one configuration over the targets."""
+    _, _, periodic = model.manifest.joints.arrays()
+    agreements = [component_agreement(a, t) for a, t in zip(answers, truths, strict=True)]
+    known = [g for g in agreements if g is not None]
+    pairs = list(zip(answers, truths, strict=True))
+    coverage = np.concatenate([nearest_distance(t.points, a.returned, periodic) for a, t in pairs])
+    result = {
+        "count_right": float(np.mean([g.right for g in known])),
+        "coverage_p95_rad": float(np.percentile(coverage, 95)),
+    }
+    if known and known[0].splits is not None:
+        # Recall over the components the count counts: every one of a 1-D SMM, those of
+        # at least 1 % of a 4-D fibre.
+        found = [found_components(a, t)[counted_components(t)] for a, t in pairs]
+        result["splits_per_target"] = float(np.mean([g.splits for g in known]))
+        result["merges_per_target"] = float(np.mean([g.merges for g in known]))
+        result["recall"] = float(np.concatenate(found).mean())
+    return result
+
+
+def worse_than(
+    candidate: Mapping[str, float | None],
+    incumbent: Mapping[str, float | None],
+    coverage_margin: float = 0.0,
+) -> list[str]:
+    """The figures on which `candidate` is worse than `incumbent`, each as "name candidate
+    vs incumbent" (a figure either lacks is skipped); coverage p95 only beyond
+    (1 + coverage_margin) times the incumbent's."""
+    worse = []
+    for key, name, more_is_better in TRUTH_FIGURES:
+        ours, theirs = candidate.get(key), incumbent.get(key)
+        if ours is None or theirs is None:
+            continue
+        if key == "coverage_p95_rad":
+            theirs_allowed = theirs * (1.0 + coverage_margin)
+            is_worse = ours > theirs_allowed
+        else:
+            is_worse = (ours < theirs) if more_is_better else (ours > theirs)
+        if is_worse:
+            worse.append(f"{name} {ours:.3g} vs {theirs:.3g}")
+    return worse
+
+
+def near_singular_configurations(
+    model: ServedModel, count: int, seed: int
+) -> FloatArray:  # (count, n)
+    """The `count` configurations of smallest task-Jacobian singular value among
+    NEAR_SINGULAR_DRAWS x count uniform in the limits: targets near a critical value of
+    the task map, where the fibre's components pass closest to each other."""
+    manifest = model.manifest
+    lower, upper, _ = manifest.joints.arrays()
+    q = uniform_configurations(lower, upper, NEAR_SINGULAR_DRAWS * count, seed)
+    task = manifest.task
+    rows = [*task.position_axes, *([3, 4, 5] if task.orientation else [])]
+    jacobian = model.kinematics(q).jacobian[:, rows]  # (D, m, n)
+    smallest = np.linalg.svd(jacobian, compute_uv=False)[:, -1]  # (D,)
+    return q[np.argsort(smallest)[:count]]
+
+
+@dataclass(frozen=True)
+class Judgement:
+    """A candidate's and the incumbent's figures on the same targets, and the verdict."""
+
+    targets: int
+    near_singular_targets: int
+    seed: int
+    candidate: dict[str, float]
+    incumbent: dict[str, float]
+    worse: list[str]  # the candidate's worse figures; empty: no worse
+
+    @property
+    def no_worse(self) -> bool:
+        return not self.worse
+
+    def summary(self) -> str:
+        """One line for a manifest's reasons."""
+        where = (
+            f"{self.targets} report targets (seed {self.seed}) and {self.near_singular_targets} "
+            "near-singular ones against the exact SMMs"
+        )
+        if self.no_worse:
+            return f"no worse than the incumbent on {where}"
+        return f"worse than the incumbent on {where}: " + "; ".join(self.worse)
+
+
+def judge(
+    model: ServedModel,
+    candidate: Defaults,
+    incumbent: Defaults,
+    targets: int = REPORT_TARGETS,
+    near_singular: int = NEAR_SINGULAR,
+    seed: int = REPORT_SEED,
+    progress: Callable[[str], None] = lambda line: None,
+) -> Judgement:
+    """Both defaults on the same targets and seeds, measured against the exact SMMs."""
+    if not has_ground_truth(model):
+        raise ValueError(
+            f"no exact reference for robot {model.manifest.robot!r}; references: "
+            + ", ".join(sorted([*REFERENCES, "planar3r"]))
+        )
+    lower, upper, _ = model.manifest.joints.arrays()
+    q_targets = np.concatenate(
+        [
+            uniform_configurations(lower, upper, targets, seed),
+            near_singular_configurations(model, near_singular, seed + 1),
+        ]
+    )
+    truths = [ground_truth(model, q, seed + i) for i, q in enumerate(q_targets)]
+    measured = {}
+    for name, defaults in (("candidate", candidate), ("incumbent", incumbent)):
+        served = replace(model, manifest=model.manifest.model_copy(update={"defaults": defaults}))
+        progress(f"judge: {name} on {len(q_targets)} targets")
+        answers = [
+            served_target(served, q, defaults.num_samples, seed=i) for i, q in enumerate(q_targets)
+        ]
+        measured[name] = figures(model, answers, truths)
+    return Judgement(
+        targets=targets,
+        near_singular_targets=near_singular,
+        seed=seed,
+        candidate=measured["candidate"],
+        incumbent=measured["incumbent"],
+        worse=worse_than(measured["candidate"], measured["incumbent"], COVERAGE_MARGIN),
+    )
