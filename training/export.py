@@ -340,10 +340,9 @@ def judged_defaults(
         )
         return swept.model_copy(update={"reasons": {**swept.reasons, "judged": reason}})
     judgement = judge(served, swept, incumbent, progress=progress)
+    before, after = _flat(incumbent_values), _flat(swept_values)
     changed = ", ".join(
-        f"{key} {incumbent_values[key]} -> {value}"
-        for key, value in swept_values.items()
-        if incumbent_values[key] != value
+        f"{key} {before[key]} -> {after[key]}" for key in after if before[key] != after[key]
     )
     if judgement.no_worse:
         reason = f"the sweep's change ({changed}) serves: {judgement.summary()}"
@@ -353,7 +352,26 @@ def judged_defaults(
         f"{judgement.summary()}; incumbent {_rounded(judgement.incumbent)}, swept "
         f"{_rounded(judgement.candidate)}"
     )
-    return incumbent.model_copy(update={"reasons": {**incumbent.reasons, "judged": reason}})
+    # The sweep's measures of an axis the incumbent has no reason for (one it was never
+    # swept on, as the reflow's) stay, marked as not served.
+    unserved = {
+        key: f"the sweep's choice, not served (reasons.judged): {text}"
+        for key, text in swept.reasons.items()
+        if key not in incumbent.reasons
+    }
+    reasons = {**unserved, **incumbent.reasons, "judged": reason}
+    return incumbent.model_copy(update={"reasons": reasons})
+
+
+def _flat(values: dict[str, object], prefix: str = "") -> dict[str, object]:
+    """Nested settings as dotted keys: {"sampler": {"steps": 4}} -> {"sampler.steps": 4}."""
+    flat: dict[str, object] = {}
+    for key, value in values.items():
+        if isinstance(value, dict):
+            flat.update(_flat(value, f"{prefix}{key}."))
+        else:
+            flat[f"{prefix}{key}"] = value
+    return flat
 
 
 def _rounded(figures: dict[str, float]) -> dict[str, float]:

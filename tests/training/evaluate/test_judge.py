@@ -7,7 +7,8 @@
 - A candidate that returns one sample misses the second loop inside rho = 1 and is judged
   worse on count right; the incumbent judged against itself is no worse.
 - `judged_defaults`: swept defaults equal to the incumbent's serve without a judgement;
-  worse ones give way to the incumbent's, the verdict with its figures in reasons;
+  worse ones give way to the incumbent's, its reasons kept, the verdict with its figures
+  in reasons, and the sweep's reason for an axis the incumbent had none for marked unserved;
   a robot without an exact reference keeps the swept ones, saying they were not judged.
 """
 
@@ -82,11 +83,15 @@ def test_judged_defaults_keep_the_incumbent_unless_no_worse(
     reworded = incumbent.model_copy(update={"reasons": {"sampler": "other words"}})
     assert export.judged_defaults(planar3r, reworded, incumbent) == reworded
 
-    one = incumbent.model_copy(update={"num_samples": 1})
+    one = incumbent.model_copy(
+        update={"num_samples": 1, "reasons": {**incumbent.reasons, "new_axis": "measured"}}
+    )
     kept = export.judged_defaults(planar3r, one, incumbent)
     assert kept.model_dump(exclude={"reasons"}) == incumbent.model_dump(exclude={"reasons"})
     assert "num_samples 1000 -> 1" in kept.reasons["judged"]
     assert "does not serve" in kept.reasons["judged"]
+    assert {k: kept.reasons[k] for k in incumbent.reasons} == incumbent.reasons
+    assert kept.reasons["new_axis"] == "the sweep's choice, not served (reasons.judged): measured"
 
     unknown = replace(planar3r, manifest=planar3r.manifest.model_copy(update={"robot": "twin3r"}))
     unjudged = export.judged_defaults(unknown, one, incumbent)
