@@ -1,5 +1,6 @@
 """kinematics.onnx (planar 3R): FK equals the closed form, Jacobian equals finite differences;
-every session is opened with the threads asked and with workers that do not spin.
+every session is opened with the threads asked and with workers that do not spin; the
+flow network (float32 and int8) gives the same velocities on one thread and on two.
 
 The session is opened on the bundled model's kinematics.onnx directly: the registry serves
 its chain.json kernel (tests/service/models/test_chain.py), and kinematics.onnx is what
@@ -9,8 +10,8 @@ that kernel is checked against at load and what models without chain.json are se
 import numpy as np
 import pytest
 
-from service.manifest import KINEMATICS_FILE
-from service.models.sessions import OnnxKinematics, open_session
+from service.manifest import FLOW_FILE, FLOW_INT8_FILE, KINEMATICS_FILE
+from service.models.sessions import OnnxKinematics, OnnxVelocityField, open_session
 from tests.support.app import PLANAR3R_DIR
 from training.evaluate.references.planar3r import planar3r_jacobian, planar3r_position
 
@@ -55,3 +56,21 @@ def test_sessions_take_the_threads_asked_and_do_not_spin() -> None:
     assert (options.intra_op_num_threads, options.inter_op_num_threads) == (2, 1)
     for pool in ("intra_op", "inter_op"):
         assert options.get_session_config_entry(f"session.{pool}.allow_spinning") == "0"
+
+
+@pytest.mark.parametrize("flow_file", [FLOW_FILE, FLOW_INT8_FILE])
+def test_the_flow_gives_the_same_velocities_on_one_thread_and_on_two(flow_file: str) -> None:
+    """The service runs the flow on the process's cores (Settings): a request's answer must
+    not depend on how many, or the benchmark's figures would not be the served ones."""
+    rng = np.random.default_rng(2)
+    batch = 1000
+    inputs = {
+        "q_t": rng.standard_normal((batch, 3)).astype(np.float32),
+        "t": rng.uniform(0, 1, (batch, 1)).astype(np.float32),
+        "condition": rng.standard_normal((batch, 2)).astype(np.float32),
+    }
+    one, two = (
+        OnnxVelocityField(open_session(PLANAR3R_DIR / flow_file, threads=threads))
+        for threads in (1, 2)
+    )
+    np.testing.assert_array_equal(one(**inputs), two(**inputs))
