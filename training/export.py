@@ -61,7 +61,7 @@ from training.model import VelocityField
 from training.quantise import quantise_flow
 from training.robots import RobotSpec
 from training.staging import staged_copy
-from training.sweep import AXES, Axis, sweep_defaults
+from training.sweep import AXES, JUDGED, Axis, sweep_defaults
 
 # float32 network: velocities reach a few hundred near t = 1, where float32 rounding
 # differences between torch and onnxruntime are ~1e-6 relative; compare like np.allclose.
@@ -338,7 +338,7 @@ def judged_defaults(
             "sweep's agreement with its dense answer alone chose these defaults over the "
             "incumbent's"
         )
-        return swept.model_copy(update={"reasons": {**swept.reasons, "judged": reason}})
+        return swept.model_copy(update={"reasons": {**swept.reasons, JUDGED: reason}})
     judgement = judge(served, swept, incumbent, progress=progress)
     before, after = _flat(incumbent_values), _flat(swept_values)
     changed = ", ".join(
@@ -346,7 +346,7 @@ def judged_defaults(
     )
     if judgement.no_worse:
         reason = f"the sweep's change ({changed}) serves: {judgement.summary()}"
-        return swept.model_copy(update={"reasons": {**swept.reasons, "judged": reason}})
+        return swept.model_copy(update={"reasons": {**swept.reasons, JUDGED: reason}})
     reason = (
         f"the sweep's change ({changed}) does not serve, the incumbent defaults do: "
         f"{judgement.summary()}; incumbent {_rounded(judgement.incumbent)}, swept "
@@ -359,7 +359,7 @@ def judged_defaults(
         for key, text in swept.reasons.items()
         if key not in incumbent.reasons
     }
-    reasons = {**unserved, **incumbent.reasons, "judged": reason}
+    reasons = {**unserved, **incumbent.reasons, JUDGED: reason}
     return incumbent.model_copy(update={"reasons": reasons})
 
 

@@ -135,6 +135,8 @@ from training.evaluate.targets import held_out_targets
 KEEP_RATE_MARGIN = 0.01
 # The sampler axes' keep-rate margin (the module docstring says why it is wider).
 SAMPLER_KEEP_RATE_MARGIN = 0.15
+# The reason key of a judge's verdict on swept defaults (training/export.py).
+JUDGED = "judged"
 SAMPLER_AXES: frozenset[str] = frozenset({"sampler_steps", "reflow_steps"})
 # Coverage p95 may exceed the best candidate's by this fraction of it: the 20-target
 # p95 moves by ~1-3 % between settings that find the same components (the bundled sweeps).
@@ -775,7 +777,12 @@ def sweep_defaults(
             "sampler": chosen.sampler.model_dump(),
             "correction_steps": chosen.correction_steps,
             "connectivity": _connectivity(model, chosen).model_dump(),
-            "reasons": {**manifest.defaults.reasons, **reasons},
+            # A judge's verdict (training/export.py judged_defaults) was on the defaults
+            # this sweep replaces: it does not carry over.
+            "reasons": {
+                **{k: v for k, v in manifest.defaults.reasons.items() if k != JUDGED},
+                **reasons,
+            },
         }
     )
     return SweepResult(

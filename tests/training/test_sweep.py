@@ -9,8 +9,9 @@ cheaper candidate; a sweep of the bundled planar3r-position model with a tiny bu
 chooses by that rule on every axis, sets the chosen trace step (and nothing else of the
 connectivity), keeps damping and tolerances, returns defaults that validate as `Defaults`
 and serve a query, writes reasons that quote every candidate measured, reports its
-progress a line per candidate, and a table that is strict JSON; a model id with no
-measured entry starts from generic defaults chosen by r.
+progress a line per candidate, and a table that is strict JSON; a sweep of some axes
+keeps the other reasons but drops a judge's verdict on the defaults it replaces; a model
+id with no measured entry starts from generic defaults chosen by r.
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ from training.sweep import (
     AXES,
     COUNT_RIGHT_MARGIN,
     COVERAGE_MARGIN,
+    JUDGED,
     KEEP_RATE_MARGIN,
     SAMPLER_KEEP_RATE_MARGIN,
     TIME_POWER_GAIN,
@@ -398,7 +400,9 @@ def test_a_sweep_of_some_axes_keeps_the_rest_and_offers_int8_only_where_it_exist
     assert result.time_power_table == []  # the sampler's steps were not swept
     start = float32_only.manifest.defaults
     assert result.defaults.model_dump(exclude={"reasons"}) == start.model_dump(exclude={"reasons"})
-    unchanged = {k: v for k, v in start.reasons.items() if k != "sampler_precision"}
+    # Every other reason stays, but a judge's verdict on the replaced defaults.
+    unchanged = {k: v for k, v in start.reasons.items() if k not in ("sampler_precision", JUDGED)}
+    assert JUDGED in start.reasons and JUDGED not in result.defaults.reasons
     assert {k: v for k, v in result.defaults.reasons.items() if k != "sampler_precision"} == (
         unchanged
     )
