@@ -41,14 +41,14 @@ from service.manifest import (
     TrainingRecord,
 )
 from service.models.chain import SerialChainKinematics
-from service.models.registry import ServedModel, load_model, sha256_of
+from service.models.registry import load_model, sha256_of
 from service.models.sessions import FLOW_INPUTS, FLOW_OUTPUT, KINEMATICS_INPUT, KINEMATICS_OUTPUTS
 from service.pipeline.targets import condition_names
 from training.checkpoint import TrainResult
 from training.config import TrainConfig
 from training.data import FlowData
 from training.defaults import serving_defaults
-from training.evaluate.judge import has_ground_truth, judge
+from training.evaluate.judge import judged_defaults
 from training.evaluate.quality import measure_quality
 from training.kinematics import (
     ForwardKinematics,
@@ -61,7 +61,7 @@ from training.model import VelocityField
 from training.quantise import quantise_flow
 from training.robots import RobotSpec
 from training.staging import staged_copy
-from training.sweep import AXES, JUDGED, Axis, sweep_defaults
+from training.sweep import AXES, Axis, sweep_defaults
 
 # float32 network: velocities reach a few hundred near t = 1, where float32 rounding
 # differences between torch and onnxruntime are ~1e-6 relative; compare like np.allclose.
@@ -317,65 +317,6 @@ def sweep_and_measure(
     manifest = manifest.model_copy(update={"quality": quality})
     manifest_path.write_text(manifest.model_dump_json(indent=2) + "\n")
     return manifest
-
-
-def judged_defaults(
-    served: ServedModel, swept: Defaults, incumbent: Defaults,
-    progress: Callable[[str], None] = lambda line: None,
-) -> Defaults:  # fmt: skip
-    """The swept defaults if they serve what the incumbent did or are judged no worse
-    against the exact SMMs (training/evaluate/judge.py), else the incumbent's; the verdict
-    in reasons["judged"]. The sweep's 20 targets cannot see a rare lost component; the
-    judge's 200 report targets and 20 near-singular ones can. A robot without an exact
-    reference keeps the swept defaults, its reason saying they were not judged."""
-    swept_values = swept.model_dump(exclude={"reasons"})
-    incumbent_values = incumbent.model_dump(exclude={"reasons"})
-    if swept_values == incumbent_values:
-        return swept
-    if not has_ground_truth(served):
-        reason = (
-            f"not judged: no exact reference for robot {served.manifest.robot!r}; the "
-            "sweep's agreement with its dense answer alone chose these defaults over the "
-            "incumbent's"
-        )
-        return swept.model_copy(update={"reasons": {**swept.reasons, JUDGED: reason}})
-    judgement = judge(served, swept, incumbent, progress=progress)
-    before, after = _flat(incumbent_values), _flat(swept_values)
-    changed = ", ".join(
-        f"{key} {before[key]} -> {after[key]}" for key in after if before[key] != after[key]
-    )
-    if judgement.no_worse:
-        reason = f"the sweep's change ({changed}) serves: {judgement.summary()}"
-        return swept.model_copy(update={"reasons": {**swept.reasons, JUDGED: reason}})
-    reason = (
-        f"the sweep's change ({changed}) does not serve, the incumbent defaults do: "
-        f"{judgement.summary()}; incumbent {_rounded(judgement.incumbent)}, swept "
-        f"{_rounded(judgement.candidate)}"
-    )
-    # The sweep's measures of an axis the incumbent has no reason for (one it was never
-    # swept on, as the reflow's) stay, marked as not served.
-    unserved = {
-        key: f"the sweep's choice, not served (reasons.judged): {text}"
-        for key, text in swept.reasons.items()
-        if key not in incumbent.reasons
-    }
-    reasons = {**unserved, **incumbent.reasons, JUDGED: reason}
-    return incumbent.model_copy(update={"reasons": reasons})
-
-
-def _flat(values: dict[str, object], prefix: str = "") -> dict[str, object]:
-    """Nested settings as dotted keys: {"sampler": {"steps": 4}} -> {"sampler.steps": 4}."""
-    flat: dict[str, object] = {}
-    for key, value in values.items():
-        if isinstance(value, dict):
-            flat.update(_flat(value, f"{prefix}{key}."))
-        else:
-            flat[f"{prefix}{key}"] = value
-    return flat
-
-
-def _rounded(figures: dict[str, float]) -> dict[str, float]:
-    return {key: float(f"{value:.4g}") for key, value in figures.items()}
 
 
 def refresh_kinematics(model_dir: Path, models_dir: Path, threads: int = 1) -> Manifest:

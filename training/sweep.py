@@ -124,6 +124,7 @@ from service.pipeline.sampling import sample_configurations
 from service.pipeline.targets import encode_target
 from service.pipeline.types import Query, SmmResult
 from training.defaults import CONNECTIVITY_REASON
+from training.evaluate.judge import JUDGED, judged_defaults
 from training.evaluate.metrics import median_stage_ms
 from training.evaluate.quality import summarise_raw
 from training.evaluate.served import orientation_wxyz, stage_times_ms, with_defaults
@@ -135,8 +136,6 @@ from training.evaluate.targets import held_out_targets
 KEEP_RATE_MARGIN = 0.01
 # The sampler axes' keep-rate margin (the module docstring says why it is wider).
 SAMPLER_KEEP_RATE_MARGIN = 0.15
-# The reason key of a judge's verdict on swept defaults (training/export.py).
-JUDGED = "judged"
 SAMPLER_AXES: frozenset[str] = frozenset({"sampler_steps", "reflow_steps"})
 # Coverage p95 may exceed the best candidate's by this fraction of it: the 20-target
 # p95 moves by ~1-3 % between settings that find the same components (the bundled sweeps).
@@ -777,7 +776,7 @@ def sweep_defaults(
             "sampler": chosen.sampler.model_dump(),
             "correction_steps": chosen.correction_steps,
             "connectivity": _connectivity(model, chosen).model_dump(),
-            # A judge's verdict (training/export.py judged_defaults) was on the defaults
+            # A judge's verdict (training/evaluate/judge.py) was on the defaults
             # this sweep replaces: it does not carry over.
             "reasons": {
                 **{k: v for k, v in manifest.defaults.reasons.items() if k != JUDGED},
@@ -916,8 +915,10 @@ def main() -> None:
         help=f"comma-separated axes to sweep, the rest kept (default: all of {', '.join(AXES)})",
     )
     parser.add_argument(
-        "--write", action="store_true", help="write the chosen defaults into the manifest"
-    )
+        "--write", action="store_true",
+        help="write the chosen defaults into the manifest if judged no worse than the "
+        "served ones against the exact SMMs (training/evaluate/judge.py), else keep those",
+    )  # fmt: skip
     args = parser.parse_args()
     axes = [axis.strip() for axis in args.axes.split(",") if axis.strip()]
     unknown = [axis for axis in axes if axis not in AXES]
@@ -932,8 +933,14 @@ def main() -> None:
         args.out.write_text(text + "\n")
     print(text)
     if args.write:
-        write_defaults(args.model_dir, result.defaults)
-        print(f"defaults written to {args.model_dir / MANIFEST_FILE}", file=sys.stderr)
+        # What serves changes only if judged no worse than what serves now.
+        served = load_model(args.model_dir, threads=args.threads)
+        defaults = judged_defaults(
+            served, result.defaults, served.manifest.defaults, progress=_to_stderr
+        )
+        write_defaults(args.model_dir, defaults)
+        verdict = defaults.reasons.get(JUDGED, "unchanged: nothing to judge")
+        print(f"defaults written to {args.model_dir / MANIFEST_FILE}; {verdict}", file=sys.stderr)
 
 
 if __name__ == "__main__":

@@ -33,12 +33,12 @@ from training.defaults import (
     MEASURED_DEFAULTS,
     serving_defaults,
 )
+from training.evaluate.judge import JUDGED
 from training.evaluate.served import returned_configurations, with_defaults
 from training.sweep import (
     AXES,
     COUNT_RIGHT_MARGIN,
     COVERAGE_MARGIN,
-    JUDGED,
     KEEP_RATE_MARGIN,
     SAMPLER_KEEP_RATE_MARGIN,
     TIME_POWER_GAIN,

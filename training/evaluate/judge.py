@@ -19,7 +19,9 @@ COVERAGE_MARGIN of it: the p95 moves ~1-3 % between samplers that find the same
 components).
 
 Only robots with an exact reference can be judged (planar3r, iiwa14, panda);
-`has_ground_truth` says which.
+`has_ground_truth` says which. `judged_defaults` applies the verdict wherever swept
+defaults would replace served ones: the reflow's export (training/reflow.py, through
+training/export.py `sweep_and_measure`) and `python -m training.sweep --write`.
 """
 
 from __future__ import annotations
@@ -48,6 +50,8 @@ REPORT_TARGETS = 200
 NEAR_SINGULAR = 20
 NEAR_SINGULAR_DRAWS = 50  # uniform draws per near-singular target kept
 COVERAGE_MARGIN = 0.10
+# The reason key of the verdict in judged defaults (Defaults.reasons).
+JUDGED = "judged"
 
 # The evaluation's figures, and whether more is better.
 TRUTH_FIGURES = (
@@ -191,3 +195,62 @@ def judge(
         incumbent=measured["incumbent"],
         worse=worse_than(measured["candidate"], measured["incumbent"], COVERAGE_MARGIN),
     )
+
+
+def judged_defaults(
+    served: ServedModel, swept: Defaults, incumbent: Defaults,
+    progress: Callable[[str], None] = lambda line: None,
+) -> Defaults:  # fmt: skip
+    """The swept defaults if they serve what the incumbent did or are judged no worse
+    against the exact SMMs (training/evaluate/judge.py), else the incumbent's; the verdict
+    in reasons["judged"]. The sweep's 20 targets cannot see a rare lost component; the
+    judge's 200 report targets and 20 near-singular ones can. A robot without an exact
+    reference keeps the swept defaults, its reason saying they were not judged."""
+    swept_values = swept.model_dump(exclude={"reasons"})
+    incumbent_values = incumbent.model_dump(exclude={"reasons"})
+    if swept_values == incumbent_values:
+        return swept
+    if not has_ground_truth(served):
+        reason = (
+            f"not judged: no exact reference for robot {served.manifest.robot!r}; the "
+            "sweep's agreement with its dense answer alone chose these defaults over the "
+            "incumbent's"
+        )
+        return swept.model_copy(update={"reasons": {**swept.reasons, JUDGED: reason}})
+    judgement = judge(served, swept, incumbent, progress=progress)
+    before, after = _flat(incumbent_values), _flat(swept_values)
+    changed = ", ".join(
+        f"{key} {before[key]} -> {after[key]}" for key in after if before[key] != after[key]
+    )
+    if judgement.no_worse:
+        reason = f"the sweep's change ({changed}) serves: {judgement.summary()}"
+        return swept.model_copy(update={"reasons": {**swept.reasons, JUDGED: reason}})
+    reason = (
+        f"the sweep's change ({changed}) does not serve, the incumbent defaults do: "
+        f"{judgement.summary()}; incumbent {_rounded(judgement.incumbent)}, swept "
+        f"{_rounded(judgement.candidate)}"
+    )
+    # The sweep's measures of an axis the incumbent has no reason for (one it was never
+    # swept on, as the reflow's) stay, marked as not served.
+    unserved = {
+        key: f"the sweep's choice, not served (reasons.judged): {text}"
+        for key, text in swept.reasons.items()
+        if key not in incumbent.reasons
+    }
+    reasons = {**unserved, **incumbent.reasons, JUDGED: reason}
+    return incumbent.model_copy(update={"reasons": reasons})
+
+
+def _flat(values: dict[str, object], prefix: str = "") -> dict[str, object]:
+    """Nested settings as dotted keys: {"sampler": {"steps": 4}} -> {"sampler.steps": 4}."""
+    flat: dict[str, object] = {}
+    for key, value in values.items():
+        if isinstance(value, dict):
+            flat.update(_flat(value, f"{prefix}{key}."))
+        else:
+            flat[f"{prefix}{key}"] = value
+    return flat
+
+
+def _rounded(figures: dict[str, float]) -> dict[str, float]:
+    return {key: float(f"{value:.4g}") for key, value in figures.items()}

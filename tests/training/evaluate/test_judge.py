@@ -18,7 +18,6 @@ from functools import partial
 import numpy as np
 import pytest
 
-import training.export as export
 from service.models.registry import ServedModel
 from training.evaluate import judge as judging
 from training.evaluate.references.planar3r import planar3r_position
@@ -78,15 +77,15 @@ def test_a_one_sample_candidate_is_judged_worse_and_the_incumbent_no_worse(
 def test_judged_defaults_keep_the_incumbent_unless_no_worse(
     planar3r: ServedModel, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    monkeypatch.setattr(export, "judge", SMALL)
+    monkeypatch.setattr(judging, "judge", SMALL)
     incumbent = planar3r.manifest.defaults
     reworded = incumbent.model_copy(update={"reasons": {"sampler": "other words"}})
-    assert export.judged_defaults(planar3r, reworded, incumbent) == reworded
+    assert judging.judged_defaults(planar3r, reworded, incumbent) == reworded
 
     one = incumbent.model_copy(
         update={"num_samples": 1, "reasons": {**incumbent.reasons, "new_axis": "measured"}}
     )
-    kept = export.judged_defaults(planar3r, one, incumbent)
+    kept = judging.judged_defaults(planar3r, one, incumbent)
     assert kept.model_dump(exclude={"reasons"}) == incumbent.model_dump(exclude={"reasons"})
     assert "num_samples 1000 -> 1" in kept.reasons["judged"]
     assert "does not serve" in kept.reasons["judged"]
@@ -96,6 +95,6 @@ def test_judged_defaults_keep_the_incumbent_unless_no_worse(
     assert kept.reasons["new_axis"] == "the sweep's choice, not served (reasons.judged): measured"
 
     unknown = replace(planar3r, manifest=planar3r.manifest.model_copy(update={"robot": "twin3r"}))
-    unjudged = export.judged_defaults(unknown, one, incumbent)
+    unjudged = judging.judged_defaults(unknown, one, incumbent)
     assert unjudged.num_samples == 1
     assert unjudged.reasons["judged"].startswith("not judged: no exact reference for robot")
