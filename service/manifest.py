@@ -79,7 +79,13 @@ class TaskSpec(_Strict):
     @property
     def dimension(self) -> int:
         """m, the number of task coordinates."""
-        return len(self.position_axes) + (3 if self.orientation else 0)
+        return len(self.jacobian_rows)
+
+    @property
+    def jacobian_rows(self) -> list[int]:
+        """The geometric Jacobian's rows (of 6) the task constrains, in task order: the
+        position axes, then (pose task) the three angular rows."""
+        return [*self.position_axes, *([3, 4, 5] if self.orientation else [])]
 
 
 class AffineNormalisation(_Strict):

@@ -808,22 +808,6 @@ def _candidates(plan: SweepPlan, axis: Axis, manifest: Manifest) -> tuple[float,
     return values
 
 
-def choose_defaults(
-    model_dir: Path,
-    targets: int,
-    seed: int,
-    plan: SweepPlan = SweepPlan(),
-    threads: int = 1,
-    axes: Sequence[Axis] = AXES,
-) -> SweepResult:
-    """`sweep_defaults` on the model in `model_dir`, loaded as the service loads it (its
-    progress on standard error)."""
-    return sweep_defaults(
-        load_model(model_dir, threads=threads), targets, seed, plan, progress=_to_stderr,
-        axes=axes,
-    )  # fmt: skip
-
-
 def write_defaults(model_dir: Path, defaults: Defaults) -> Manifest:
     """Replace the serving defaults in `model_dir`'s manifest (nothing else in it changes)
     and check that the model still loads as the service loads it."""
@@ -924,8 +908,9 @@ def main() -> None:
     unknown = [axis for axis in axes if axis not in AXES]
     if unknown:
         parser.error(f"--axes: unknown {unknown}; choose from {list(AXES)}")
-    result = choose_defaults(
-        args.model_dir, args.targets, args.seed, threads=args.threads,
+    served = load_model(args.model_dir, threads=args.threads)  # as the service loads it
+    result = sweep_defaults(
+        served, args.targets, args.seed, progress=_to_stderr,
         axes=[axis for axis in AXES if axis in axes],
     )  # fmt: skip
     text = json.dumps(result.as_json(), indent=1)
@@ -934,7 +919,6 @@ def main() -> None:
     print(text)
     if args.write:
         # What serves changes only if judged no worse than what serves now.
-        served = load_model(args.model_dir, threads=args.threads)
         defaults = judged_defaults(
             served, result.defaults, served.manifest.defaults, progress=_to_stderr
         )

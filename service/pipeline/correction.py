@@ -60,7 +60,7 @@ def task_error(
     axes = task.position_axes
     m_p = len(axes)
     rotation = target.rotation if task.orientation else None  # (3, 3)
-    rows = list(axes) if rotation is None else [*axes, 3, 4, 5]
+    rows = task.jacobian_rows
     jacobian = fk.jacobian if rows == list(range(6)) else fk.jacobian[:, rows, :]  # (B, m, n)
     error = np.empty((len(fk.position_m), len(rows)))  # (B, m)
     error[:, :m_p] = target.position_m[None, :] - fk.position_m[:, axes]
@@ -166,7 +166,7 @@ def correct(
         np.where(finite, 0.0, np.inf) if task.orientation else np.zeros(num_samples)
     )
     q_out = np.full_like(q_rad, np.nan)
-    m = len(task.position_axes) + (3 if task.orientation else 0)
+    m = task.dimension
     jacobian_out = np.full((num_samples, m, q_rad.shape[1]), np.nan)
     if not finite.any():  # nothing to correct (and the kinematics needs a non-empty batch)
         return Correction(q_out, position_error_m, orientation_error_rad, jacobian_out)

@@ -123,9 +123,7 @@ def near_singular_configurations(
     manifest = model.manifest
     lower, upper, _ = manifest.joints.arrays()
     q = uniform_configurations(lower, upper, NEAR_SINGULAR_DRAWS * count, seed)
-    task = manifest.task
-    rows = [*task.position_axes, *([3, 4, 5] if task.orientation else [])]
-    jacobian = model.kinematics(q).jacobian[:, rows]  # (D, m, n)
+    jacobian = model.kinematics(q).jacobian[:, manifest.task.jacobian_rows]  # (D, m, n)
     smallest = np.linalg.svd(jacobian, compute_uv=False)[:, -1]  # (D,)
     return q[np.argsort(smallest)[:count]]
 
@@ -165,12 +163,8 @@ def judge(
     seed: int = REPORT_SEED,
     progress: Callable[[str], None] = lambda line: None,
 ) -> Judgement:
-    """Both defaults on the same targets and seeds, measured against the exact SMMs."""
-    if not has_ground_truth(model):
-        raise ValueError(
-            f"no exact reference for robot {model.manifest.robot!r}; references: "
-            + ", ".join(sorted([*REFERENCES, "planar3r"]))
-        )
+    """Both defaults on the same targets and seeds, measured against the exact SMMs
+    (`ground_truth` refuses a robot without a reference, naming those with one)."""
     lower, upper, _ = model.manifest.joints.arrays()
     q_targets = np.concatenate(
         [
@@ -202,7 +196,7 @@ def judged_defaults(
     progress: Callable[[str], None] = lambda line: None,
 ) -> Defaults:  # fmt: skip
     """The swept defaults if they serve what the incumbent did or are judged no worse
-    against the exact SMMs (training/evaluate/judge.py), else the incumbent's; the verdict
+    against the exact SMMs (`judge`), else the incumbent's; the verdict
     in reasons["judged"]. The sweep's 20 targets cannot see a rare lost component; the
     judge's 200 report targets and 20 near-singular ones can. A robot without an exact
     reference keeps the swept defaults, its reason saying they were not judged."""
