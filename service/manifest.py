@@ -333,7 +333,12 @@ class ReflowRecord(_Strict):
         "endpoint from the teacher's on held-out pairs, at best_step"
     )
     torch_version: str
-    git_commit: str
+    git_commit: str = Field(description="the commit the reflow was trained and exported at")
+    export_git_commit: str | None = Field(
+        default=None,
+        description="the commit that last swept, judged and measured the committed reflow "
+        "again (python -m training.reflow --export-only), when it did",
+    )
     base_sampler: SamplerSpec | None = Field(
         default=None,
         description="the base flow's sampler the model served before the reflow (what the "

@@ -472,7 +472,7 @@ def reflow_model(
                 f"{model_dir}: no reflow to export again; train one first: "
                 f"python -m training.reflow --model-dir {model_dir}"
             )
-        record = manifest.reflow.model_copy(update={"git_commit": git_commit()})
+        record = manifest.reflow.model_copy(update={"export_git_commit": git_commit()})
     else:
         run_dir = runs_dir / manifest.model_id / "reflow"
         student, state = train_reflow(model_dir, run_dir, config, resume)

@@ -12,6 +12,8 @@
   closed-form FK; a manifest asking for a reflow the directory lacks is refused by name.
 - The paper sampler's raw errors are reused only when measured on the same targets and
   samples (the reflow leaves the base flow as it was).
+- --export-only refuses a model without a reflow by naming the command that trains one,
+  keeps the committed reflow.onnx and the commit it was trained at, and records its own.
 """
 
 import shutil
@@ -185,3 +187,26 @@ def test_the_paper_samplers_row_is_kept_only_for_the_same_targets_and_samples() 
     assert (row.sampler_flow, row.sampler_steps, row.sampler_precision) == ("base", 100, "float32")
     assert reflow.paper_row(manifest, targets + 1, samples) is None
     assert reflow.paper_row(manifest, targets, samples // 2) is None
+
+
+def test_export_only_keeps_the_training_commit_and_records_its_own(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    with pytest.raises(ValueError, match="train one first"):
+        reflow.reflow_model(
+            _planar_copy(tmp_path), tmp_path / "runs", SMALL, False, "x", export_only=True
+        )
+    bundled = Manifest.model_validate_json((PLANAR3R_DIR / MANIFEST_FILE).read_bytes())
+    assert bundled.reflow is not None
+    exported: dict[str, object] = {}
+
+    def export(model_dir: Path, student: object, record: object, **settings: object) -> None:
+        exported.update(student=student, record=record)  # the sweep and judge: test_judge.py
+
+    monkeypatch.setattr(reflow, "export_reflow", export)
+    reflow.reflow_model(PLANAR3R_DIR, tmp_path / "runs", SMALL, False, "x", export_only=True)
+    record = exported["record"]
+    assert exported["student"] is None  # the committed reflow.onnx is kept
+    assert isinstance(record, reflow.ReflowRecord)
+    assert record.git_commit == bundled.reflow.git_commit
+    assert record.export_git_commit == reflow.git_commit()
