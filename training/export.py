@@ -48,7 +48,6 @@ from training.checkpoint import TrainResult
 from training.config import TrainConfig
 from training.data import FlowData
 from training.defaults import serving_defaults
-from training.evaluate.judge import judged_defaults
 from training.evaluate.quality import measure_quality
 from training.kinematics import (
     ForwardKinematics,
@@ -61,7 +60,7 @@ from training.model import VelocityField
 from training.quantise import quantise_flow
 from training.robots import RobotSpec
 from training.staging import staged_copy
-from training.sweep import AXES, Axis, sweep_defaults
+from training.sweep import AXES, Axis, judged_sweep, sweep_defaults
 
 # float32 network: velocities reach a few hundred near t = 1, where float32 rounding
 # differences between torch and onnxruntime are ~1e-6 relative; compare like np.allclose.
@@ -296,7 +295,7 @@ def sweep_and_measure(
     each step written into its manifest. `paper_row`: the paper sampler's raw errors
     already measured on the same network and targets (`measure_quality`). `incumbent`:
     the defaults served until now; the swept ones replace them only if judged no worse
-    against the exact SMMs (`judged_defaults`)."""
+    against the exact SMMs (training/sweep.py `judged_sweep`)."""
     manifest_path = model_dir / MANIFEST_FILE
     served = load_model(model_dir, threads=threads)
     if sweep_targets > 0:
@@ -304,10 +303,14 @@ def sweep_and_measure(
         def progress(line: str) -> None:
             print(f"[{manifest.model_id}] {line}", flush=True)
 
-        swept = sweep_defaults(served, sweep_targets, sweep_seed, axes=axes, progress=progress)
-        defaults = swept.defaults
-        if incumbent is not None:
-            defaults = judged_defaults(served, defaults, incumbent, progress)
+        if incumbent is None:
+            defaults = sweep_defaults(
+                served, sweep_targets, sweep_seed, axes=axes, progress=progress
+            ).defaults
+        else:
+            defaults = judged_sweep(
+                served, sweep_targets, sweep_seed, incumbent, progress=progress, axes=axes
+            )
         manifest = manifest.model_copy(update={"defaults": defaults})
         manifest_path.write_text(manifest.model_dump_json(indent=2) + "\n")
         served = replace(served, manifest=manifest)

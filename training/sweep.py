@@ -797,6 +797,47 @@ def sweep_defaults(
     )
 
 
+def judged_sweep(
+    model: ServedModel,
+    targets: int,
+    seed: int,
+    incumbent: Defaults,
+    plan: SweepPlan = SweepPlan(),
+    progress: Callable[[str], None] = _quiet,
+    axes: Sequence[Axis] = AXES,
+    first: SweepResult | None = None,
+) -> Defaults:
+    """The sweep's defaults (`first`: that sweep, already run with `plan`) if judged no
+    worse than `incumbent` against the exact SMMs (training/evaluate/judge.py
+    `judged_defaults`), else the incumbent's.
+
+    Where the judge refuses a reflowed sampler, the sweep runs again without the reflowed
+    step counts up to the refused one, so the next costlier reflowed sampler (or the base
+    flow) is swept and judged, until one serves or none is left: the sweep's 20 targets
+    rank the candidates by cost, and the judge's 220 decide how few reflowed steps serve
+    (the planar 3R's 1-step sampler merged two loops on one of them). Each refusal stays
+    in reasons["judged"] before the final verdict."""
+    refused: list[str] = []
+    while True:
+        swept = first or sweep_defaults(model, targets, seed, plan, progress, axes)
+        first = None
+        judged = judged_defaults(model, swept.defaults, incumbent, progress)
+        served = judged.model_dump(exclude={"reasons"}) == swept.defaults.model_dump(
+            exclude={"reasons"}
+        )
+        steps = swept.chosen.reflow_steps
+        costlier = tuple(v for v in plan.reflow_steps if v > steps)
+        if served or not steps or "reflow_steps" not in axes or not costlier:
+            break
+        refused.append(f"{steps} reflowed steps: {judged.reasons[JUDGED]}")
+        progress(f"sweep: the judge refused {steps} reflowed steps; sweeping {costlier} again")
+        plan = replace(plan, reflow_steps=tuple(v for v in plan.reflow_steps if v == 0) + costlier)
+    if not refused:
+        return judged
+    verdict = " | ".join([*(f"refused first, {r}" for r in refused), judged.reasons[JUDGED]])
+    return judged.model_copy(update={"reasons": {**judged.reasons, JUDGED: verdict}})
+
+
 def _candidates(plan: SweepPlan, axis: Axis, manifest: Manifest) -> tuple[float, ...]:
     """The plan's candidates of `axis` that the model can serve: 8 bits only with an int8
     network (models exported before training/quantise.py have none)."""
@@ -919,9 +960,10 @@ def main() -> None:
     print(text)
     if args.write:
         # What serves changes only if judged no worse than what serves now.
-        defaults = judged_defaults(
-            served, result.defaults, served.manifest.defaults, progress=_to_stderr
-        )
+        defaults = judged_sweep(
+            served, args.targets, args.seed, served.manifest.defaults, progress=_to_stderr,
+            axes=[axis for axis in AXES if axis in axes], first=result,
+        )  # fmt: skip
         write_defaults(args.model_dir, defaults)
         verdict = defaults.reasons.get(JUDGED, "unchanged: nothing to judge")
         print(f"defaults written to {args.model_dir / MANIFEST_FILE}; {verdict}", file=sys.stderr)

@@ -10,8 +10,10 @@ chooses by that rule on every axis, sets the chosen trace step (and nothing else
 connectivity), keeps damping and tolerances, returns defaults that validate as `Defaults`
 and serve a query, writes reasons that quote every candidate measured, reports its
 progress a line per candidate, and a table that is strict JSON; a sweep of some axes
-keeps the other reasons but drops a judge's verdict on the defaults it replaces; a model
-id with no measured entry starts from generic defaults chosen by r.
+keeps the other reasons but drops a judge's verdict on the defaults it replaces; where the
+judge refuses a reflowed sampler, the judged sweep tries the next costlier one and keeps
+every refusal in its reasons, and serves the incumbent when all are refused; a model id
+with no measured entry starts from generic defaults chosen by r.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+import training.sweep as sweep_module
 from service.manifest import REFLOW_FILE, REPO_MODELS_DIR, Defaults, SamplerSpec, TaskSpec
 from service.models.registry import ServedModel, load_model
 from service.pipeline.joint_space import joint_distance
@@ -51,6 +54,7 @@ from training.sweep import (
     TimePowerRow,
     agreement,
     coverage_distances,
+    judged_sweep,
     nearest_reference,
     pick,
     pick_time_power,
@@ -409,6 +413,45 @@ def test_a_sweep_of_some_axes_keeps_the_rest_and_offers_int8_only_where_it_exist
     assert result.defaults.reasons["sampler_precision"].startswith("32 bit flow by the rule")
     with pytest.raises(ValueError, match="choose from"):
         sweep_defaults(planar, 1, SEED, TINY_PLAN, axes=["sampler"])  # type: ignore[list-item]
+
+
+def test_a_refused_reflowed_sampler_is_followed_by_the_next_costlier_one(
+    planar: ServedModel, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The judge itself is checked in tests/training/evaluate/test_judge.py; here a verdict
+    # by rule (reflowed samplers under `least` steps are worse) checks what the descent
+    # does with it: the sweep again without the refused step counts, every refusal kept.
+    least = {"steps": 2}
+    judged: list[int] = []
+
+    def verdict(
+        model: ServedModel, swept: Defaults, incumbent: Defaults, progress: object
+    ) -> Defaults:
+        steps = swept.sampler.steps if swept.sampler.flow == "reflow" else 0
+        judged.append(steps)
+        if steps and steps < least["steps"]:
+            reason = f"worse: {steps} steps"
+            return incumbent.model_copy(update={"reasons": {**incumbent.reasons, JUDGED: reason}})
+        return swept.model_copy(update={"reasons": {**swept.reasons, JUDGED: "serves"}})
+
+    monkeypatch.setattr(sweep_module, "judged_defaults", verdict)
+    plan = replace(TINY_PLAN, sampler_steps=(20,), reflow_steps=(0, 1, 2))
+    incumbent = planar.manifest.defaults
+    lines: list[str] = []
+    chosen = judged_sweep(planar, 1, SEED, incumbent, plan, lines.append, axes=["reflow_steps"])
+    assert judged == [1, 2]
+    assert (chosen.sampler.flow, chosen.sampler.steps) == ("reflow", 2)
+    assert chosen.reasons[JUDGED] == "refused first, 1 reflowed steps: worse: 1 steps | serves"
+    assert any("the judge refused 1 reflowed steps; sweeping (2,) again" in line for line in lines)
+    swept_again = [line for line in lines if line.startswith("sweep: 2:")]
+    assert len(swept_again) == 2  # the 2-step sampler, measured by both sweeps
+
+    least["steps"] = 3  # every reflowed sampler refused: the incumbent serves
+    judged.clear()
+    kept = judged_sweep(planar, 1, SEED, incumbent, plan, axes=["reflow_steps"])
+    assert judged == [1, 2]
+    assert kept.model_dump(exclude={"reasons"}) == incumbent.model_dump(exclude={"reasons"})
+    assert kept.reasons[JUDGED].startswith("refused first, 1 reflowed steps: worse: 1 steps | ")
 
 
 def test_a_new_model_id_starts_from_generic_defaults_by_redundancy() -> None:
