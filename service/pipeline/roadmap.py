@@ -197,9 +197,13 @@ class _Roadmap:
         For each component, a KD-tree over its nodes gives every node outside it its
         nearest node in it, so each pair of components has links from the nodes of both
         sides (a lone node's side too); per pair the shortest distinct links are kept.
+        A lone node is every other node's nearest in its component, so its links are all
+        its neighbours within the radius: one query of the lone nodes against every node
+        gives them (the same links and lengths as a tree per lone node; after the first
+        neighbour rounds most components of a 4-D fibre are lone nodes).
         """
         root = self.roots()
-        labels = np.unique(root)
+        labels, sizes = np.unique(root, return_counts=True)
         empty = np.zeros(0, dtype=np.int64)
         if len(labels) == 1 or per_pair == 0:
             return empty, empty
@@ -208,7 +212,16 @@ class _Roadmap:
         rows_: list[IntArray] = []
         cols_: list[IntArray] = []
         length_: list[FloatArray] = []
-        for label in labels:
+        lone = np.flatnonzero(np.isin(root, labels[sizes == 1]))  # (L,) nodes
+        if len(lone):
+            pairs = box.tree(self.q_rad[lone]).sparse_distance_matrix(
+                box.tree(self.q_rad), radius_rad, output_type="ndarray"
+            )  # (i into lone, j a node, v their distance) for every pair within the radius
+            link = (pairs["v"] < radius_rad) & (lone[pairs["i"]] != pairs["j"])
+            rows_.append(lone[pairs["i"][link]])
+            cols_.append(pairs["j"][link].astype(np.int64))
+            length_.append(pairs["v"][link])
+        for label in labels[sizes > 1]:
             inside = np.flatnonzero(root == label)
             outside = np.flatnonzero(root != label)
             distance, nearest = box.tree(self.q_rad[inside]).query(

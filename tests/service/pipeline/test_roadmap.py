@@ -5,7 +5,9 @@ with, stay two; two samples joined only through the shoulder set (q2 = 0, where 
 is all that moves the arm) are one component once the roadmap has its coaxial nodes or
 its steering walks, and two without either;
 and where the link lengths keep the fibre off the shoulder and elbow sets, no component
-holds both signs of q2 or of q4."""
+holds both signs of q2 or of q4. The links tried between components left apart are, per
+pair of components, the shortest of every node's nearest node in each other component
+(brute force on the joint metric), lone nodes included."""
 
 from dataclasses import replace
 
@@ -15,8 +17,10 @@ import pytest
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
 from service.pipeline.connectivity import planner_settings, roadmap_settings
+from service.pipeline.deadline import NO_DEADLINE
 from service.pipeline.fibre import project
-from service.pipeline.roadmap import roadmap_labels
+from service.pipeline.joint_space import joint_distance
+from service.pipeline.roadmap import _Roadmap, roadmap_labels
 from service.pipeline.run import run
 from service.pipeline.types import CoaxialSet, Query
 from tests.service.pipeline.fibre_support import null_space_walk, pose_fibre
@@ -138,3 +142,42 @@ def test_twins_stay_apart_where_the_fibre_cannot_reach_the_shoulder_or_elbow_set
         assert len(set(np.sign(q[:, 3]).tolist())) == 1
         signs.add((np.sign(q[0, 1]), np.sign(q[0, 3])))
     assert len(signs) == 4  # all four twins are there, each its own component
+
+
+def test_the_links_tried_between_components_are_the_shortest_by_brute_force(
+    iiwa14_position: ServedModel,
+) -> None:
+    # Mostly lone nodes, as after the neighbour rounds on a 4-D fibre, and some groups;
+    # one periodic joint, so the metric wraps there and only there.
+    rng = np.random.default_rng(3)
+    q = rng.uniform(-2.0, 2.0, size=(160, 7))
+    periodic = np.array([False, False, True, False, False, False, False])
+    lower, upper, _ = iiwa14_position.manifest.joints.arrays()
+    settings = roadmap_settings(iiwa14_position.manifest.defaults.connectivity)
+    roadmap = _Roadmap(
+        pose_fibre(iiwa14_position, q[0]), q, lower, upper, periodic,
+        planner_settings(iiwa14_position.manifest.defaults.connectivity), NO_DEADLINE, (),
+    )  # fmt: skip
+    groups = rng.integers(0, 12, size=60)  # nodes 0..59 in 12 groups, 60..159 alone
+    for g in range(12):
+        members = np.flatnonzero(groups == g)
+        roadmap.join(members[:-1], members[1:])
+    radius_rad, per_pair = 3.0, 3
+    rows, cols = roadmap._nearest_pairs(settings, per_pair, radius_rad, untested_only=False)
+
+    root = roadmap.roots()
+    distance = joint_distance(q[:, None], q[None], periodic)  # (N, N)
+    links: dict[tuple[int, int], float] = {}  # every node's nearest in every other component
+    for label in np.unique(root):
+        inside = np.flatnonzero(root == label)
+        for o in np.flatnonzero(root != label):
+            a = inside[np.argmin(distance[o, inside])]
+            if distance[o, a] < radius_rad:
+                links[(min(a, o), max(a, o))] = distance[o, a]
+    by_pair: dict[tuple[int, int], list[tuple[float, tuple[int, int]]]] = {}
+    for (a, b), length in links.items():
+        pair = (min(root[a], root[b]), max(root[a], root[b]))
+        by_pair.setdefault(pair, []).append((length, (a, b)))
+    expected = {link for kept in by_pair.values() for _, link in sorted(kept)[:per_pair]}
+    got = {(int(min(a, b)), int(max(a, b))) for a, b in zip(rows, cols, strict=True)}
+    assert len(expected) > 100 and got == expected
