@@ -42,13 +42,14 @@ import httpx
 import numpy as np
 
 from service.config import Settings
-from service.manifest import REPO_MODELS_DIR, SamplerSpec
+from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
 from tools.batch_benchmark import batch_against_singles
 from tools.local_server import LocalServer
-from training.evaluate.judge import figures, worse_than
+from training.evaluate.judge import PAPER_DLS_STEPS, figures, worse_than
 from training.evaluate.methods import MethodTarget, restart_target, served_target
 from training.evaluate.metrics import median_stage_ms, p95_stage_ms
+from training.evaluate.quality import PAPER_SAMPLER
 from training.evaluate.served import orientation_wxyz, with_defaults
 from training.evaluate.targets import uniform_configurations
 from training.evaluate.truth import ground_truth
@@ -58,9 +59,6 @@ from training.robots import robot_spec
 
 OUT_DIR = Path(__file__).resolve().parents[1] / "docs" / "benchmark"
 SIZES = (250, 1000, 4000)
-# The paper's configuration (seed Table 4): 100 Euler steps on the uniform grid, 3 DLS.
-PAPER_SAMPLER = SamplerSpec(steps=100, time_power=1.0)
-PAPER_DLS_STEPS = 3
 MATCH_ROUNDS = 4  # rescaled restart runs at most, to reach the service's valid count
 SERVICE, PAPER, RESTART = "service", "paper (100 Euler, 3 DLS)", "random-restart DLS"
 FLOAT32 = "service, float32 network"

@@ -26,13 +26,16 @@ training/export.py `sweep_and_measure`) and `python -m training.sweep --write`.
 
 from __future__ import annotations
 
+import argparse
+import json
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
 
 import numpy as np
 
-from service.manifest import Defaults
-from service.models.registry import ServedModel
+from service.manifest import REPO_MODELS_DIR, Defaults
+from service.models.registry import ServedModel, load_model
 from service.pipeline.arrays import FloatArray
 from training.evaluate.methods import MethodTarget, served_target
 from training.evaluate.metrics import (
@@ -41,6 +44,7 @@ from training.evaluate.metrics import (
     found_components,
     nearest_distance,
 )
+from training.evaluate.quality import PAPER_SAMPLER
 from training.evaluate.targets import uniform_configurations
 from training.evaluate.truth import REFERENCES, Truth, ground_truth
 
@@ -52,6 +56,8 @@ NEAR_SINGULAR_DRAWS = 50  # uniform draws per near-singular target kept
 COVERAGE_MARGIN = 0.10
 # The reason key of the verdict in judged defaults (Defaults.reasons).
 JUDGED = "judged"
+# The paper's configuration (seed Table 4): 100 Euler steps on the uniform grid, 3 DLS.
+PAPER_DLS_STEPS = 3
 
 # The evaluation's figures, and whether more is better.
 TRUTH_FIGURES = (
@@ -248,3 +254,81 @@ def _flat(values: dict[str, object], prefix: str = "") -> dict[str, object]:
 
 def _rounded(figures: dict[str, float]) -> dict[str, float]:
     return {key: float(f"{value:.4g}") for key, value in figures.items()}
+
+
+def paper_defaults(defaults: Defaults) -> Defaults:
+    """The paper's configuration (100 float32 Euler steps of the base flow on the uniform
+    grid, 3 DLS steps) with the rest of `defaults`."""
+    return defaults.model_copy(
+        update={"sampler": PAPER_SAMPLER, "correction_steps": PAPER_DLS_STEPS}
+    )
+
+
+def candidate_defaults(served: Defaults, candidate: str) -> Defaults:
+    """`candidate`: "paper" (`paper_defaults`), or a JSON object of the served defaults'
+    fields to change, its "sampler" merged into the served sampler."""
+    if candidate == "paper":
+        return paper_defaults(served)
+    try:
+        update = json.loads(candidate)
+    except json.JSONDecodeError as error:
+        raise ValueError(
+            f"--candidate: 'paper' or a JSON object of defaults to change, got {candidate!r}"
+        ) from error
+    if not isinstance(update, dict):
+        raise ValueError(f"--candidate: a JSON object, got {candidate!r}")
+    sampler = served.sampler.model_copy(update=update.pop("sampler", {}))
+    return Defaults.model_validate(
+        {**served.model_dump(), **update, "sampler": sampler.model_dump()}
+    )
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Judge a configuration against the served defaults on the judge's targets:
+
+    python -m training.evaluate.judge --model iiwa14-pose --candidate paper --num-samples 1000
+    python -m training.evaluate.judge --model planar3r-position \\
+        --candidate '{"sampler": {"flow": "reflow", "steps": 2, "time_power": 1.0}}'
+    """
+    parser = argparse.ArgumentParser(description=main.__doc__)
+    parser.add_argument("--model", required=True, help="a model id under models/")
+    parser.add_argument("--candidate", required=True, help="paper, or a JSON object")
+    parser.add_argument(
+        "--num-samples", type=int, help="both at this num_samples (default: each its own)"
+    )
+    parser.add_argument("--targets", type=int, default=REPORT_TARGETS)
+    parser.add_argument("--near-singular", type=int, default=NEAR_SINGULAR)
+    parser.add_argument("--seed", type=int, default=REPORT_SEED)
+    parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--out", type=Path, help="write the judgement as JSON here")
+    args = parser.parse_args(argv)
+    model = load_model(REPO_MODELS_DIR / args.model, threads=args.threads)
+    incumbent = model.manifest.defaults
+    try:
+        candidate = candidate_defaults(incumbent, args.candidate)
+    except ValueError as error:
+        parser.error(str(error))
+    if args.num_samples is not None:
+        incumbent = incumbent.model_copy(update={"num_samples": args.num_samples})
+        candidate = candidate.model_copy(update={"num_samples": args.num_samples})
+    judgement = judge(
+        model, candidate, incumbent, args.targets, args.near_singular, args.seed,
+        progress=lambda line: print(line, flush=True),
+    )  # fmt: skip
+    record = {
+        "model": args.model,
+        "candidate": args.candidate,
+        "num_samples": args.num_samples,
+        "candidate_defaults": candidate.model_dump(exclude={"reasons"}),
+        "incumbent_defaults": incumbent.model_dump(exclude={"reasons"}),
+        **asdict(judgement),
+        "verdict": judgement.summary(),
+    }
+    text = json.dumps(record, indent=1)
+    if args.out:
+        args.out.write_text(text + "\n")
+    print(text)
+
+
+if __name__ == "__main__":
+    main()

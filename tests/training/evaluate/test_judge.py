@@ -10,10 +10,15 @@
   worse ones give way to the incumbent's, its reasons kept, the verdict with its figures
   in reasons, and the sweep's reason for an axis the incumbent had none for marked unserved;
   a robot without an exact reference keeps the swept ones, saying they were not judged.
+- The CLI judges the paper's configuration (100 float32 Euler steps, 3 DLS, the rest
+  served) or a JSON change of the served defaults; anything else is refused, naming both
+  forms; its JSON record holds both defaults, both sets of figures and the verdict.
 """
 
+import json
 from dataclasses import replace
 from functools import partial
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -98,3 +103,31 @@ def test_judged_defaults_keep_the_incumbent_unless_no_worse(
     unjudged = judging.judged_defaults(unknown, one, incumbent)
     assert unjudged.num_samples == 1
     assert unjudged.reasons["judged"].startswith("not judged: no exact reference for robot")
+
+
+def test_the_cli_judges_the_paper_configuration_or_a_json_change(
+    planar3r: ServedModel, tmp_path: Path
+) -> None:
+    served = planar3r.manifest.defaults
+    paper = judging.candidate_defaults(served, "paper")
+    assert (paper.sampler.flow, paper.sampler.steps, paper.sampler.precision) == (
+        "base", 100, "float32",
+    )  # fmt: skip
+    assert (paper.sampler.time_power, paper.correction_steps) == (1.0, 3)
+    assert paper.connectivity == served.connectivity and paper.num_samples == served.num_samples
+    changed = judging.candidate_defaults(served, '{"sampler": {"steps": 2}, "correction_steps": 4}')
+    assert changed.sampler == served.sampler.model_copy(update={"steps": 2})
+    assert changed.correction_steps == 4 and changed.damping == served.damping
+    for bad in ("fast", "[1]"):
+        with pytest.raises(ValueError, match="--candidate: "):
+            judging.candidate_defaults(served, bad)
+
+    out = tmp_path / "judgement.json"
+    judging.main(["--model", "planar3r-position", "--candidate", '{"num_samples": 1}',
+                  "--targets", "6", "--near-singular", "2", "--out", str(out)])  # fmt: skip
+    record = json.loads(out.read_text())
+    assert record["candidate_defaults"]["num_samples"] == 1
+    assert record["incumbent_defaults"]["num_samples"] == served.num_samples
+    assert (record["targets"], record["near_singular_targets"]) == (6, 2)
+    assert any(w.startswith("count right") for w in record["worse"])
+    assert record["verdict"].startswith("worse than the incumbent on 6 report targets")
