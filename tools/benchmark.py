@@ -53,6 +53,7 @@ from training.evaluate.quality import PAPER_SAMPLER
 from training.evaluate.served import orientation_wxyz, with_defaults
 from training.evaluate.targets import uniform_configurations
 from training.evaluate.truth import ground_truth
+from training.export import git_commit
 from training.kinematics import load_chain
 from training.machine import Machine
 from training.robots import robot_spec
@@ -205,7 +206,8 @@ def markdown(report: dict) -> str:
     lines = [
         "# Benchmark: time and truth, warm, on one machine in one run",
         "",
-        f"Produced by `{report['command']}` on {machine.describe()}. "
+        f"Produced by `{report['command']}` at commit "
+        f"{report.get('git_commit', 'unrecorded')} on {machine.describe()}. "
         f"onnxruntime threads per session: {report['onnx_threads']} "
         "(the service's own setting on this machine). Targets per model: "
         f"{report['targets']} held-out (seed {report['seed']}). Times are comparable only "
@@ -406,6 +408,7 @@ def main() -> None:
     machine = Machine.now()
     report: dict = {
         "command": " ".join(["python -m tools.benchmark", *sys.argv[1:]]),
+        "git_commit": git_commit(),  # the code measured, at the run's start
         "onnx_threads": threads,
         "targets": args.targets,
         "seed": args.seed,

@@ -17,6 +17,7 @@ import pytest
 from service.models.registry import ServedModel
 from tools.benchmark import BASE, FLOAT32, PAPER, RESTART, SERVICE, restarts_to_match
 from training.evaluate.targets import uniform_configurations
+from training.export import git_commit
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -50,6 +51,7 @@ def test_the_command_writes_every_configuration_and_size(tmp_path: Path) -> None
     # every configuration and HTTP, at 2 sizes
     assert text.count("| planar3r-position |") == 2 * len(names) + 2
     assert report["machine"]["cores"] >= 1
+    assert report["git_commit"] == git_commit() and f"at commit {git_commit()} on " in text
     # The batch against its singles, by default and sampling ahead: the same answers.
     for key, threads in (("batch", {}), ("batch_sampling_ahead", {"batch_sampling_threads": 1})):
         batch = report[key]
