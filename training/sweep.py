@@ -834,7 +834,11 @@ def judged_sweep(
         plan = replace(plan, reflow_steps=tuple(v for v in plan.reflow_steps if v == 0) + costlier)
     if not refused:
         return judged
-    verdict = " | ".join([*(f"refused first, {r}" for r in refused), judged.reasons[JUDGED]])
+    # Defaults equal to the incumbent's come back from judged_defaults with no verdict.
+    last = judged.reasons.get(
+        JUDGED, "what serves was not judged: the sweep kept the served values"
+    )
+    verdict = " | ".join([*(f"refused first, {r}" for r in refused), last])
     return judged.model_copy(update={"reasons": {**judged.reasons, JUDGED: verdict}})
 
 

@@ -453,6 +453,26 @@ def test_a_refused_reflowed_sampler_is_followed_by_the_next_costlier_one(
     assert kept.model_dump(exclude={"reasons"}) == incumbent.model_dump(exclude={"reasons"})
     assert kept.reasons[JUDGED].startswith("refused first, 1 reflowed steps: worse: 1 steps | ")
 
+    # What serves after a refusal may carry no verdict of its own (judged_defaults gives
+    # swept defaults equal to the incumbent's back unjudged): the refusals still stand.
+    def quiet_verdict(
+        model: ServedModel, swept: Defaults, incumbent: Defaults, progress: object
+    ) -> Defaults:
+        refused = verdict(model, swept, incumbent, progress)
+        if refused.reasons[JUDGED] == "serves":
+            return swept
+        return refused
+
+    monkeypatch.setattr(sweep_module, "judged_defaults", quiet_verdict)
+    least["steps"] = 2
+    judged.clear()
+    quiet = judged_sweep(planar, 1, SEED, incumbent, plan, axes=["reflow_steps"])
+    assert judged == [1, 2] and quiet.sampler.steps == 2
+    assert quiet.reasons[JUDGED] == (
+        "refused first, 1 reflowed steps: worse: 1 steps | what serves was not judged: "
+        "the sweep kept the served values"
+    )
+
 
 def test_a_new_model_id_starts_from_generic_defaults_by_redundancy() -> None:
     pose = TaskSpec(name="pose", position_axes=[0, 1, 2], orientation=True)
