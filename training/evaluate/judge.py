@@ -22,6 +22,10 @@ Only robots with an exact reference can be judged (planar3r, iiwa14, panda);
 `has_ground_truth` says which. `judged_defaults` applies the verdict wherever swept
 defaults would replace served ones: the reflow's export (training/reflow.py, through
 training/export.py `sweep_and_measure`) and `python -m training.sweep --write`.
+
+`python -m training.evaluate.judge --model <id> --candidate paper|<JSON>` judges the
+paper's configuration, or any change of the served defaults, against what serves,
+without writing anything but its `--out` record (`main`).
 """
 
 from __future__ import annotations
