@@ -172,16 +172,22 @@ def test_the_sampler_steps_trade_keep_rate_but_not_coverage_or_components() -> N
     assert pick([row(32, 0.87, 1.0, axis=bits), row(8, 0.85, 1.0, axis=bits)]).value == 32
 
 
-def test_the_reflowed_sampler_competes_with_the_base_by_network_evaluations() -> None:
+def test_the_reflowed_sampler_competes_with_the_base_jointly_with_dls_by_measured_time() -> None:
     reflowed: Axis = "reflow_steps"
     base = Setting(
         sampler_steps=4, correction_steps=10, num_samples=1000, connectivity_step_rad=0.15,
         time_power=2.0, flow_precision_bits=8,
     )  # fmt: skip
 
-    def candidate(steps: int, keep_rate: float, count_right: float = 1.0) -> Candidate:
-        measures = row(steps, keep_rate, count_right, axis=reflowed).measures
-        return Candidate(reflowed, base.with_value(reflowed, steps), measures)
+    def candidate(
+        steps: int, keep_rate: float, count_right: float = 1.0, dls: int = 10, ms: float = 0.0
+    ) -> Candidate:
+        measures = replace(
+            row(steps, keep_rate, count_right, axis=reflowed).measures,
+            median_stage_ms={"sample": ms, "correct": 0.5 * dls, "connect": 100.0},
+        )
+        setting = replace(base.with_value(reflowed, steps), correction_steps=dls)
+        return Candidate(reflowed, setting, measures)
 
     # Value 0 is the base flow at its own steps and grid; k > 0 the reflow, uniform grid.
     assert base.with_value(reflowed, 0).sampler == SamplerSpec(
@@ -190,17 +196,28 @@ def test_the_reflowed_sampler_competes_with_the_base_by_network_evaluations() ->
     assert base.with_value(reflowed, 1).sampler == SamplerSpec(
         flow="reflow", steps=1, time_power=1.0, precision="int8"
     )
-    # Cost is network evaluations: one reflowed step is cheaper than four base steps, four
-    # reflowed steps cost as much as the base (which, listed first, keeps a tie).
-    assert [candidate(k, 0.8).cost for k in (0, 1, 2, 4)] == [4.0, 1.0, 2.0, 4.0]
-    assert pick([candidate(0, 0.81), candidate(1, 0.70), candidate(4, 0.85)]).value == 1
-    assert pick([candidate(0, 0.85), candidate(4, 0.85)]).value == 0
+    # Cost is the measured sample + correct time: network evaluations and DLS steps cost
+    # different amounts per model, so neither count alone orders the pairs.
+    assert candidate(2, 0.8, dls=6, ms=20.0).cost == 23.0
+    with pytest.raises(ValueError, match="measured time"):
+        base.cost(reflowed)
+    # The iiwa14 position case: 2 reflowed steps lose too many samples at 3 DLS, not at 6;
+    # at 6 they are the cheapest within the margins, ahead of the 20-step base flow.
+    iiwa = [
+        candidate(0, 0.989, dls=3, ms=230.0), candidate(2, 0.835, dls=3, ms=24.0),
+        candidate(2, 0.97, dls=6, ms=24.0), candidate(1, 0.70, dls=10, ms=12.0),
+    ]  # fmt: skip
+    assert (pick(iiwa).value, pick(iiwa).setting.correction_steps) == (2, 6)
+    assert pick(iiwa).label == "2 at 6 DLS"
     # Its keep rate trades within the sampler's margin, not beyond, and it must still
     # find the same components.
     assert (
-        pick([candidate(0, 0.81), candidate(1, 0.81 - SAMPLER_KEEP_RATE_MARGIN - 0.01)]).value == 0
-    )
-    assert pick([candidate(0, 0.81), candidate(1, 0.80, count_right=0.9)]).value == 0
+        pick([candidate(0, 0.81, ms=50.0),
+              candidate(1, 0.81 - SAMPLER_KEEP_RATE_MARGIN - 0.01, ms=10.0)]).value == 0
+    )  # fmt: skip
+    assert pick([candidate(0, 0.81, ms=50.0), candidate(1, 0.80, 0.9, ms=10.0)]).value == 0
+    # The base flow wins where it is the faster.
+    assert pick([candidate(0, 0.85, ms=10.0), candidate(4, 0.85, ms=12.0)]).value == 0
     # Sweeping the base flow's steps again samples the base flow.
     assert base.with_value(reflowed, 1).with_value("sampler_steps", 8).sampler.flow == "base"
     # A manifest whose default is the reflow starts the sweep from it.
@@ -300,11 +317,18 @@ def test_the_sweep_chooses_by_the_rule_and_its_defaults_serve(
     chosen = swept.chosen
     for axis in AXES:
         rows = [r for r in swept.table if r.axis == axis]
-        expected = list(TINY_PLAN.candidates(axis, redundancy=1))
-        if axis == "reflow_steps" and REFLOW_FILE not in start_files:
-            expected = [0]  # no reflowed network to sweep: the base flow alone
-        assert [r.value for r in rows] == expected
-        assert pick(rows).setting == rows[[r.value for r in rows].index(chosen.value(axis))].setting
+        values = list(TINY_PLAN.candidates(axis, redundancy=1))
+        if axis != "reflow_steps":
+            assert [r.value for r in rows] == values
+        elif REFLOW_FILE in start_files:  # jointly with every DLS candidate
+            dls = TINY_PLAN.correction_steps
+            assert [(r.value, r.setting.correction_steps) for r in rows] == [
+                (v, d) for v in values for d in dls
+            ]
+        else:  # no reflowed network to sweep: the base flow alone
+            assert [r.value for r in rows] == [0]
+        assert pick(rows).setting in [r.setting for r in rows]
+        assert pick(rows).setting.value(axis) == chosen.value(axis)
         assert all(r.measures.targets == TINY_TARGETS for r in rows)
     # The last axis measured exactly the chosen setting.
     assert pick([r for r in swept.table if r.axis == AXES[-1]]).setting == chosen
@@ -354,11 +378,13 @@ def test_the_reasons_quote_every_candidate_and_the_table_is_json(swept: SweepRes
             reason
         )
         assert f"{TINY_TARGETS} held-out targets" in reason
-        candidates = TINY_PLAN.candidates(axis, redundancy=1)
-        if axis == "reflow_steps" and swept_without_reflow(swept):
-            candidates = (0,)
-        for candidate in candidates:
-            assert f"{candidate}: keep rate " in reason, (candidate, reason)
+        labels = [f"{v}" for v in TINY_PLAN.candidates(axis, redundancy=1)]
+        if axis == "reflow_steps":
+            labels = [f"{v} at {d} DLS" for v in labels for d in TINY_PLAN.correction_steps]
+            if swept_without_reflow(swept):
+                labels = ["0"]
+        for label in labels:
+            assert f"{label}: keep rate " in reason, (label, reason)
     assert "0.15 rad connectivity step" in reasons["sampler"]  # the reference's finest step
     assert "Time grid: time power " in reasons["sampler"]
     for power in TINY_PLAN.time_powers:
@@ -372,9 +398,9 @@ def test_the_reasons_quote_every_candidate_and_the_table_is_json(swept: SweepRes
     assert len(PROGRESS) == 1 + powers + len(swept.table) and "dense reference" in PROGRESS[0]
     assert all("time power" in line for line in PROGRESS[1 : 1 + powers])
     for line, row in zip(PROGRESS[1 + powers :], swept.table, strict=True):
-        assert line.startswith(f"sweep: {row.value}: keep rate ")
+        assert line.startswith(f"sweep: {row.label}: keep rate ")
     table = json.loads(json.dumps(swept.as_json(), allow_nan=False))
-    reflow_rows = 1 if swept_without_reflow(swept) else 2
+    reflow_rows = 1 if swept_without_reflow(swept) else 2 * len(TINY_PLAN.correction_steps)
     assert len(table["table"]) == len(swept.table) == 10 + reflow_rows
     assert len(table["time_power_table"]) == powers
     assert table["plan"]["reference_samples"] == 2000
@@ -443,7 +469,7 @@ def test_a_refused_reflowed_sampler_is_followed_by_the_next_costlier_one(
     assert (chosen.sampler.flow, chosen.sampler.steps) == ("reflow", 2)
     assert chosen.reasons[JUDGED] == "refused first, 1 reflowed steps: worse: 1 steps | serves"
     assert any("the judge refused 1 reflowed steps; sweeping (2,) again" in line for line in lines)
-    swept_again = [line for line in lines if line.startswith("sweep: 2:")]
+    swept_again = [line for line in lines if line.startswith("sweep: 2 at 3 DLS:")]
     assert len(swept_again) == 2  # the 2-step sampler, measured by both sweeps
 
     least["steps"] = 3  # every reflowed sampler refused: the incumbent serves
