@@ -136,7 +136,7 @@ from service.pipeline.sampling import sample_configurations
 from service.pipeline.targets import encode_target
 from service.pipeline.types import Query, SmmResult
 from training.defaults import CONNECTIVITY_REASON
-from training.evaluate.judge import JUDGED, judged_defaults
+from training.evaluate.judge import JUDGED, judged_defaults, unserved_reasons
 from training.evaluate.metrics import median_stage_ms
 from training.evaluate.quality import summarise_raw
 from training.evaluate.served import orientation_wxyz, stage_times_ms, with_defaults
@@ -411,6 +411,9 @@ class SweepResult:
     plan: SweepPlan
     reference_median_total_ms: float
     wall_time_s: float
+    # The defaults as each swept axis left them (the axes after it at their starting
+    # values): settings the sweep measured, the last one `defaults`.
+    steps: list[tuple[Axis, Defaults]] = field(default_factory=list)
 
     def as_json(self) -> dict[str, object]:
         return {
@@ -759,6 +762,7 @@ def sweep_defaults(
     ]
     measured: dict[Setting, Measures] = {}
     table: list[Candidate] = []
+    steps: list[tuple[Axis, Defaults]] = []
     reasons: dict[str, str] = {}
     chosen = Setting.of(manifest.defaults, redundancy)
     powers: list[TimePowerRow] = []
@@ -792,31 +796,18 @@ def sweep_defaults(
                 f"{joint_dls} DLS steps, chosen jointly with the sampler "
                 f"(reasons.{_REASON_KEY[axis]})"
             )
+        if axis == "sampler_steps":
+            reasons["sampler"] = f"{reasons['sampler']}. Time grid: {power_reason}"
+        if axis == "connectivity_step_rad":
+            reasons["connectivity"] = (
+                f"{connectivity_step_field(redundancy)} = {reasons['connectivity']}; the "
+                "other parameters from the per-r table of training/defaults.py: "
+                f"{CONNECTIVITY_REASON}"
+            )
         chosen = best.setting
-    if "sampler_steps" in axes:
-        reasons["sampler"] = f"{reasons['sampler']}. Time grid: {power_reason}"
-    if "connectivity_step_rad" in axes:
-        reasons["connectivity"] = (
-            f"{connectivity_step_field(redundancy)} = {reasons['connectivity']}; the other "
-            f"parameters from the per-r table of training/defaults.py: {CONNECTIVITY_REASON}"
-        )
-    defaults = Defaults.model_validate(
-        {
-            **manifest.defaults.model_dump(),
-            "num_samples": chosen.num_samples,
-            "sampler": chosen.sampler.model_dump(),
-            "correction_steps": chosen.correction_steps,
-            "connectivity": _connectivity(model, chosen).model_dump(),
-            # A judge's verdict (training/evaluate/judge.py) was on the defaults
-            # this sweep replaces: it does not carry over.
-            "reasons": {
-                **{k: v for k, v in manifest.defaults.reasons.items() if k != JUDGED},
-                **reasons,
-            },
-        }
-    )
+        steps.append((axis, _defaults(model, chosen, reasons)))
     return SweepResult(
-        defaults=defaults,
+        defaults=steps[-1][1],
         chosen=chosen,
         table=table,
         time_power_table=powers,
@@ -825,6 +816,24 @@ def sweep_defaults(
         plan=plan,
         reference_median_total_ms=float(np.median([r.total_ms for r in references])),
         wall_time_s=time.perf_counter() - start_s,
+        steps=steps,
+    )
+
+
+def _defaults(model: ServedModel, chosen: Setting, reasons: dict[str, str]) -> Defaults:
+    """The model's defaults with the swept values of `chosen` and the reasons so far."""
+    start = model.manifest.defaults
+    return Defaults.model_validate(
+        {
+            **start.model_dump(),
+            "num_samples": chosen.num_samples,
+            "sampler": chosen.sampler.model_dump(),
+            "correction_steps": chosen.correction_steps,
+            "connectivity": _connectivity(model, chosen).model_dump(),
+            # A judge's verdict (training/evaluate/judge.py) was on the defaults
+            # this sweep replaces: it does not carry over.
+            "reasons": {**{k: v for k, v in start.reasons.items() if k != JUDGED}, **reasons},
+        }
     )
 
 
@@ -840,37 +849,75 @@ def judged_sweep(
 ) -> Defaults:
     """The sweep's defaults (`first`: that sweep, already run with `plan`) if judged no
     worse than `incumbent` against the exact SMMs (training/evaluate/judge.py
-    `judged_defaults`), else the incumbent's.
+    `judged_defaults`), else the first judged no worse of the defaults as each earlier
+    axis left them, last axis first, else the incumbent's.
 
-    Where the judge refuses a reflowed sampler, the sweep runs again without the reflowed
-    step counts up to the refused one, so the next costlier reflowed sampler (or the base
-    flow) is swept and judged, until one serves or none is left: the sweep's 20 targets
-    rank the candidates by cost, and the judge's 220 decide how few reflowed steps serve
-    (the planar 3R's 1-step sampler merged two loops on one of them). Each refusal stays
-    in reasons["judged"] before the final verdict."""
+    Each of those is a setting the sweep measured (`SweepResult.steps`), changing fewer
+    of the served values, so one axis the judge refuses does not take the others' gains
+    with it: on the iiwa14 position model the num_samples axis, with no candidate within
+    every margin, fell back to 500 samples (coverage p95 1.75 vs 1.44 rad on the judge's
+    targets) and the judge refused the whole sweep with it.
+
+    Where the judge refuses the defaults as the reflowed sampler's axis left them with
+    k > 0 reflowed steps, the sweep runs again without the reflowed step counts up to k,
+    so the next costlier reflowed sampler (or the base flow) is swept and judged, until
+    one serves or none is left: the sweep's 20 targets rank the candidates by cost, and
+    the judge's 220 decide how few reflowed steps serve (the planar 3R's 1-step sampler
+    merged two loops on one of them). Every refusal stays in reasons["judged"] before the
+    final verdict."""
     refused: list[str] = []
     while True:
         swept = first or sweep_defaults(model, targets, seed, plan, progress, axes)
         first = None
-        judged = judged_defaults(model, swept.defaults, incumbent, progress)
-        served = judged.model_dump(exclude={"reasons"}) == swept.defaults.model_dump(
-            exclude={"reasons"}
-        )
-        steps = swept.chosen.reflow_steps
-        costlier = tuple(v for v in plan.reflow_steps if v > steps)
-        if served or not steps or "reflow_steps" not in axes or not costlier:
+        judged, reflow_refused = _judge_steps(model, swept, incumbent, progress, refused)
+        costlier = tuple(v for v in plan.reflow_steps if v > reflow_refused)
+        if judged is not None or not reflow_refused or not costlier:
             break
-        refused.append(f"{steps} reflowed steps: {judged.reasons[JUDGED]}")
-        progress(f"sweep: the judge refused {steps} reflowed steps; sweeping {costlier} again")
+        progress(
+            f"sweep: the judge refused {reflow_refused} reflowed steps; sweeping {costlier} again"
+        )
         plan = replace(plan, reflow_steps=tuple(v for v in plan.reflow_steps if v == 0) + costlier)
-    if not refused:
+    if judged is None:  # nothing the sweep measured serves: the incumbent does
+        unserved = unserved_reasons(swept.defaults, incumbent)
+        judged = incumbent.model_copy(update={"reasons": {**unserved, **incumbent.reasons}})
+        last = "so the incumbent defaults serve"
+    elif not refused:
         return judged
-    # Defaults equal to the incumbent's come back from judged_defaults with no verdict.
-    last = judged.reasons.get(
-        JUDGED, "what serves was not judged: the sweep kept the served values"
-    )
+    else:  # defaults equal to the incumbent's come back from judged_defaults unjudged
+        last = judged.reasons.get(
+            JUDGED, "what serves was not judged: the sweep kept the served values"
+        )
     verdict = " | ".join([*(f"refused first, {r}" for r in refused), last])
     return judged.model_copy(update={"reasons": {**judged.reasons, JUDGED: verdict}})
+
+
+def _judge_steps(
+    model: ServedModel,
+    swept: SweepResult,
+    incumbent: Defaults,
+    progress: Callable[[str], None],
+    refused: list[str],
+) -> tuple[Defaults | None, int]:
+    """The first of the sweep's steps, last first, that the judge lets serve (None if
+    none), and the reflowed step count whose refusal stopped the search (0 if none did);
+    each refusal is appended to `refused`."""
+    tried: list[dict[str, object]] = []
+    kept = incumbent.model_dump(exclude={"reasons"})
+    for axis, defaults in reversed(swept.steps):
+        values = defaults.model_dump(exclude={"reasons"})
+        if values in tried or (values == kept and tried):
+            continue  # judged already, or the incumbent itself after a refusal
+        tried.append(values)
+        judged = judged_defaults(model, defaults, incumbent, progress)
+        if judged.model_dump(exclude={"reasons"}) == values:
+            return judged, 0
+        reflowed = defaults.sampler.steps if defaults.sampler.flow == "reflow" else 0
+        if axis == "reflow_steps" and reflowed:
+            refused.append(f"{reflowed} reflowed steps: {judged.reasons[JUDGED]}")
+            return None, reflowed
+        refused.append(f"the sweep's defaults up to {axis}: {judged.reasons[JUDGED]}")
+        progress(f"sweep: the judge refused the sweep's defaults up to {axis}")
+    return None, 0
 
 
 def _candidates(plan: SweepPlan, axis: Axis, manifest: Manifest) -> tuple[float, ...]:
@@ -992,7 +1039,8 @@ def main() -> None:
     parser.add_argument(
         "--write", action="store_true",
         help="write the chosen defaults into the manifest if judged no worse than the "
-        "served ones against the exact SMMs (training/evaluate/judge.py), else keep those",
+        "served ones against the exact SMMs (training/evaluate/judge.py), else the first "
+        "judged no worse of the defaults as each earlier axis left them, else keep those",
     )  # fmt: skip
     args = parser.parse_args()
     axes = [axis.strip() for axis in args.axes.split(",") if axis.strip()]

@@ -500,6 +500,60 @@ def test_a_refused_reflowed_sampler_is_followed_by_the_next_costlier_one(
     )
 
 
+def test_a_refused_axis_leaves_the_earlier_axes_choices_to_be_judged(
+    planar: ServedModel, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # A verdict by rule refuses any change of num_samples (as the judge refused the iiwa
+    # position's fallback to 500): the sweep's defaults fall, and the defaults as the
+    # sampler's axis left them, a setting the sweep measured, are judged next and serve.
+    judged: list[int] = []
+
+    def verdict(
+        model: ServedModel, swept: Defaults, incumbent: Defaults, progress: object
+    ) -> Defaults:
+        judged.append(swept.num_samples)
+        if swept.num_samples != incumbent.num_samples or refuse_all:
+            reason = f"worse: {swept.num_samples} samples"
+            return incumbent.model_copy(update={"reasons": {**incumbent.reasons, JUDGED: reason}})
+        return swept.model_copy(update={"reasons": {**swept.reasons, JUDGED: "serves"}})
+
+    refuse_all = False
+    monkeypatch.setattr(sweep_module, "judged_defaults", verdict)
+    plan = replace(TINY_PLAN, reflow_steps=(0, 1))
+    axes: list[Axis] = ["reflow_steps", "num_samples"]
+    start = planar.manifest.defaults
+    # An incumbent no step of the sweep equals (its damping differs), so each is judged.
+    incumbent = start.model_copy(update={"damping": 2 * start.damping})
+    swept = sweep_defaults(planar, 1, SEED, plan, axes=axes)
+    assert [axis for axis, _ in swept.steps] == axes and swept.steps[-1][1] == swept.defaults
+    sampler_step = swept.steps[0][1]
+    assert sampler_step.num_samples == start.num_samples
+    assert (sampler_step.sampler, sampler_step.correction_steps) == (
+        swept.defaults.sampler,
+        swept.defaults.correction_steps,
+    )
+    assert start.num_samples not in plan.num_samples  # so the sweep changes it
+
+    chosen = judged_sweep(planar, 1, SEED, incumbent, plan, axes=axes, first=swept)
+    assert judged == [swept.defaults.num_samples, start.num_samples]
+    assert chosen.model_dump(exclude={"reasons"}) == sampler_step.model_dump(exclude={"reasons"})
+    assert chosen.reasons[JUDGED] == (
+        f"refused first, the sweep's defaults up to num_samples: worse: "
+        f"{swept.defaults.num_samples} samples | serves"
+    )
+    assert chosen.reasons["num_samples"] == start.reasons["num_samples"]
+    assert chosen.reasons["sampler_flow"] == sampler_step.reasons["sampler_flow"]
+
+    # Nothing the sweep measured serves: the incumbent does, every refusal quoted.
+    refuse_all = True
+    judged.clear()
+    kept = judged_sweep(planar, 1, SEED, incumbent, plan, axes=axes, first=swept)
+    assert kept.model_dump(exclude={"reasons"}) == incumbent.model_dump(exclude={"reasons"})
+    assert kept.reasons[JUDGED].startswith("refused first, the sweep's defaults up to num_samples")
+    assert kept.reasons[JUDGED].endswith(" | so the incumbent defaults serve")
+    assert kept.reasons[JUDGED].count("refused first") == len(judged) >= 2
+
+
 def test_a_new_model_id_starts_from_generic_defaults_by_redundancy() -> None:
     pose = TaskSpec(name="pose", position_axes=[0, 1, 2], orientation=True)
     curve = serving_defaults("arm7-pose", task=pose, redundancy=1)

@@ -234,15 +234,18 @@ def judged_defaults(
         f"{judgement.summary()}; incumbent {_rounded(judgement.incumbent)}, swept "
         f"{_rounded(judgement.candidate)}"
     )
-    # The sweep's measures of an axis the incumbent has no reason for (one it was never
-    # swept on, as the reflow's) stay, marked as not served.
-    unserved = {
+    reasons = {**unserved_reasons(swept, incumbent), **incumbent.reasons, JUDGED: reason}
+    return incumbent.model_copy(update={"reasons": reasons})
+
+
+def unserved_reasons(swept: Defaults, incumbent: Defaults) -> dict[str, str]:
+    """The sweep's measures of an axis the incumbent has no reason for (one it was never
+    swept on, as the reflow's), to stay beside the incumbent's, marked as not served."""
+    return {
         key: f"the sweep's choice, not served (reasons.judged): {text}"
         for key, text in swept.reasons.items()
         if key not in incumbent.reasons
     }
-    reasons = {**unserved, **incumbent.reasons, JUDGED: reason}
-    return incumbent.model_copy(update={"reasons": reasons})
 
 
 def _flat(values: dict[str, object], prefix: str = "") -> dict[str, object]:
