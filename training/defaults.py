@@ -7,12 +7,23 @@ model (`MEASURED_DEFAULTS`), else a generic one chosen by redundancy r and task
 then re-chooses sampler steps, DLS steps and num_samples by measurement and keeps the
 connectivity, damping and tolerances given here. `training.evaluate.planar3r` and
 `training.evaluate.iiwa14` re-measure the figures quoted in the bundled entries against
-their analytic ground truths.
+their analytic ground truths. `write_defaults` puts chosen defaults into a model's manifest
+(`python -m training.sweep --write`, `python -m training.evaluate.judge --write`).
 """
 
 from __future__ import annotations
 
-from service.manifest import ConnectivitySpec, Defaults, SamplerSpec, TaskSpec
+from pathlib import Path
+
+from service.manifest import (
+    MANIFEST_FILE,
+    ConnectivitySpec,
+    Defaults,
+    Manifest,
+    SamplerSpec,
+    TaskSpec,
+)
+from service.models.registry import load_model
 
 # Stage 5 (service/pipeline/connectivity.py). The tracing step h and seed spacing decide
 # how many lockstep continuation steps a 1-D fibre takes (about the largest gap between
@@ -188,3 +199,14 @@ def serving_defaults(
             f"{sorted(MEASURED_DEFAULTS)}); pass its task and redundancy for a generic start"
         )
     return starting_defaults(task, redundancy)
+
+
+def write_defaults(model_dir: Path, defaults: Defaults) -> Manifest:
+    """Replace the serving defaults in `model_dir`'s manifest (nothing else in it changes)
+    and check that the model still loads as the service loads it."""
+    path = model_dir / MANIFEST_FILE
+    manifest = Manifest.model_validate_json(path.read_bytes())
+    manifest = manifest.model_copy(update={"defaults": defaults})
+    path.write_text(manifest.model_dump_json(indent=2, exclude_unset=True) + "\n")
+    load_model(model_dir, threads=1)
+    return manifest

@@ -135,7 +135,7 @@ from service.pipeline.run import run
 from service.pipeline.sampling import sample_configurations
 from service.pipeline.targets import encode_target
 from service.pipeline.types import Query, SmmResult
-from training.defaults import CONNECTIVITY_REASON
+from training.defaults import CONNECTIVITY_REASON, write_defaults
 from training.evaluate.judge import JUDGED, judged_defaults, unserved_reasons
 from training.evaluate.metrics import median_stage_ms
 from training.evaluate.quality import summarise_raw
@@ -943,17 +943,6 @@ def _settings(plan: SweepPlan, axis: Axis, manifest: Manifest, chosen: Setting) 
         for value in values
         for dls in plan.correction_steps
     ]
-
-
-def write_defaults(model_dir: Path, defaults: Defaults) -> Manifest:
-    """Replace the serving defaults in `model_dir`'s manifest (nothing else in it changes)
-    and check that the model still loads as the service loads it."""
-    path = model_dir / MANIFEST_FILE
-    manifest = Manifest.model_validate_json(path.read_bytes())
-    manifest = manifest.model_copy(update={"defaults": defaults})
-    path.write_text(manifest.model_dump_json(indent=2, exclude_unset=True) + "\n")
-    load_model(model_dir, threads=1)
-    return manifest
 
 
 def _to_stderr(line: str) -> None:

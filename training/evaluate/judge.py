@@ -25,7 +25,12 @@ training/export.py `sweep_and_measure`) and `python -m training.sweep --write`.
 
 `python -m training.evaluate.judge --model <id> --candidate paper|<JSON>` judges the
 paper's configuration, or any change of the served defaults, against what serves,
-without writing anything but its `--out` record (`main`).
+writing nothing but its `--out` record (`main`); with `--write`, a candidate judged no
+worse replaces the served defaults (`served_candidate`). That is how a change the sweep
+cannot propose serves: the sweep's rule measures agreement with a dense answer of the
+same pipeline on 20 targets, a stand-in that counts as merges the components a sampler
+unlike the reference's joins where the reference splits them, while the judge measures
+against the exact SMMs on 220.
 """
 
 from __future__ import annotations
@@ -38,9 +43,10 @@ from pathlib import Path
 
 import numpy as np
 
-from service.manifest import REPO_MODELS_DIR, Defaults
+from service.manifest import MANIFEST_FILE, REPO_MODELS_DIR, Defaults
 from service.models.registry import ServedModel, load_model
 from service.pipeline.arrays import FloatArray
+from training.defaults import write_defaults
 from training.evaluate.methods import MethodTarget, served_target
 from training.evaluate.metrics import (
     component_agreement,
@@ -222,10 +228,7 @@ def judged_defaults(
         )
         return swept.model_copy(update={"reasons": {**swept.reasons, JUDGED: reason}})
     judgement = judge(served, swept, incumbent, progress=progress)
-    before, after = _flat(incumbent_values), _flat(swept_values)
-    changed = ", ".join(
-        f"{key} {before[key]} -> {after[key]}" for key in after if before[key] != after[key]
-    )
+    changed = _changes(incumbent, swept)
     if judgement.no_worse:
         reason = f"the sweep's change ({changed}) serves: {judgement.summary()}"
         return swept.model_copy(update={"reasons": {**swept.reasons, JUDGED: reason}})
@@ -246,6 +249,48 @@ def unserved_reasons(swept: Defaults, incumbent: Defaults) -> dict[str, str]:
         for key, text in swept.reasons.items()
         if key not in incumbent.reasons
     }
+
+
+# The reasons (Defaults.reasons keys) that explain each field of the defaults.
+_REASONS_OF_FIELD: dict[str, tuple[str, ...]] = {
+    "num_samples": ("num_samples",),
+    "sampler": ("sampler", "sampler_flow", "sampler_precision"),
+    "correction_steps": ("correction_steps",),
+    "damping": ("damping",),
+    "connectivity": ("connectivity",),
+    "tolerance_position_m": ("tolerance",),
+    "tolerance_orientation_rad": ("tolerance",),
+}
+
+
+def served_candidate(
+    incumbent: Defaults, candidate: Defaults, judgement: Judgement, proposal: str
+) -> Defaults:
+    """`candidate` as it serves once judged no worse than `incumbent`: the verdict in
+    reasons["judged"], and each reason of a changed field marked as set by it (the
+    measures it quoted kept after the mark). `proposal` says where the candidate came from."""
+    if not judgement.no_worse:
+        raise ValueError(f"a candidate judged worse does not serve: {judgement.summary()}")
+    before, after = incumbent.model_dump(), candidate.model_dump()
+    marked = {
+        key: f"set by the judged candidate (reasons.{JUDGED}), not by this rule: "
+        + incumbent.reasons.get(key, "no reason before")
+        for field, keys in _REASONS_OF_FIELD.items()
+        if before[field] != after[field]
+        for key in keys
+    }
+    changed = _changes(incumbent, candidate)
+    verdict = f"{proposal}, changing {changed}, serves: {judgement.summary()}"
+    reasons = {**incumbent.reasons, **marked, JUDGED: verdict}
+    return candidate.model_copy(update={"reasons": reasons})
+
+
+def _changes(before: Defaults, after: Defaults) -> str:
+    """The changed values, "key old -> new" with dotted keys."""
+    old = _flat(before.model_dump(exclude={"reasons"}))
+    new = _flat(after.model_dump(exclude={"reasons"}))
+    changes = [f"{key} {old[key]} -> {new[key]}" for key in new if old[key] != new[key]]
+    return ", ".join(changes) or "nothing"
 
 
 def _flat(values: dict[str, object], prefix: str = "") -> dict[str, object]:
@@ -308,8 +353,16 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seed", type=int, default=REPORT_SEED)
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--out", type=Path, help="write the judgement as JSON here")
+    parser.add_argument(
+        "--write", action="store_true",
+        help="serve the candidate (write it into the model's manifest) if judged no worse",
+    )  # fmt: skip
+    parser.add_argument("--models-dir", type=Path, default=REPO_MODELS_DIR)
     args = parser.parse_args(argv)
-    model = load_model(REPO_MODELS_DIR / args.model, threads=args.threads)
+    if args.write and args.num_samples is not None:
+        parser.error("--write serves the candidate as given: leave out --num-samples")
+    model_dir = args.models_dir / args.model
+    model = load_model(model_dir, threads=args.threads)
     incumbent = model.manifest.defaults
     try:
         candidate = candidate_defaults(incumbent, args.candidate)
@@ -335,6 +388,15 @@ def main(argv: list[str] | None = None) -> None:
     if args.out:
         args.out.write_text(text + "\n")
     print(text)
+    if args.write:
+        if not judgement.no_worse:
+            raise SystemExit(f"not written: {judgement.summary()}")
+        proposal = (
+            f"the candidate {args.candidate} (python -m training.evaluate.judge --model "
+            f"{args.model} --candidate '{args.candidate}' --write)"
+        )
+        write_defaults(model_dir, served_candidate(incumbent, candidate, judgement, proposal))
+        print(f"written to {model_dir / MANIFEST_FILE}", flush=True)
 
 
 if __name__ == "__main__":

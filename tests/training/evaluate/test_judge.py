@@ -13,9 +13,13 @@
 - The CLI judges the paper's configuration (100 float32 Euler steps, 3 DLS, the rest
   served) or a JSON change of the served defaults; anything else is refused, naming both
   forms; its JSON record holds both defaults, both sets of figures and the verdict.
+- A candidate judged no worse serves with the verdict in its reasons and each reason of a
+  field it changed marked as set by it; one judged worse cannot. `--write` writes only a
+  candidate judged no worse, into the manifest of the model it judged.
 """
 
 import json
+import shutil
 from dataclasses import replace
 from functools import partial
 from pathlib import Path
@@ -23,6 +27,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from service.manifest import MANIFEST_FILE, REPO_MODELS_DIR, Manifest
 from service.models.registry import ServedModel
 from training.evaluate import judge as judging
 from training.evaluate.references.planar3r import planar3r_position
@@ -131,3 +136,56 @@ def test_the_cli_judges_the_paper_configuration_or_a_json_change(
     assert (record["targets"], record["near_singular_targets"]) == (6, 2)
     assert any(w.startswith("count right") for w in record["worse"])
     assert record["verdict"].startswith("worse than the incumbent on 6 report targets")
+
+
+def test_a_candidate_judged_no_worse_serves_marking_what_it_changed(
+    planar3r: ServedModel, tmp_path: Path
+) -> None:
+    served = planar3r.manifest.defaults
+    candidate = judging.candidate_defaults(served, '{"correction_steps": 10}')
+    no_worse = judging.Judgement(
+        targets=6, near_singular_targets=2, seed=7, candidate={"count_right": 1.0},
+        incumbent={"count_right": 1.0}, worse=[],
+    )  # fmt: skip
+    serving = judging.served_candidate(served, candidate, no_worse, "the candidate X")
+    assert serving.model_dump(exclude={"reasons"}) == candidate.model_dump(exclude={"reasons"})
+    assert serving.reasons["correction_steps"] == (
+        "set by the judged candidate (reasons.judged), not by this rule: "
+        + served.reasons["correction_steps"]
+    )
+    unchanged = set(served.reasons) - {"correction_steps", judging.JUDGED}
+    assert {key: serving.reasons[key] for key in unchanged} == {
+        key: served.reasons[key] for key in unchanged
+    }
+    assert serving.reasons[judging.JUDGED] == (
+        f"the candidate X, changing correction_steps {served.correction_steps} -> 10, serves: "
+        "no worse than the incumbent on 6 report targets (seed 7) and 2 near-singular ones "
+        "against the exact SMMs"
+    )
+    with pytest.raises(ValueError, match="judged worse does not serve"):
+        judging.served_candidate(served, candidate, replace(no_worse, worse=["count right"]), "X")
+
+    # The CLI writes only a candidate judged no worse, into the model it judged.
+    models = tmp_path / "models"
+    for part in ("planar3r-position", "robots"):  # the model and the URDF it names
+        shutil.copytree(REPO_MODELS_DIR / part, models / part)
+    manifest = models / "planar3r-position" / MANIFEST_FILE
+    before = manifest.read_text()
+    small = ["--model", "planar3r-position", "--targets", "4", "--near-singular", "1",
+             "--models-dir", str(models), "--write"]  # fmt: skip
+    with pytest.raises(SystemExit, match="not written: worse than the incumbent"):
+        judging.main([*small, "--candidate", '{"num_samples": 1}'])
+    assert manifest.read_text() == before
+    with pytest.raises(SystemExit):  # the candidate serves as given, at its own N
+        judging.main([*small, "--candidate", '{"num_samples": 1}', "--num-samples", "10"])
+    same = f'{{"correction_steps": {served.correction_steps}}}'  # what serves: no worse
+    judging.main([*small, "--candidate", same])
+    written = Manifest.model_validate_json(manifest.read_text()).defaults
+    assert written.model_dump(exclude={"reasons"}) == served.model_dump(exclude={"reasons"})
+    assert written.reasons[judging.JUDGED].startswith(
+        f"the candidate {same} (python -m training.evaluate.judge --model planar3r-position "
+        f"--candidate '{same}' --write), changing nothing, serves: no worse"
+    )
+    assert (REPO_MODELS_DIR / "planar3r-position" / MANIFEST_FILE).read_text() != (
+        manifest.read_text()
+    )  # the bundled model untouched
