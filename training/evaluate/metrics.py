@@ -89,13 +89,13 @@ def counted_components(truth: Truth) -> BoolArray:
 
 def exact_labels(returned: FloatArray, truth: Truth) -> np.ndarray:
     """(K,) the exact component of each returned configuration: that of its nearest exact
-    point on the membership joints (iiwa: no periodic joint, Euclidean)."""
-    assert truth.point_component is not None
+    label point on the membership joints (iiwa: no periodic joint, Euclidean;
+    `Truth.labelling`: every node of the 4-D reference, the points otherwise)."""
     if not len(returned):
         return np.zeros(0, int)
-    n = truth.membership_joints
-    nearest = cKDTree(truth.points[:, :n]).query(returned[:, :n])[1]
-    return np.asarray(truth.point_component[nearest])
+    points, component = truth.labelling()
+    nearest = cKDTree(points).query(returned[:, : truth.membership_joints])[1]
+    return np.asarray(component[nearest])
 
 
 def component_agreement(answer: MethodTarget, truth: Truth) -> Agreement | None:

@@ -32,6 +32,17 @@ class Truth:
     size_edges: tuple[float, ...] = ARC_BUCKETS_RAD
     # Joints that decide membership: the 4-D fibre is q1..q6's fibre times any q7.
     membership_joints: int = 7  # the first this many joints
+    # Where given, the exact component of a configuration is that of its nearest label
+    # point (the 4-D reference's every node, denser than `points`), else of `points`.
+    label_points: np.ndarray | None = None  # (L, membership_joints)
+    label_component: np.ndarray | None = None  # (L,)
+
+    def labelling(self) -> tuple[np.ndarray, np.ndarray]:
+        """The points (on the membership joints) and components that label configurations."""
+        if self.label_points is not None and self.label_component is not None:
+            return self.label_points, self.label_component
+        assert self.point_component is not None
+        return self.points[:, : self.membership_joints], self.point_component
 
 
 class _Arc(Protocol):
@@ -89,4 +100,5 @@ def ground_truth(model: SmmModel, q_target: np.ndarray, seed: int) -> Truth:
     return Truth(
         points=fibre.q_rad, count=fibre.count, point_component=fibre.component,
         size=fibre.share, size_edges=SHARE_BUCKETS, membership_joints=6,
+        label_points=fibre.node_q6_rad, label_component=fibre.node_component,
     )  # fmt: skip

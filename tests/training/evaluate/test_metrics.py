@@ -6,7 +6,8 @@ the reach and of pi) with mm and degrees beside them; stage medians and 95th per
 are per span; recall by size counts the exact components that hold a returned
 configuration; splits, merges and extra-small components are counted as
 COUNT_RIGHT_DEFINITION says (only exact components of at least 1 % of a 4-D fibre count),
-and count right needs the count, no split and no merge; the wrong-count list names the
+each configuration in the component of its nearest label node where the 4-D reference
+gives its every node (else of its nearest exact point), and count right needs the count, no split and no merge; the wrong-count list names the
 targets whose count is not right; the summary checks the returned paths; the iiwa pose
 matcher recognises exact, merged, split and missed components on answers built from the
 ground truth itself, path points included.
@@ -36,6 +37,7 @@ from training.evaluate.metrics import (
     Agreement,
     component_agreement,
     errors_in_units,
+    exact_labels,
     match_components,
     median_stage_ms,
     missed_components,
@@ -324,3 +326,23 @@ def test_regular_targets_leave_out_the_ones_flagged_near_singular() -> None:
         "targets": 2, "count_right": 0.5, "splits_per_target": 0.5, "merges_per_target": 0.0
     }  # fmt: skip
     assert regular_targets([merged_flagged], [FOUR_D]) is None
+
+
+def test_a_configuration_takes_the_component_of_its_nearest_label_node_where_nodes_exist() -> None:
+    # Two 4-D components drawn sparsely: a configuration of component 0 that lies
+    # between draws is nearer a draw of component 1 (0.5 against 0.6 rad), but the
+    # reference's every node of component 0 passes 0.01 rad from it.
+    points = np.zeros((2, 7))
+    points[0, 0], points[1, 0] = -0.6, 0.5
+    truth = Truth(
+        points=points, count=2, point_component=np.array([0, 1]), size=np.array([0.5, 0.5]),
+        size_edges=SHARE_BUCKETS, membership_joints=6,
+    )  # fmt: skip
+    q = np.zeros((1, 7))
+    q[0, 6] = 3.0  # q7 does not decide membership
+    assert exact_labels(q, truth).tolist() == [1]  # by the drawn points alone
+    nodes = np.zeros((3, 6), np.float32)
+    nodes[:, 0] = [-0.6, 0.01, 0.5]
+    labelled = replace(truth, label_points=nodes, label_component=np.array([0, 0, 1]))
+    assert exact_labels(q, labelled).tolist() == [0]
+    assert exact_labels(np.zeros((0, 7)), labelled).tolist() == []

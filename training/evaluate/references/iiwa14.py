@@ -22,7 +22,7 @@ frame 2, E->W is z_4 = (-c3 s4, -s3 s4, c4); and R_47 = R_04^T R has third colum
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.sparse import coo_matrix
@@ -293,6 +293,13 @@ class PositionSmm:
     component: np.ndarray  # (P,) component of each point
     share: np.ndarray  # (C,) fraction of the fibre in each component, all components
     spacing_rad: float  # grid step of the parametrisation (direction and psi)
+    # Every in-limit node (q1..q6, float32) and its component: the densest labelling the
+    # reference has, for the exact component of any configuration on the fibre. The
+    # P drawn points alone are up to ~0.7 rad apart in q1..q6 where the IK's gain is
+    # large (next to a singular set, where components come close): labelled by them, one
+    # configuration of a component took a neighbour's label, a merge that was not.
+    node_q6_rad: np.ndarray = field(default_factory=lambda: np.zeros((0, 6), np.float32))
+    node_component: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
 
     @property
     def count(self) -> int:
@@ -398,6 +405,8 @@ def position_smm(
         component[drawn],
         share,
         spacing_rad,
+        points6.astype(np.float32),
+        component,
     )
 
 

@@ -373,8 +373,9 @@ def position_smm(
     drawn = rng.choice(len(q6), size=num_points)
     q7 = rng.uniform(LOWER_RAD[6], UPPER_RAD[6], num_points)
     return PositionSmm(
-        np.concatenate([q6[drawn], q7[:, None]], axis=1), component[drawn], share, spacing_rad
-    )
+        np.concatenate([q6[drawn], q7[:, None]], axis=1), component[drawn], share, spacing_rad,
+        q6.astype(np.float32), component,
+    )  # fmt: skip
 
 
 # The walk that joins two pieces of the 4-D reference (the projected local planner of

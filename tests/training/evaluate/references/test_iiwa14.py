@@ -116,6 +116,13 @@ def test_position_smm_points_are_exact_feasible_and_q7_does_not_move_the_positio
         np.testing.assert_allclose(iiwa14_pose(turned[None])[0, :3, 3], pose[:3, 3], atol=1e-12)
         # The generating configuration's q1..q6 lies among the fibre's points.
         assert np.linalg.norm(fibre.q_rad[:, :6] - q_target[:6], axis=1).min() < 0.5
+        # The label nodes: every drawn point is a node, with the node's component, and
+        # the nodes are exact too.
+        nodes = np.concatenate([fibre.node_q6_rad, np.zeros((len(fibre.node_q6_rad), 1))], 1)
+        assert np.abs(iiwa14_pose(nodes)[:, :3, 3] - pose[:3, 3]).max() < 1e-5  # float32
+        distance, node = cKDTree(fibre.node_q6_rad).query(fibre.q_rad[:, :6])
+        assert distance.max() < 1e-6
+        np.testing.assert_array_equal(fibre.node_component[node], fibre.component)
 
 
 def _walk_on_position_fibre(q_start: np.ndarray, steps: int, seed: int) -> np.ndarray:

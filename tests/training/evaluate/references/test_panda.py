@@ -242,6 +242,13 @@ def test_position_smm_points_are_exact_and_hold_the_target(
         assert fibre.count >= 1 and fibre.share.sum() == pytest.approx(1.0)
         # Its q1..q6 within the grid's link radius (4.5 x 0.079 rad) of a drawn point.
         assert np.linalg.norm(fibre.q_rad[:, :6] - q_target[:6], axis=1).min() < 0.36
+        # The label nodes: every drawn point is a node, with the node's component, and
+        # the nodes (float32) hold the target too.
+        nodes = np.concatenate([fibre.node_q6_rad, np.zeros((len(fibre.node_q6_rad), 1))], 1)
+        assert np.abs(chain.pose(nodes)[:, :3, 3] - position).max() < 1e-5
+        distance, node = cKDTree(fibre.node_q6_rad).query(fibre.q_rad[:, :6])
+        assert distance.max() < 1e-6
+        np.testing.assert_array_equal(fibre.node_component[node], fibre.component)
 
 
 def _walk_on_position_fibre(
