@@ -5,12 +5,13 @@ seam of a periodic joint and not of a limited one; errors are in the paper's uni
 the reach and of pi) with mm and degrees beside them; stage medians and 95th percentiles
 are per span; recall by size counts the exact components that hold a returned
 configuration; splits, merges and extra-small components are counted as
-COUNT_RIGHT_DEFINITION says (only exact components of at least 1 % of a 4-D fibre count),
-each configuration in the component of its nearest label node where the 4-D reference
-gives its every node (else of its nearest exact point), and count right needs the count, no split and no merge; the wrong-count list names the
-targets whose count is not right; the summary checks the returned paths; the iiwa pose
-matcher recognises exact, merged, split and missed components on answers built from the
-ground truth itself, path points included.
+COUNT_RIGHT_DEFINITION says (only exact components of at least 1 % of a 4-D fibre
+count), each configuration in the component of its nearest label node where the 4-D
+reference gives its every node (else of its nearest exact point), and count right needs
+the count, no split and no merge; the wrong-count list names the targets whose count is
+not right; the summary checks the returned paths; the iiwa pose matcher recognises
+exact, merged, split and missed components on answers built from the ground truth
+itself, path points included.
 """
 
 from __future__ import annotations
