@@ -461,6 +461,16 @@ def test_a_refused_reflowed_sampler_is_followed_by_the_next_costlier_one(
         return swept.model_copy(update={"reasons": {**swept.reasons, JUDGED: "serves"}})
 
     monkeypatch.setattr(sweep_module, "judged_defaults", verdict)
+    # The reflowed pairs are ordered by measured time, which on one target can put 2 steps
+    # before 1; here the order is network evaluations, then DLS steps, so that each sweep
+    # picks the same way and what is checked is the descent alone.
+    by_evaluations = property(
+        lambda row: (
+            (row.setting.reflow_steps or row.setting.sampler_steps)
+            + 0.01 * row.setting.correction_steps
+        )
+    )
+    monkeypatch.setattr(sweep_module.Candidate, "cost", by_evaluations)
     plan = replace(TINY_PLAN, sampler_steps=(20,), reflow_steps=(0, 1, 2))
     incumbent = planar.manifest.defaults
     lines: list[str] = []
