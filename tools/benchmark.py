@@ -35,7 +35,7 @@ import json
 import sys
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import httpx
@@ -49,7 +49,7 @@ from tools.local_server import LocalServer
 from training.evaluate.judge import figures, paper_defaults, worse_than
 from training.evaluate.methods import MethodTarget, restart_target, served_target
 from training.evaluate.metrics import median_stage_ms, p95_stage_ms
-from training.evaluate.served import orientation_wxyz, with_defaults
+from training.evaluate.served import orientation_wxyz, serving, with_defaults
 from training.evaluate.targets import uniform_configurations
 from training.evaluate.truth import ground_truth
 from training.export import git_commit
@@ -166,9 +166,7 @@ def benchmark_model(
     lower, upper, _ = manifest.joints.arrays()
     q_targets = uniform_configurations(lower, upper, num_targets, seed)
     truths = [ground_truth(model, q, seed + i) for i, q in enumerate(q_targets)]
-    paper = replace(
-        model, manifest=manifest.model_copy(update={"defaults": paper_defaults(manifest.defaults)})
-    )
+    paper = serving(model, paper_defaults(manifest.defaults))
     sampler = manifest.defaults.sampler
     float32 = with_defaults(model, sampler=sampler.model_copy(update={"precision": "float32"}))
     base = None  # what the reflow alone changes: the base sampler it replaced

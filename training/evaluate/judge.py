@@ -38,7 +38,7 @@ from __future__ import annotations
 import argparse
 import json
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
@@ -55,6 +55,7 @@ from training.evaluate.metrics import (
     nearest_distance,
 )
 from training.evaluate.quality import PAPER_SAMPLER
+from training.evaluate.served import serving
 from training.evaluate.targets import uniform_configurations
 from training.evaluate.truth import REFERENCES, Truth, ground_truth
 
@@ -191,7 +192,7 @@ def judge(
     truths = [ground_truth(model, q, seed + i) for i, q in enumerate(q_targets)]
     measured = {}
     for name, defaults in (("candidate", candidate), ("incumbent", incumbent)):
-        served = replace(model, manifest=model.manifest.model_copy(update={"defaults": defaults}))
+        served = serving(model, defaults)
         progress(f"judge: {name} on {len(q_targets)} targets")
         answers = [
             served_target(served, q, defaults.num_samples, seed=i) for i, q in enumerate(q_targets)

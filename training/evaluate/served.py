@@ -8,15 +8,20 @@ from dataclasses import replace
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from service.manifest import Defaults
 from service.models.registry import ServedModel
 from service.pipeline.arrays import FloatArray
 from service.pipeline.types import SmmResult
 
 
+def serving(model: ServedModel, defaults: Defaults) -> ServedModel:
+    """The same model serving `defaults` (for measuring candidates)."""
+    return replace(model, manifest=model.manifest.model_copy(update={"defaults": defaults}))
+
+
 def with_defaults(model: ServedModel, **changes: object) -> ServedModel:
     """The same model with some serving defaults changed (for measuring candidates)."""
-    defaults = model.manifest.defaults.model_copy(update=changes)
-    return replace(model, manifest=model.manifest.model_copy(update={"defaults": defaults}))
+    return serving(model, model.manifest.defaults.model_copy(update=changes))
 
 
 def returned_configurations(
