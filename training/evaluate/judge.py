@@ -26,7 +26,10 @@ training/export.py `sweep_and_measure`) and `python -m training.sweep --write`.
 `python -m training.evaluate.judge --model <id> --candidate paper|<JSON>` judges the
 paper's configuration, or any change of the served defaults, against what serves,
 writing nothing but its `--out` record (`main`); with `--write`, a candidate judged no
-worse replaces the served defaults (`served_candidate`). That is how a change the sweep
+worse replaces the served defaults (`served_candidate`). `--candidate-model-dir <dir>`
+judges another trained network of the same robot and task (`smm-train --models-dir`, a
+narrower one, say) at its own defaults against the served one; it serves by replacing
+the model directory, which the judge does not do. That is how a change the sweep
 cannot propose serves: the sweep's rule measures agreement with a dense answer of the
 same pipeline on 20 targets, a stand-in that counts as merges the components a sampler
 unlike the reference's joins where the reference splits them, while the judge measures
@@ -179,9 +182,16 @@ def judge(
     near_singular: int = NEAR_SINGULAR,
     seed: int = REPORT_SEED,
     progress: Callable[[str], None] = lambda line: None,
+    candidate_model: ServedModel | None = None,
 ) -> Judgement:
     """Both defaults on the same targets and seeds, measured against the exact SMMs
-    (`ground_truth` refuses a robot without a reference, naming those with one)."""
+    (`ground_truth` refuses a robot without a reference, naming those with one).
+
+    `candidate_model`: another trained network for the same robot and task (a narrower
+    one, say) that answers with `candidate`; None: `model`'s own network answers both.
+    """
+    if candidate_model is not None:
+        check_same_problem(candidate_model, model)
     lower, upper, _ = model.manifest.joints.arrays()
     q_targets = np.concatenate(
         [
@@ -191,8 +201,9 @@ def judge(
     )
     truths = [ground_truth(model, q, seed + i) for i, q in enumerate(q_targets)]
     measured = {}
+    networks = {"candidate": candidate_model or model, "incumbent": model}
     for name, defaults in (("candidate", candidate), ("incumbent", incumbent)):
-        served = serving(model, defaults)
+        served = serving(networks[name], defaults)
         progress(f"judge: {name} on {len(q_targets)} targets")
         answers = [
             served_target(served, q, defaults.num_samples, seed=i) for i, q in enumerate(q_targets)
@@ -206,6 +217,19 @@ def judge(
         incumbent=measured["incumbent"],
         worse=worse_than(measured["candidate"], measured["incumbent"], COVERAGE_MARGIN),
     )
+
+
+def check_same_problem(candidate: ServedModel, model: ServedModel) -> None:
+    """Raise ValueError unless `candidate` answers `model`'s problem: the same robot, task
+    and joints (names and limits), so that both answer the same targets."""
+    ours, theirs = model.manifest, candidate.manifest
+    for field in ("robot", "task", "joints"):
+        if getattr(ours, field) != getattr(theirs, field):
+            raise ValueError(
+                f"the candidate model {theirs.model_id} differs from {ours.model_id} in "
+                f"{field}: {getattr(theirs, field)} against {getattr(ours, field)}; a "
+                "candidate network must share robot, task and joints"
+            )
 
 
 def judged_defaults(
@@ -342,10 +366,18 @@ def main(argv: list[str] | None = None) -> None:
     python -m training.evaluate.judge --model iiwa14-pose --candidate paper --num-samples 1000
     python -m training.evaluate.judge --model planar3r-position \\
         --candidate '{"sampler": {"flow": "reflow", "steps": 2, "time_power": 1.0}}'
+    python -m training.evaluate.judge --model planar3r-position \\
+        --candidate-model-dir /tmp/narrow/models/planar3r-position
     """
     parser = argparse.ArgumentParser(description=main.__doc__)
     parser.add_argument("--model", required=True, help="a model id under models/")
-    parser.add_argument("--candidate", required=True, help="paper, or a JSON object")
+    which = parser.add_mutually_exclusive_group(required=True)
+    which.add_argument("--candidate", help="paper, or a JSON object")
+    which.add_argument(
+        "--candidate-model-dir", type=Path,
+        help="another trained model directory of the same robot and task (smm-train "
+        "--models-dir), at its own defaults: judges its network against the served one",
+    )  # fmt: skip
     parser.add_argument(
         "--num-samples", type=int, help="both at this num_samples (default: each its own)"
     )
@@ -362,11 +394,22 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     if args.write and args.num_samples is not None:
         parser.error("--write serves the candidate as given: leave out --num-samples")
+    if args.write and args.candidate_model_dir is not None:
+        parser.error(
+            "--write changes the served defaults; a candidate network serves by replacing "
+            "the model directory (see the README's Models section)"
+        )
     model_dir = args.models_dir / args.model
     model = load_model(model_dir, threads=args.threads)
     incumbent = model.manifest.defaults
+    candidate_model = None
     try:
-        candidate = candidate_defaults(incumbent, args.candidate)
+        if args.candidate_model_dir is not None:
+            candidate_model = load_model(args.candidate_model_dir, threads=args.threads)
+            check_same_problem(candidate_model, model)
+            candidate = candidate_model.manifest.defaults
+        else:
+            candidate = candidate_defaults(incumbent, args.candidate)
     except ValueError as error:
         parser.error(str(error))
     if args.num_samples is not None:
@@ -374,11 +417,12 @@ def main(argv: list[str] | None = None) -> None:
         candidate = candidate.model_copy(update={"num_samples": args.num_samples})
     judgement = judge(
         model, candidate, incumbent, args.targets, args.near_singular, args.seed,
-        progress=lambda line: print(line, flush=True),
+        progress=lambda line: print(line, flush=True), candidate_model=candidate_model,
     )  # fmt: skip
     record = {
         "model": args.model,
         "candidate": args.candidate,
+        "candidate_model": None if candidate_model is None else candidate_model.reference,
         "num_samples": args.num_samples,
         "candidate_defaults": candidate.model_dump(exclude={"reasons"}),
         "incumbent_defaults": incumbent.model_dump(exclude={"reasons"}),

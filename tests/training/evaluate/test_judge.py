@@ -13,6 +13,11 @@
 - The CLI judges the paper's configuration (100 float32 Euler steps, 3 DLS, the rest
   served) or a JSON change of the served defaults; anything else is refused, naming both
   forms; its JSON record holds both defaults, both sets of figures and the verdict.
+- A candidate network (another trained model of the same robot and task) is judged at
+  its own defaults against the served network: the served network itself is no worse,
+  with equal figures; a network whose velocity drives every sample to one point is worse
+  on count right; a model of another robot is refused, naming the field; the CLI takes
+  the directory and will not `--write` it.
 - A candidate judged no worse serves with the verdict in its reasons and each reason of a
   field it changed marked as set by it; one judged worse cannot. `--write` writes only a
   candidate judged no worse, into the manifest of the model it judged.
@@ -189,3 +194,39 @@ def test_a_candidate_judged_no_worse_serves_marking_what_it_changed(
     assert (REPO_MODELS_DIR / "planar3r-position" / MANIFEST_FILE).read_text() != (
         manifest.read_text()
     )  # the bundled model untouched
+
+
+class _Collapsing:
+    """A velocity field that drives every sample to the same corner of the envelope."""
+
+    def __call__(self, q_t: np.ndarray, t: np.ndarray, condition: np.ndarray) -> np.ndarray:
+        return np.full_like(q_t, 50.0)
+
+
+def test_a_candidate_network_is_judged_at_its_own_defaults(
+    planar3r: ServedModel, iiwa14_pose_model: ServedModel, tmp_path: Path
+) -> None:
+    served = planar3r.manifest.defaults
+    same = SMALL(planar3r, served, served, candidate_model=planar3r)
+    assert same.no_worse and same.candidate == same.incumbent
+    collapsing = replace(
+        planar3r,
+        networks={name: _Collapsing() for name in planar3r.networks},  # type: ignore[misc]
+    )
+    collapsed = SMALL(planar3r, served, served, candidate_model=collapsing)
+    assert any(w.startswith("count right") for w in collapsed.worse)
+    with pytest.raises(ValueError, match="differs from planar3r-position in robot"):
+        judging.check_same_problem(iiwa14_pose_model, planar3r)
+
+    models = tmp_path / "models"
+    for part in ("planar3r-position", "robots"):
+        shutil.copytree(REPO_MODELS_DIR / part, models / part)
+    out = tmp_path / "judgement.json"
+    small = ["--model", "planar3r-position", "--targets", "3", "--near-singular", "1"]
+    judging.main([*small, "--candidate-model-dir", str(models / "planar3r-position"),
+                  "--out", str(out)])  # fmt: skip
+    record = json.loads(out.read_text())
+    assert record["candidate_model"] == planar3r.reference and record["worse"] == []
+    with pytest.raises(SystemExit):
+        judging.main([*small, "--candidate-model-dir", str(models / "planar3r-position"),
+                      "--write"])  # fmt: skip
