@@ -370,12 +370,45 @@ def _batch(batch: dict, ahead: dict | None) -> list[str]:
     return [
         *lines,
         "",
+        *batch_profile(batch),
+        "",
         "The batch answers each target with the same stages a single request runs "
         "(`service/pipeline/batch.py` says why the network is not called on all targets' "
         "samples at once: the cost per row does not fall past ~50 rows, and the int8 "
         "network's per-call activation scale would change the answers), so it saves the "
         "per-request HTTP, validation and JSON round trips, not the computation; on two "
         "cores, sampling ahead on the second can at most halve the time.",
+    ]
+
+
+BATCH_STAGES = ("sample", "correct", "connect", "summarise")
+
+
+def batch_profile(batch: dict) -> list[str]:
+    """Where the default batch's time goes, per target, and what the network and the
+    transport alone leave for the goal: the server's stage totals (median over the
+    rounds), and the client's wall time less the server's total (HTTP, validation, JSON
+    at both ends)."""
+    targets, server = batch["targets"], batch["server_batch_median_ms"]
+    per_target = {stage: server.get(stage, 0.0) / targets for stage in BATCH_STAGES}
+    outside = max(batch["batch_median_ms"] - server["total"], 0.0) / targets
+    singles = batch["singles_median_ms"] / targets
+    floor = per_target["sample"] + outside
+    return [
+        "Where the default batch's time goes, ms per target (the server's stages; outside: "
+        "the client's wall time less the server's total, i.e. HTTP, validation and JSON at "
+        "both ends):",
+        "",
+        "| singles | batch | " + " | ".join(BATCH_STAGES) + " | outside |",
+        "|---|---|" + "---|" * (len(BATCH_STAGES) + 1),
+        f"| {singles:.1f} | {batch['batch_median_ms'] / targets:.1f} | "
+        + " | ".join(f"{per_target[stage]:.1f}" for stage in BATCH_STAGES)
+        + f" | {outside:.1f} |",
+        "",
+        f"Even with correction, connection and summaries free, the batch would take the "
+        f"sampling and what lies outside the pipeline, {floor:.1f} ms per target: at most "
+        f"{singles / floor:.1f}x the singles (goal {BATCH_GOAL_X:g}x). The rest of the "
+        "goal needs a cheaper network evaluation or answer transport, not only batching.",
     ]
 
 

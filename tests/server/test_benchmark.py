@@ -4,7 +4,8 @@ one), over HTTP too, whose figures
 are the evaluation's (planar 3R: the count against the closed form); random-restart DLS is
 run to at least the service's number of valid configurations per target; a batch of
 targets against its single requests, with identical answers, in the same report (when a
-figure is worse: tests/training/evaluate/test_judge.py)."""
+figure is worse: tests/training/evaluate/test_judge.py), with where the batch's time goes
+per target and the ratio its sampling and transport alone leave."""
 
 import json
 import subprocess
@@ -15,7 +16,15 @@ import numpy as np
 import pytest
 
 from service.models.registry import ServedModel
-from tools.benchmark import BASE, FLOAT32, PAPER, RESTART, SERVICE, restarts_to_match
+from tools.benchmark import (
+    BASE,
+    FLOAT32,
+    PAPER,
+    RESTART,
+    SERVICE,
+    batch_profile,
+    restarts_to_match,
+)
 from training.evaluate.targets import uniform_configurations
 from training.export import git_commit
 
@@ -62,6 +71,20 @@ def test_the_command_writes_every_configuration_and_size(tmp_path: Path) -> None
         )
     assert text.count("| default (`SMM_BATCH_SAMPLING_THREADS=0`) |") == 1
     assert text.count("| sampling ahead on the other core") == 1
+    assert text.count("Where the default batch's time goes") == 1
+
+
+def test_thebatch_profile_is_per_target_with_the_floor_of_sampling_and_transport() -> None:
+    batch = {
+        "targets": 4, "batch_median_ms": 80.0, "singles_median_ms": 240.0,
+        "server_batch_median_ms": {"sample": 40.0, "correct": 8.0, "connect": 12.0,
+                                   "summarise": 4.0, "total": 64.0},
+    }  # fmt: skip
+    lines = batch_profile(batch)
+    # per target: singles 60, batch 20, stages 10 / 2 / 3 / 1, outside (80 - 64) / 4 = 4
+    assert "| 60.0 | 20.0 | 10.0 | 2.0 | 3.0 | 1.0 | 4.0 |" in lines
+    # sampling 10 + outside 4 = 14 ms: at most 60 / 14 = 4.3x
+    assert any("14.0 ms per target: at most 4.3x the singles" in line for line in lines)
 
 
 def test_restarts_reach_the_valid_count_asked_for(planar3r: ServedModel) -> None:
