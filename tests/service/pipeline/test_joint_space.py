@@ -1,7 +1,8 @@
 """joint_space: angles wrap to (-pi, pi], only periodic joints are wrapped, and the KD-tree
-box (JointBox) measures the same joint metric."""
+box (JointBox) measures the same joint metric, exactly so with no periodic joint."""
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from service.pipeline.joint_space import (
     JointBox,
@@ -50,3 +51,25 @@ def test_joint_box_tree_finds_the_joint_metric_nearest_neighbour() -> None:
     brute = joint_distance(query[:, None, :], data[None, :, :], periodic)  # (50, 300)
     np.testing.assert_allclose(distance, brute.min(axis=1), atol=1e-12)
     np.testing.assert_array_equal(index, brute.argmin(axis=1))
+
+
+def test_joint_box_tree_without_periodic_joints_is_exact_beyond_the_margin() -> None:
+    """With only limited joints the tree is a plain one: its k nearest and their distances
+    are the joint metric's (brute force) even past the box's margin, where a wrapped box
+    would bring far points closer across its edge; within the margin, the wrapped box
+    (`boxsize`, what serves periodic chains) gives the same distances to the last bit."""
+    rng = np.random.default_rng(5)
+    periodic = np.zeros(7, dtype=bool)
+    data = rng.uniform(-3.0, 3.0, (400, 7))
+    query = rng.uniform(-3.0, 3.0, (60, 7))
+    box = JointBox.covering(np.concatenate([query, data]), periodic, margin_rad=0.5)
+    distance, index = box.tree(data).query(box.points(query), k=5)
+    brute = joint_distance(query[:, None, :], data[None, :, :], periodic)  # (60, 400)
+    np.testing.assert_array_equal(index, np.argsort(brute, axis=1)[:, :5])
+    np.testing.assert_allclose(distance, np.sort(brute, axis=1)[:, :5], rtol=1e-14)
+    wide = JointBox.covering(np.concatenate([query, data]), periodic, margin_rad=20.0)
+    wrapped = cKDTree(wide.points(data), boxsize=wide.box_rad)
+    near_w, index_w = wrapped.query(wide.points(query), k=5)
+    near, index_p = wide.tree(data).query(wide.points(query), k=5)
+    np.testing.assert_array_equal(index_p, index_w)
+    np.testing.assert_array_equal(near, near_w)
