@@ -26,14 +26,17 @@ training/export.py `sweep_and_measure`) and `python -m training.sweep --write`.
 `python -m training.evaluate.judge --model <id> --candidate paper|<JSON>` judges the
 paper's configuration, or any change of the served defaults, against what serves,
 writing nothing but its `--out` record (`main`); with `--write`, a candidate judged no
-worse replaces the served defaults (`served_candidate`). `--candidate-model-dir <dir>`
-judges another trained network of the same robot and task (`smm-train --models-dir`, a
-narrower one, say) at its own defaults against the served one; it serves by replacing
-the model directory, which the judge does not do. That is how a change the sweep
+worse replaces the served defaults (`served_candidate`). That is how a change the sweep
 cannot propose serves: the sweep's rule measures agreement with a dense answer of the
 same pipeline on 20 targets, a stand-in that counts as merges the components a sampler
 unlike the reference's joins where the reference splits them, while the judge measures
 against the exact SMMs on 220.
+
+`--candidate-model-dir <dir>` judges another trained network of the same robot and task
+(`smm-train --models-dir`, a narrower one, say) against the served one, at its own
+defaults or, with `--candidate`, at the served defaults so changed (`'{}'`: as they are,
+so only the network differs). It serves by replacing the model directory, which the
+judge does not do.
 """
 
 from __future__ import annotations
@@ -367,16 +370,18 @@ def main(argv: list[str] | None = None) -> None:
     python -m training.evaluate.judge --model planar3r-position \\
         --candidate '{"sampler": {"flow": "reflow", "steps": 2, "time_power": 1.0}}'
     python -m training.evaluate.judge --model planar3r-position \\
-        --candidate-model-dir /tmp/narrow/models/planar3r-position
+        --candidate-model-dir /tmp/narrow/models/planar3r-position [--candidate '{}']
     """
     parser = argparse.ArgumentParser(description=main.__doc__)
     parser.add_argument("--model", required=True, help="a model id under models/")
-    which = parser.add_mutually_exclusive_group(required=True)
-    which.add_argument("--candidate", help="paper, or a JSON object")
-    which.add_argument(
+    parser.add_argument(
+        "--candidate", help="paper, or a JSON object: a change of the served defaults"
+    )
+    parser.add_argument(
         "--candidate-model-dir", type=Path,
         help="another trained model directory of the same robot and task (smm-train "
-        "--models-dir), at its own defaults: judges its network against the served one",
+        "--models-dir): its network answers, at its own defaults, or with --candidate at "
+        "the served defaults so changed ('{}': the served defaults as they are)",
     )  # fmt: skip
     parser.add_argument(
         "--num-samples", type=int, help="both at this num_samples (default: each its own)"
@@ -392,6 +397,8 @@ def main(argv: list[str] | None = None) -> None:
     )  # fmt: skip
     parser.add_argument("--models-dir", type=Path, default=REPO_MODELS_DIR)
     args = parser.parse_args(argv)
+    if args.candidate is None and args.candidate_model_dir is None:
+        parser.error("give --candidate, --candidate-model-dir or both")
     if args.write and args.num_samples is not None:
         parser.error("--write serves the candidate as given: leave out --num-samples")
     if args.write and args.candidate_model_dir is not None:
@@ -407,9 +414,11 @@ def main(argv: list[str] | None = None) -> None:
         if args.candidate_model_dir is not None:
             candidate_model = load_model(args.candidate_model_dir, threads=args.threads)
             check_same_problem(candidate_model, model)
-            candidate = candidate_model.manifest.defaults
-        else:
+        if args.candidate is not None:
             candidate = candidate_defaults(incumbent, args.candidate)
+        else:
+            assert candidate_model is not None
+            candidate = candidate_model.manifest.defaults
     except ValueError as error:
         parser.error(str(error))
     if args.num_samples is not None:

@@ -14,7 +14,8 @@
   served) or a JSON change of the served defaults; anything else is refused, naming both
   forms; its JSON record holds both defaults, both sets of figures and the verdict.
 - A candidate network (another trained model of the same robot and task) is judged at
-  its own defaults against the served network: the served network itself is no worse,
+  its own defaults, or at the served ones changed by `--candidate`, against the served
+  network: the served network itself is no worse,
   with equal figures; a network whose velocity drives every sample to one point is worse
   on count right; a model of another robot is refused, naming the field; the CLI takes
   the directory and will not `--write` it.
@@ -227,6 +228,14 @@ def test_a_candidate_network_is_judged_at_its_own_defaults(
                   "--out", str(out)])  # fmt: skip
     record = json.loads(out.read_text())
     assert record["candidate_model"] == planar3r.reference and record["worse"] == []
+    # The candidate network at the served defaults so changed: one sample is worse.
+    judging.main([*small, "--candidate-model-dir", str(models / "planar3r-position"),
+                  "--candidate", '{"num_samples": 1}', "--out", str(out)])  # fmt: skip
+    record = json.loads(out.read_text())
+    assert record["candidate_defaults"]["num_samples"] == 1
+    assert any(w.startswith("count right") for w in record["worse"])
+    with pytest.raises(SystemExit):  # neither a candidate nor a network
+        judging.main(small)
     with pytest.raises(SystemExit):
         judging.main([*small, "--candidate-model-dir", str(models / "planar3r-position"),
                       "--write"])  # fmt: skip
