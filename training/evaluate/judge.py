@@ -430,7 +430,7 @@ def main(argv: list[str] | None = None) -> None:
     )  # fmt: skip
     record = {
         "model": args.model,
-        "candidate": args.candidate,
+        "candidate_argument": args.candidate,  # "candidate" below: its figures
         "candidate_model": None if candidate_model is None else candidate_model.reference,
         "num_samples": args.num_samples,
         "candidate_defaults": candidate.model_dump(exclude={"reasons"}),

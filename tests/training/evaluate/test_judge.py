@@ -137,8 +137,10 @@ def test_the_cli_judges_the_paper_configuration_or_a_json_change(
     judging.main(["--model", "planar3r-position", "--candidate", '{"num_samples": 1}',
                   "--targets", "6", "--near-singular", "2", "--out", str(out)])  # fmt: skip
     record = json.loads(out.read_text())
+    assert record["candidate_argument"] == '{"num_samples": 1}'
     assert record["candidate_defaults"]["num_samples"] == 1
     assert record["incumbent_defaults"]["num_samples"] == served.num_samples
+    assert set(record["candidate"]) == set(record["incumbent"])  # the figures of each
     assert (record["targets"], record["near_singular_targets"]) == (6, 2)
     assert any(w.startswith("count right") for w in record["worse"])
     assert record["verdict"].startswith("worse than the incumbent on 6 report targets")
