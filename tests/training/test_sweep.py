@@ -40,7 +40,7 @@ from training.defaults import (
     serving_defaults,
 )
 from training.evaluate.judge import JUDGED
-from training.evaluate.served import returned_configurations, with_defaults
+from training.evaluate.served import returned_configurations, serving, with_defaults
 from training.sweep import (
     AXES,
     COUNT_RIGHT_MARGIN,
@@ -357,7 +357,7 @@ def test_the_sweep_chooses_by_the_rule_and_its_defaults_serve(
     assert pick_time_power(swept.time_power_table).time_power == chosen.time_power
     assert all(r.setting.time_power == chosen.time_power for r in swept.table)
 
-    served = replace(planar, manifest=planar.manifest.model_copy(update={"defaults": defaults}))
+    served = serving(planar, defaults)
     answer = run(served, planar_query(served, 0))
     assert answer.counts.sampled == chosen.num_samples
     assert answer.counts.accepted > 0 and answer.components
