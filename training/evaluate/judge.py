@@ -404,7 +404,7 @@ def main(argv: list[str] | None = None) -> None:
     if args.write and args.candidate_model_dir is not None:
         parser.error(
             "--write changes the served defaults; a candidate network serves by replacing "
-            "the model directory (see the README's Models section)"
+            f"{args.models_dir / args.model} with its directory"
         )
     model_dir = args.models_dir / args.model
     model = load_model(model_dir, threads=args.threads)
