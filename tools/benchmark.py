@@ -42,11 +42,19 @@ import httpx
 import numpy as np
 
 from service.config import Settings
-from service.manifest import REPO_MODELS_DIR
+from service.manifest import REPO_MODELS_DIR, Manifest
 from service.models.registry import ServedModel, load_model
 from tools.batch_benchmark import batch_against_singles
+from tools.connect_profile import profile_connect
+from tools.connect_profile import summarise as summarise_connect
 from tools.local_server import LocalServer
-from training.evaluate.judge import figures, paper_defaults, worse_than
+from training.evaluate.judge import (
+    JUDGED_SEPARATOR,
+    TRUTH_FIGURES,
+    figures,
+    paper_defaults,
+    worse_than,
+)
 from training.evaluate.methods import MethodTarget, restart_target, served_target
 from training.evaluate.metrics import median_stage_ms, p95_stage_ms
 from training.evaluate.served import orientation_wxyz, serving, with_defaults
@@ -57,7 +65,8 @@ from training.kinematics import load_chain
 from training.machine import Machine
 from training.robots import robot_spec
 
-OUT_DIR = Path(__file__).resolve().parents[1] / "docs" / "benchmark"
+ROOT = Path(__file__).resolve().parents[1]
+OUT_DIR = ROOT / "docs" / "benchmark"
 SIZES = (250, 1000, 4000)
 MATCH_ROUNDS = 4  # rescaled restart runs at most, to reach the service's valid count
 SERVICE, PAPER, RESTART = "service", "paper (100 Euler, 3 DLS)", "random-restart DLS"
@@ -190,9 +199,15 @@ def benchmark_model(
         if server is not None:
             row["http"] = over_http(server, model, q_targets, n)
         rows[str(n)] = row
+    judged = manifest.defaults.reasons.get("judged")
     return {
         "model": model.reference,
         "targets": num_targets,
+        # Where the connect stage's time goes on the same targets (tools.connect_profile).
+        "connect_profile": summarise_connect(profile_connect(model, q_targets)),
+        # The judge's verdicts on configurations tried for these defaults, from the manifest.
+        "judged": [] if judged is None else judged.split(JUDGED_SEPARATOR),
+        "paper_judgement": paper_judgement(manifest),
         "sampler_steps": manifest.defaults.sampler.steps,
         "sampler_precision": manifest.defaults.sampler.precision,
         "sampler_flow": manifest.defaults.sampler.flow,
@@ -252,7 +267,7 @@ def markdown(report: dict) -> str:
                         f"| {model_id} | {n} | {h['median_ms']:.1f} | {h['p95_ms']:.1f} | "
                         f"{h['server_median_ms']:.1f} | {row[SERVICE]['median_ms']:.1f} |"
                     )
-    lines += ["", *_goals(report), "", *_where_the_time_goes(report)]
+    lines += ["", *_goals(report), "", *_bounds(report), "", *_where_the_time_goes(report)]
     if "batch" in report:
         lines += ["", *_batch(report["batch"], report.get("batch_sampling_ahead"))]
     lines += [
@@ -277,6 +292,7 @@ def markdown(report: dict) -> str:
 # faster than its targets sent one after another.
 BATCH_NUM_SAMPLES = 1000
 BATCH_GOAL_X = 3.0
+GOAL_NUM_SAMPLES = 1000  # the N of issue 14's goals
 # Issue 14's goals at N = 1000, in process, median: (model, at most ms, at least x faster
 # than the paper's configuration in the same run or None).
 GOALS = (
@@ -309,6 +325,117 @@ def _goals(report: dict) -> list[str]:
             f"{'no worse' if not worse else 'worse: ' + '; '.join(worse)} |"
         )
     return lines
+
+
+def paper_judgement(manifest: Manifest, records_dir: Path = OUT_DIR) -> dict | None:
+    """The committed judgement of the paper's configuration against the served defaults
+    on the judge's targets (`python -m training.evaluate.judge --model <id> --candidate
+    paper --num-samples 1000 --out docs/benchmark/judge-paper-<id>-n1000.json`), if there
+    is one: both sides' figures, and whether the defaults it judged still serve."""
+    path = records_dir / f"judge-paper-{manifest.model_id}-n{GOAL_NUM_SAMPLES}.json"
+    if not path.exists():
+        return None
+    record = json.loads(path.read_text())
+    served = manifest.defaults.model_dump(mode="json", exclude={"reasons"})
+    served["num_samples"] = record.get("num_samples", served["num_samples"])  # judged at N
+    return {
+        "record": str(path.relative_to(ROOT) if path.is_relative_to(ROOT) else path),
+        "targets": record["targets"] + record["near_singular_targets"],
+        "service": record["incumbent"],
+        "paper": record["candidate"],
+        "judged_the_served_defaults": record["incumbent_defaults"] == served,
+    }
+
+
+def _bounds(report: dict) -> list[str]:
+    """For each goal not met, by how much and what bounds it: the service's stages, the
+    stage that alone passes the time goal or what the others leave for sampling (in
+    evaluations of the network at its measured cost), the connect stage's profile, the
+    judge's verdicts on the cheaper configurations tried; for truth, the figures that are
+    worse, and the judgement on the judge's larger target set where one is committed."""
+    lines = ["What bounds each goal not met (N = 1000, medians over the same targets):", ""]
+    for model_id, most_ms, least_x in GOALS:
+        entry = report["models"].get(model_id)
+        row = None if entry is None else entry["sizes"].get("1000")
+        if entry is None or row is None:
+            continue
+        run = row[SERVICE]
+        ms, stage = run["median_ms"], run["median_stage_ms"] or {}
+        speed_up = row[PAPER]["median_ms"] / ms
+        if ms > most_ms or (least_x is not None and speed_up < least_x):
+            lines += [f"- {model_id}, time: {_time_bound(entry, ms, most_ms, stage)}"]
+            lines += [f"  - {verdict}" for verdict in entry.get("judged", [])]
+        worse = worse_than(run["figures"], row[PAPER]["figures"])
+        if worse:
+            lines.append(f"- {model_id}, truth: {_truth_bound(entry, worse)}")
+    return lines if len(lines) > 2 else []
+
+
+def _time_bound(entry: dict, ms: float, most_ms: float, stage: dict[str, float]) -> str:
+    spans = {name: stage.get(name, 0.0) for name in STAGES}
+    text = (
+        f"{ms:.1f} ms, {ms - most_ms:.1f} ms ({ms / most_ms:.2f}x) over the goal of "
+        f"{most_ms:g} ms; "
+        + ", ".join(f"{name} {spans[name]:.1f}" for name in STAGES)
+        + f", the rest {max(ms - sum(spans.values()), 0.0):.1f} ms. "
+    )
+    slowest = max(STAGES, key=lambda name: spans[name])
+    if spans[slowest] >= most_ms:
+        text += (
+            f"The {slowest} stage alone takes {spans[slowest] / most_ms:.1f}x the goal: no "
+            f"change to the other stages meets it without a cheaper {slowest} stage. "
+        )
+    else:
+        steps = entry["sampler_steps"]
+        per_evaluation_ms = spans["sample"] / steps
+        left_ms = most_ms - (ms - spans["sample"])
+        evaluations = max(int(left_ms // per_evaluation_ms), 0)
+        text += (
+            f"Everything but sampling takes {ms - spans['sample']:.1f} ms, which leaves "
+            f"{max(left_ms, 0.0):.1f} ms for sampling: {evaluations} evaluations of the "
+            f"network at its {per_evaluation_ms:.2f} ms each, where the served sampler takes "
+            f"{steps}. "
+        )
+    profile = entry.get("connect_profile")
+    if profile is not None:
+        calls, configurations = profile["kinematics_calls"], profile["configurations_evaluated"]
+        own_ms = profile["connect_ms"] - profile["kinematics_ms"]
+        text += (
+            f"The connect stage profiled alone (`tools.connect_profile`, the same targets, "
+            f"one thread): {profile['connect_ms']:.1f} ms, of which the kinematics "
+            f"{profile['kinematics_ms']:.1f} ms in {calls:.0f} calls over "
+            f"{configurations:.0f} configurations ({configurations / max(calls, 1):.0f} per "
+            f"call), and {own_ms:.1f} ms the stage's own array work between those calls "
+            "(steps, neighbour searches, solves on a few dozen rows at a time)."
+        )
+    if entry.get("judged"):
+        text += " The judge's verdicts on the configurations tried (the manifest's reasons):"
+    return text
+
+
+def _truth_bound(entry: dict, worse: list[str]) -> str:
+    text = f"worse than the paper's configuration on these targets: {'; '.join(worse)}."
+    judgement = entry.get("paper_judgement")
+    if judgement is None:
+        return text
+    service, paper = judgement["service"], judgement["paper"]
+    defaults = "the served" if judgement["judged_the_served_defaults"] else "earlier"
+    worse_there: list[str] = []
+    better_there: list[str] = []
+    for key, name, more_is_better in TRUTH_FIGURES:
+        ours, theirs = service.get(key), paper.get(key)
+        if ours is None or theirs is None or ours == theirs:
+            continue
+        side = better_there if (ours > theirs) == more_is_better else worse_there
+        side.append(f"{name} {ours:.3g} vs {theirs:.3g}")
+    return text + (
+        f" On the judge's {judgement['targets']} targets ({judgement['record']}, "
+        f"{defaults} defaults), service vs paper: worse on "
+        + ("; ".join(worse_there) if worse_there else "none")
+        + ", better on "
+        + ("; ".join(better_there) if better_there else "none")
+        + "."
+    )
 
 
 def _where_the_time_goes(report: dict) -> list[str]:

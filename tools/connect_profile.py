@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from service.manifest import REPO_MODELS_DIR
-from service.models.registry import load_model
+from service.models.registry import ServedModel, load_model
 from service.pipeline.acceptance import accept
 from service.pipeline.arrays import FloatArray
 from service.pipeline.connectivity import connect
@@ -48,19 +48,12 @@ class TimedKinematics:
         return result
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawTextHelpFormatter
-    )
-    parser.add_argument("--model", default="iiwa14-pose")
-    parser.add_argument("--targets", type=int, default=20)
-    parser.add_argument("--seed", type=int, default=11)
-    args = parser.parse_args()
-    model = load_model(REPO_MODELS_DIR / args.model, threads=1)
+def profile_connect(model: ServedModel, q_targets: FloatArray) -> list[dict[str, float]]:
+    """Per target (FK of each row of q_targets (T, n), seed i for target i): stages 1-4
+    with the model's defaults, then stage 5 with its kinematics behind a timer."""
     manifest, defaults = model.manifest, model.manifest.defaults
     lower, upper, periodic = manifest.joints.arrays()
-    q_targets = uniform_configurations(lower, upper, args.targets, args.seed)
-    rows = []
+    rows: list[dict[str, float]] = []
     for i, q in enumerate(q_targets):
         fk = model.kinematics(q[None])
         position = fk.position_m[0, manifest.task.position_axes].tolist()
@@ -96,13 +89,33 @@ def main() -> None:
                 "configurations_evaluated": timed.configurations,
             }
         )
-        print(json.dumps(rows[-1]), flush=True)
+    return rows
+
+
+def summarise(rows: list[dict[str, float]]) -> dict[str, float]:
+    """Medians over the targets, and the connect stage's p95."""
     summary = {
         key: float(np.median([r[key] for r in rows]))
         for key in ("connect_ms", "kinematics_ms", "kinematics_calls", "configurations_evaluated")
     }
     summary["connect_p95_ms"] = float(np.percentile([r["connect_ms"] for r in rows], 95))
-    print(json.dumps({"median": summary}))
+    return summary
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawTextHelpFormatter
+    )
+    parser.add_argument("--model", default="iiwa14-pose")
+    parser.add_argument("--targets", type=int, default=20)
+    parser.add_argument("--seed", type=int, default=11)
+    args = parser.parse_args()
+    model = load_model(REPO_MODELS_DIR / args.model, threads=1)
+    lower, upper, _ = model.manifest.joints.arrays()
+    rows = profile_connect(model, uniform_configurations(lower, upper, args.targets, args.seed))
+    for row in rows:
+        print(json.dumps(row))
+    print(json.dumps({"median": summarise(rows)}))
 
 
 if __name__ == "__main__":

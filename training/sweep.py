@@ -136,7 +136,7 @@ from service.pipeline.sampling import sample_configurations
 from service.pipeline.targets import encode_target
 from service.pipeline.types import Query, SmmResult
 from training.defaults import CONNECTIVITY_REASON, write_defaults
-from training.evaluate.judge import JUDGED, judged_defaults, unserved_reasons
+from training.evaluate.judge import JUDGED, JUDGED_SEPARATOR, judged_defaults, unserved_reasons
 from training.evaluate.metrics import median_stage_ms
 from training.evaluate.quality import summarise_raw
 from training.evaluate.served import orientation_wxyz, stage_times_ms, with_defaults
@@ -887,7 +887,7 @@ def judged_sweep(
         last = judged.reasons.get(
             JUDGED, "what serves was not judged: the sweep kept the served values"
         )
-    verdict = " | ".join([*(f"refused first, {r}" for r in refused), last])
+    verdict = JUDGED_SEPARATOR.join([*(f"refused first, {r}" for r in refused), last])
     return judged.model_copy(update={"reasons": {**judged.reasons, JUDGED: verdict}})
 
 

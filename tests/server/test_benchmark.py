@@ -5,7 +5,11 @@ are the evaluation's (planar 3R: the count against the closed form); random-rest
 run to at least the service's number of valid configurations per target; a batch of
 targets against its single requests, with identical answers, in the same report (when a
 figure is worse: tests/training/evaluate/test_judge.py), with where the batch's time goes
-per target and the ratio its sampling and transport alone leave."""
+per target and the ratio its sampling and transport alone leave; for each goal not met,
+by how much and what bounds it (the stage that alone passes the time goal, or the network
+evaluations the other stages leave for sampling; the connect stage's profile; the judge's
+verdicts; the truth figures that are worse, also on a committed judgement of the paper's
+configuration, each figure read service first)."""
 
 import json
 import subprocess
@@ -22,7 +26,9 @@ from tools.benchmark import (
     PAPER,
     RESTART,
     SERVICE,
+    _bounds,
     batch_profile,
+    paper_judgement,
     restarts_to_match,
 )
 from training.evaluate.targets import uniform_configurations
@@ -56,6 +62,9 @@ def test_the_command_writes_every_configuration_and_size(tmp_path: Path) -> None
             row[RESTART]["valid_configurations_mean"] >= row[SERVICE]["valid_configurations_mean"]
         )
         assert row["http"]["median_ms"] > 0
+    # The connect stage profiled on the same targets: the kinematics is part of it.
+    profile = entry["connect_profile"]
+    assert 0 < profile["kinematics_ms"] < profile["connect_ms"] and profile["kinematics_calls"] > 0
     text = (tmp_path / "benchmark.md").read_text()
     # every configuration and HTTP, at 2 sizes
     assert text.count("| planar3r-position |") == 2 * len(names) + 2
@@ -95,3 +104,85 @@ def test_restarts_reach_the_valid_count_asked_for(planar3r: ServedModel) -> None
         True,
         True,
     ]
+
+
+def _goal_row(ms: float, stage: dict[str, float], paper_ms: float) -> dict:
+    truth = {"count_right": 1.0, "splits_per_target": 0.0, "merges_per_target": 0.0,
+             "recall": 1.0, "coverage_p95_rad": 0.02}  # fmt: skip
+    return {
+        SERVICE: {"median_ms": ms, "median_stage_ms": stage, "figures": truth},
+        PAPER: {"median_ms": paper_ms, "figures": {**truth, "coverage_p95_rad": 0.01}},
+    }
+
+
+def test_bounds_name_the_stage_past_the_goal_or_the_evaluations_left_for_sampling() -> None:
+    report = {"models": {
+        # 100 ms against 60: connect alone is 70 ms, 1.2x the goal.
+        "iiwa14-position": {
+            "sampler_steps": 2, "judged": ["refused: fewer steps lost a target"],
+            "connect_profile": {"connect_ms": 50.0, "kinematics_ms": 20.0,
+                                "kinematics_calls": 100.0, "configurations_evaluated": 4000.0},
+            "sizes": {"1000": _goal_row(
+                100.0, {"sample": 20.0, "correct": 8.0, "connect": 70.0}, 900.0
+            )},
+        },
+        # 16 ms against 15: all but sampling is 11 ms, leaving 4 ms: 3 evaluations of 1.25.
+        "planar3r-position": {
+            "sampler_steps": 4, "judged": [],
+            "sizes": {"1000": _goal_row(
+                16.0, {"sample": 5.0, "correct": 4.0, "connect": 7.0}, 300.0
+            )},
+        },
+    }}  # fmt: skip
+    lines = _bounds(report)
+    position = next(line for line in lines if line.startswith("- iiwa14-position, time"))
+    assert "40.0 ms (1.67x) over the goal of 60 ms" in position
+    assert "The connect stage alone takes 1.2x the goal" in position
+    assert (
+        "of which the kinematics 20.0 ms in 100 calls over 4000 configurations (40 per call)"
+        in (position)
+    )
+    assert "and 30.0 ms the stage's own array work" in position
+    assert "  - refused: fewer steps lost a target" in lines
+    planar = next(line for line in lines if line.startswith("- planar3r-position, time"))
+    assert "1.0 ms (1.07x) over the goal of 15 ms" in planar and "the rest 0.0 ms" in planar
+    assert "Everything but sampling takes 11.0 ms, which leaves 4.0 ms for sampling: 3 " in planar
+    assert "evaluations of the network at its 1.25 ms each, where the served sampler takes 4" in (
+        planar
+    )
+    # Truth: the service's coverage 0.02 against the paper's 0.01 on both.
+    assert any(
+        line.startswith("- planar3r-position, truth:") and "coverage p95 rad 0.02 vs 0.01" in line
+        for line in lines
+    )
+
+
+def test_a_committed_paper_judgement_is_read_service_first(
+    planar3r: ServedModel, tmp_path: Path
+) -> None:
+    manifest = planar3r.manifest
+    assert paper_judgement(manifest, tmp_path) is None  # none committed: no line
+    judged = manifest.defaults.model_dump(mode="json", exclude={"reasons"})
+    record = {
+        "targets": 200, "near_singular_targets": 20, "num_samples": 1000,
+        "incumbent_defaults": {**judged, "num_samples": 1000},
+        "incumbent": {"count_right": 0.98, "splits_per_target": 0.05, "recall": 0.99},
+        "candidate": {"count_right": 0.94, "splits_per_target": 0.04, "recall": 0.99},
+    }  # fmt: skip
+    path = tmp_path / f"judge-paper-{manifest.model_id}-n1000.json"
+    path.write_text(json.dumps(record))
+    judgement = paper_judgement(manifest, tmp_path)
+    assert judgement is not None and judgement["targets"] == 220
+    assert judgement["judged_the_served_defaults"]  # the judged N is not a difference
+    path.write_text(json.dumps({**record, "incumbent_defaults": {**judged, "damping": 0.5}}))
+    assert not paper_judgement(manifest, tmp_path)["judged_the_served_defaults"]  # type: ignore[index]
+    entry = {
+        "sampler_steps": 4, "judged": [], "paper_judgement": judgement,
+        "sizes": {"1000": _goal_row(10.0, {"sample": 4.0}, 300.0)},
+    }  # fmt: skip
+    (truth,) = _bounds({"models": {"planar3r-position": entry}})[2:]
+    assert "220 targets" in truth and "the served defaults" in truth
+    assert (
+        "service vs paper: worse on splits 0.05 vs 0.04, better on count right 0.98 vs 0.94."
+        in (truth)
+    )

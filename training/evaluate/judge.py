@@ -73,6 +73,7 @@ NEAR_SINGULAR_DRAWS = 50  # uniform draws per near-singular target kept
 COVERAGE_MARGIN = 0.10
 # The reason key of the verdict in judged defaults (Defaults.reasons).
 JUDGED = "judged"
+JUDGED_SEPARATOR = " | "  # between the verdicts of reasons["judged"], earliest first
 # The paper's configuration (seed Table 4): 100 Euler steps on the uniform grid, 3 DLS.
 PAPER_DLS_STEPS = 3
 
