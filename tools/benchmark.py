@@ -22,6 +22,13 @@ targets: FK of configurations uniform in the limits, seed 7, the first --targets
   POST /smm/batch against as many POST /smm sent one after another, every batch answer
   checked equal to its single answer (`tools.batch_benchmark`).
 
+For each of issue 14's goals not met: by how much, and what bounds it, from the same
+run: the stage that alone passes the time goal, or the evaluations of the network that
+the other stages leave for sampling; the connect stage's profile on the same targets
+(`tools.connect_profile`); the judge's verdicts on the cheaper configurations tried (the
+manifest's reasons); the truth figures that are worse, and on the judge's larger target
+set where a judgement of the paper's configuration is committed beside the report.
+
 Beside every time, the evaluation's figures for that configuration on the same targets
 (training/evaluate: count right, splits and merges per target, recall of the exact
 components, coverage p95), so that speed and truth are read together. The report names

@@ -33,18 +33,28 @@ def dls_step(
     kinematic singularity) falls back to the pseudo-inverse instead of failing the batch.
     """
     batch, m, n = jacobian.shape
-    finite = np.all(np.isfinite(jacobian), axis=(1, 2)) & np.all(np.isfinite(error), axis=1)
-    dq = np.full((batch, n), np.nan)
-    if not finite.any():
-        return dq
-    jacobian_t = np.swapaxes(jacobian[finite], 1, 2)  # (B', n, m)
-    gram = jacobian[finite] @ jacobian_t + (damping * damping) * np.eye(m)  # (B', m, m)
-    e = error[finite][..., None]  # (B', m, 1)
+    # A row is finite where its sums are: any NaN or infinity in it makes them non-finite
+    # (the entries are bounded by the arm's reach, so a finite row's sum does not overflow).
+    # This is a fifth of the time of an elementwise check over (B, m, n).
+    with np.errstate(invalid="ignore"):  # inf - inf is NaN: that row is not finite
+        finite = np.isfinite(jacobian.sum(axis=(1, 2)) + error.sum(axis=1))  # (B,)
+    every = bool(finite.all())
+    if not every and not finite.any():
+        return np.full((batch, n), np.nan)
+    # Every row finite (the usual case): the arrays as they are, no copies.
+    j, e = (jacobian, error) if every else (jacobian[finite], error[finite])  # (B', m, n), (B', m)
+    jacobian_t = np.swapaxes(j, 1, 2)  # (B', n, m)
+    gram = j @ jacobian_t  # (B', m, m)
+    gram.reshape(len(j), m * m)[:, :: m + 1] += damping * damping  # + damping^2 I, in place
     try:
-        y = np.linalg.solve(gram, e)  # (B', m, 1)
+        y = np.linalg.solve(gram, e[..., None])  # (B', m, 1)
     except np.linalg.LinAlgError:
-        y = np.linalg.pinv(gram) @ e
-    dq[finite] = (jacobian_t @ y)[..., 0]
+        y = np.linalg.pinv(gram) @ e[..., None]
+    step = (jacobian_t @ y)[..., 0]  # (B', n)
+    if every:
+        return step
+    dq = np.full((batch, n), np.nan)
+    dq[finite] = step
     return dq
 
 

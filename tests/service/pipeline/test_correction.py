@@ -111,14 +111,18 @@ def test_all_non_finite_samples_skip_the_kinematics(planar3r: ServedModel) -> No
 
 def test_a_non_finite_row_gets_a_nan_step_and_leaves_the_others_exact() -> None:
     rng = np.random.default_rng(1)
-    jacobian = rng.normal(size=(4, 2, 3))
-    error = rng.normal(size=(4, 2))
+    jacobian = rng.normal(size=(5, 2, 3))
+    error = rng.normal(size=(5, 2))
     clean = dls_step(jacobian, error, 0.1)
     jacobian[1, 0, 2] = np.nan
     error[2, 1] = np.inf
+    jacobian[4, 0, 0], error[4, 0] = np.inf, -np.inf  # infinities of both signs in one row
     dq = dls_step(jacobian, error, 0.1)
-    assert np.isnan(dq[1]).all() and np.isnan(dq[2]).all()
+    assert np.isnan(dq[[1, 2, 4]]).all()
     np.testing.assert_array_equal(dq[[0, 3]], clean[[0, 3]])
+    # Every row finite: the same steps as row by row.
+    for row in (0, 3):
+        np.testing.assert_array_equal(dls_step(jacobian[[row]], error[[row]], 0.1)[0], clean[row])
 
 
 def test_a_singular_system_falls_back_to_the_pseudo_inverse() -> None:
