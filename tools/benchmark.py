@@ -29,6 +29,9 @@ the other stages leave for sampling; the connect stage's profile on the same tar
 manifest's reasons); the truth figures that are worse, and on the judge's larger target
 set where a judgement of the paper's configuration is committed beside the report.
 
+The in-process configurations answer each target in turn, target by target, so that a
+drift in the machine's speed over the run moves them alike and leaves their ratios.
+
 Beside every time, the evaluation's figures for that configuration on the same targets
 (training/evaluate: count right, splits and merges per target, recall of the exact
 components, coverage p95), so that speed and truth are read together. The report names
@@ -103,37 +106,64 @@ class Timed:
         }
 
 
-def in_process(model: ServedModel, q_targets: np.ndarray, num_samples: int) -> Timed:
-    """The pipeline's answers, one target at a time, with the process CPU time of each."""
-    served_target(model, q_targets[0], num_samples, seed=0)  # warm-up
-    answers, cpu_ms = [], []
+def interleaved(
+    served: dict[str, ServedModel],
+    restart_model: ServedModel | None,
+    q_targets: np.ndarray,
+    num_samples: int,
+) -> dict[str, Timed]:
+    """Each configuration's answers, target by target: for each target, every configuration
+    in `served` in turn (with the process CPU time of each answer), then, with
+    `restart_model`, random-restart DLS to the first configuration's valid count for
+    that target (`RESTART`). Taking the configurations in turn per target, rather than
+    one after another over all targets, leaves their ratios unmoved by the machine's
+    drift in speed over the run (measured here at up to 29 % between runs)."""
+    restart = None if restart_model is None else RestartMatch(restart_model, num_samples)
+    for model in served.values():  # warm-up
+        served_target(model, q_targets[0], num_samples, seed=0)
+    answers: dict[str, list[MethodTarget]] = {name: [] for name in served}
+    cpu_ms: dict[str, list[float]] = {name: [] for name in served}
+    restarts: list[MethodTarget] = []
+    first = next(iter(served))
     for i, q in enumerate(q_targets):
-        start_s = time.process_time()
-        answers.append(served_target(model, q, num_samples, seed=i))
-        cpu_ms.append((time.process_time() - start_s) * 1e3)
-    return Timed(answers, cpu_ms)
+        for name, model in served.items():
+            start_s = time.process_time()
+            answers[name].append(served_target(model, q, num_samples, seed=i))
+            cpu_ms[name].append((time.process_time() - start_s) * 1e3)
+        if restart is not None:
+            restarts.append(restart(q, answers[first][-1].kept, seed=i))
+    timed = {name: Timed(answers[name], cpu_ms[name]) for name in served}
+    if restart is not None:
+        timed[RESTART] = Timed(restarts)
+    return timed
 
 
-def restarts_to_match(
-    model: ServedModel, q_targets: np.ndarray, valid: Sequence[int], num_samples: int
-) -> Timed:
-    """Random-restart DLS with at least as many valid configurations per target as
-    `valid`: from num_samples restarts, the restarts are scaled by the measured yield
-    (and 10 % more) until a run has enough; that run is the one timed."""
-    robot = robot_spec(model.manifest.robot)
-    chain = load_chain(REPO_MODELS_DIR / robot.urdf, robot.end_effector_link, robot.base_link)
-    restart_target(model, chain, q_targets[0], min(num_samples, 100), seed=0)  # warm-up
-    answers = []
-    for i, (q, wanted) in enumerate(zip(q_targets, valid, strict=True)):
-        restarts = num_samples
-        answer = restart_target(model, chain, q, restarts, seed=i)
+class RestartMatch:
+    """Random-restart DLS (pytorch-kinematics) on one model's chain, run to a valid count."""
+
+    def __init__(self, model: ServedModel, num_samples: int) -> None:
+        robot = robot_spec(model.manifest.robot)
+        self.model, self.num_samples = model, num_samples
+        self.chain = load_chain(
+            REPO_MODELS_DIR / robot.urdf, robot.end_effector_link, robot.base_link
+        )
+        self.warmed = False
+
+    def __call__(self, q_target: np.ndarray, wanted: int, seed: int) -> MethodTarget:
+        """At least `wanted` valid configurations: from num_samples restarts, the restarts
+        are scaled by the measured yield (and 10 % more) until a run has enough (at most
+        MATCH_ROUNDS rescaled runs); that run is the one timed."""
+        if not self.warmed:
+            restart_target(self.model, self.chain, q_target, min(self.num_samples, 100), seed)
+            self.warmed = True
+        restarts = self.num_samples
+        answer = restart_target(self.model, self.chain, q_target, restarts, seed=seed)
         for _ in range(MATCH_ROUNDS):
             if answer.kept >= wanted:
                 break
             restarts = int(np.ceil(1.1 * restarts * wanted / max(answer.kept, 1)))
-            answer = restart_target(model, chain, q, restarts, seed=i)
-        answers.append(answer)
-    return Timed(answers)
+            answer = restart_target(self.model, self.chain, q_target, restarts, seed=seed)
+        return answer
 
 
 def over_http(
@@ -191,14 +221,13 @@ def benchmark_model(
     rows: dict[str, object] = {}
     for n in sizes:
         progress(f"{manifest.model_id} N={n}")
-        service = in_process(model, q_targets, n)
-        runs = {SERVICE: service}
+        served = {SERVICE: model}  # the service first: restart DLS matches its count
         if manifest.defaults.sampler.precision != "float32":
-            runs[FLOAT32] = in_process(float32, q_targets, n)
+            served[FLOAT32] = float32
         if base is not None:
-            runs[BASE] = in_process(base, q_targets, n)
-        runs[PAPER] = in_process(paper, q_targets, n)
-        runs[RESTART] = restarts_to_match(model, q_targets, [a.kept for a in service.answers], n)
+            served[BASE] = base
+        served[PAPER] = paper
+        runs = interleaved(served, model, q_targets, n)
         row: dict[str, object] = {
             name: {**run.times(), "figures": figures(model, run.answers, truths)}
             for name, run in runs.items()
