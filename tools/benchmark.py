@@ -13,9 +13,11 @@ targets: FK of configurations uniform in the limits, seed 7, the first --targets
   int8 alone changes, in time and in truth);
 - the paper's configuration (100 uniform Euler steps, fp32, 3 DLS steps) run by the same
   code, the same way;
-- random-restart DLS (pytorch-kinematics, uniform restarts, the service's acceptance and
-  connect stage) to the same number of valid configurations as the service returned: the
-  restarts are scaled once by the measured yield, and that run is the one timed;
+- random-restart DLS (pytorch-kinematics, uniform restarts, then the service's own stages
+  after its correction: the pull into the limits for r > 1, acceptance, and the connect
+  stage with the model's coaxial sets) to the same number of valid configurations as the
+  service returned: the restarts are scaled by the measured yield, and the run that
+  reaches it is the one timed;
 - the service over HTTP: `smm-serve` as a real uvicorn process on 127.0.0.1 (default
   settings), one request at a time, the client's wall time per answer;
 - many targets in one request: --batch-targets (64) targets of --batch-model as one
@@ -311,7 +313,8 @@ def markdown(report: dict) -> str:
         "CPU ms: the process's CPU time per answer (median; every thread, onnxruntime's "
         "workers included, and the evaluation's reading of the answer), what a core is busy "
         "for; the wall time is less where the network runs on several threads. "
-        "Stages: sample (the flow's Euler steps; `solve` for restart DLS), correct (DLS), "
+        "Stages: sample (the flow's Euler steps; `solve` for restart DLS), correct (DLS, and "
+        "for r > 1 the pull into the limits, which alone is restart DLS's correct), "
         "connect (components on the fibre); the median of each over the targets, so they "
         "need not add up to the median of the whole. Valid configs: configurations within "
         "tolerance and the limits per target (restart DLS is run to the service's count). "

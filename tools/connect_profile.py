@@ -77,6 +77,7 @@ def profile_connect(model: ServedModel, q_targets: FloatArray) -> list[dict[str,
         connection = connect(
             fibre, correction, acceptance, lower, upper, periodic, defaults.connectivity,
             defaults.tolerance_position_m, defaults.tolerance_orientation_rad,
+            coaxial_sets=model.coaxial_sets,
         )  # fmt: skip
         connect_ms = (time.perf_counter() - start) * 1e3
         rows.append(

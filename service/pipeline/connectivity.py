@@ -72,9 +72,12 @@ def connect(
     tolerance_position_m: float,
     tolerance_orientation_rad: float,
     deadline: Deadline = NO_DEADLINE,
-    coaxial_sets: Sequence[CoaxialSet] = (),
+    *,
+    coaxial_sets: Sequence[CoaxialSet],
 ) -> Connection:
-    """The accepted samples grouped into components decided on the fibre."""
+    """The accepted samples grouped into components decided on the fibre; `coaxial_sets`
+    (the model's, `SmmModel.coaxial_sets`) has no default, so that every caller, the
+    evaluation's baselines and tools included, connects as the service does."""
     deadline.check("connect")
     accepted = np.flatnonzero(acceptance.accepted)  # (K,)
     redundancy = correction.q_rad.shape[1] - correction.jacobian.shape[1]

@@ -107,7 +107,6 @@ def correct_samples(
     """Stage 3: the model's DLS steps on every sample, then for r > 1 the samples within
     tolerance outside the limits pulled into them (limits.py)."""
     manifest, defaults = model.manifest, model.manifest.defaults
-    lower_rad, upper_rad, periodic = manifest.joints.arrays()
     correction = correct(
         q_rad=q_sampled_rad,
         target=target,
@@ -115,9 +114,26 @@ def correct_samples(
         kinematics=model.kinematics,
         steps=defaults.correction_steps,
         damping=defaults.damping,
-        periodic=periodic,
+        periodic=manifest.joints.arrays()[2],
         deadline=deadline,
     )
+    return into_limits(
+        model, target, correction, tolerance_position_m, tolerance_orientation_rad, deadline
+    )
+
+
+def into_limits(
+    model: SmmModel,
+    target: Target,
+    correction: Correction,
+    tolerance_position_m: float,
+    tolerance_orientation_rad: float,
+    deadline: Deadline = NO_DEADLINE,
+) -> Correction:
+    """For r > 1, the corrected samples within tolerance but outside the limits pulled
+    into them (limits.py); for r = 1 the correction as it is."""
+    manifest = model.manifest
+    lower_rad, upper_rad, periodic = manifest.joints.arrays()
     if manifest.redundancy == 1:
         return correction
     return pull_into_limits(

@@ -24,7 +24,7 @@ from service.pipeline.connectivity import connect
 from service.pipeline.correction import task_error, task_error_norms
 from service.pipeline.fibre import Fibre
 from service.pipeline.joint_space import joint_distance, wrap_periodic
-from service.pipeline.run import run
+from service.pipeline.run import into_limits, run
 from service.pipeline.sampling import sample_configurations
 from service.pipeline.targets import Target, encode_target
 from service.pipeline.types import ComponentPath, Correction, Query
@@ -218,8 +218,10 @@ def reference_target(model: ServedModel, q_target: np.ndarray) -> tuple[Target, 
 def restart_target(
     model: ServedModel, chain: pk.SerialChain, q_target: np.ndarray, num_samples: int, seed: int
 ) -> MethodTarget:
-    """Random-restart DLS, judged by the service's acceptance and grouped by its connect
-    stage (the model's connectivity defaults); its time includes accept and connect."""
+    """Random-restart DLS, then the service's own stages after its correction: for r > 1
+    the pull into the limits (`run.into_limits`, timed as "correct"), acceptance, and the
+    connect stage with the model's connectivity defaults and coaxial sets; its time
+    includes them."""
     manifest, defaults = model.manifest, model.manifest.defaults
     target, position_m = reference_target(model, q_target)
     solutions = random_restart_dls(
@@ -231,7 +233,11 @@ def restart_target(
     raw_p, raw_o = task_error_norms(fk, target, manifest.task)
     jacobian = task_error(fk, target, manifest.task)[1]
     start = time.perf_counter()
-    correction = Correction(q, raw_p, raw_o, jacobian)
+    correction = into_limits(
+        model, target, Correction(q, raw_p, raw_o, jacobian),
+        defaults.tolerance_position_m, defaults.tolerance_orientation_rad,
+    )  # fmt: skip
+    pulled_s = time.perf_counter()
     acceptance = accept(
         correction, defaults.tolerance_position_m, defaults.tolerance_orientation_rad,
         lower, upper, periodic,
@@ -241,11 +247,14 @@ def restart_target(
         Fibre(target, manifest.task, model.kinematics, defaults.damping), correction,
         acceptance, lower, upper, periodic, defaults.connectivity,
         defaults.tolerance_position_m, defaults.tolerance_orientation_rad,
+        coaxial_sets=model.coaxial_sets,
     )  # fmt: skip
     connected_s = time.perf_counter()
     stages = {
         "solve": solutions.wall_time_ms,
-        "accept": (accepted_s - start) * 1e3,
+        # r = 1: no pull; its check joins accept, so that the stages add up to the total
+        **({"correct": (pulled_s - start) * 1e3} if manifest.redundancy > 1 else {}),
+        "accept": (accepted_s - (pulled_s if manifest.redundancy > 1 else start)) * 1e3,
         "connect": (connected_s - accepted_s) * 1e3,
         "total": solutions.wall_time_ms + (connected_s - start) * 1e3,
     }

@@ -13,9 +13,11 @@ import numpy as np
 import pytest
 
 from service.manifest import REPO_MODELS_DIR
-from service.models.registry import ServedModel
-from service.pipeline.joint_space import joint_distance
+from service.models.registry import ServedModel, load_model
+from service.pipeline.correction import task_error_norms
+from service.pipeline.joint_space import joint_distance, wrap_periodic
 from service.pipeline.types import ComponentPath
+from training.evaluate.baselines.restart_dls import random_restart_dls
 from training.evaluate.methods import (
     flow_target,
     ode_target,
@@ -125,3 +127,33 @@ def test_restart_components_come_from_the_connect_stage(planar3r: ServedModel) -
     assert stages is not None and stages["connect"] > 0
     assert restart.time_ms == pytest.approx(stages["solve"] + stages["accept"] + stages["connect"])
     assert restart.near_singular is False
+
+
+def test_restart_dls_on_a_4d_fibre_is_pulled_into_the_limits_as_the_service_is() -> None:
+    """On the iiwa14 position (r = 4) the baseline takes the service's stages after its
+    correction: solutions within tolerance but past a limit are pulled into the limits,
+    so it keeps at least the solutions that were inside them, and more where the pull
+    brought some in; each kept one is within tolerance and the limits."""
+    model = load_model(REPO_MODELS_DIR / "iiwa14-position", threads=1)
+    manifest = model.manifest
+    robot = robot_spec(manifest.robot)
+    chain = load_chain(REPO_MODELS_DIR / robot.urdf, robot.end_effector_link, robot.base_link)
+    lower, upper, periodic = manifest.joints.arrays()
+    q_target = np.array([0.3, 0.8, -0.4, -1.2, 0.5, 1.0, 0.2])
+    target, position_m = reference_target(model, q_target)
+    solutions = random_restart_dls(
+        chain, manifest.joints, manifest.task, position_m, None, 300, seed=3
+    )
+    q = wrap_periodic(solutions.q_rad.astype(np.float64), periodic)
+    error_m, _ = task_error_norms(model.kinematics(q), target, manifest.task)
+    tolerance_m = manifest.defaults.tolerance_position_m
+    inside = np.all((q >= lower) & (q <= upper), axis=1)
+    within = error_m <= tolerance_m
+    restart = restart_target(model, chain, q_target, 300, seed=3)
+    assert (within & ~inside).any()  # the case the pull is for: some past a limit
+    assert restart.kept > int((within & inside).sum())
+    kept = restart.returned[~restart.on_path] if restart.on_path is not None else restart.returned
+    assert np.all((kept >= lower - 1e-12) & (kept <= upper + 1e-12))
+    stages = restart.stage_ms
+    assert stages is not None and stages["correct"] > 0
+    assert restart.time_ms == pytest.approx(sum(stages.values()) - stages["total"])
