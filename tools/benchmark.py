@@ -241,8 +241,9 @@ def benchmark_model(
     return {
         "model": model.reference,
         "targets": num_targets,
-        # Where the connect stage's time goes on the same targets (tools.connect_profile).
-        "connect_profile": summarise_connect(profile_connect(model, q_targets)),
+        # Where the connect stage's time goes on the same targets at the goals' N
+        # (tools.connect_profile).
+        "connect_profile": summarise_connect(profile_connect(model, q_targets, GOAL_NUM_SAMPLES)),
         # The judge's verdicts on configurations tried for these defaults, from the manifest.
         "judged": [] if judged is None else judged.split(JUDGED_SEPARATOR),
         "paper_judgement": paper_judgement(manifest),
@@ -440,8 +441,9 @@ def _time_bound(entry: dict, ms: float, most_ms: float, stage: dict[str, float])
         calls, configurations = profile["kinematics_calls"], profile["configurations_evaluated"]
         own_ms = profile["connect_ms"] - profile["kinematics_ms"]
         text += (
-            f"The connect stage profiled alone (`tools.connect_profile`, the same targets, "
-            f"one thread): {profile['connect_ms']:.1f} ms, of which the kinematics "
+            f"The connect stage profiled alone (`tools.connect_profile`, the same targets at "
+            f"N = {GOAL_NUM_SAMPLES}, one thread): {profile['connect_ms']:.1f} ms, of which the "
+            "kinematics "
             f"{profile['kinematics_ms']:.1f} ms in {calls:.0f} calls over "
             f"{configurations:.0f} configurations ({configurations / max(calls, 1):.0f} per "
             f"call), and {own_ms:.1f} ms the stage's own array work between those calls "

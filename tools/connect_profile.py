@@ -48,10 +48,14 @@ class TimedKinematics:
         return result
 
 
-def profile_connect(model: ServedModel, q_targets: FloatArray) -> list[dict[str, float]]:
+def profile_connect(
+    model: ServedModel, q_targets: FloatArray, num_samples: int | None = None
+) -> list[dict[str, float]]:
     """Per target (FK of each row of q_targets (T, n), seed i for target i): stages 1-4
-    with the model's defaults, then stage 5 with its kinematics behind a timer."""
+    with the model's defaults at `num_samples` (None: the model's default), then stage 5
+    with its kinematics behind a timer."""
     manifest, defaults = model.manifest, model.manifest.defaults
+    num_samples = defaults.num_samples if num_samples is None else num_samples
     lower, upper, periodic = manifest.joints.arrays()
     rows: list[dict[str, float]] = []
     for i, q in enumerate(q_targets):
@@ -60,7 +64,7 @@ def profile_connect(model: ServedModel, q_targets: FloatArray) -> list[dict[str,
         wxyz = orientation_wxyz(fk.rotation[0]) if manifest.task.orientation else None
         target = encode_target(manifest.task, manifest.condition, position, wxyz)
         samples = sample_configurations(
-            model.velocity, target.condition, defaults.num_samples, defaults.sampler,
+            model.velocity, target.condition, num_samples, defaults.sampler,
             manifest.joint_normalisation, periodic, np.random.default_rng(i),
         )  # fmt: skip
         correction = correct_samples(
@@ -110,10 +114,12 @@ def main() -> None:
     parser.add_argument("--model", default="iiwa14-pose")
     parser.add_argument("--targets", type=int, default=20)
     parser.add_argument("--seed", type=int, default=11)
+    parser.add_argument("--num-samples", type=int, help="default: the model's num_samples")
     args = parser.parse_args()
     model = load_model(REPO_MODELS_DIR / args.model, threads=1)
     lower, upper, _ = model.manifest.joints.arrays()
-    rows = profile_connect(model, uniform_configurations(lower, upper, args.targets, args.seed))
+    q_targets = uniform_configurations(lower, upper, args.targets, args.seed)
+    rows = profile_connect(model, q_targets, args.num_samples)
     for row in rows:
         print(json.dumps(row))
     print(json.dumps({"median": summarise(rows)}))
