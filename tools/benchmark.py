@@ -393,10 +393,13 @@ def _bounds(report: dict) -> list[str]:
     evaluations of the network at its measured cost), the connect stage's profile, the
     judge's verdicts on the cheaper configurations tried; for truth, the figures that are
     worse, and the judgement on the judge's larger target set where one is committed."""
-    lines = ["What bounds each goal not met (N = 1000, medians over the same targets):", ""]
+    lines = [
+        f"What bounds each goal not met (N = {GOAL_NUM_SAMPLES}, medians over the same targets):",
+        "",
+    ]
     for model_id, most_ms, least_x in GOALS:
         entry = report["models"].get(model_id)
-        row = None if entry is None else entry["sizes"].get("1000")
+        row = None if entry is None else entry["sizes"].get(str(GOAL_NUM_SAMPLES))
         if entry is None or row is None:
             continue
         run = row[SERVICE]

@@ -24,10 +24,8 @@ from service.pipeline.acceptance import accept
 from service.pipeline.arrays import FloatArray
 from service.pipeline.connectivity import connect
 from service.pipeline.fibre import Fibre
-from service.pipeline.run import correct_samples
-from service.pipeline.sampling import sample_configurations
-from service.pipeline.targets import encode_target
-from service.pipeline.types import Kinematics, KinematicsResult
+from service.pipeline.run import correct_samples, encode, sample
+from service.pipeline.types import Kinematics, KinematicsResult, Query
 from training.evaluate.served import orientation_wxyz
 from training.evaluate.targets import uniform_configurations
 
@@ -55,24 +53,27 @@ def profile_connect(
     with the model's defaults at `num_samples` (None: the model's default), then stage 5
     with its kinematics behind a timer."""
     manifest, defaults = model.manifest, model.manifest.defaults
-    num_samples = defaults.num_samples if num_samples is None else num_samples
     lower, upper, periodic = manifest.joints.arrays()
     rows: list[dict[str, float]] = []
     for i, q in enumerate(q_targets):
         fk = model.kinematics(q[None])
-        position = fk.position_m[0, manifest.task.position_axes].tolist()
-        wxyz = orientation_wxyz(fk.rotation[0]) if manifest.task.orientation else None
-        target = encode_target(manifest.task, manifest.condition, position, wxyz)
-        samples = sample_configurations(
-            model.velocity, target.condition, num_samples, defaults.sampler,
-            manifest.joint_normalisation, periodic, np.random.default_rng(i),
-        )  # fmt: skip
+        query = Query.for_model(
+            manifest,
+            position_m=fk.position_m[0, manifest.task.position_axes].tolist(),
+            orientation_wxyz=orientation_wxyz(fk.rotation[0])
+            if manifest.task.orientation
+            else None,
+            num_samples=num_samples,
+            seed=i,
+        )
+        # Stages 1-4 as the pipeline runs them (service/pipeline/run.py).
+        target = encode(model, query)
         correction = correct_samples(
-            model, target, samples, defaults.tolerance_position_m,
-            defaults.tolerance_orientation_rad,
+            model, target, sample(model, query, target), query.tolerance_position_m,
+            query.tolerance_orientation_rad,
         )  # fmt: skip
         acceptance = accept(
-            correction, defaults.tolerance_position_m, defaults.tolerance_orientation_rad,
+            correction, query.tolerance_position_m, query.tolerance_orientation_rad,
             lower, upper, periodic,
         )  # fmt: skip
         timed = TimedKinematics(model.kinematics)
@@ -80,7 +81,7 @@ def profile_connect(
         start = time.perf_counter()
         connection = connect(
             fibre, correction, acceptance, lower, upper, periodic, defaults.connectivity,
-            defaults.tolerance_position_m, defaults.tolerance_orientation_rad,
+            query.tolerance_position_m, query.tolerance_orientation_rad,
             coaxial_sets=model.coaxial_sets,
         )  # fmt: skip
         connect_ms = (time.perf_counter() - start) * 1e3
