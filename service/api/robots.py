@@ -6,10 +6,11 @@ from fastapi import APIRouter
 
 from service.api.deps import RegistryDep
 from service.api.schemas import error_responses
+from service.http.openapi import operation_id
 from service.models.registry import ServedModel
 from service.wire import RobotOut, RobotsResponse
 
-router = APIRouter(prefix="/robots", tags=["robots"])
+router = APIRouter(prefix="/robots", tags=["robots"], generate_unique_id_function=operation_id)
 
 
 def describe(model: ServedModel) -> RobotOut:

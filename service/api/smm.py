@@ -13,6 +13,7 @@ from service.api.deps import AdmissionDep, MetricsDep, RegistryDep, SettingsDep
 from service.api.schemas import error_responses
 from service.errors import DeadlineExceededError, LimitExceededError, OverloadedError
 from service.http.admission import Admission
+from service.http.openapi import operation_id
 from service.models.registry import ServedModel
 from service.observability.metrics import Metrics
 from service.pipeline.deadline import Deadline
@@ -22,7 +23,7 @@ from service.wire import ComponentOut, CountsOut, SmmRequest, SmmResponse, Struc
 
 Computed = TypeVar("Computed")
 
-router = APIRouter(prefix="/smm", tags=["smm"])
+router = APIRouter(prefix="/smm", tags=["smm"], generate_unique_id_function=operation_id)
 
 
 def to_query(body: SmmRequest, model: ServedModel, max_num_samples: int) -> Query:

@@ -19,13 +19,14 @@ from service.errors import (
     RequestFieldError,
     RequestFieldErrors,
 )
+from service.http.openapi import operation_id
 from service.models.registry import ServedModel
 from service.pipeline.batch import BatchResult, run_batch
 from service.pipeline.deadline import Deadline
 from service.pipeline.types import STAGES, Query, TimedSpan
 from service.wire import BatchItemOut, SmmBatchRequest, SmmBatchResponse
 
-router = APIRouter(prefix="/smm", tags=["smm"])
+router = APIRouter(prefix="/smm", tags=["smm"], generate_unique_id_function=operation_id)
 
 
 def _at_target(error: RequestFieldError, body: SmmBatchRequest, index: int) -> RequestFieldError:

@@ -4,6 +4,10 @@
 listing what is served), but the document names the served values as enums, so a
 client generator or a fuzzer sees the real choices. It is built once the registry
 has loaded and cached from then on.
+
+Every route's operation id is its endpoint's name less a method prefix (`operation_id`), so
+a generated client's functions read `smm`, `smm_batch`, `list_robots`, `healthz`,
+`readyz` and `metrics` rather than FastAPI's `post_smm_smm_post`.
 """
 
 from __future__ import annotations
@@ -12,8 +16,21 @@ from typing import Any
 
 from fastapi import FastAPI
 from fastapi.openapi.utils import get_openapi
+from fastapi.routing import APIRoute
 
 from service.models.registry import Registry
+
+
+def operation_id(route: APIRoute) -> str:
+    """A route's OpenAPI operation id: its endpoint's name less an HTTP method prefix
+    (`post_smm` -> `smm`, `list_robots` and `healthz` as they are).
+
+    Every router passes this as its `generate_unique_id_function`; FastAPI warns when
+    two routes get the same id."""
+    name = route.name
+    for method in sorted(route.methods or ()):
+        name = name.removeprefix(f"{method.lower()}_")
+    return name
 
 
 def served_openapi(app: FastAPI) -> dict[str, Any]:
