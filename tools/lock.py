@@ -12,8 +12,9 @@ not `2.13.0+cpu`): the pin then matches the CPU wheel and is what pyproject.toml
 
 Two evaluation packages declare dependencies the project must not install, so they are
 installed by a second pip command with --no-deps (the README's test command and .ci/run)
-and pinned here without their declared closure (`WITHOUT_DEPENDENCIES`): their real
-dependencies are in the `train` extra.
+and pinned here without their declared closure (`WITHOUT_DEPENDENCIES`, with the command
+that installs them, in training/evaluate/packages.py): their real dependencies are in the
+`train` extra.
 """
 
 from __future__ import annotations
@@ -27,30 +28,16 @@ from packaging.requirements import Requirement
 from packaging.utils import canonicalize_name
 from packaging.version import Version
 
+from training.evaluate import packages
+
 ROOT = Path(__file__).resolve().parent.parent
 CONSTRAINTS = ROOT / "constraints.txt"
 PROJECT = "smm-service"
 EXTRAS = ("train", "test")
-# name -> (version, why its declared dependencies are not installed)
-WITHOUT_DEPENDENCIES: dict[str, tuple[str, str]] = {
-    # Exact Panda IK, the evaluation's ground truth (training/evaluate/references/panda.py):
-    # only eaik.IK_Homogeneous is used, which needs numpy alone; its metadata pulls urchin
-    # and a 3-D renderer (pyglet, PyOpenGL, trimesh and 6 more) for a URDF front end the
-    # project never imports.
-    "eaik": ("1.2.2", "urchin and its renderer, unused"),
-    # Clark and Xie's own code, the report's Fourier baseline (baselines/fourier.py): it
-    # declares `tdqm`, a misspelling of tqdm that must never be installed; its real
-    # dependencies (numpy, scipy, torch, networkx) are in `train`; zarr and platformdirs
-    # serve only its own disk cache, which the baseline does not use.
-    "realtime-smm": ("0.1.2", "declares tdqm, a misspelling of tqdm"),
-}
-
-
-def no_deps_command() -> str:
-    """The pip command that installs WITHOUT_DEPENDENCIES (after the project's)."""
-    pins = " ".join(f"{name}=={version}" for name, (version, _) in WITHOUT_DEPENDENCIES.items())
-    return f"pip install -c constraints.txt --no-deps {pins}"
-
+# The --no-deps packages and the command that installs them live with the code that imports
+# them (training/evaluate/packages.py), which names the same command when one is missing.
+WITHOUT_DEPENDENCIES = packages.WITHOUT_DEPENDENCIES
+no_deps_command = packages.no_deps_command
 
 HEADER = """\
 # Exact versions of every package smm-service[train,test] installs (its dependency

@@ -36,6 +36,7 @@ CHANGEABLE_ON_RESUME = frozenset(
         "checkpoint_minutes",
         "reflow_steps",
         "reflow_pairs",
+        "judge_targets",
     }
 )
 

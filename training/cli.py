@@ -13,6 +13,12 @@ stopped run continues with the same command and `--resume`; `--from-checkpoint
 runs/<id>/best.pt` re-exports a trained flow without training; `--refresh-kinematics`
 re-exports only the kinematics (kinematics.onnx, chain.json) of an existing model.
 
+The work after training (the sweep, the reflow, the judge, the quality measurement) follows
+the budget, samples x epochs: at training.budget.FULL_BUDGET_SAMPLE_EPOCHS and above it
+runs at the defaults of training/config.py, below it in proportion, unless its flag is
+given (training/budget.py). Before labelling, the command prints its plan: each stage, what
+it does or why it does not run, and a rough estimate of its wall time on this machine.
+
 Several processes train one model under PyTorch's launcher (training/distributed.py):
 
     torchrun --standalone --nproc-per-node 2 -m training.cli --robot planar3r --task position
@@ -25,15 +31,26 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import shlex
 import shutil
 import sys
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
+from typing import Any
 
 import torch
 
 from service.manifest import MANIFEST_FILE, REPO_MODELS_DIR, JointSpec, Manifest, TaskSpec
+from service.pipeline.targets import condition_names
+from training.budget import (
+    FULL_BUDGET_SAMPLE_EPOCHS,
+    SCALED_FIELDS,
+    judge_package_missing,
+    measure_costs,
+    plan_run,
+    scaled_config,
+)
 from training.checkpoint import (
     BEST_FILE,
     HISTORY_FILE,
@@ -56,6 +73,27 @@ from training.urdf import read_serial_chain, require_redundancy
 # TrainConfig fields that are not flags: the robot and task have their own, and the number
 # of processes is the launcher's (torchrun --nproc-per-node).
 NOT_FLAGS = ("robot", "task", "world_size")
+# The work after training, scaled to the budget unless its flag is given (training/budget.py).
+SCALED_HELP = {
+    "reflow_steps": "optimiser steps of the reflow after export (0: no reflow)",
+    "reflow_pairs": "teacher pairs of the reflow",
+    "sweep_targets": "held-out targets of the sweep that chooses the serving defaults "
+    "(0: no sweep, the starting defaults serve)",
+    "judge_targets": "report targets on which a reflowed sampler is judged against the "
+    "exact SMMs (robots with an exact reference)",
+    "eval_targets": "held-out targets of the quality measurement",
+}
+
+
+# The service's setting of the models directory (service/config.py, env prefix SMM_).
+MODELS_DIR_VARIABLE = "SMM_MODELS_DIR"
+
+
+def default_models_dir() -> Path:
+    """The directory the service serves: SMM_MODELS_DIR (service/config.py reads the same
+    variable) when set, else the repository's models/. Training writes where serving reads."""
+    configured = os.environ.get(MODELS_DIR_VARIABLE)
+    return Path(configured) if configured else REPO_MODELS_DIR
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
@@ -90,10 +128,27 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
             kind = type(getattr(defaults, f.name))
             if kind is bool:  # --flag / --no-flag (bool("False") would be True)
                 parser.add_argument(flag, action=argparse.BooleanOptionalAction, default=None)
+            elif f.name in SCALED_HELP:
+                text = (
+                    f"{SCALED_HELP[f.name]} (default: {getattr(defaults, f.name):,} from "
+                    f"{FULL_BUDGET_SAMPLE_EPOCHS:,} samples x epochs up, scaled down below)"
+                )
+                parser.add_argument(flag, type=kind, default=None, help=text)
             else:
                 parser.add_argument(flag, type=kind, default=None)
-    parser.add_argument("--models-dir", type=Path, default=REPO_MODELS_DIR)
-    parser.add_argument("--runs-dir", type=Path, default=Path("runs"))
+    parser.add_argument(
+        "--models-dir",
+        type=Path,
+        default=default_models_dir(),
+        help="where the model goes: the directory the service serves, SMM_MODELS_DIR when "
+        "set (as for smm-serve), else the repository's models/ (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--runs-dir",
+        type=Path,
+        default=Path("runs"),
+        help="checkpoints and training logs, not part of the model (default: %(default)s)",
+    )
     start = parser.add_mutually_exclusive_group()
     start.add_argument(
         "--resume",
@@ -126,14 +181,22 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     return args
 
 
-def config_from_args(args: argparse.Namespace, robot: str) -> TrainConfig:
-    config = preset(robot, args.task, args.models_dir)
-    overrides = {
+def given_flags(args: argparse.Namespace) -> dict[str, Any]:
+    """The TrainConfig fields whose flags were given, and their values."""
+    return {
         f.name: getattr(args, f.name)
         for f in fields(TrainConfig)
         if f.name not in NOT_FLAGS and getattr(args, f.name) is not None
     }
-    return replace(config, **overrides)
+
+
+def config_from_args(args: argparse.Namespace, robot: str, scale: bool = True) -> TrainConfig:
+    """The robot's preset with the flags given; with `scale`, the work after training
+    (sweep, reflow, judge, quality) scaled to the budget where no flag sets it
+    (training/budget.py)."""
+    given = given_flags(args)
+    config = replace(preset(robot, args.task, args.models_dir), **given)
+    return scaled_config(config, given) if scale else config
 
 
 def robot_in(models_dir: Path, name: str) -> RobotSpec:
@@ -261,8 +324,23 @@ def train_or_load(
 
     def say(message: str) -> None:  # once, not once per process
         if processes.is_main:
-            print(message)
+            print(message, flush=True)
 
+    # Before the hours of training: the judge's exact reference must be importable.
+    missing = judge_package_missing(robot.name)
+    if missing is not None and config.reflow_steps > 0 and config.sweep_targets > 0:
+        raise SystemExit(
+            f"smm-train: error: {missing}; or train without the reflow (--reflow-steps 0), "
+            "which the judge is for"
+        )
+    if processes.is_main:
+        costs = measure_costs(config, joints.count, len(condition_names(task)))
+        plan = plan_run(
+            config, task, costs, trains=best is None,
+            given=set(given_flags(args)) if best is None else set(SCALED_FIELDS),
+            full=config_from_args(args, robot.name, scale=False) if best is None else None,
+        )  # fmt: skip
+        say("\n".join(f"[{model_id}] {line}" for line in plan.lines()))
     say(f"[{model_id}] labelling {config.samples} configurations with pytorch-kinematics")
     data = build_flow_data(fk, joints, task, config.samples, config.seed)
     training_commit = code_commit

@@ -43,7 +43,8 @@ class TrainConfig:
     # step averages the gradients of world_size x batch_size samples and an epoch has
     # world_size times fewer steps; the learning rate is not scaled. On CUDA, one GPU each.
     world_size: int = 1
-    # Issue 13 options, all off (the paper's recipe) until the evaluation shows they help.
+    # Training options beyond the paper, all off (the paper's recipe) until the evaluation
+    # shows they help (python -m training.evaluate.recipe).
     # Exponential moving average of the weights after every step (0 = off; 0.999 averages
     # over ~1000 steps): smooths the noise of the last steps, so validation, best.pt and
     # the export use the averaged weights when on.
@@ -66,10 +67,14 @@ class TrainConfig:
     # last.pt is also written mid-epoch at most this often, so a long epoch cut short loses
     # minutes, not the epoch (0: after every batch).
     checkpoint_minutes: float = 5.0
+    # The work after training (reflow, sweep, judge, quality) at a full training budget:
+    # smm-train scales reflow_steps, reflow_pairs, sweep_targets, judge_targets and
+    # eval_targets down for a budget under training.budget.FULL_BUDGET_SAMPLE_EPOCHS
+    # (samples x epochs), unless the flag is given (training/budget.py).
     # Few-step sampling (training/reflow.py) after export: this many optimiser steps of the
     # reflowed field on `reflow_pairs` teacher pairs (0: no reflow, the base flow alone);
-    # the sweep then decides whether it serves. 30,000 steps of 1024 pairs take ~20 min
-    # on 2 CPU cores for the 512 x 5 MLP, the pairs ~8 min.
+    # the sweep then decides whether it serves: 30,000 steps of 1024 pairs see each pair
+    # ~30 times.
     reflow_steps: int = 30_000
     reflow_pairs: int = 1_000_000
     # Serving defaults chosen after export by the built-in sweep (training/sweep.py) on this
@@ -77,6 +82,10 @@ class TrainConfig:
     # seed of their own so the defaults are not chosen on the quality targets.
     sweep_targets: int = 20
     sweep_seed: int = 20261123
+    # A reflowed sampler the sweep chooses serves only if judged no worse against the exact
+    # SMMs (training/evaluate/judge.py; robots with an exact reference only) on this many
+    # of the evaluation report's targets, and a tenth as many near-singular ones.
+    judge_targets: int = 200
     # Quality measured after export on held-out targets (FK of random configurations drawn
     # with a seed distinct from the training seed).
     eval_targets: int = 200

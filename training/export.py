@@ -48,6 +48,7 @@ from training.checkpoint import TrainResult
 from training.config import TrainConfig
 from training.data import FlowData
 from training.defaults import serving_defaults
+from training.evaluate.judge import REPORT_TARGETS
 from training.evaluate.quality import measure_quality
 from training.kinematics import (
     ForwardKinematics,
@@ -288,14 +289,15 @@ def sweep_and_measure(
     model_dir: Path, manifest: Manifest, threads: int, sweep_targets: int, sweep_seed: int,
     eval_targets: int, eval_samples_per_target: int, eval_seed: int,
     axes: Sequence[Axis] = AXES, paper_row: RawError | None = None,
-    incumbent: Defaults | None = None,
+    incumbent: Defaults | None = None, judge_targets: int = REPORT_TARGETS,
 ) -> Manifest:  # fmt: skip
     """Choose the serving defaults (the sweep over `axes`; none with 0 targets) and measure
     quality on exactly what ships, the model in `model_dir` loaded as the service loads it;
     each step written into its manifest. `paper_row`: the paper sampler's raw errors
     already measured on the same network and targets (`measure_quality`). `incumbent`:
     the defaults served until now; the swept ones replace them only if judged no worse
-    against the exact SMMs (training/sweep.py `judged_sweep`)."""
+    against the exact SMMs on `judge_targets` report targets (training/sweep.py
+    `judged_sweep`)."""
     manifest_path = model_dir / MANIFEST_FILE
     served = load_model(model_dir, threads=threads)
     if sweep_targets > 0:
@@ -309,8 +311,9 @@ def sweep_and_measure(
             ).defaults
         else:
             defaults = judged_sweep(
-                served, sweep_targets, sweep_seed, incumbent, progress=progress, axes=axes
-            )
+                served, sweep_targets, sweep_seed, incumbent, progress=progress, axes=axes,
+                judge_targets=judge_targets,
+            )  # fmt: skip
         manifest = manifest.model_copy(update={"defaults": defaults})
         manifest_path.write_text(manifest.model_dump_json(indent=2) + "\n")
         served = replace(served, manifest=manifest)

@@ -66,6 +66,7 @@ from service.pipeline.sampling import euler_integrate
 from service.pipeline.types import VelocityField as NumpyVelocityField
 from training.config import TrainConfig
 from training.data import Labeller
+from training.evaluate.judge import REPORT_TARGETS
 from training.evaluate.quality import PAPER_SAMPLER, same_sampler
 from training.export import export_flow, git_commit, sweep_and_measure
 from training.kinematics import ForwardKinematics, load_chain
@@ -377,13 +378,14 @@ def paper_row(manifest: Manifest, targets: int, samples: int) -> RawError | None
 def export_reflow(
     model_dir: Path, student: VelocityField | None, record: ReflowRecord, threads: int,
     sweep_targets: int, sweep_seed: int, eval_targets: int, eval_samples_per_target: int,
-    eval_seed: int,
+    eval_seed: int, judge_targets: int = REPORT_TARGETS,
 ) -> Manifest:  # fmt: skip
     """reflow.onnx and reflow_int8.onnx into `model_dir` (None: keep the ones there), the
     manifest's `reflow` record, then the sweep (which may choose the reflowed sampler),
     the judgement of its choice against the exact SMMs (the base flow's defaults serve
-    unless it is no worse, training/sweep.py `judged_sweep`) and the quality
-    measurement; all on a hidden copy swapped in only when it succeeds."""
+    unless it is no worse on `judge_targets` report targets, training/sweep.py
+    `judged_sweep`) and the quality measurement; all on a hidden copy swapped in only
+    when it succeeds."""
     with staged_copy(model_dir) as staging:
         manifest = Manifest.model_validate_json((staging / MANIFEST_FILE).read_bytes())
         incumbent = base_defaults(manifest)
@@ -403,7 +405,7 @@ def export_reflow(
             staging, manifest, threads, sweep_targets, sweep_seed, eval_targets,
             eval_samples_per_target, eval_seed, axes=REFLOW_AXES,
             paper_row=paper_row(manifest, eval_targets, eval_samples_per_target),
-            incumbent=incumbent,
+            incumbent=incumbent, judge_targets=judge_targets,
         )  # fmt: skip
         load_model(staging, threads=threads)
     return manifest
@@ -484,7 +486,7 @@ def reflow_model(
         sweep_targets=setting("sweep_targets") if sweep_targets is None else sweep_targets,
         sweep_seed=setting("sweep_seed"), eval_targets=setting("eval_targets"),
         eval_samples_per_target=setting("eval_samples_per_target"),
-        eval_seed=setting("eval_seed"),
+        eval_seed=setting("eval_seed"), judge_targets=setting("judge_targets"),
     )  # fmt: skip
 
 

@@ -136,7 +136,13 @@ from service.pipeline.sampling import sample_configurations
 from service.pipeline.targets import encode_target
 from service.pipeline.types import Query, SmmResult
 from training.defaults import CONNECTIVITY_REASON, write_defaults
-from training.evaluate.judge import JUDGED, JUDGED_SEPARATOR, judged_defaults, unserved_reasons
+from training.evaluate.judge import (
+    JUDGED,
+    JUDGED_SEPARATOR,
+    REPORT_TARGETS,
+    judged_defaults,
+    unserved_reasons,
+)
 from training.evaluate.metrics import median_stage_ms
 from training.evaluate.quality import summarise_raw
 from training.evaluate.served import orientation_wxyz, stage_times_ms, with_defaults
@@ -846,6 +852,7 @@ def judged_sweep(
     progress: Callable[[str], None] = _quiet,
     axes: Sequence[Axis] = AXES,
     first: SweepResult | None = None,
+    judge_targets: int = REPORT_TARGETS,
 ) -> Defaults:
     """The sweep's defaults (`first`: that sweep, already run with `plan`) if judged no
     worse than `incumbent` against the exact SMMs (training/evaluate/judge.py
@@ -864,12 +871,14 @@ def judged_sweep(
     one serves or none is left: the sweep's 20 targets rank the candidates by cost, and
     the judge's 220 decide how few reflowed steps serve (the planar 3R's 1-step sampler
     merged two loops on one of them). Every refusal stays in reasons["judged"] before the
-    final verdict."""
+    final verdict. `judge_targets`: the judge's report targets (`judged_defaults`)."""
     refused: list[str] = []
     while True:
         swept = first or sweep_defaults(model, targets, seed, plan, progress, axes)
         first = None
-        judged, reflow_refused = _judge_steps(model, swept, incumbent, progress, refused)
+        judged, reflow_refused = _judge_steps(
+            model, swept, incumbent, progress, refused, judge_targets
+        )
         costlier = tuple(v for v in plan.reflow_steps if v > reflow_refused)
         if judged is not None or not reflow_refused or not costlier:
             break
@@ -897,6 +906,7 @@ def _judge_steps(
     incumbent: Defaults,
     progress: Callable[[str], None],
     refused: list[str],
+    judge_targets: int = REPORT_TARGETS,
 ) -> tuple[Defaults | None, int]:
     """The first of the sweep's steps, last first, that the judge lets serve (None if
     none), and the reflowed step count whose refusal stopped the search (0 if none did);
@@ -908,7 +918,7 @@ def _judge_steps(
         if values in tried or (values == kept and tried):
             continue  # judged already, or the incumbent itself after a refusal
         tried.append(values)
-        judged = judged_defaults(model, defaults, incumbent, progress)
+        judged = judged_defaults(model, defaults, incumbent, progress, judge_targets)
         if judged.model_dump(exclude={"reasons"}) == values:
             return judged, 0
         reflowed = defaults.sampler.steps if defaults.sampler.flow == "reflow" else 0

@@ -303,7 +303,7 @@ def train(
         initial=batches_done,
         unit="batch",
         mininterval=2.0,
-        smoothing=0.0,  # ETA from this session's mean rate, pauses (validation, labels) included
+        smoothing=0.0,  # ETA from this process's mean rate, pauses (validation, labels) included
         disable=not processes.is_main,
     ) as progress:
         for epoch in range(first_epoch, config.epochs):

@@ -61,7 +61,8 @@ def test_a_last_checkpoint_from_before_mid_epoch_and_ema_fields_loads_at_an_epoc
     data: FlowData, tmp_path: Path
 ) -> None:
     """A last.pt without ema_model, epoch_start_generator, next_batch and epoch_loss_sum
-    (and a config without the issue 13 fields) loads as a run between epochs, no average."""
+    (and a config without the training options' fields) loads as a run between epochs, no
+    average."""
     train(TINY, data, run_dir=tmp_path)
     payload = torch.load(tmp_path / LAST_FILE, weights_only=False)
     for name in ("ema_model", "epoch_start_generator", "next_batch", "epoch_loss_sum"):

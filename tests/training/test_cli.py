@@ -205,3 +205,15 @@ def test_refresh_kinematics_flag_gives_an_existing_model_its_chain(tmp_path: Pat
     assert isinstance(load_model(model_dir, threads=1).kinematics, SerialChainKinematics)
     with pytest.raises(SystemExit):  # it trains nothing, so it does not combine with --resume
         main([*argv, "--refresh-kinematics", "--resume"])
+
+
+def test_models_go_where_the_service_serves_from(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Without --models-dir, smm-train writes where smm-serve reads: SMM_MODELS_DIR when set
+    (the service's own setting), else the repository's models/."""
+    from service.config import Settings
+    from training.cli import MODELS_DIR_VARIABLE, default_models_dir
+
+    monkeypatch.delenv(MODELS_DIR_VARIABLE, raising=False)
+    assert default_models_dir() == REPO_MODELS_DIR == Settings().models_dir
+    monkeypatch.setenv(MODELS_DIR_VARIABLE, "/srv/smm/models")
+    assert default_models_dir() == Path("/srv/smm/models") == Settings().models_dir

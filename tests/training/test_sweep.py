@@ -454,7 +454,11 @@ def test_a_refused_reflowed_sampler_is_followed_by_the_next_costlier_one(
     judged: list[int] = []
 
     def verdict(
-        model: ServedModel, swept: Defaults, incumbent: Defaults, progress: object
+        model: ServedModel,
+        swept: Defaults,
+        incumbent: Defaults,
+        progress: object,
+        targets: int,
     ) -> Defaults:
         steps = swept.sampler.steps if swept.sampler.flow == "reflow" else 0
         judged.append(steps)
@@ -495,9 +499,13 @@ def test_a_refused_reflowed_sampler_is_followed_by_the_next_costlier_one(
     # What serves after a refusal may carry no verdict of its own (judged_defaults gives
     # swept defaults equal to the incumbent's back unjudged): the refusals still stand.
     def quiet_verdict(
-        model: ServedModel, swept: Defaults, incumbent: Defaults, progress: object
+        model: ServedModel,
+        swept: Defaults,
+        incumbent: Defaults,
+        progress: object,
+        targets: int,
     ) -> Defaults:
-        refused = verdict(model, swept, incumbent, progress)
+        refused = verdict(model, swept, incumbent, progress, targets)
         if refused.reasons[JUDGED] == "serves":
             return swept
         return refused
@@ -522,7 +530,11 @@ def test_a_refused_axis_leaves_the_earlier_axes_choices_to_be_judged(
     judged: list[int] = []
 
     def verdict(
-        model: ServedModel, swept: Defaults, incumbent: Defaults, progress: object
+        model: ServedModel,
+        swept: Defaults,
+        incumbent: Defaults,
+        progress: object,
+        targets: int,
     ) -> Defaults:
         judged.append(swept.num_samples)
         if swept.num_samples != incumbent.num_samples or refuse_all:

@@ -68,7 +68,8 @@ def test_a_stopped_run_resumes_to_the_weights_of_an_uninterrupted_one(
     assert [row["epoch"] for row in read_jsonl(run_dir / LOG_FILE)] == [0, 1, 2]
 
 
-# Everything issue 13 added, switched on at once; the tiny run has 5 batches an epoch.
+# Every training option beyond the paper's recipe, switched on at once; the tiny run has
+# 5 batches an epoch.
 ALL_OPTIONS = {
     "ema_decay": 0.9,
     "fresh_data": True,

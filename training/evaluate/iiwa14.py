@@ -1,4 +1,4 @@
-"""Acceptance check of the iiwa14 models (issue 3), by the paper's DH table, and the sweep
+"""Acceptance check of the iiwa14 models by the paper's DH table, and the sweep
 that chose their serving defaults.
 
 Held-out targets are the FK of configurations drawn uniformly within the joint limits

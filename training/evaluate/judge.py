@@ -87,9 +87,20 @@ TRUTH_FIGURES = (
 )
 
 
+def near_singular_for(targets: int) -> int:
+    """Near-singular targets beside `targets` report targets: NEAR_SINGULAR per
+    REPORT_TARGETS (a judge scaled down with a small training budget keeps the share)."""
+    return max(1, round(targets * NEAR_SINGULAR / REPORT_TARGETS))
+
+
+def robot_has_ground_truth(robot: str) -> bool:
+    """Whether `robot` has an exact reference to judge against."""
+    return robot == "planar3r" or robot in REFERENCES
+
+
 def has_ground_truth(model: ServedModel) -> bool:
     """Whether the model's robot has an exact reference to judge against."""
-    return model.manifest.robot == "planar3r" or model.manifest.robot in REFERENCES
+    return robot_has_ground_truth(model.manifest.robot)
 
 
 def figures(
@@ -238,12 +249,14 @@ def check_same_problem(candidate: ServedModel, model: ServedModel) -> None:
 
 def judged_defaults(
     served: ServedModel, swept: Defaults, incumbent: Defaults,
-    progress: Callable[[str], None] = lambda line: None,
+    progress: Callable[[str], None] = lambda line: None, targets: int = REPORT_TARGETS,
 ) -> Defaults:  # fmt: skip
     """The swept defaults if they serve what the incumbent did or are judged no worse
-    against the exact SMMs (`judge`), else the incumbent's; the verdict
+    against the exact SMMs (`judge`, on `targets` report targets and
+    `near_singular_for(targets)` near-singular ones), else the incumbent's; the verdict
     in reasons["judged"]. The sweep's 20 targets cannot see a rare lost component; the
-    judge's 200 report targets and 20 near-singular ones can. A robot without an exact
+    judge's 200 report targets and 20 near-singular ones can (`smm-train` judges on fewer
+    after a small training budget, training/budget.py). A robot without an exact
     reference keeps the swept defaults, its reason saying they were not judged."""
     swept_values = swept.model_dump(exclude={"reasons"})
     incumbent_values = incumbent.model_dump(exclude={"reasons"})
@@ -256,7 +269,10 @@ def judged_defaults(
             "incumbent's"
         )
         return swept.model_copy(update={"reasons": {**swept.reasons, JUDGED: reason}})
-    judgement = judge(served, swept, incumbent, progress=progress)
+    judgement = judge(
+        served, swept, incumbent, targets=targets, near_singular=near_singular_for(targets),
+        progress=progress,
+    )  # fmt: skip
     changed = _changes(incumbent, swept)
     if judgement.no_worse:
         reason = f"the sweep's change ({changed}) serves: {judgement.summary()}"

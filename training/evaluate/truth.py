@@ -68,6 +68,10 @@ REFERENCES = {
 }
 
 
+# The evaluation package each reference imports when it runs (training/evaluate/packages.py).
+REFERENCE_PACKAGES: dict[str, str] = {"panda": "eaik"}
+
+
 def ground_truth(model: SmmModel, q_target: np.ndarray, seed: int) -> Truth:
     """The exact SMM of the target made by q_target (n,); `seed` drives the 4-D grid only."""
     fk = model.kinematics(q_target[None])

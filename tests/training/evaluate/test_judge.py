@@ -90,10 +90,7 @@ def test_a_one_sample_candidate_is_judged_worse_and_the_incumbent_no_worse(
     assert same.no_worse and same.candidate == same.incumbent
 
 
-def test_judged_defaults_keep_the_incumbent_unless_no_worse(
-    planar3r: ServedModel, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    monkeypatch.setattr(judging, "judge", SMALL)
+def test_judged_defaults_keep_the_incumbent_unless_no_worse(planar3r: ServedModel) -> None:
     incumbent = planar3r.manifest.defaults
     reworded = incumbent.model_copy(update={"reasons": {"sampler": "other words"}})
     assert judging.judged_defaults(planar3r, reworded, incumbent) == reworded
@@ -101,10 +98,11 @@ def test_judged_defaults_keep_the_incumbent_unless_no_worse(
     one = incumbent.model_copy(
         update={"num_samples": 1, "reasons": {**incumbent.reasons, "new_axis": "measured"}}
     )
-    kept = judging.judged_defaults(planar3r, one, incumbent)
+    kept = judging.judged_defaults(planar3r, one, incumbent, targets=12)  # and 1 near-singular
     assert kept.model_dump(exclude={"reasons"}) == incumbent.model_dump(exclude={"reasons"})
     assert "num_samples 1000 -> 1" in kept.reasons["judged"]
     assert "does not serve" in kept.reasons["judged"]
+    assert "12 report targets (seed 7) and 1 near-singular ones" in kept.reasons["judged"]
     assert {k: kept.reasons[k] for k in incumbent.reasons if k != "judged"} == {
         k: v for k, v in incumbent.reasons.items() if k != "judged"
     }

@@ -1,5 +1,5 @@
 """planar3r check: the bundled planar 3R model against the closed form: counts, exactness
-and coverage (issue 2).
+and coverage.
 """
 
 from __future__ import annotations

@@ -34,16 +34,15 @@ theta = 0 and revolute joints in [-pi, pi] has the FK of models/robots/planar3r.
 joint as periodic, as our model does.
 
 Install. realtime-smm cannot be a pyproject dependency: it declares `tdqm`, a misspelling
-of tqdm, which must never be installed. Install it alone, after the project:
+of tqdm, which must never be installed. It is installed alone, after the project, by the
+command of training/evaluate/packages.py (`no_deps_command`), and imported only where the
+baseline runs: without it, this module's functions raise with that command.
 
-    .venv/bin/pip install -c constraints.txt -e '.[train,test,fourier]'
-    .venv/bin/pip install --no-deps realtime-smm==0.1.2
-
-Its real dependencies for what this module calls are numpy, scipy, torch (the `train`
-extra) and networkx (the `fourier` extra; all pinned in constraints.txt), and tqdm,
-optional (progress bars). It also declares zarr and platformdirs, which serve only its
-own disk cache (`use_cache=True`, under the user's cache directory): this module keeps
-its model under runs/fourier-planar3r/ and never needs them. Its `numpy>=2.3.3` is met by
+Its real dependencies for what this module calls are numpy, scipy, torch and networkx
+(the `train` extra; all pinned in constraints.txt), and tqdm, optional (progress bars).
+It also declares zarr and platformdirs, which serve only its own disk cache
+(`use_cache=True`, under the user's cache directory): this module keeps its model under
+runs/fourier-planar3r/ and never needs them. Its `numpy>=2.3.3` is met by
 our pin (2.4.6); it calls nothing numpy 1.26 lacks (read from its source). `pip check`
 lists the three declared packages as missing: expected.
 
@@ -76,12 +75,13 @@ from service.pipeline.acceptance import accept
 from service.pipeline.arrays import FloatArray
 from service.pipeline.correction import correct, task_error_norms
 from training.evaluate.methods import MethodTarget, reference_target
+from training.evaluate.packages import WITHOUT_DEPENDENCIES, missing_message, requiring
 
 FOURIER = "Fourier (realtime-smm)"  # the raw prediction: every point of every branch
 FOURIER_DLS = "Fourier (realtime-smm) + DLS"  # corrected and accepted like FM + DLS
-VERSION = "0.1.2"  # the realtime-smm this module is written against
+VERSION = WITHOUT_DEPENDENCIES["realtime-smm"][0]  # the realtime-smm this module is written against
 RUN_DIR = Path(__file__).resolve().parents[3] / "runs" / "fourier-planar3r"
-INSTALL = f"pip install --no-deps realtime-smm=={VERSION}"
+PURPOSE = "The Fourier baseline (training/evaluate/baselines/fourier.py)"
 
 
 @dataclass(frozen=True)
@@ -150,7 +150,7 @@ def require_library() -> None:
     """Raise FourierUnavailable unless realtime-smm VERSION is importable."""
     version = installed_version()
     if version is None:
-        raise FourierUnavailable(f"realtime-smm not installed ({INSTALL})")
+        raise FourierUnavailable(missing_message("realtime-smm", PURPOSE))
     if version != VERSION:
         raise FourierUnavailable(f"realtime-smm {version} installed; this baseline runs {VERSION}")
 
@@ -170,7 +170,8 @@ def supports(manifest: Manifest) -> str | None:
 
 def planar3r_robot() -> Any:
     """Our planar 3R as a realtime_smm.Robot: unit links, standard DH, x-y position task."""
-    from realtime_smm import DHLink, JointType, Robot, TaskSpace
+    with requiring("realtime-smm", PURPOSE):
+        from realtime_smm import DHLink, JointType, Robot, TaskSpace
 
     links = [DHLink(a=1.0, alpha=0.0, d=0.0, theta=0.0, joint_type=JointType.REVOLUTE)] * 3
     return Robot(links, taskspace=TaskSpace.X | TaskSpace.Y)
@@ -195,11 +196,13 @@ def train(run_dir: Path = RUN_DIR, budget: Budget = BUDGET) -> FourierModel:
 
 def _train(run_dir: Path, budget: Budget) -> FourierModel:
     import torch
-    from realtime_smm import GridParams, SMMSolverParams, TrainingConfig
-    from realtime_smm.helpers import SMMStatus
-    from realtime_smm.learning import train_cluster_networks
-    from realtime_smm.postprocess_grid import postprocess_grid
-    from realtime_smm.smm_grid import build_smm_grid
+
+    with requiring("realtime-smm", PURPOSE):
+        from realtime_smm import GridParams, SMMSolverParams, TrainingConfig
+        from realtime_smm.helpers import SMMStatus
+        from realtime_smm.learning import train_cluster_networks
+        from realtime_smm.postprocess_grid import postprocess_grid
+        from realtime_smm.smm_grid import build_smm_grid
 
     start = time.perf_counter()
     grid = build_smm_grid(
@@ -259,7 +262,8 @@ def _train(run_dir: Path, budget: Budget) -> FourierModel:
 def load(run_dir: Path = RUN_DIR) -> FourierModel:
     """The model `train` saved under run_dir; FourierUnavailable when there is none."""
     require_library()
-    from realtime_smm.learning import SMMNetworkBundle
+    with requiring("realtime-smm", PURPOSE):
+        from realtime_smm.learning import SMMNetworkBundle
 
     path = run_dir / "bundle.pt"
     if not path.is_file():

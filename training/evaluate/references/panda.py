@@ -15,6 +15,10 @@ over its range gives exact points of the 1-D pose SMM; `pose_smm` chains them in
 curves, joins the two branches that meet at each fold (where the curve turns back in
 q7), fills fast swings, and cuts the curves by the joint limits.
 
+eaik is an evaluation package (training/evaluate/packages.py): it is imported when a
+solve runs (`locked_q7_robot`), not with this module, so that training and serving never
+need it.
+
 Angles come back in (-pi, pi]. Every joint's range but q6's lies inside (-pi, pi) so
 the wrap is outside the limits; q6's range [-0.0175, 3.7525] straddles pi, so q6 is
 kept in the chart [-0.0175, 2 pi - 0.0175), whose seam is the lower limit itself.
@@ -24,14 +28,15 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
-from eaik.IK_Homogeneous import HomogeneousRobot
 from scipy.optimize import linear_sum_assignment
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from training.evaluate.packages import requiring
 from training.evaluate.references.iiwa14 import MIN_SHARE, PositionSmm
 
 # Franka's modified DH table (frame i from i - 1: Rx(alpha) Tx(a) Rz(q) Tz(d)).
@@ -103,11 +108,19 @@ def _angle_gap(q_a: np.ndarray, q_b: np.ndarray) -> np.ndarray:
 _ZERO_POSE_FRAMES = joint_frames(np.zeros((1, 7)))[0]  # (8, 4, 4) what eaik is built from
 
 
+def locked_q7_robot(q7_rad: float) -> Any:
+    """eaik's 6R arm: the Panda with joint 7 locked at q7. eaik is imported here, not with
+    the module, so that training and serving never need it; without it this raises
+    MissingEvaluationPackage naming the command that installs it."""
+    with requiring("eaik", "The Panda's exact reference (training/evaluate/references/panda.py)"):
+        from eaik.IK_Homogeneous import HomogeneousRobot
+    return HomogeneousRobot(_ZERO_POSE_FRAMES, fixed_axes=[(6, float(q7_rad))])
+
+
 def solve_locked_q7(pose: np.ndarray, q7_rad: float) -> np.ndarray:
     """(k, 7) every exact configuration reaching `pose` (4, 4) with joint 7 at q7, no
     limits applied, q6 in the chart; eaik's least-squares rows are dropped."""
-    robot = HomogeneousRobot(_ZERO_POSE_FRAMES, fixed_axes=[(6, float(q7_rad))])
-    solution = robot.IK(pose)
+    solution = locked_q7_robot(q7_rad).IK(pose)
     q = np.asarray(solution.Q, dtype=float).reshape(-1, 7)[~np.asarray(solution.is_LS, bool)]
     return to_chart(q)
 
@@ -351,8 +364,7 @@ def position_smm(
     spacing_rad = float(np.sqrt(4 * np.pi / sphere_steps))
     poses = np.tile(np.eye(4), (len(rotation), 1, 1))  # (S * K, 4, 4)
     poses[:, :3, :3], poses[:, :3, 3] = rotation, position_m
-    robot = HomogeneousRobot(_ZERO_POSE_FRAMES, fixed_axes=[(6, 0.0)])
-    solutions = robot.IK_batched(poses, 2)
+    solutions = locked_q7_robot(0.0).IK_batched(poses, 2)
     q = np.concatenate([np.reshape(s.Q, (-1, 7)) for s in solutions])  # (N, 7)
     exact = ~np.concatenate([np.asarray(s.is_LS, bool) for s in solutions])
     q = to_chart(q[exact])
