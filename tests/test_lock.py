@@ -1,9 +1,9 @@
 """One lock for every install: constraints.txt is current, and every install uses it.
 
-The README's two set-up commands, `.ci/run` and the Dockerfile all pass constraints.txt
-to pip, so the container runs the versions the tests ran. The file must pin exactly the
-dependency closure installed here (`python -m tools.lock` regenerates it), and every pin
-must satisfy what pyproject.toml asks.
+The README's two set-up commands (scripts/serve, scripts/test, which `.ci/run` runs) and
+the Dockerfile all pass constraints.txt to pip, so the container runs the versions the
+tests ran. The file must pin exactly the dependency closure installed here (`python -m
+tools.lock` regenerates it), and every pin must satisfy what pyproject.toml asks.
 """
 
 import re
@@ -48,15 +48,24 @@ def test_every_dependency_is_pinned_within_what_pyproject_asks() -> None:
 
 
 def test_readme_ci_and_dockerfile_install_with_the_constraints() -> None:
-    commands = setup_commands()
-    assert len(commands) == 2, "the README starts with exactly two set-up commands"
-    for command in commands:
-        assert "pip install -c constraints.txt -e " in command, command
-    serve, test = commands
-    assert serve.endswith(".venv/bin/smm-serve")
+    """The README's commands are the two scripts, which .ci/run runs as written; every pip
+    install in them and in the Dockerfile passes constraints.txt."""
+    assert setup_commands() == ["./scripts/serve", "./scripts/test"], (
+        "the README starts with exactly two set-up commands: ./scripts/serve, ./scripts/test"
+    )
+    serve = (ROOT / "scripts" / "serve").read_text()
+    test = (ROOT / "scripts" / "test").read_text()
+    for script in (serve, test):
+        installs = [line for line in script.splitlines() if "pip install" in line]
+        assert installs, script
+        for line in installs:
+            assert "-c constraints.txt" in line or "checkov-requirements.txt" in line, line
+    assert "pip install -q -c constraints.txt -e .\n" in serve
+    assert serve.rstrip().endswith("exec .venv/bin/smm-serve")
+    assert "pip install -q -c constraints.txt -e '.[train,test]'" in test
     assert lock.no_deps_command() in test, "the --no-deps packages are installed by the tests"
-    ci = (ROOT / ".ci" / "run").read_text()
-    assert test.replace("pip install -c", "pip install -q -c") in ci
+    ci = (ROOT / ".ci" / "run").read_text().splitlines()
+    assert "./scripts/test" in ci and any(line.startswith("./scripts/serve ") for line in ci)
     assert "--constraint constraints.txt" in (ROOT / "Dockerfile").read_text()
 
 
