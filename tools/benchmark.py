@@ -24,8 +24,8 @@ targets: FK of configurations uniform in the limits, seed 7, the first --targets
   POST /smm/batch against as many POST /smm sent one after another, every batch answer
   checked equal to its single answer (`tools.batch_benchmark`).
 
-For each of issue 14's goals not met: by how much, and what bounds it, from the same
-run: the stage that alone passes the time goal, or the evaluations of the network that
+For each speed goal not met (tools/goals.py): by how much, and what bounds it,
+from the same run: the stage that alone passes the time goal, or the evaluations of the network that
 the other stages leave for sampling; the connect stage's profile on the same targets
 (`tools.connect_profile`); the judge's verdicts on the cheaper configurations tried (the
 manifest's reasons); the truth figures that are worse, and on the judge's larger target
@@ -59,6 +59,18 @@ from service.models.registry import ServedModel, load_model
 from tools.batch_benchmark import batch_against_singles
 from tools.connect_profile import profile_connect
 from tools.connect_profile import summarise as summarise_connect
+from tools.goals import (
+    BASE,
+    BATCH_GOAL_X,
+    BATCH_NUM_SAMPLES,
+    CONFIGURATIONS,
+    FLOAT32,
+    GOAL_NUM_SAMPLES,
+    GOALS,
+    PAPER,
+    RESTART,
+    SERVICE,
+)
 from tools.local_server import LocalServer
 from training.evaluate.judge import (
     JUDGED_SEPARATOR,
@@ -81,9 +93,6 @@ ROOT = Path(__file__).resolve().parents[1]
 OUT_DIR = ROOT / "docs" / "benchmark"
 SIZES = (250, 1000, 4000)
 MATCH_ROUNDS = 4  # rescaled restart runs at most, to reach the service's valid count
-SERVICE, PAPER, RESTART = "service", "paper (100 Euler, 3 DLS)", "random-restart DLS"
-FLOAT32 = "service, float32 network"
-BASE = "service, base flow"  # the reflowed sampler's base flow at the steps it replaced
 
 
 @dataclass(frozen=True)
@@ -243,7 +252,10 @@ def benchmark_model(
         "targets": num_targets,
         # Where the connect stage's time goes on the same targets at the goals' N
         # (tools.connect_profile).
-        "connect_profile": summarise_connect(profile_connect(model, q_targets, GOAL_NUM_SAMPLES)),
+        "connect_profile": {
+            **summarise_connect(profile_connect(model, q_targets, GOAL_NUM_SAMPLES)),
+            "num_samples": GOAL_NUM_SAMPLES,
+        },
         # The judge's verdicts on configurations tried for these defaults, from the manifest.
         "judged": [] if judged is None else judged.split(JUDGED_SEPARATOR),
         "paper_judgement": paper_judgement(manifest),
@@ -256,24 +268,34 @@ def benchmark_model(
 
 def markdown(report: dict) -> str:
     machine = Machine.from_json(report["machine"])
+    runs = [
+        row[name]
+        for entry in report["models"].values()
+        for row in entry["sizes"].values()
+        for name in CONFIGURATIONS
+        if name in row
+    ]
+    # CPU time per answer, where the report measured it.
+    cpu = any(run.get("cpu_median_ms") is not None for run in runs)
+    commit = f" at commit {report['git_commit']}" if report.get("git_commit") else ""
     lines = [
         "# Benchmark: time and truth, warm, on one machine in one run",
         "",
-        f"Produced by `{report['command']}` at commit "
-        f"{report.get('git_commit', 'unrecorded')} on {machine.describe()}. "
+        f"Produced by `{report['command']}`{commit} on {machine.describe()}. "
         f"onnxruntime threads per session: {report['onnx_threads']} "
         "(the service's own setting on this machine). Targets per model: "
         f"{report['targets']} held-out (seed {report['seed']}). Times are comparable only "
         "within this report.",
         "",
-        "| model | N | configuration | median ms | p95 ms | CPU ms | sample | correct | connect "
-        "| valid configs | count right | splits / target | merges / target | recall | coverage "
-        "p95 rad |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| model | N | configuration | median ms | p95 ms | "
+        + ("CPU ms | " if cpu else "")
+        + "sample | correct | connect | valid configs | count right | splits / target | "
+        "merges / target | recall | coverage p95 rad |",
+        "|---|---|---|---|---|" + ("---|" if cpu else "") + "---|---|---|---|---|---|---|---|---|",
     ]
     for model_id, entry in report["models"].items():
         for n, row in entry["sizes"].items():
-            for name in (SERVICE, FLOAT32, BASE, PAPER, RESTART):
+            for name in CONFIGURATIONS:
                 if name not in row:
                     continue
                 run = row[name]
@@ -282,8 +304,8 @@ def markdown(report: dict) -> str:
                 sample = stage.get("sample", stage.get("solve"))
                 lines.append(
                     f"| {model_id} | {n} | {name} | {run['median_ms']:.1f} | {run['p95_ms']:.1f} | "
-                    f"{_ms(run.get('cpu_median_ms'))} | {_ms(sample)} | "
-                    f"{_ms(stage.get('correct'))} | "
+                    + (f"{_ms(run.get('cpu_median_ms'))} | " if cpu else "")
+                    + f"{_ms(sample)} | {_ms(stage.get('correct'))} | "
                     f"{_ms(stage.get('connect'))} | {run['valid_configurations_mean']:.0f} | "
                     f"{f['count_right']:.3g} | {_num(f.get('splits_per_target'))} | "
                     f"{_num(f.get('merges_per_target'))} | {_num(f.get('recall'))} | "
@@ -311,10 +333,21 @@ def markdown(report: dict) -> str:
         lines += ["", *_batch(report["batch"], report.get("batch_sampling_ahead"))]
     lines += [
         "",
-        "CPU ms: the process's CPU time per answer (median; every thread, onnxruntime's "
-        "workers included, and the evaluation's reading of the answer), what a core is busy "
-        "for; the wall time is less where the network runs on several threads. "
-        "Stages: sample (the flow's Euler steps; `solve` for restart DLS), correct (DLS, and "
+        "Configurations: service, each model's defaults when the report ran (their flow, "
+        "Euler steps and network are in the table of where the time goes); service, float32 "
+        "network, the same with the float32 network where the defaults serve the int8 one; "
+        "service, base flow, a reflowed sampler's base flow at the steps it replaced; paper, "
+        "the paper's configuration (100 uniform Euler steps in float32, 3 DLS steps) run by "
+        "the same code; random-restart DLS, pytorch-kinematics from uniform restarts, then "
+        "the service's own stages after its correction. "
+        + (
+            "CPU ms: the process's CPU time per answer (median; every thread, onnxruntime's "
+            "workers included, and the evaluation's reading of the answer), what a core is "
+            "busy for; the wall time is less where the network runs on several threads. "
+            if cpu
+            else ""
+        )
+        + "Stages: sample (the flow's Euler steps; `solve` for restart DLS), correct (DLS, and "
         "for r > 1 the pull into the limits, which alone is restart DLS's correct), "
         "connect (components on the fibre); the median of each over the targets, so they "
         "need not add up to the median of the whole. Valid configs: configurations within "
@@ -328,23 +361,9 @@ def markdown(report: dict) -> str:
     return "\n".join(lines)
 
 
-# The batch's samples per target, and issue 14's goal for it: at least this many times
-# faster than its targets sent one after another.
-BATCH_NUM_SAMPLES = 1000
-BATCH_GOAL_X = 3.0
-GOAL_NUM_SAMPLES = 1000  # the N of issue 14's goals
-# Issue 14's goals at N = 1000, in process, median: (model, at most ms, at least x faster
-# than the paper's configuration in the same run or None).
-GOALS = (
-    ("iiwa14-pose", 60.0, 20.0),
-    ("iiwa14-position", 60.0, None),
-    ("planar3r-position", 15.0, None),
-)
-
-
 def _goals(report: dict) -> list[str]:
     lines = [
-        "Goals (issue 14; N = 1000, in process, median):",
+        "Speed goals (N = 1000, in process, median):",
         "",
         "| model | median ms | goal ms | x the paper's time | goal x | time met | truth against "
         "the paper's configuration |",
@@ -443,10 +462,12 @@ def _time_bound(entry: dict, ms: float, most_ms: float, stage: dict[str, float])
     if profile is not None:
         calls, configurations = profile["kinematics_calls"], profile["configurations_evaluated"]
         own_ms = profile["connect_ms"] - profile["kinematics_ms"]
+        # A report without the profile's N profiled at each model's default N.
+        n = profile.get("num_samples")
+        at = "the model's default N" if n is None else f"N = {n}"
         text += (
             f"The connect stage profiled alone (`tools.connect_profile`, the same targets at "
-            f"N = {GOAL_NUM_SAMPLES}, one thread): {profile['connect_ms']:.1f} ms, of which the "
-            "kinematics "
+            f"{at}, one thread): {profile['connect_ms']:.1f} ms, of which the kinematics "
             f"{profile['kinematics_ms']:.1f} ms in {calls:.0f} calls over "
             f"{configurations:.0f} configurations ({configurations / max(calls, 1):.0f} per "
             f"call), and {own_ms:.1f} ms the stage's own array work between those calls "

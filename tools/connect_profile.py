@@ -6,7 +6,7 @@ Runs stages 1-4 on held-out targets (uniform configurations in the limits, their
 then stage 5 with the model's kinematics behind a timer, and prints per target the
 connect stage's wall time, the kinematics calls and configurations evaluated inside it
 and their time; then medians. One thread, in process. Compare figures only within one
-run (the CPU differs between machines and sessions).
+run (the CPU, and what else runs on it, differ between runs and machines).
 """
 
 from __future__ import annotations

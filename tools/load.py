@@ -1,15 +1,20 @@
 """Load test: many concurrent clients mixing every served model, for a bounded time.
 
     python -m tools.load --clients 16 --duration-s 60
+    python -m tools.load --clients 16 4 --duration-s 60 --json docs/benchmark/load.json
 
 starts a server on 127.0.0.1 (tools.local_server) unless `--url` names a running one
-(loopback only), then runs `--clients` concurrent clients for `--duration-s` seconds.
+(loopback only), then runs `--clients` concurrent clients for `--duration-s` seconds;
+with several client counts, one run after another, each against a server of its own.
 Each client loops: pick a served model in turn, POST /smm for a reachable target of it
 (the FK of a random configuration within the limits, computed with the model's own
 exported kinematics), wait for the answer. A 503 is honoured as a well-behaved client
 would, by sleeping its Retry-After (unless `--no-backoff`). The report: requests,
 throughput, p50/p95/p99 latency (all answers and per model), statuses, and errors
 (anything but 200 and 503, transport failures included). Exit code 1 when errors > 0.
+`--json` writes every run's report, with the command, the commit and the machine (its load
+average at the start and the end), to one file: docs/benchmark/load.json is the committed
+one that the docs' load table is written from.
 """
 
 from __future__ import annotations
@@ -35,7 +40,7 @@ from scipy.spatial.transform import Rotation
 from service.manifest import KINEMATICS_FILE, MANIFEST_FILE, REPO_MODELS_DIR, Manifest
 from service.models.sessions import OnnxKinematics, open_session
 from tools.local_server import LocalServer
-from training.machine import cpu_model
+from training.machine import Machine, cpu_model
 
 TARGETS_PER_MODEL = 64
 
@@ -220,13 +225,15 @@ def format_report(report: Report) -> str:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--url", help="a running server (loopback only); default: start one")
-    parser.add_argument("--clients", type=int, default=16)
+    parser.add_argument(
+        "--clients", type=int, nargs="+", default=[16], help="one run per count, in turn"
+    )
     parser.add_argument("--duration-s", type=float, default=60.0)
     parser.add_argument("--timeout-s", type=float, default=60.0, help="per-request timeout")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--no-backoff", action="store_true", help="ignore Retry-After")
     parser.add_argument("--api-key", default=os.environ.get("SMM_API_KEY"))
-    parser.add_argument("--json", help="also write the report here")
+    parser.add_argument("--json", help="also write the reports here (JSON)")
     parser.add_argument(
         "--setting",
         action="append",
@@ -237,40 +244,51 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     bodies = request_bodies(args.seed)
     headers = {"X-API-Key": args.api_key} if args.api_key else None
-
-    def load(url: str) -> Report:
-        outcomes = asyncio.run(
-            run_load(
-                url,
-                bodies,
-                args.clients,
-                args.duration_s,
-                not args.no_backoff,
-                args.timeout_s,
-                headers,
-            )
-        )
-        return summarise(outcomes, args.clients, args.duration_s)
-
+    settings = dict(item.split("=", 1) for item in args.setting)
     if args.url:
         require_loopback(args.url)
-        report = load(args.url)
-    else:
-        settings = dict(item.split("=", 1) for item in args.setting)
-        if args.api_key:
-            settings["api_key"] = args.api_key
-        with LocalServer(log_level="warning", **settings) as server:
-            rss_start = server.rss_bytes()
-            report = load(server.url)
-            report.server_rss_mib = {
-                "at start": rss_start / 2**20,
-                "after the run": server.rss_bytes() / 2**20,
-            }
-    print(format_report(report))
+    record: dict[str, Any] = {
+        "command": " ".join(["python -m tools.load", *(sys.argv[1:] if argv is None else argv)]),
+        "url": args.url,
+        "settings": settings,
+    }
     if args.json:
+        from training.export import git_commit  # imports torch: only for a written record
+
+        record["git_commit"] = git_commit()
+    machine = Machine.now()
+
+    def load(url: str, clients: int) -> Report:
+        outcomes = asyncio.run(
+            run_load(
+                url, bodies, clients, args.duration_s, not args.no_backoff, args.timeout_s,
+                headers,
+            )
+        )  # fmt: skip
+        return summarise(outcomes, clients, args.duration_s)
+
+    reports = []
+    for clients in args.clients:
+        if args.url:
+            report = load(args.url, clients)
+        else:
+            started = dict(settings, api_key=args.api_key) if args.api_key else settings
+            with LocalServer(log_level="warning", **started) as server:
+                rss_start = server.rss_bytes()
+                report = load(server.url, clients)
+                report.server_rss_mib = {
+                    "at start": rss_start / 2**20,
+                    "after the run": server.rss_bytes() / 2**20,
+                }
+        print(format_report(report), flush=True)
+        reports.append(report)
+    if args.json:
+        record["machine"] = machine.ended().as_json()
+        record["runs"] = [asdict(report) for report in reports]
         with open(args.json, "w") as handle:
-            json.dump(asdict(report), handle, indent=2)
-    return 1 if report.errors else 0
+            json.dump(record, handle, indent=1)
+            handle.write("\n")
+    return 1 if any(report.errors for report in reports) else 0
 
 
 if __name__ == "__main__":

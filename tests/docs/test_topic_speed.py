@@ -1,0 +1,343 @@
+"""The speed blocks (tools/docs/topics/speed.py) write what the committed benchmark reports,
+judge records and manifests hold: each figure and table cell is checked here against the
+JSON read directly, rounded as the block documents; the replica table's t follows its
+stated formula (CPU ms plus what HTTP adds) and the pods follow ceil(L x t / (c x u)) with
+c and u from deploy/; the goals are tools/goals.py's; an unknown report, model, path,
+option or record lists the valid choices; and the facts docs/speed.md states in words
+(which goals are missed, what the judge refused, where restart DLS stands) hold in the
+reports, so a re-run that changes them fails here rather than silently on the page."""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+
+from tools.docs.blocks import run_block
+from tools.goals import BATCH_GOAL_X, GOALS
+
+ROOT = Path(__file__).resolve().parents[2]
+BENCHMARK = ROOT / "docs" / "benchmark"
+SERVICE, PAPER, RESTART = "service", "paper (100 Euler, 3 DLS)", "random-restart DLS"
+FLOAT32, BASE = "service, float32 network", "service, base flow"
+
+
+def read(name: str) -> dict[str, Any]:
+    return json.loads((BENCHMARK / f"{name}.json").read_text())
+
+
+def manifest(model_id: str) -> dict[str, Any]:
+    return json.loads((ROOT / "models" / model_id / "manifest.json").read_text())
+
+
+def body(table: str) -> list[list[str]]:
+    """A Markdown table's body rows (no header, no rule), each as its cells."""
+    lines = [line for line in table.splitlines() if line.startswith("|")]
+    return [[c.strip() for c in line.strip("|").split("|")] for line in lines[2:]]
+
+
+def by_model(table: str) -> dict[str, list[str]]:
+    return {row[0].strip("`"): row for row in body(table)}
+
+
+BENCH = read("benchmark")
+AT_1000 = {m: e["sizes"]["1000"] for m, e in BENCH["models"].items()}
+
+
+# -- bench ---------------------------------------------------------------------------
+
+
+def test_bench_reads_a_figure_by_its_path_with_short_configuration_names() -> None:
+    row = AT_1000["iiwa14-pose"]
+    assert run_block("bench", ["models.iiwa14-pose.sizes.1000.service.median_ms"]) == (
+        f"{row[SERVICE]['median_ms']:.1f}"
+    )
+    assert run_block("bench", ["models.iiwa14-pose.sizes.1000.paper.median_ms"]) == (
+        f"{row[PAPER]['median_ms']:.1f}"
+    )
+    assert run_block("bench", ["models.iiwa14-pose.sizes.1000.restart.figures.count_right"]) == (
+        f"{row[RESTART]['figures']['count_right']:.3g}"
+    )
+    assert run_block("bench", ["batch.targets"]) == str(BENCH["batch"]["targets"])
+    assert run_block("bench", ["batch.singles_over_batch", "fmt=.2f"]) == (
+        f"{BENCH['batch']['singles_over_batch']:.2f}"
+    )
+
+
+def test_bench_names_the_valid_choices() -> None:
+    with pytest.raises(KeyError, match=r"there are: \['iiwa14-pose'"):
+        run_block("bench", ["models.no-such-model.sizes"])
+    with pytest.raises(FileNotFoundError, match=r"there are: .*'benchmark'"):
+        run_block("bench", ["targets", "report=no-such-report"])
+    with pytest.raises(ValueError, match=r"the options are: \['fmt', 'report'\]"):
+        run_block("bench", ["targets", "colour=red"])
+
+
+def test_bench_machine_names_the_reports_machine_commit_and_threads() -> None:
+    text = run_block("bench-machine", [])
+    machine = BENCH["machine"]
+    assert text.startswith(f"{machine['cpu']}, {machine['cores']} cores")
+    assert f"at commit {BENCH['git_commit'][:7]}" in text
+    assert f"{BENCH['onnx_threads']} onnxruntime threads per session" in text
+
+
+# -- the tables ----------------------------------------------------------------------
+
+
+def test_the_speed_table_is_the_reports_medians_at_n_1000() -> None:
+    rows = by_model(run_block("speed-table", []))
+    assert sorted(rows) == sorted(AT_1000)
+    for model_id, row in AT_1000.items():
+        cells, service, paper = rows[model_id], row[SERVICE], row[PAPER]
+        assert cells[2] == f"**{service['median_ms']:.1f}** ({service['cpu_median_ms']:.1f})"
+        other = row.get(FLOAT32) or row[BASE]
+        assert cells[3].endswith(f": {other['median_ms']:.1f}")
+        x = paper["median_ms"] / service["median_ms"]
+        assert cells[4] == f"{paper['median_ms']:.1f} ({x:.1f}x)"
+        assert cells[5] == f"{row[RESTART]['median_ms']:.1f}"
+        assert cells[6] == f"{row['http']['median_ms']:.1f}"
+        counts = (service["figures"]["count_right"], paper["figures"]["count_right"])
+        assert cells[7] == f"{counts[0]:.3g} / {counts[1]:.3g}"
+    assert rows["iiwa14-position"][1] == "reflowed, 2 float32 steps"  # the report's sampler
+
+
+def test_the_stages_table_is_each_stage_and_its_share() -> None:
+    rows = by_model(run_block("speed-stages", []))
+    for model_id, row in AT_1000.items():
+        service, steps = row[SERVICE], BENCH["models"][model_id]["sampler_steps"]
+        stage = service["median_stage_ms"]
+        cells = rows[model_id]
+        assert cells[2] == f"{stage['sample'] / steps:.1f}"
+        assert (
+            cells[5]
+            == f"{stage['connect']:.1f} ({100 * stage['connect'] / service['median_ms']:.0f} %)"
+        )
+        assert cells[6] == f"{service['median_ms']:.1f}"
+
+
+def test_the_goals_are_tools_goals_against_the_report() -> None:
+    table = body(run_block("speed-goals", []))
+    for model_id, most_ms, least_x in GOALS:
+        row = AT_1000[model_id]
+        ms = row[SERVICE]["median_ms"]
+        time_row = next(r for r in table if r[0] == f"`{model_id}`" and r[1].startswith("at most"))
+        assert time_row[1:3] == [f"at most {most_ms:g} ms", f"{ms:.1f} ms"]
+        assert time_row[3] == ("yes" if ms <= most_ms else f"no, {ms / most_ms:.2f}x the goal")
+        if least_x is not None:
+            x = row[PAPER]["median_ms"] / ms
+            x_row = next(r for r in table if r[0] == f"`{model_id}`" and "x faster" in r[1])
+            assert x_row[2:] == [f"{x:.1f}x", "yes" if x >= least_x else "no"]
+    batch = next(r for r in table if r[0].endswith("default"))
+    assert batch[2] == f"{BENCH['batch']['singles_over_batch']:.2f}x"
+    assert batch[3] == ("yes" if BENCH["batch"]["singles_over_batch"] >= BATCH_GOAL_X else "no")
+
+
+def test_the_truth_goal_names_each_figure_worse_than_the_papers() -> None:
+    table = body(run_block("speed-goals", []))
+    pose = next(r for r in table if r[0] == "`iiwa14-pose`" and r[1].startswith("truth"))
+    service = AT_1000["iiwa14-pose"][SERVICE]["figures"]
+    paper = AT_1000["iiwa14-pose"][PAPER]["figures"]
+    # What docs/speed.md says: on these targets only the coverage is worse, by a hair.
+    assert service["coverage_p95_rad"] > paper["coverage_p95_rad"]
+    assert service["count_right"] >= paper["count_right"] and service["recall"] >= paper["recall"]
+    assert pose[2:] == [
+        f"coverage p95 rad {service['coverage_p95_rad']:.3g} vs {paper['coverage_p95_rad']:.3g}",
+        "no",
+    ]
+
+
+def test_the_bound_of_a_time_goal_is_its_stages_and_what_they_leave() -> None:
+    goals = {model_id: most_ms for model_id, most_ms, _ in GOALS}
+    for model_id, most_ms in goals.items():
+        entry = BENCH["models"][model_id]
+        service = AT_1000[model_id][SERVICE]
+        stage, ms, steps = service["median_stage_ms"], service["median_ms"], entry["sampler_steps"]
+        text = run_block("speed-bound", [model_id])
+        assert f"**{ms:.1f} ms** against the goal's {most_ms:g} ms" in text
+        assert f"sample {stage['sample']:.1f} ({steps} evaluations" in text
+        assert f"{stage['sample'] / steps:.2f} ms each" in text
+        if stage["connect"] >= most_ms:
+            assert (
+                f"The connect stage alone takes {stage['connect'] / most_ms:.1f}x the goal" in text
+            )
+        else:
+            left = most_ms - (ms - stage["sample"])
+            evaluations = math.floor(left / (stage["sample"] / steps))
+            assert f"leaves {left:.1f} ms for sampling: {evaluations} network evaluation" in text
+        profile = entry["connect_profile"]
+        assert f"{profile['connect_ms']:.1f} ms, of which the kinematics" in text
+        # The committed profile does not record its N: it ran at the model's default.
+        assert ("the model's default N" in text) == ("num_samples" not in profile)
+    # What docs/speed.md says: connect alone passes the iiwa position's goal, not the others'.
+    assert (
+        AT_1000["iiwa14-position"][SERVICE]["median_stage_ms"]["connect"] > goals["iiwa14-position"]
+    )
+    assert AT_1000["iiwa14-pose"][SERVICE]["median_stage_ms"]["connect"] < goals["iiwa14-pose"]
+    with pytest.raises(KeyError, match=r"the goals are for: \['iiwa14-pose'"):
+        run_block("speed-bound", ["panda-pose"])
+
+
+def test_the_batch_block_is_the_reports_batch_per_target() -> None:
+    text = run_block("speed-batch", [])
+    batch, ahead = BENCH["batch"], BENCH["batch_sampling_ahead"]
+    first, second = (body(t) for t in text.split("\n\n") if t.startswith("|"))
+    assert first[0][1:4] == [
+        f"{batch['singles_median_ms']:.0f}", f"{batch['batch_median_ms']:.0f}",
+        f"{batch['singles_over_batch']:.2f}x",
+    ]  # fmt: skip
+    assert first[1][3] == f"{ahead['singles_over_batch']:.2f}x"
+    targets, server = batch["targets"], batch["server_batch_median_ms"]
+    outside = (batch["batch_median_ms"] - server["total"]) / targets
+    table = second[0]
+    assert table[2] == f"{server['sample'] / targets:.1f}" and table[6] == f"{outside:.1f}"
+    floor = server["sample"] / targets + outside
+    ceiling = batch["singles_median_ms"] / targets / floor
+    assert f"at most **{ceiling:.1f}x** the singles" in text
+    assert ceiling < BATCH_GOAL_X  # docs/speed.md: batching alone cannot meet the goal
+
+
+def test_a_judge_record_is_shown_side_by_side() -> None:
+    record = read("judge-paper-iiwa14-pose-n1000")
+    rows = {row[0]: row[1:] for row in body(run_block("speed-judged", ["paper-iiwa14-pose-n1000"]))}
+    for key, label in (("count_right", "count right"), ("recall", "recall")):
+        assert rows[label] == [f"{record['incumbent'][key]:.3g}", f"{record['candidate'][key]:.3g}"]
+    assert rows["defaults"][1].startswith("base flow, 100 float32 steps, 3 DLS")
+    # docs/speed.md: on the judge's targets the service beats the paper's configuration on
+    # count right, recall and coverage, and splits and merges more.
+    service, paper = record["incumbent"], record["candidate"]
+    assert service["count_right"] > paper["count_right"] and service["recall"] > paper["recall"]
+    assert service["coverage_p95_rad"] < paper["coverage_p95_rad"]
+    assert service["splits_per_target"] > paper["splits_per_target"]
+    assert service["merges_per_target"] > paper["merges_per_target"]
+    with pytest.raises(FileNotFoundError, match=r"the records are: .*paper-iiwa14-pose-n1000"):
+        run_block("speed-judged", ["no-such-record"])
+
+
+def test_the_judged_records_say_what_the_page_says() -> None:
+    # The served iiwa14 position sampler was judged no worse on both target sets.
+    for name in ("reflow2-dls6-iiwa14-position", "reflow2-dls6-iiwa14-position-seed11"):
+        record = read(f"judge-{name}")
+        assert record["worse"] == [] and record["candidate_defaults"]["sampler"]["flow"] == "reflow"
+        assert (
+            record["candidate_defaults"]["sampler"]
+            == manifest("iiwa14-position")["defaults"]["sampler"]
+        )
+    # The narrow planar network lost a target.
+    assert read("judge-narrow-128x4-planar3r-position")["candidate"]["count_right"] < 1
+
+
+def test_the_verdicts_are_the_reports_judged_reasons_without_their_dicts() -> None:
+    text = run_block("speed-verdicts", ["planar3r-position"])
+    judged = BENCH["models"]["planar3r-position"]["judged"]
+    assert text.count("\n- ") + 1 == len(judged)
+    assert "{" not in text and all("count right 0.995 vs 1" in line for line in text.splitlines())
+    assert "recall 0.996 vs 0.998" in run_block("speed-verdicts", ["iiwa14-pose"])
+    with pytest.raises(KeyError, match=r"there are: \['iiwa14-pose'"):
+        run_block("speed-verdicts", ["kuka"])
+
+
+def test_bench_rows_of_another_report_pick_configurations() -> None:
+    name = "n1000-iiwa14-pose-planar3r/benchmark"
+    report = read(name)
+    rows = body(run_block("bench-rows", ["1000", f"report={name}", "configurations=service,base"]))
+    assert [r[1].split(":")[0] for r in rows] == [SERVICE, BASE, SERVICE, BASE]
+    base = report["models"]["iiwa14-pose"]["sizes"]["1000"][BASE]
+    assert rows[1][2] == f"{base['median_ms']:.1f}"
+    # docs/speed.md: its "service" is the reflowed sampler, its base flow what serves.
+    for model_id in ("iiwa14-pose", "planar3r-position"):
+        assert report["models"][model_id]["sampler_flow"] == "reflow"
+        assert manifest(model_id)["defaults"]["sampler"]["flow"] == "base"
+    with pytest.raises(KeyError, match=r"the configurations are: .*'paper'"):
+        run_block("bench-rows", ["1000", "configurations=fastest"])
+    with pytest.raises(KeyError, match=r"there are: \['1000'\]"):
+        run_block("bench-rows", ["500", f"report={name}"])
+
+
+def test_restart_dls_is_slower_on_the_7_joint_arms() -> None:
+    # docs/speed.md: slower than the service on both iiwa models, and on the position
+    # model it counts right more often with more valid configurations.
+    for model_id in ("iiwa14-pose", "iiwa14-position"):
+        assert AT_1000[model_id][RESTART]["median_ms"] > AT_1000[model_id][SERVICE]["median_ms"]
+    position = AT_1000["iiwa14-position"]
+    assert position[RESTART]["figures"]["count_right"] > position[SERVICE]["figures"]["count_right"]
+    assert (
+        position[RESTART]["valid_configurations_mean"]
+        > position[SERVICE]["valid_configurations_mean"]
+    )
+
+
+# -- replicas ------------------------------------------------------------------------
+
+
+def pod() -> tuple[float, float]:
+    deployment = yaml.safe_load((ROOT / "deploy" / "base" / "deployment.yaml").read_text())
+    cpu = deployment["spec"]["template"]["spec"]["containers"][0]["resources"]["limits"]["cpu"]
+    hpa = yaml.safe_load((ROOT / "deploy" / "base" / "hpa.yaml").read_text())
+    target = hpa["spec"]["metrics"][0]["resource"]["target"]["averageUtilization"]
+    return float(cpu), target / 100
+
+
+def t_ms(model_id: str) -> float:
+    row = AT_1000[model_id]
+    return row[SERVICE]["cpu_median_ms"] + max(
+        row["http"]["median_ms"] - row[SERVICE]["median_ms"], 0
+    )
+
+
+def test_the_replica_table_follows_its_formula() -> None:
+    cores, _ = pod()
+    table = run_block("replicas", [])
+    assert f"per {cores:g}-CPU pod" in table
+    rows = by_model(table)
+    for model_id, row in AT_1000.items():
+        t = t_ms(model_id)
+        assert rows[model_id][1:] == [
+            f"{row[SERVICE]['median_ms']:.1f} ({row[SERVICE]['cpu_median_ms']:.1f})",
+            f"{row['http']['median_ms']:.1f}", f"{t:.1f}", f"{1000 / t:.1f}",
+            f"{cores * 1000 / t:.1f}",
+        ]  # fmt: skip
+
+
+def test_the_replica_example_rounds_the_pods_up() -> None:
+    cores, target = pod()
+    text = run_block("replicas-example", ["iiwa14-pose", "100"])
+    pods = math.ceil(100 * t_ms("iiwa14-pose") / 1000 / (cores * target))
+    assert text.endswith(f"= **{pods} pods**") and f"({cores:g} x {target:g})" in text
+    with pytest.raises(KeyError, match=r"there are: \['iiwa14-pose'"):
+        run_block("replicas-example", ["ur5", "10"])
+
+
+def test_model_default_is_the_manifests_value() -> None:
+    ids = sorted(p.parent.name for p in (ROOT / "models").glob("*/manifest.json"))
+    text = run_block("model-default", ["num_samples"])
+    for model_id in ids:
+        value = manifest(model_id)["defaults"]["num_samples"]
+        assert re.search(rf"{value} \([^)]*{model_id}", text) or text == str(value)
+    assert run_block(
+        "model-default", ["connectivity.delta_rad", "iiwa14-position"]
+    ) == "{:.3g}".format(manifest("iiwa14-position")["defaults"]["connectivity"]["delta_rad"])
+    with pytest.raises(KeyError, match="the models are: "):
+        run_block("model-default", ["num_samples", "ur5"])
+
+
+# -- the load test -------------------------------------------------------------------
+
+
+def test_the_load_table_is_the_committed_load_report() -> None:
+    report = read("load")
+    rows = body(run_block("load-table", []))
+    assert len(rows) == len(report["runs"])
+    for row, run in zip(rows, report["runs"], strict=True):
+        assert row[0] == str(run["clients"]) and row[2] == str(run["requests"])
+        assert row[3] == f"{run['throughput_rps']:.2f}" and row[4] == f"{run['p50_ms']:.0f}"
+        assert row[7] == f"**{run['errors']}**" and row[8] == str(run["rejected_503"])
+    models = by_model(run_block("load-models", []))
+    for i, run in enumerate(report["runs"]):
+        for model_id, figures in run["by_model"].items():
+            assert models[model_id][1 + i] == f"{figures['p50_ms']:.0f}"
+    assert all(run["errors"] == 0 for run in report["runs"])  # the page shows 0 errors

@@ -1,0 +1,534 @@
+"""Figure blocks of the models pages: the bundled models, their training and serving
+defaults (models/<id>/manifest.json) and their evaluation against exact ground truth
+(docs/reports/<id>.json), beside the paper's Table 2.
+
+Tables (no arguments), one row per bundled model (or per model and method):
+
+    models-table       the headline figures of each model's report (README and models.md)
+    models-training    network, training budget and wall time, reflow (manifests)
+    models-sampler     served sampler, DLS steps, raw errors, keep rate (manifests)
+    models-components  components against ground truth, service beside the baselines
+    models-recall      exact components found, by size
+    models-errors      errors and times beside the paper's Table 2
+
+One figure, inline, by a path into the JSON (a dotted path; a list index is a number; a
+method's name may be written by its alias, e.g. `fm-dls` for "FM + DLS"):
+
+    report MODEL PATH [FORMAT]          docs/reports/MODEL.json
+    reflow-report NAME PATH [FORMAT]    docs/reports/reflow/NAME.json
+    manifest MODEL PATH [FORMAT]        models/MODEL/manifest.json
+    judge NAME PATH [FORMAT]            docs/benchmark/judge-NAME.json
+    report-wrong MODEL                  the targets whose count the service got wrong
+
+FORMAT: 3g (default: three significant digits), 2g, 2f (two decimals), pct (x 100, three significant
+digits, " %"), int (rounded, thousands separated), min (seconds as whole minutes), text.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from functools import cache
+from pathlib import Path
+from typing import Any
+
+from tools.docs import sources
+from tools.docs.blocks import block
+
+# The report's method names, by the alias a marker writes (markers allow no spaces or +).
+METHODS = {
+    "fm-dls": "FM + DLS",
+    "fm": "FM",
+    "restart": "random-restart DLS",
+    "ode": "ODE",
+    "fourier": "Fourier (realtime-smm)",
+    "fourier-dls": "Fourier (realtime-smm) + DLS",
+}
+# Rows over every raw point (the flow's samples, the ODE's trace, the Fourier prediction):
+# their errors are the raw ones (as training/evaluate/rendering.py reports them).
+RAW_ROWS = ("FM", "ODE", "Fourier (realtime-smm)")
+# The evaluation counts exact components of the 4-D fibre of at least this share of it
+# (training/evaluate/truth.py MIN_SHARE): smaller ones are slivers at the reference's grid.
+MIN_SHARE = 0.01
+# The paper's Table 2 (e_p %, e_o %, e %, ms per target; one target, errors on kept samples
+# only, 2000 samples, a GPU) and its 4-D figures (mean over 1000 targets, no time): external
+# figures, the same as training/evaluate/rendering.py PAPER_TABLE_2 (a test keeps them so).
+PAPER_TABLE_2: dict[str, dict[str, tuple[float | None, ...]]] = {
+    "planar3r-position": {
+        "ODE": (2.95e-9, 0.0, 2.95e-9, 166),
+        "FM": (0.144, 0.0, 0.144, 125),
+        "FM + DLS": (1.56e-14, 0.0, 1.56e-14, 126),
+        "Fourier (realtime-smm)": (0.513, 0.0, 0.513, 16.8),
+        "Fourier (realtime-smm) + DLS": (5.29e-13, 0.0, 5.29e-13, 29.7),
+    },
+    "iiwa14-pose": {
+        "ODE": (2.57e-10, 2.37e-6, 1.18e-6, 8210),
+        "FM": (1.07, 1.70, 1.39, 297),
+        "FM + DLS": (2.88e-10, 0.0, 1.44e-10, 375),
+        "Fourier (realtime-smm)": (19.9, 47.0, 33.5, 39.9),
+        "Fourier (realtime-smm) + DLS": (5.52, 8.46, 6.99, 144),
+    },
+    "iiwa14-position": {
+        "FM": (0.0479, None, 0.0479, None),
+        "FM + DLS": (0.0013, None, 0.0013, None),
+    },
+}
+ROBOT_ORDER = ("planar3r", "iiwa14", "panda")  # simplest first; others after, by name
+
+
+# --- reading a figure by its path ---------------------------------------------------------
+
+
+def _number(value: float, digits: int) -> str:
+    if value == 0:
+        return "0"
+    if abs(value) >= 10**digits:
+        return f"{value:,.0f}"
+    return f"{value:.{digits}g}"
+
+
+def _pct(value: float) -> str:
+    return f"{_number(100 * value, 3)} %"
+
+
+FORMATS: dict[str, Callable[[Any], str]] = {
+    "3g": lambda v: _number(v, 3),
+    "2g": lambda v: _number(v, 2),
+    "2f": lambda v: f"{v:.2f}",
+    "pct": _pct,
+    "int": lambda v: f"{round(v):,}",
+    "min": lambda v: f"{v / 60:.0f} min",
+    "text": str,
+}
+
+
+def format_value(value: Any, fmt: str = "3g") -> str:
+    """`value` written in format `fmt` (a list item by item, joined by commas)."""
+    if fmt not in FORMATS:
+        raise ValueError(f"unknown figure format {fmt!r}; the formats are: {', '.join(FORMATS)}")
+    if value is None:
+        return "-"
+    if isinstance(value, list):
+        return ", ".join(format_value(item, fmt) for item in value)
+    if isinstance(value, (bool, str)):
+        return str(value)
+    if isinstance(value, int) and fmt in ("3g", "2g"):
+        return f"{value:,}"
+    return FORMATS[fmt](value)
+
+
+def lookup(data: Any, path: str, where: str) -> Any:
+    """The value at the dotted `path` of `data`. A key with a dot in it (`within_0.1`) is
+    matched whole; a list index is a number; a method alias (`fm-dls`) names its method, and
+    a path that starts with one looks under `methods`. An unknown step lists the valid ones."""
+    parts = path.split(".")
+    if parts[0] in METHODS and isinstance(data, dict) and "methods" in data:
+        parts = ["methods", *parts]
+    value: Any = data
+    walked: list[str] = []
+    while parts:
+        if isinstance(value, list):
+            if not parts[0].isdigit() or int(parts[0]) >= len(value):
+                raise KeyError(
+                    f"{where}: {'.'.join(walked) or 'the top'} is a list of {len(value)}; "
+                    f"{parts[0]!r} is not an index of it"
+                )
+            value, step = value[int(parts[0])], parts[0]
+            parts = parts[1:]
+        elif isinstance(value, dict):
+            for length in range(len(parts), 0, -1):  # the longest key first: within_0.1
+                key = ".".join(parts[:length])
+                key = METHODS.get(key, key) if key not in value else key
+                if key in value:
+                    value, step, parts = value[key], key, parts[length:]
+                    break
+            else:
+                methods = value.get("methods", value)  # a report's top names its methods
+                choices = sorted(value) + sorted(a for a, m in METHODS.items() if m in methods)
+                raise KeyError(
+                    f"{where}: no {parts[0]!r} under {'.'.join(walked) or 'the top'}; "
+                    f"there are: {', '.join(choices)}"
+                )
+        else:
+            raise KeyError(f"{where}: {'.'.join(walked)} is a value, not a mapping or a list")
+        walked.append(step)
+    return value
+
+
+@cache
+def _json(path: Path) -> Any:
+    return json.loads(path.read_text())
+
+
+def reflow_report(name: str) -> dict[str, Any]:
+    """docs/reports/reflow/<name>.json: a model evaluated with its reflowed sampler."""
+    folder = sources.REPORTS / "reflow"
+    path = folder / f"{name}.json"
+    if not path.exists():
+        choices = sorted(p.stem for p in folder.glob("*.json"))
+        raise FileNotFoundError(
+            f"{path.relative_to(sources.ROOT)} does not exist; there are: {choices}"
+        )
+    return _json(path)
+
+
+def judge_record(name: str) -> dict[str, Any]:
+    """docs/benchmark/judge-<name>.json: the judge's verdict on a candidate's defaults."""
+    judged = sorted(p.stem.removeprefix("judge-") for p in sources.BENCHMARK.glob("judge-*.json"))
+    if name not in judged:
+        raise FileNotFoundError(
+            f"docs/benchmark/judge-{name}.json does not exist; there are: {judged}"
+        )
+    return sources.benchmark(f"judge-{name}")
+
+
+@block("report")
+def report_figure(model_id: str, path: str, fmt: str = "3g") -> str:
+    """One figure of docs/reports/<model_id>.json."""
+    return format_value(lookup(sources.report(model_id), path, f"{model_id}.json"), fmt)
+
+
+@block("reflow-report")
+def reflow_figure(name: str, path: str, fmt: str = "3g") -> str:
+    """One figure of docs/reports/reflow/<name>.json."""
+    return format_value(lookup(reflow_report(name), path, f"reflow/{name}.json"), fmt)
+
+
+@block("manifest")
+def manifest_figure(model_id: str, path: str, fmt: str = "3g") -> str:
+    """One figure of models/<model_id>/manifest.json."""
+    return format_value(lookup(sources.manifest(model_id), path, f"{model_id}/manifest.json"), fmt)
+
+
+@block("judge")
+def judge_figure(name: str, path: str, fmt: str = "3g") -> str:
+    """One figure of docs/benchmark/judge-<name>.json."""
+    return format_value(lookup(judge_record(name), path, f"judge-{name}.json"), fmt)
+
+
+@block("report-wrong")
+def report_wrong(model_id: str, style: str = "full") -> str:
+    """The targets of a report whose component count the service (FM + DLS) got wrong:
+    `full`: each index (exact count, returned count: splits, merges); `brief`: the indices
+    and how many have a split and how many a merge; "none" if there are none."""
+    if style not in ("full", "brief"):
+        raise ValueError(f"unknown report-wrong style {style!r}; the styles are: full, brief")
+    wrong = sources.report(model_id).get("wrong_count_targets", [])
+    if not wrong:
+        return "none"
+    if style == "brief":
+        split = sum(1 for entry in wrong if entry["splits"])
+        merged = sum(1 for entry in wrong if entry["merges"])
+        indices = ", ".join(str(entry["index"]) for entry in wrong)
+        return f"{indices} ({split} with a split, {merged} with a merge)"
+    items = []
+    for entry in wrong:
+        faults = [f"{entry['splits']} split" if entry["splits"] else "",
+                  f"{entry['merges']} merged" if entry["merges"] else ""]  # fmt: skip
+        detail = ", ".join(f for f in faults if f) or "no split or merge"
+        items.append(
+            f"{entry['index']} ({entry['expected']} exact, {entry['returned']} returned: {detail})"
+        )
+    return "; ".join(items)
+
+
+# --- the tables ---------------------------------------------------------------------------
+
+
+def bundled_models() -> list[str]:
+    """Every bundled model id, the planar arm first, then the iiwa14, then the Panda."""
+
+    def order(model_id: str) -> tuple[int, str]:
+        robot = sources.manifest(model_id)["robot"]
+        rank = ROBOT_ORDER.index(robot) if robot in ROBOT_ORDER else len(ROBOT_ORDER)
+        return rank, model_id
+
+    return sorted(sources.model_ids(), key=order)
+
+
+def _table(header: list[str], rows: list[list[str]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(row) + " |" for row in rows]
+    return "\n".join(lines)
+
+
+def task_words(manifest: dict[str, Any]) -> str:
+    """The task in words: `position (x, y)`, `position (x, y, z)` or `pose`."""
+    task = manifest["task"]
+    axes = ", ".join("xyz"[i] for i in task["position_axes"])
+    return "pose" if task["orientation"] else f"position ({axes})"
+
+
+def redundancy(manifest: dict[str, Any]) -> int:
+    """r = n - m: joints less the task's dimension."""
+    task = manifest["task"]
+    m = len(task["position_axes"]) + (3 if task["orientation"] else 0)
+    return len(manifest["joints"]["names"]) - m
+
+
+def recall(method: dict[str, Any], component_size: str) -> float | None:
+    """The fraction of exact components found, over the components the evaluation counts:
+    every one on a 1-D SMM (sized by arc length), those of at least 1 % of a 4-D fibre
+    (sized by share); None where the reference does not label components (planar 3R)."""
+    bins = method.get("recall_by_size")
+    if bins is None:
+        return None
+    if component_size.startswith("share"):
+        bins = [b for b in bins if float(b["size"].split("-")[0]) >= MIN_SHARE]
+    total = sum(b["components"] for b in bins)
+    return sum(b["components"] * b["recall"] for b in bins) / total
+
+
+def shared_cores(report: dict[str, Any]) -> bool:
+    """Whether other work shared the cores while the report ran (its 1-min load average
+    went over the core count + 0.5: training/machine.py's rule), so its times are inflated."""
+    machine = report["machine"]
+    loads = [x for x in (machine["load_1min_start"], machine.get("load_1min_end")) if x is not None]
+    return bool(loads) and max(loads) > machine["cores"] + 0.5
+
+
+def timed(report: dict[str, Any], ms: float) -> str:
+    """A time of `report`, with " *" when other work shared the cores."""
+    return _number(ms, 3) + (" *" if shared_cores(report) else "")
+
+
+def machine_words(reports: list[dict[str, Any]]) -> str:
+    """The machine the reports ran on, if they share one: `a 2-core AMD EPYC`."""
+    machines = {(r["machine"]["cores"], r["machine"]["cpu"]) for r in reports}
+    if len(machines) != 1:
+        return "each report's machine"
+    cores, cpu = machines.pop()
+    return f"a {cores}-core {cpu}"
+
+
+def _served(report: dict[str, Any]) -> dict[str, Any]:
+    return report["methods"]["FM + DLS"]
+
+
+@block("models-table")
+def models_table() -> str:
+    """The headline figures of every bundled model, from its report (the service, FM + DLS,
+    200 held-out targets at N = 1000)."""
+    rows, reports = [], []
+    for model_id in bundled_models():
+        manifest, report = sources.manifest(model_id), sources.report(model_id)
+        served = _served(report)
+        reports.append(report)
+        time = timed(report, served["median_time_ms"])
+        rows.append([
+            f"`{model_id}`", task_words(manifest), str(redundancy(manifest)),
+            _pct(served["component_count"]["right"]),
+            format_value(recall(served, report["component_size"]), "pct"),
+            _number(served["coverage_rad"]["p95"], 3), _pct(served["keep_rate"]), time,
+        ])  # fmt: skip
+    header = ["model", "task", "r", "count right", "recall", "coverage p95 (rad)",
+              "keep rate", "median ms / answer"]  # fmt: skip
+    targets = {(r["targets"], r["num_samples"]) for r in reports}
+    scope = (
+        "{} held-out targets, {} samples each".format(*targets.pop())
+        if len(targets) == 1
+        else "held-out targets"
+    )
+    legend = (
+        f"From each model's evaluation report (`docs/reports/<model>.md`): {scope}, "
+        "against exact ground truth. Count right: the targets whose components match the "
+        "exact ones (no split, no merge). Recall: the exact components found (for r = 4 "
+        'those of at least 1 % of the fibre; the planar reference has no labels, so "-"). '
+        "Coverage p95: 95 % of the exact SMM's points lie this close (joint metric) to a "
+        "returned configuration. Keep rate: the share of samples made exact and kept. Time: "
+        f"per answer, median, in process, on {machine_words(reports)}"
+        + (
+            "; * other work shared the cores, so the time is inflated."
+            if any(shared_cores(r) for r in reports)
+            else "."
+        )
+    )
+    return _table(header, rows) + "\n\n" + legend
+
+
+def _minutes(seconds: float) -> str:
+    return f"{seconds / 60:.0f} min"
+
+
+@block("models-training")
+def models_training() -> str:
+    """Every bundled model's network and training budget, from its manifest."""
+    rows = []
+    for model_id in bundled_models():
+        manifest = sources.manifest(model_id)
+        training, config = manifest["training"], manifest["training"]["config"]
+        budget = f"{training['samples']:,} x {training['epochs']} epochs"
+        extras = [f"batch {training['batch_size']}", training["device"].upper()]
+        if config.get("autocast_bf16"):
+            extras.append("bf16 autocast")
+        reflow = manifest.get("reflow")
+        reflowed = "-"
+        if reflow is not None:
+            reflowed = (
+                f"{reflow['config']['pairs']:,} pairs x {reflow['config']['steps']:,} steps, "
+                f"{_minutes(reflow['wall_time_s'])} + {_minutes(reflow['teacher_wall_time_s'])} "
+                "for the teacher's pairs"
+            )
+        rows.append([
+            f"`{model_id}`", f"MLP {config['hidden_width']} x {config['hidden_layers']}",
+            f"{budget} ({', '.join(extras)})", _minutes(training["wall_time_s"]),
+            f"{training['best_validation_loss']:.4f}", reflowed,
+        ])  # fmt: skip
+    header = ["model", "network", "training data x epochs", "wall time", "best val. loss",
+              "reflow (trained, wall time)"]  # fmt: skip
+    return _table(header, rows)
+
+
+def sampler_words(sampler: dict[str, Any]) -> str:
+    """A served sampler in words: `int8, 4 Euler steps, time power 2`."""
+    flow = "reflowed " if sampler.get("flow", "base") == "reflow" else ""
+    grid = "uniform" if sampler["time_power"] == 1.0 else f"time power {sampler['time_power']:g}"
+    return f"{flow}{sampler['precision']}, {sampler['steps']} Euler steps, {grid}"
+
+
+def raw_row(manifest: dict[str, Any], steps: int, flow: str = "base") -> dict[str, Any]:
+    """The manifest's raw-error row measured at `steps` Euler steps of `flow`."""
+    for row in manifest["quality"]["raw"]:
+        if row["sampler_steps"] == steps and row.get("sampler_flow", "base") == flow:
+            return row
+    measured = [
+        (r["sampler_steps"], r.get("sampler_flow", "base")) for r in manifest["quality"]["raw"]
+    ]
+    raise LookupError(
+        f"{manifest['model_id']}: no raw error at {steps} {flow} steps; there are {measured}"
+    )
+
+
+def raw_words(row: dict[str, Any]) -> str:
+    """Mean raw error: position in mm and % of the reach, orientation in deg and % of pi."""
+    mm, pct = row["position_error_mm_mean"], row["position_error_pct_reach_mean"]
+    words = f"{_number(mm, 3)} mm = {pct:.2f} %"
+    if row.get("orientation_error_deg_mean") is not None:
+        words += (
+            f"; {_number(row['orientation_error_deg_mean'], 3)} deg"
+            f" = {row['orientation_error_pct_mean']:.2f} %"
+        )
+    return words
+
+
+PAPER_SAMPLER_STEPS = 100  # the paper's sampler: 100 uniform float32 Euler steps
+
+
+@block("models-sampler")
+def models_sampler() -> str:
+    """Every bundled model's served sampler and correction, the raw error of its flow at that
+    sampler and at the paper's, the best of 1000 samples, and its keep rate (manifests)."""
+    rows = []
+    for model_id in bundled_models():
+        manifest = sources.manifest(model_id)
+        defaults = manifest["defaults"]
+        sampler = defaults["sampler"]
+        served = raw_row(manifest, sampler["steps"], sampler.get("flow", "base"))
+        paper = raw_row(manifest, PAPER_SAMPLER_STEPS)
+        best = (
+            f"{served['best_of_n_position_error_pct_reach_mean']:.2g} % / "
+            f"{paper['best_of_n_position_error_pct_reach_mean']:.2g} %"
+        )
+        rows.append([
+            f"`{model_id}`", f"{manifest['reach_m']:.3g}", sampler_words(sampler),
+            str(defaults["correction_steps"]), str(defaults["num_samples"]),
+            raw_words(served), raw_words(paper), best, _pct(manifest["quality"]["keep_rate"]),
+        ])  # fmt: skip
+    samples = {sources.manifest(m)["quality"]["samples_per_target"] for m in bundled_models()}
+    best_of = f"best of {samples.pop()}" if len(samples) == 1 else "best of N"
+    header = ["model", "reach m", "served sampler", "DLS steps", "default samples",
+              "raw error, served sampler", "raw error, paper's sampler", best_of,
+              "keep rate"]  # fmt: skip
+    return _table(header, rows)
+
+
+@block("models-components")
+def models_components() -> str:
+    """Components against ground truth, every method of every report that groups
+    components (the service and the baselines run through the same stages)."""
+    rows = []
+    for model_id in bundled_models():
+        report = sources.report(model_id)
+        for name, method in report["methods"].items():
+            count = method.get("component_count")
+            if count is None:
+                continue
+            median = method.get("median_stage_ms") or {}
+            p95 = method.get("p95_stage_ms") or {}
+            connect = "-"
+            if "connect" in median:
+                connect = f"{_number(median['connect'], 3)} / {timed(report, p95['connect'])}"
+            rows.append([
+                f"`{model_id}`", name, _number(count["expected_mean"], 3),
+                _number(count["returned_mean"], 3), _pct(count["right"]),
+                format_value(method.get("splits_per_target")),
+                format_value(method.get("merges_per_target")),
+                format_value(recall(method, report["component_size"]), "pct"),
+                _number(method["coverage_rad"]["p95"], 3),
+                format_value(method.get("near_singular_targets"), "pct"), connect,
+                timed(report, method["median_time_ms"]),
+            ])  # fmt: skip
+    header = ["model", "method", "exact / target", "returned / target", "count right",
+              "splits / target", "merges / target", "recall", "coverage p95 rad",
+              "flagged near-singular", "connect ms median / p95", "answer ms median"]  # fmt: skip
+    return _table(header, rows)
+
+
+@block("models-recall")
+def models_recall() -> str:
+    """Exact components found by the service and by random-restart DLS, by size (arc length
+    on a 1-D SMM, share of the fibre on a 4-D one), from every report that labels them."""
+    rows = []
+    for model_id in bundled_models():
+        report = sources.report(model_id)
+        served = _served(report).get("recall_by_size")
+        if served is None:
+            continue
+        restart = report["methods"].get("random-restart DLS", {}).get("recall_by_size")
+        share = report["component_size"].startswith("share")
+        for i, size in enumerate(served):
+            span = size_words(size["size"], share)
+            restart_found = _pct(restart[i]["recall"]) if restart else "-"
+            rows.append([f"`{model_id}`", span, f"{size['components']:,}",
+                         _pct(size["recall"]), restart_found])  # fmt: skip
+    header = ["model", "exact component size", "exact components", "found by the service",
+              "found by random-restart DLS"]  # fmt: skip
+    return _table(header, rows)
+
+
+def size_words(size: str, share: bool) -> str:
+    """A report's size bin ("0.5-2", "0.01-0.1", "2-inf") in words."""
+    low, high = (float(x) for x in size.split("-"))
+    scale, unit = (100, " % of the fibre") if share else (1, " rad")
+    low_words, high_words = _number(scale * low, 2), _number(scale * high, 2)
+    if low == 0:
+        return f"under {high_words}{unit}"
+    if high == float("inf"):
+        return f"over {low_words}{unit}"
+    return f"{low_words}-{high_words}{unit}"
+
+
+def method_errors(name: str, method: dict[str, Any]) -> dict[str, Any]:
+    """A raw row's errors are over every raw point, the others' over what is returned."""
+    return method["raw"] if name in RAW_ROWS else method["returned"]
+
+
+@block("models-errors")
+def models_errors() -> str:
+    """Errors (% of the reach; orientation % of pi) and median time per target, every
+    method of every report, beside the paper's figure for the same row where it has one."""
+    rows = []
+    for model_id in bundled_models():
+        paper = PAPER_TABLE_2.get(model_id, {})
+        report = sources.report(model_id)
+        for name, method in report["methods"].items():
+            errors = method_errors(name, method)
+            quoted = paper.get(name, (None,) * 4)
+            ours = [format_value(errors[k]) for k in ("e_p_pct", "e_o_pct", "e_pct")]
+            rows.append([
+                f"`{model_id}`", name, *ours, timed(report, method["median_time_ms"]),
+                *(format_value(q) for q in quoted),
+            ])  # fmt: skip
+    header = ["model", "method", "e_p %", "e_o %", "e %", "median ms", "paper e_p %",
+              "paper e_o %", "paper e %", "paper ms"]  # fmt: skip
+    return _table(header, rows)

@@ -1,0 +1,605 @@
+"""Figure blocks of the Speed and Operations pages, from the committed benchmark reports.
+
+    <!-- figures: bench models.iiwa14-pose.sizes.1000.service.median_ms -->   one figure
+    <!-- figures: bench-machine -->                  the machine and commit a report ran on
+    <!-- figures: speed-table -->                    every model at N = 1000, every configuration
+    <!-- figures: speed-goals -->                    each speed goal against the report
+    <!-- figures: speed-bound iiwa14-pose -->        what bounds a model's time goal
+    <!-- figures: speed-stages -->                   where the service's time goes
+    <!-- figures: speed-batch -->                    the batch against single requests
+    <!-- figures: speed-judged paper-iiwa14-pose-n1000 -->  a judge's record, side by side
+    <!-- figures: speed-verdicts planar3r-position -->  the judge's verdicts on its defaults
+    <!-- figures: bench-rows 1000 report=n1000-iiwa14-pose-planar3r/benchmark -->  raw rows
+    <!-- figures: replicas -->                       CPU time per request and pods per load
+    <!-- figures: replicas-example iiwa14-pose 100 -->  pods for a load of one model
+    <!-- figures: load-table -->                     the load test (docs/benchmark/load.json)
+    <!-- figures: load-models -->                    its latency per model
+    <!-- figures: model-default correction_steps --> a served default, every model
+
+Options are `key=value` words: `report=NAME` reads docs/benchmark/NAME.json (default
+`benchmark`, the benchmark of record), `n=N` a size other than the goals' N, `fmt=SPEC` a
+Python format spec for `bench`. In `bench` paths the configurations are written by their
+short names: service, float32, base, paper, restart, http.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import yaml
+
+from tools.docs import sources
+from tools.docs.blocks import block
+from tools.goals import (
+    BASE,
+    BATCH_GOAL_X,
+    CONFIGURATIONS,
+    FLOAT32,
+    GOAL_NUM_SAMPLES,
+    GOALS,
+    PAPER,
+    RESTART,
+    SERVICE,
+)
+from training.machine import Machine
+
+# Short names for the configurations a report keys by their long names.
+ALIASES = {
+    "service": SERVICE,
+    "float32": FLOAT32,
+    "base": BASE,
+    "paper": PAPER,
+    "restart": RESTART,
+    "http": "http",
+}
+STAGES = ("sample", "correct", "connect")
+# The truth figures, their names, and whether more is better (as the judge reads them).
+TRUTH = (
+    ("count_right", "count right", True),
+    ("splits_per_target", "splits / target", False),
+    ("merges_per_target", "merges / target", False),
+    ("recall", "recall", True),
+    ("coverage_p95_rad", "coverage p95 rad", False),
+)
+DEPLOYMENT = sources.ROOT / "deploy" / "base" / "deployment.yaml"
+AUTOSCALER = sources.ROOT / "deploy" / "base" / "hpa.yaml"
+
+
+# -- reading ---------------------------------------------------------------------------
+
+
+def report_names() -> list[str]:
+    """Every report under docs/benchmark, as `report=` names it (no .json)."""
+    return sorted(
+        p.relative_to(sources.BENCHMARK).with_suffix("").as_posix()
+        for p in sources.BENCHMARK.rglob("*.json")
+    )
+
+
+def read_report(name: str) -> dict[str, Any]:
+    """docs/benchmark/<name>.json; an unknown name lists the reports there are."""
+    if name not in report_names():
+        raise FileNotFoundError(
+            f"docs/benchmark/{name}.json does not exist; there are: {report_names()}"
+        )
+    return sources.benchmark(name)
+
+
+def options(arguments: tuple[str, ...], allowed: dict[str, str]) -> dict[str, str]:
+    """`key=value` words over `allowed` defaults; an unknown key lists the valid ones."""
+    chosen = dict(allowed)
+    for word in arguments:
+        key, sep, value = word.partition("=")
+        if not sep or key not in allowed:
+            raise ValueError(
+                f"unknown option {word!r}; the options are: {sorted(allowed)} (key=value)"
+            )
+        chosen[key] = value
+    return chosen
+
+
+def lookup(data: Any, path: str, where: str) -> Any:
+    """`data` at the dotted `path`, configurations by their short names; an unknown key
+    lists the keys at that level."""
+    walked: list[str] = []
+    for word in path.split("."):
+        key = ALIASES.get(word, word) if isinstance(data, dict) and word not in data else word
+        if not isinstance(data, dict) or key not in data:
+            keys = sorted(data) if isinstance(data, dict) else []
+            at = ".".join(walked) or "the top level"
+            raise KeyError(f"{where}: no {word!r} at {at}; there are: {keys}")
+        data = data[key]
+        walked.append(word)
+    return data
+
+
+def model_entry(report: dict[str, Any], model_id: str, name: str) -> dict[str, Any]:
+    models = report["models"]
+    if model_id not in models:
+        raise KeyError(f"{name}: no model {model_id!r}; there are: {sorted(models)}")
+    return models[model_id]
+
+
+def size_row(entry: dict[str, Any], n: int, name: str) -> dict[str, Any]:
+    sizes = entry["sizes"]
+    if str(n) not in sizes:
+        raise KeyError(f"{name}: no N = {n}; there are: {sorted(sizes, key=int)}")
+    return sizes[str(n)]
+
+
+# -- writing ---------------------------------------------------------------------------
+
+
+def auto(value: Any, key: str = "") -> str:
+    """A figure as the pages write it: ms to 0.1, counts whole, other numbers to 3
+    significant digits, booleans as yes / no, None as -."""
+    if value is None:
+        return "-"
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        if key.endswith("_ms"):
+            return f"{value:.1f}"
+        return f"{value:.3g}"
+    return str(value)
+
+
+def ms(value: float | None) -> str:
+    return "-" if value is None else f"{value:.1f}"
+
+
+def _whole(value: float | None) -> str:
+    return "-" if value is None else f"{value:.0f}"
+
+
+def table(header: list[str], rows: list[list[str]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(row) + " |" for row in rows]
+    return "\n".join(lines)
+
+
+def sampler_words(flow: str, steps: int, precision: str) -> str:
+    """`base flow, 4 int8 steps`."""
+    kind = "reflowed" if flow == "reflow" else "base flow"
+    return f"{kind}, {steps} {precision} step{'s' if steps != 1 else ''}"
+
+
+def worse(service: dict[str, Any], other: dict[str, Any]) -> list[str]:
+    """The truth figures on which `service` is worse than `other`: `name ours vs theirs`."""
+    found = []
+    for key, name, more_is_better in TRUTH:
+        ours, theirs = service.get(key), other.get(key)
+        if ours is None or theirs is None or ours == theirs:
+            continue
+        if (ours < theirs) == more_is_better:
+            found.append(f"{name} {ours:.3g} vs {theirs:.3g}")
+    return found
+
+
+def cpu_time_ms(row: dict[str, Any]) -> float:
+    """t, the CPU time one request costs a server: the service's CPU time in process plus
+    what HTTP adds to the wall time (over-HTTP median less in-process median, at least 0)."""
+    service = row[SERVICE]
+    added = max(row["http"]["median_ms"] - service["median_ms"], 0.0)
+    return float(service["cpu_median_ms"]) + added
+
+
+def pod_cores() -> float:
+    """The pod's CPU limit (deploy/base/deployment.yaml)."""
+    deployment = yaml.safe_load(DEPLOYMENT.read_text())
+    (container,) = deployment["spec"]["template"]["spec"]["containers"]
+    return float(container["resources"]["limits"]["cpu"])
+
+
+def autoscaler_target() -> float:
+    """The autoscaler's CPU utilisation target, as a fraction (deploy/base/hpa.yaml)."""
+    hpa = yaml.safe_load(AUTOSCALER.read_text())
+    (metric,) = hpa["spec"]["metrics"]
+    return float(metric["resource"]["target"]["averageUtilization"]) / 100.0
+
+
+# -- blocks ----------------------------------------------------------------------------
+
+
+@block("bench")
+def bench(path: str, *arguments: str) -> str:
+    """One figure of a report at a dotted path, e.g.
+    `models.iiwa14-pose.sizes.1000.service.median_ms` or `batch.singles_over_batch`."""
+    chosen = options(arguments, {"report": "benchmark", "fmt": ""})
+    value = lookup(read_report(chosen["report"]), path, f"{chosen['report']}.json")
+    if chosen["fmt"]:
+        return format(value, chosen["fmt"])
+    return auto(value, path.rsplit(".", 1)[-1])
+
+
+@block("bench-machine")
+def bench_machine(*arguments: str) -> str:
+    """The machine a report ran on (CPU, cores, Python, load average), its commit and its
+    onnxruntime threads per session, as one phrase."""
+    chosen = options(arguments, {"report": "benchmark"})
+    report = read_report(chosen["report"])
+    text = Machine.from_json(report["machine"]).describe()
+    if report.get("git_commit"):
+        text += f", at commit {report['git_commit'][:7]}"
+        text += " with uncommitted changes" if report["git_commit"].endswith("+dirty") else ""
+    if "onnx_threads" in report:
+        threads = report["onnx_threads"]
+        text += f", {threads} onnxruntime thread{'s' if threads != 1 else ''} per session"
+    return text
+
+
+@block("speed-table")
+def speed_table(*arguments: str) -> str:
+    """Every model at N (the goals' N by default), medians over the report's targets: the
+    service (and its CPU time), the same with the other network or flow, the paper's
+    configuration and its ratio to the service, random-restart DLS, over HTTP, and the
+    count right of the service and of the paper's configuration."""
+    chosen = options(arguments, {"report": "benchmark", "n": str(GOAL_NUM_SAMPLES)})
+    report, n = read_report(chosen["report"]), int(chosen["n"])
+    rows = []
+    for model_id, entry in report["models"].items():
+        row = size_row(entry, n, chosen["report"])
+        service, paper = row[SERVICE], row[PAPER]
+        served = sampler_words(
+            entry.get("sampler_flow", "base"), entry["sampler_steps"], entry["sampler_precision"]
+        )
+        other = "-"
+        if FLOAT32 in row:
+            other = f"float32 network: {ms(row[FLOAT32]['median_ms'])}"
+        elif BASE in row:
+            other = f"base flow: {ms(row[BASE]['median_ms'])}"
+        cpu = service.get("cpu_median_ms")
+        rows.append([
+            f"`{model_id}`", served,
+            f"**{ms(service['median_ms'])}**" + ("" if cpu is None else f" ({ms(cpu)})"),
+            other,
+            f"{ms(paper['median_ms'])} ({paper['median_ms'] / service['median_ms']:.1f}x)",
+            ms(row[RESTART]["median_ms"]) if RESTART in row else "-",
+            ms(row["http"]["median_ms"]) if "http" in row else "-",
+            f"{service['figures']['count_right']:.3g} / {paper['figures']['count_right']:.3g}",
+        ])  # fmt: skip
+    header = ["model", "sampler", "service ms (CPU ms)", "other network or flow ms",
+              "paper's configuration ms (x service)", "random-restart DLS ms",
+              "over HTTP ms", "count right (service / paper's)"]  # fmt: skip
+    return table(header, rows)
+
+
+@block("speed-goals")
+def speed_goals(*arguments: str) -> str:
+    """Each speed goal (tools/goals.py) against the report: time at N = 1000, the ratio to
+    the paper's configuration, truth no worse than the paper's configuration on the same
+    targets, and the batch against single requests."""
+    chosen = options(arguments, {"report": "benchmark"})
+    report = read_report(chosen["report"])
+    rows = []
+    for model_id, most_ms, least_x in GOALS:
+        if model_id not in report["models"]:
+            continue
+        row = size_row(report["models"][model_id], GOAL_NUM_SAMPLES, chosen["report"])
+        service, paper = row[SERVICE], row[PAPER]
+        took = service["median_ms"]
+        rows.append([
+            f"`{model_id}`", f"at most {most_ms:g} ms", f"{took:.1f} ms",
+            "yes" if took <= most_ms else f"no, {took / most_ms:.2f}x the goal",
+        ])  # fmt: skip
+        if least_x is not None:
+            x = paper["median_ms"] / took
+            rows.append([
+                f"`{model_id}`", f"at least {least_x:g}x faster than the paper's configuration",
+                f"{x:.1f}x", "yes" if x >= least_x else "no",
+            ])  # fmt: skip
+        lost = worse(service["figures"], paper["figures"])
+        rows.append([
+            f"`{model_id}`", "truth no worse than the paper's configuration",
+            "; ".join(lost) if lost else "no worse", "no" if lost else "yes",
+        ])  # fmt: skip
+    for key, name in (("batch", "default"), ("batch_sampling_ahead", "sampling ahead")):
+        if key in report:
+            batch = report[key]
+            x = batch["singles_over_batch"]
+            rows.append([
+                f"batch of {batch['targets']}, {name}",
+                f"at least {BATCH_GOAL_X:g}x faster than single requests", f"{x:.2f}x",
+                "yes" if x >= BATCH_GOAL_X else "no",
+            ])  # fmt: skip
+    return table(["model", "goal", "measured", "met"], rows)
+
+
+@block("speed-bound")
+def speed_bound(model_id: str, *arguments: str) -> str:
+    """What bounds a model's time goal: its stages at N = 1000, then either the stage that
+    alone passes the goal or the network evaluations the other stages leave for sampling,
+    and the connect stage profiled alone."""
+    chosen = options(arguments, {"report": "benchmark"})
+    report = read_report(chosen["report"])
+    goals = {goal[0]: goal[1] for goal in GOALS}
+    if model_id not in goals:
+        raise KeyError(f"no time goal for {model_id!r}; the goals are for: {sorted(goals)}")
+    most_ms = goals[model_id]
+    entry = model_entry(report, model_id, chosen["report"])
+    service = size_row(entry, GOAL_NUM_SAMPLES, chosen["report"])[SERVICE]
+    took, stage = service["median_ms"], service["median_stage_ms"]
+    spans = {name: stage.get(name, 0.0) for name in STAGES}
+    steps = entry["sampler_steps"]
+    per_evaluation = spans["sample"] / steps
+    lines = [
+        f"- **{took:.1f} ms** against the goal's {most_ms:g} ms: sample {spans['sample']:.1f} "
+        f"({steps} evaluations of the {entry['sampler_precision']} network, "
+        f"{per_evaluation:.2f} ms each), correct {spans['correct']:.1f}, connect "
+        f"{spans['connect']:.1f}, the rest {max(took - sum(spans.values()), 0.0):.1f} ms."
+    ]
+    slowest = max(STAGES, key=lambda name: spans[name])
+    if spans[slowest] >= most_ms:
+        lines.append(
+            f"- The {slowest} stage alone takes {spans[slowest] / most_ms:.1f}x the goal: "
+            f"nothing else meets it without a cheaper {slowest} stage."
+        )
+    else:
+        rest = took - spans["sample"]
+        left = most_ms - rest
+        evaluations = max(math.floor(left / per_evaluation), 0)
+        lines.append(
+            f"- Everything but sampling takes {rest:.1f} ms, which leaves "
+            f"{max(left, 0.0):.1f} ms for sampling: {evaluations} network evaluation"
+            f"{'s' if evaluations != 1 else ''}, where the sampler takes {steps}."
+        )
+    profile = entry.get("connect_profile")
+    if profile:
+        n = profile.get("num_samples")
+        at = "the model's default N" if n is None else f"N = {n}"
+        lines.append(
+            f"- The connect stage profiled alone (one thread, the same targets at {at}): "
+            f"{profile['connect_ms']:.1f} ms, of which the kinematics "
+            f"{profile['kinematics_ms']:.1f} ms in {profile['kinematics_calls']:.0f} calls over "
+            f"{profile['configurations_evaluated']:.0f} configurations; the rest is the "
+            "stage's own array work between those calls."
+        )
+    return "\n".join(lines)
+
+
+@block("speed-stages")
+def speed_stages(*arguments: str) -> str:
+    """The service's stages at N = 1000 (medians over the targets) in ms and as shares of
+    its median, and one evaluation of the flow network (sample over Euler steps)."""
+    chosen = options(arguments, {"report": "benchmark", "n": str(GOAL_NUM_SAMPLES)})
+    report, n = read_report(chosen["report"]), int(chosen["n"])
+    rows = []
+    for model_id, entry in report["models"].items():
+        service = size_row(entry, n, chosen["report"])[SERVICE]
+        stage, took = service["median_stage_ms"], service["median_ms"]
+        steps = entry["sampler_steps"]
+        rows.append([
+            f"`{model_id}`",
+            sampler_words(entry.get("sampler_flow", "base"), steps, entry["sampler_precision"]),
+            f"{stage['sample'] / steps:.1f}",
+            *(f"{stage[s]:.1f} ({100 * stage[s] / took:.0f} %)" for s in STAGES),
+            f"{took:.1f}",
+        ])  # fmt: skip
+    header = ["model", "sampler", "ms per network evaluation", "sample ms (%)",
+              "correct ms (%)", "connect ms (%)", "whole answer ms"]  # fmt: skip
+    return table(header, rows)
+
+
+@block("speed-batch")
+def speed_batch(*arguments: str) -> str:
+    """The batch against its targets sent one by one (default, and sampling ahead), where
+    the default batch's time goes per target, and the ratio sampling and transport alone
+    leave."""
+    chosen = options(arguments, {"report": "benchmark"})
+    report = read_report(chosen["report"])
+    if "batch" not in report:
+        raise KeyError(f"{chosen['report']}.json has no batch; reports with one: "
+                       f"{[r for r in report_names() if 'batch' in read_report(r)]}")  # fmt: skip
+    batch = report["batch"]
+    runs = [("default (`SMM_BATCH_SAMPLING_THREADS=0`)", batch)]
+    if "batch_sampling_ahead" in report:
+        runs.append(
+            ("sampling ahead (`SMM_BATCH_SAMPLING_THREADS=1`)", report["batch_sampling_ahead"])
+        )
+    rows = [
+        [name, f"{run['singles_median_ms']:.0f}", f"{run['batch_median_ms']:.0f}",
+         f"{run['singles_over_batch']:.2f}x", "yes" if run["identical"] else "no"]
+        for name, run in runs
+    ]  # fmt: skip
+    first = table(
+        ["server", "singles median ms", "batch median ms", "singles / batch", "same answers"],
+        rows,
+    )
+    targets, server = batch["targets"], batch["server_batch_median_ms"]
+    per = {s: server.get(s, 0.0) / targets for s in (*STAGES, "summarise")}
+    outside = max(batch["batch_median_ms"] - server["total"], 0.0) / targets
+    singles = batch["singles_median_ms"] / targets
+    floor = per["sample"] + outside
+    second = table(
+        ["singles", "batch", "sample", "correct", "connect", "summarise", "outside"],
+        [[f"{singles:.1f}", f"{batch['batch_median_ms'] / targets:.1f}",
+          *(f"{per[s]:.1f}" for s in (*STAGES, "summarise")), f"{outside:.1f}"]],
+    )  # fmt: skip
+    return (
+        f"{first}\n\nWhere the default batch's time goes, ms per target (outside: the "
+        "client's wall time less the server's total, i.e. HTTP, validation and JSON at both "
+        f"ends):\n\n{second}\n\nWith correction, connection and summaries free, sampling and "
+        f"what lies outside the pipeline would still take {floor:.1f} ms per target: at most "
+        f"**{singles / floor:.1f}x** the singles."
+    )
+
+
+@block("speed-judged")
+def speed_judged(name: str) -> str:
+    """docs/benchmark/judge-<name>.json side by side: the incumbent's and the candidate's
+    defaults (and model, where it differs) and truth figures, and the verdict."""
+    judged = sorted(r.removeprefix("judge-") for r in report_names() if r.startswith("judge-"))
+    if name not in judged:
+        raise FileNotFoundError(f"no docs/benchmark/judge-{name}.json; the records are: {judged}")
+    record = read_report(f"judge-{name}")
+
+    def defaults(side: str) -> str:
+        d = record[f"{side}_defaults"]
+        sampler = d["sampler"]
+        words = sampler_words(sampler.get("flow", "base"), sampler["steps"], sampler["precision"])
+        return f"{words}, {d['correction_steps']} DLS, N = {d['num_samples']}"
+
+    rows = [["defaults", defaults("incumbent"), defaults("candidate")]]
+    if "candidate_model" in record:
+        rows.append(["model", "served", f"`{record['candidate_model']}`"])
+    for key, label, _ in TRUTH:
+        if key in record["incumbent"] or key in record["candidate"]:
+            rows.append([
+                label, auto(record["incumbent"].get(key)), auto(record["candidate"].get(key))
+            ])  # fmt: skip
+    targets = record["targets"] + record["near_singular_targets"]
+    return (
+        table([f"{targets} targets (seed {record['seed']})", "incumbent", "candidate"], rows)
+        + f"\n\nVerdict: the candidate is {record['verdict']}."
+    )
+
+
+def _short_names(words: str) -> list[str]:
+    """`service,base` -> its configurations' short names; an unknown one lists them."""
+    names = [w for w in words.split(",") if w]
+    unknown = [w for w in names if w not in ALIASES or w == "http"]
+    if unknown:
+        valid = [a for a in ALIASES if a != "http"]
+        raise KeyError(f"no configuration {unknown}; the configurations are: {valid}")
+    return names
+
+
+@block("bench-rows")
+def bench_rows(n: str, *arguments: str) -> str:
+    """Every configuration (or `configurations=service,base`) of every model (or of
+    `models=a,b`) at N: median, stages and truth, as the report has them."""
+    chosen = options(arguments, {"report": "benchmark", "models": "", "configurations": ""})
+    report = read_report(chosen["report"])
+    wanted = [m for m in chosen["models"].split(",") if m] or list(report["models"])
+    names = [ALIASES[c] for c in _short_names(chosen["configurations"])] or list(CONFIGURATIONS)
+    rows = []
+    for model_id in wanted:
+        entry = model_entry(report, model_id, chosen["report"])
+        row = size_row(entry, int(n), chosen["report"])
+        for name in names:
+            if name not in row:
+                continue
+            run, stage = row[name], row[name]["median_stage_ms"] or {}
+            label = name
+            if name == SERVICE:
+                label += ": " + sampler_words(
+                    entry.get("sampler_flow", "base"), entry["sampler_steps"],
+                    entry["sampler_precision"],
+                )  # fmt: skip
+            rows.append([
+                f"`{model_id}`", label, f"{run['median_ms']:.1f}", f"{run['p95_ms']:.1f}",
+                ms(stage.get("sample", stage.get("solve"))), ms(stage.get("correct")),
+                ms(stage.get("connect")),
+                *(auto(run["figures"].get(key)) for key, _, _ in TRUTH),
+            ])  # fmt: skip
+    header = ["model", "configuration", "median ms", "p95 ms", "sample", "correct", "connect",
+              *(label for _, label, _ in TRUTH)]  # fmt: skip
+    return table(header, rows)
+
+
+@block("replicas")
+def replicas(*arguments: str) -> str:
+    """Per model at N = 1000: in-process median (CPU ms), over-HTTP median, t (CPU ms plus
+    what HTTP adds to the wall time), and the requests per second one core and one pod
+    (deploy/base/deployment.yaml's CPU limit) can answer, 1000 / t and cores x 1000 / t."""
+    chosen = options(arguments, {"report": "benchmark", "n": str(GOAL_NUM_SAMPLES)})
+    report, n = read_report(chosen["report"]), int(chosen["n"])
+    cores = pod_cores()
+    rows = []
+    for model_id, entry in report["models"].items():
+        row = size_row(entry, n, chosen["report"])
+        t = cpu_time_ms(row)
+        rows.append([
+            f"`{model_id}`",
+            f"{row[SERVICE]['median_ms']:.1f} ({row[SERVICE]['cpu_median_ms']:.1f})",
+            f"{row['http']['median_ms']:.1f}", f"{t:.1f}", f"{1000 / t:.1f}",
+            f"{cores * 1000 / t:.1f}",
+        ])  # fmt: skip
+    header = ["model", "in process ms (CPU ms)", "over HTTP ms", "t ms", "requests/s per core",
+              f"per {cores:g}-CPU pod"]  # fmt: skip
+    return table(header, rows)
+
+
+@block("replicas-example")
+def replicas_example(model_id: str, load: str, *arguments: str) -> str:
+    """The pods a steady `load` (requests/s) of one model needs: load x t cores busy, over
+    the pod's cores at the autoscaler's target, rounded up."""
+    chosen = options(arguments, {"report": "benchmark", "n": str(GOAL_NUM_SAMPLES)})
+    report = read_report(chosen["report"])
+    entry = model_entry(report, model_id, chosen["report"])
+    t_s = cpu_time_ms(size_row(entry, int(chosen["n"]), chosen["report"])) / 1000
+    rate = float(load)
+    cores, target = pod_cores(), autoscaler_target()
+    busy = rate * t_s
+    pods = math.ceil(busy / (cores * target))
+    return (
+        f"{rate:g} requests/s of `{model_id}` keep {rate:g} x {t_s:.4f} = {busy:.1f} cores "
+        f"busy: ceil({busy:.1f} / ({cores:g} x {target:g})) = **{pods} pods**"
+    )
+
+
+@block("load-table")
+def load_table(*arguments: str) -> str:
+    """docs/benchmark/load.json: per run (clients), requests, answers per second, latency
+    of the answers, errors, 503s, and the server's resident memory before and after."""
+    chosen = options(arguments, {"report": "load"})
+    report = read_report(chosen["report"])
+    rows = []
+    for run in report["runs"]:
+        rss = run.get("server_rss_mib") or {}
+        rows.append([
+            str(run["clients"]), f"{run['duration_s']:g} s", str(run["requests"]),
+            f"{run['throughput_rps']:.2f}", f"{run['p50_ms']:.0f}", f"{run['p95_ms']:.0f}",
+            f"{run['p99_ms']:.0f}", f"**{run['errors']}**", str(run["rejected_503"]),
+            " -> ".join(f"{v:.0f}" for v in rss.values()) or "-",
+        ])  # fmt: skip
+    header = ["clients", "duration", "requests", "answered / s", "p50 ms", "p95 ms", "p99 ms",
+              "errors", "503s", "server RSS MiB (start -> end)"]  # fmt: skip
+    return table(header, rows)
+
+
+@block("load-models")
+def load_models(*arguments: str) -> str:
+    """docs/benchmark/load.json: per model, the median latency of its answers in each run
+    (whole ms)."""
+    chosen = options(arguments, {"report": "load"})
+    runs = read_report(chosen["report"])["runs"]
+    models = sorted({m for run in runs for m in run["by_model"]})
+    rows = [
+        [f"`{m}`", *(_whole(run["by_model"].get(m, {}).get("p50_ms")) for run in runs)]
+        for m in models
+    ]
+    return table(["model", *(f"p50 ms, {run['clients']} clients" for run in runs)], rows)
+
+
+@block("speed-verdicts")
+def speed_verdicts(model_id: str, *arguments: str) -> str:
+    """The judge's verdicts on the cheaper configurations tried for a model (its manifest's
+    `defaults.reasons.judged` when the report ran), one bullet each, or a line saying none."""
+    chosen = options(arguments, {"report": "benchmark"})
+    entry = model_entry(read_report(chosen["report"]), model_id, chosen["report"])
+    verdicts = entry.get("judged") or []
+    if not verdicts:
+        return f"- The judge has no verdict on `{model_id}`'s defaults."
+    # Each verdict ends with both sides' figures as a dict; the worse ones are named before.
+    return "\n".join(f"- {verdict.split('; incumbent {')[0]}" for verdict in verdicts)
+
+
+@block("model-default")
+def model_default(path: str, *models: str) -> str:
+    """A served default (models/<id>/manifest.json, `defaults.<path>`) over every bundled
+    model or those named: one value where they agree, else `value (models), ...`."""
+    chosen = list(models) or sources.model_ids()
+    unknown = sorted(set(chosen) - set(sources.model_ids()))
+    if unknown:
+        raise KeyError(f"no model {unknown}; the models are: {sources.model_ids()}")
+    by_value: dict[str, list[str]] = {}
+    for model_id in chosen:
+        value = lookup(sources.manifest(model_id)["defaults"], path, f"{model_id} defaults")
+        by_value.setdefault(auto(value), []).append(model_id)
+    if len(by_value) == 1:
+        return next(iter(by_value))
+    return ", ".join(f"{value} ({', '.join(ids)})" for value, ids in by_value.items())
