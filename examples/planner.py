@@ -47,7 +47,7 @@ from service.client import (
 
 Configuration = list[float]
 
-# Where the arm is, and the pose it is asked to reach (the README's iiwa14 pose example:
+# Where the arm is, and the pose it is asked to reach (the iiwa14 pose example of docs/examples.md:
 # made by a configuration 0.33 rad from this q, so its nearest component is close by).
 DEFAULT_Q = [0.0, 0.5, 0.0, -1.4, 0.0, 1.0, 0.0]
 DEFAULT_POSITION = [0.6501, 0.2011, 0.5018]

@@ -62,8 +62,8 @@ class Settings(BaseSettings):
         description="onnxruntime intra-op threads per session; 0 gives each session the "
         "process's share of the cores (cores // workers): a request alone runs the flow "
         "network on every core, requests in flight at once share them (the workers do not "
-        "spin, so an idle one holds no core). Measured on 2 cores (tools.load, every model "
-        "mixed): against 1 thread, 1 client +32 % answers/s, 4 clients -4 %.",
+        "spin, so an idle one holds no core). `python -m tools.load` measures the trade "
+        "against 1 thread (docs/operations.md).",
     )
     log_level: LogLevel = Field(
         "info", description="Level of the service's JSON logs and of uvicorn's."
@@ -103,8 +103,9 @@ class Settings(BaseSettings):
     request_deadline_s: float = Field(
         30.0,
         gt=0,
-        description="Per-request deadline, from arrival, queue wait included: the pipeline "
-        "stops at its next step past it and the request gets 504.",
+        description="Per-request deadline, from when the route takes the request (its body "
+        "read and validated), queue wait included: the pipeline stops at its next step past "
+        "it and the request gets 504.",
     )
     shutdown_drain_s: float = Field(
         35.0,

@@ -26,7 +26,7 @@ What it checks, over HTTP on 127.0.0.1 against the image's CMD (run with
   with every model; a checked POST /smm per model; the peak RSS with every computation
   slot busy at SMM_MAX_NUM_SAMPLES stays under the pod's memory limit; SIGTERM drains.
 
-Figures, printed and written to docs/container.json (the README quotes them): the image
+Figures, printed and written to docs/container.json (docs/deployment.md quotes them): the image
 size (and its base's), the cold start (server process start to /readyz answering 200),
 the read-only run's RSS (ready, and peak) and the time of each step.
 

@@ -5,7 +5,7 @@ exact inverse kinematics, the ground truth of training/evaluate/references/panda
 so of the judge on the Panda) and `realtime-smm` (Clark and Xie's own code, the report's
 Fourier baseline, training/evaluate/baselines/fourier.py). Both declare dependencies the
 project must not install, so a second pip command installs them with --no-deps
-(`no_deps_command`, which tools/lock.py pins and the README quotes); their real
+(`no_deps_command`, which tools/lock.py pins and scripts/test runs); their real
 dependencies are in the `train` extra.
 
 `pip install -c constraints.txt -e '.[train]'` alone trains and serves any robot: these

@@ -17,7 +17,7 @@ of samples per target:
   says so under "skipped".
 
     python -m training.evaluate.report --model iiwa14-pose --targets 200   # -> docs/reports/
-    python -m training.evaluate.report --table-2   # the README's Table 2, from the reports
+    python -m training.evaluate.report --table-2   # the paper's Table 2 beside ours
 """
 
 from __future__ import annotations

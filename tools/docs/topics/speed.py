@@ -217,14 +217,12 @@ def bench(path: str, *arguments: str) -> str:
 
 @block("bench-machine")
 def bench_machine(*arguments: str) -> str:
-    """The machine a report ran on (CPU, cores, Python, load average), its commit and its
-    onnxruntime threads per session, as one phrase."""
+    """The machine a report ran on (CPU, cores, Python, load average) and its onnxruntime
+    threads per session, as one phrase (the commit it ran at is in the report itself: a
+    page says what is measured, not the history of the code)."""
     chosen = options(arguments, {"report": "benchmark"})
     report = read_report(chosen["report"])
     text = Machine.from_json(report["machine"]).describe()
-    if report.get("git_commit"):
-        text += f", at commit {report['git_commit'][:7]}"
-        text += " with uncommitted changes" if report["git_commit"].endswith("+dirty") else ""
     if "onnx_threads" in report:
         threads = report["onnx_threads"]
         text += f", {threads} onnxruntime thread{'s' if threads != 1 else ''} per session"
