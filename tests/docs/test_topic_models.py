@@ -154,7 +154,7 @@ def test_models_recall_is_each_size_bin() -> None:
 def test_models_errors_quotes_the_papers_table_as_the_evaluation_does() -> None:
     from training.evaluate.rendering import PAPER_TABLE_2
 
-    assert topic.PAPER_TABLE_2 == PAPER_TABLE_2
+    assert topic.PAPER_TABLE_2 is PAPER_TABLE_2  # one table, training/evaluate/paper.py
     table = rows(run_block("models-errors", []))
     cells = table[("iiwa14-pose", "FM")]
     raw = report("iiwa14-pose")["methods"]["FM"]["raw"]

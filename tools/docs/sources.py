@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
 from functools import cache
 from pathlib import Path
 from typing import Any
@@ -47,3 +48,39 @@ def _existing(path: Path, choices: list[str]) -> dict[str, Any]:
     if not path.exists():
         raise FileNotFoundError(f"{path.relative_to(ROOT)} does not exist; there are: {choices}")
     return _read(path)
+
+
+def lookup(
+    data: Any, path: str, where: str, aliases: Mapping[str, str] | None = None
+) -> Any:
+    """The value at the dotted `path` of `data` (`where` names it in errors). A key with a
+    dot in it (`within_0.1`) is matched whole, the longest first; a number indexes a list;
+    an alias (`restart`) stands for the key it names. An unknown step lists the valid ones,
+    aliases included."""
+    aliases = aliases or {}
+    parts = path.split(".")
+    value: Any = data
+    walked: list[str] = []
+    while parts:
+        at = ".".join(walked) or "the top level"
+        if isinstance(value, list):
+            if not parts[0].isdigit() or int(parts[0]) >= len(value):
+                raise KeyError(
+                    f"{where}: {at} is a list of {len(value)}; {parts[0]!r} is not an index of it"
+                )
+            value, step, parts = value[int(parts[0])], parts[0], parts[1:]
+        elif isinstance(value, dict):
+            for length in range(len(parts), 0, -1):
+                key = ".".join(parts[:length])
+                key = key if key in value else aliases.get(key, key)
+                if key in value:
+                    value, step, parts = value[key], key, parts[length:]
+                    break
+            else:
+                named = sorted(alias for alias, key in aliases.items() if key in value)
+                choices = sorted(map(str, value)) + named
+                raise KeyError(f"{where}: no {parts[0]!r} at {at}; there are: {choices}")
+        else:
+            raise KeyError(f"{where}: {at} is a value, not a mapping or a list")
+        walked.append(step)
+    return value

@@ -14,6 +14,7 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
+from tools.docs import sources
 from tools.docs.blocks import block
 from tools.docs.sources import ROOT, manifest, model_ids
 
@@ -33,20 +34,6 @@ def number(value: Any) -> str:
     return str(value)
 
 
-def _lookup(data: dict[str, Any], path: str, where: str) -> Any:
-    """`data` at the dotted `path`; an unknown key lists the keys at that level."""
-    value: Any = data
-    walked: list[str] = []
-    for key in path.split("."):
-        if not isinstance(value, dict) or key not in value:
-            at = ".".join(walked) or "the top level"
-            keys = sorted(value) if isinstance(value, dict) else []
-            raise KeyError(f"{where}: no {key!r} at {at}; there are: {keys}")
-        value = value[key]
-        walked.append(key)
-    return value
-
-
 def redundancy(data: dict[str, Any]) -> int:
     """n - m of a manifest: joints less constrained axes (3 more for an orientation)."""
     task = data["task"]
@@ -62,7 +49,7 @@ def defaults(path: str, *models: str) -> str:
     chosen = list(models) or model_ids()
     by_value: dict[str, list[str]] = {}
     for model_id in chosen:
-        value = _lookup(manifest(model_id)["defaults"], path, f"{model_id} defaults")
+        value = sources.lookup(manifest(model_id)["defaults"], path, f"{model_id} defaults")
         by_value.setdefault(number(value), []).append(model_id)
     if len(by_value) == 1:
         return next(iter(by_value))

@@ -39,15 +39,8 @@ def unit(key: str, value: Any) -> str:
 def figure(path: str) -> tuple[str, Any]:
     """The container record at a dotted path, and the key that names its unit; an unknown
     key lists those at its level."""
-    value: Any = sources.container()
-    walked: list[str] = []
-    for key in path.split("."):
-        if not isinstance(value, dict) or key not in value:
-            keys = sorted(value) if isinstance(value, dict) else []
-            at = ".".join(walked) or "the top level"
-            raise KeyError(f"docs/container.json: no {key!r} at {at}; there are: {keys}")
-        value = value[key]
-        walked.append(key)
+    value = sources.lookup(sources.container(), path, "docs/container.json")
+    walked = path.split(".")
     unit_key = walked[-2] if len(walked) > 1 and walked[-2].endswith(("_ms", "_s")) else walked[-1]
     return unit_key, value
 

@@ -34,6 +34,8 @@ from typing import Any
 
 from tools.docs import sources
 from tools.docs.blocks import block
+from training.evaluate.paper import PAPER_TABLE_2
+from training.evaluate.references.iiwa14 import MIN_SHARE
 
 # The report's method names, by the alias a marker writes (markers allow no spaces or +).
 METHODS = {
@@ -47,32 +49,6 @@ METHODS = {
 # Rows over every raw point (the flow's samples, the ODE's trace, the Fourier prediction):
 # their errors are the raw ones (as training/evaluate/rendering.py reports them).
 RAW_ROWS = ("FM", "ODE", "Fourier (realtime-smm)")
-# The evaluation counts exact components of the 4-D fibre of at least this share of it
-# (training/evaluate/truth.py MIN_SHARE): smaller ones are slivers at the reference's grid.
-MIN_SHARE = 0.01
-# The paper's Table 2 (e_p %, e_o %, e %, ms per target; one target, errors on kept samples
-# only, 2000 samples, a GPU) and its 4-D figures (mean over 1000 targets, no time): external
-# figures, the same as training/evaluate/rendering.py PAPER_TABLE_2 (a test keeps them so).
-PAPER_TABLE_2: dict[str, dict[str, tuple[float | None, ...]]] = {
-    "planar3r-position": {
-        "ODE": (2.95e-9, 0.0, 2.95e-9, 166),
-        "FM": (0.144, 0.0, 0.144, 125),
-        "FM + DLS": (1.56e-14, 0.0, 1.56e-14, 126),
-        "Fourier (realtime-smm)": (0.513, 0.0, 0.513, 16.8),
-        "Fourier (realtime-smm) + DLS": (5.29e-13, 0.0, 5.29e-13, 29.7),
-    },
-    "iiwa14-pose": {
-        "ODE": (2.57e-10, 2.37e-6, 1.18e-6, 8210),
-        "FM": (1.07, 1.70, 1.39, 297),
-        "FM + DLS": (2.88e-10, 0.0, 1.44e-10, 375),
-        "Fourier (realtime-smm)": (19.9, 47.0, 33.5, 39.9),
-        "Fourier (realtime-smm) + DLS": (5.52, 8.46, 6.99, 144),
-    },
-    "iiwa14-position": {
-        "FM": (0.0479, None, 0.0479, None),
-        "FM + DLS": (0.0013, None, 0.0013, None),
-    },
-}
 ROBOT_ORDER = ("planar3r", "iiwa14", "panda")  # simplest first; others after, by name
 
 
@@ -118,41 +94,16 @@ def format_value(value: Any, fmt: str = "3g") -> str:
 
 
 def lookup(data: Any, path: str, where: str) -> Any:
-    """The value at the dotted `path` of `data`. A key with a dot in it (`within_0.1`) is
-    matched whole; a list index is a number; a method alias (`fm-dls`) names its method, and
-    a path that starts with one looks under `methods`. An unknown step lists the valid ones."""
-    parts = path.split(".")
-    if parts[0] in METHODS and isinstance(data, dict) and "methods" in data:
-        parts = ["methods", *parts]
-    value: Any = data
-    walked: list[str] = []
-    while parts:
-        if isinstance(value, list):
-            if not parts[0].isdigit() or int(parts[0]) >= len(value):
-                raise KeyError(
-                    f"{where}: {'.'.join(walked) or 'the top'} is a list of {len(value)}; "
-                    f"{parts[0]!r} is not an index of it"
-                )
-            value, step = value[int(parts[0])], parts[0]
-            parts = parts[1:]
-        elif isinstance(value, dict):
-            for length in range(len(parts), 0, -1):  # the longest key first: within_0.1
-                key = ".".join(parts[:length])
-                key = METHODS.get(key, key) if key not in value else key
-                if key in value:
-                    value, step, parts = value[key], key, parts[length:]
-                    break
-            else:
-                methods = value.get("methods", value)  # a report's top names its methods
-                choices = sorted(value) + sorted(a for a, m in METHODS.items() if m in methods)
-                raise KeyError(
-                    f"{where}: no {parts[0]!r} under {'.'.join(walked) or 'the top'}; "
-                    f"there are: {', '.join(choices)}"
-                )
-        else:
-            raise KeyError(f"{where}: {'.'.join(walked)} is a value, not a mapping or a list")
-        walked.append(step)
-    return value
+    """The value at the dotted `path` of `data` (`sources.lookup`); a method alias (`fm-dls`)
+    names its method, and a path that starts with one looks under `methods`."""
+    first = path.split(".")[0]
+    if isinstance(data, dict) and "methods" in data:
+        if first in METHODS:
+            path = f"methods.{path}"
+        elif first not in data:
+            choices = [*sorted(data), *sorted(METHODS)]
+            raise KeyError(f"{where}: no {first!r} at the top level; there are: {choices}")
+    return sources.lookup(data, path, where, METHODS)
 
 
 @cache

@@ -100,18 +100,8 @@ def options(arguments: tuple[str, ...], allowed: dict[str, str]) -> dict[str, st
 
 
 def lookup(data: Any, path: str, where: str) -> Any:
-    """`data` at the dotted `path`, configurations by their short names; an unknown key
-    lists the keys at that level."""
-    walked: list[str] = []
-    for word in path.split("."):
-        key = ALIASES.get(word, word) if isinstance(data, dict) and word not in data else word
-        if not isinstance(data, dict) or key not in data:
-            keys = sorted(data) if isinstance(data, dict) else []
-            at = ".".join(walked) or "the top level"
-            raise KeyError(f"{where}: no {word!r} at {at}; there are: {keys}")
-        data = data[key]
-        walked.append(word)
-    return data
+    """`data` at the dotted `path`, configurations by their short names (`sources.lookup`)."""
+    return sources.lookup(data, path, where, ALIASES)
 
 
 def model_entry(report: dict[str, Any], model_id: str, name: str) -> dict[str, Any]:
