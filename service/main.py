@@ -6,6 +6,7 @@ import logging
 import math
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
+from importlib import metadata
 from typing import Any
 
 import uvicorn
@@ -66,7 +67,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app = FastAPI(
         title="SMM service",
         summary="Self-motion manifolds of redundant robot arms.",
-        version="0.1.0",
+        version=metadata.version("smm-service"),  # pyproject.toml's, as CHANGELOG.md's
         lifespan=lifespan,
     )
     app.state.settings = settings

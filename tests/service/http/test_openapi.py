@@ -17,3 +17,16 @@ def test_served_names_are_enums_and_errors_are_documented(client: TestClient) ->
     assert "Retry-After" in smm["503"]["headers"]
     assert set(spec["paths"]["/readyz"]["get"]["responses"]) == {"200", "503"}
     assert "text/plain" in spec["paths"]["/metrics"]["get"]["responses"]["200"]["content"]
+
+
+def test_the_documented_version_is_the_package_version() -> None:
+    """The OpenAPI document's version is pyproject.toml's, the one CHANGELOG.md releases."""
+    import tomllib
+    from pathlib import Path
+
+    from service.main import create_app
+
+    root = Path(__file__).resolve().parents[3]
+    version = tomllib.loads((root / "pyproject.toml").read_text())["project"]["version"]
+    assert create_app().openapi()["info"]["version"] == version
+    assert f"## [{version}]" in (root / "CHANGELOG.md").read_text()
