@@ -31,12 +31,6 @@ HTTP = [command for command in documented_commands() if command.kind == "http"]
 IN_ALL = re.compile(r"^\.\.\. (\d+) (components|points) in all$")
 
 
-@pytest.fixture(scope="module")
-def server() -> Iterator[LocalServer]:
-    with LocalServer() as running:
-        yield running
-
-
 def run_curl(command: str, server: LocalServer) -> str:
     live = command.replace(SHOWN_HOST, server.url.removeprefix("http://"))
     result = subprocess.run(

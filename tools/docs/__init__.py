@@ -24,6 +24,6 @@ re-written, or a figure edited by hand, fails the tests.
 """
 
 from tools.docs.blocks import BLOCKS, block
-from tools.docs.pages import PAGES, render_page, rewrite
+from tools.docs.pages import pages, render_page, rewrite
 
-__all__ = ["BLOCKS", "PAGES", "block", "render_page", "rewrite"]
+__all__ = ["BLOCKS", "block", "pages", "render_page", "rewrite"]

@@ -29,9 +29,6 @@ def pages(root: Path = ROOT) -> list[Path]:
     ]
 
 
-PAGES = pages
-
-
 def render_page(text: str) -> str:
     """`text` with every block between its markers rewritten from the reports."""
 

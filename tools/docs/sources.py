@@ -19,14 +19,25 @@ def _read(path: Path) -> Any:
     return json.loads(path.read_text())
 
 
-def report(model_id: str) -> dict[str, Any]:
-    """docs/reports/<model_id>.json: the evaluation against exact ground truth."""
-    return _existing(REPORTS / f"{model_id}.json", sorted(p.stem for p in REPORTS.glob("*.json")))
+def report(name: str) -> dict[str, Any]:
+    """docs/reports/<name>.json: a model's evaluation against exact ground truth (or, as
+    `reflow/<name>`, one with its reflowed sampler)."""
+    return _existing(REPORTS / f"{name}.json", names(REPORTS))
 
 
 def benchmark(name: str = "benchmark") -> dict[str, Any]:
-    """docs/benchmark/<name>.json: the speed benchmark (or a judge's record)."""
-    return _existing(BENCHMARK / f"{name}.json", sorted(p.stem for p in BENCHMARK.glob("*.json")))
+    """docs/benchmark/<name>.json: the speed benchmark, the load test or a judge's record."""
+    return _existing(BENCHMARK / f"{name}.json", names(BENCHMARK))
+
+
+def names(folder: Path) -> list[str]:
+    """Every JSON report under `folder`, as the functions above name it (no .json)."""
+    return sorted(p.relative_to(folder).with_suffix("").as_posix() for p in folder.rglob("*.json"))
+
+
+def judged() -> list[str]:
+    """The judge's records, docs/benchmark/judge-<name>.json, by <name>."""
+    return sorted(n.removeprefix("judge-") for n in names(BENCHMARK) if n.startswith("judge-"))
 
 
 def manifest(model_id: str) -> dict[str, Any]:
@@ -50,9 +61,7 @@ def _existing(path: Path, choices: list[str]) -> dict[str, Any]:
     return _read(path)
 
 
-def lookup(
-    data: Any, path: str, where: str, aliases: Mapping[str, str] | None = None
-) -> Any:
+def lookup(data: Any, path: str, where: str, aliases: Mapping[str, str] | None = None) -> Any:
     """The value at the dotted `path` of `data` (`where` names it in errors). A key with a
     dot in it (`within_0.1`) is matched whole, the longest first; a number indexes a list;
     an alias (`restart`) stands for the key it names. An unknown step lists the valid ones,

@@ -26,10 +26,7 @@ digits, " %"), int (rounded, thousands separated), min (seconds as whole minutes
 
 from __future__ import annotations
 
-import json
 from collections.abc import Callable
-from functools import cache
-from pathlib import Path
 from typing import Any
 
 from tools.docs import sources
@@ -106,29 +103,11 @@ def lookup(data: Any, path: str, where: str) -> Any:
     return sources.lookup(data, path, where, METHODS)
 
 
-@cache
-def _json(path: Path) -> Any:
-    return json.loads(path.read_text())
-
-
-def reflow_report(name: str) -> dict[str, Any]:
-    """docs/reports/reflow/<name>.json: a model evaluated with its reflowed sampler."""
-    folder = sources.REPORTS / "reflow"
-    path = folder / f"{name}.json"
-    if not path.exists():
-        choices = sorted(p.stem for p in folder.glob("*.json"))
-        raise FileNotFoundError(
-            f"{path.relative_to(sources.ROOT)} does not exist; there are: {choices}"
-        )
-    return _json(path)
-
-
 def judge_record(name: str) -> dict[str, Any]:
     """docs/benchmark/judge-<name>.json: the judge's verdict on a candidate's defaults."""
-    judged = sorted(p.stem.removeprefix("judge-") for p in sources.BENCHMARK.glob("judge-*.json"))
-    if name not in judged:
+    if name not in sources.judged():
         raise FileNotFoundError(
-            f"docs/benchmark/judge-{name}.json does not exist; there are: {judged}"
+            f"docs/benchmark/judge-{name}.json does not exist; there are: {sources.judged()}"
         )
     return sources.benchmark(f"judge-{name}")
 
@@ -142,7 +121,7 @@ def report_figure(model_id: str, path: str, fmt: str = "3g") -> str:
 @block("reflow-report")
 def reflow_figure(name: str, path: str, fmt: str = "3g") -> str:
     """One figure of docs/reports/reflow/<name>.json."""
-    return format_value(lookup(reflow_report(name), path, f"reflow/{name}.json"), fmt)
+    return format_value(lookup(sources.report(f"reflow/{name}"), path, f"reflow/{name}.json"), fmt)
 
 
 @block("manifest")

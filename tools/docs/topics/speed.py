@@ -69,23 +69,6 @@ AUTOSCALER = sources.ROOT / "deploy" / "base" / "hpa.yaml"
 # -- reading ---------------------------------------------------------------------------
 
 
-def report_names() -> list[str]:
-    """Every report under docs/benchmark, as `report=` names it (no .json)."""
-    return sorted(
-        p.relative_to(sources.BENCHMARK).with_suffix("").as_posix()
-        for p in sources.BENCHMARK.rglob("*.json")
-    )
-
-
-def read_report(name: str) -> dict[str, Any]:
-    """docs/benchmark/<name>.json; an unknown name lists the reports there are."""
-    if name not in report_names():
-        raise FileNotFoundError(
-            f"docs/benchmark/{name}.json does not exist; there are: {report_names()}"
-        )
-    return sources.benchmark(name)
-
-
 def options(arguments: tuple[str, ...], allowed: dict[str, str]) -> dict[str, str]:
     """`key=value` words over `allowed` defaults; an unknown key lists the valid ones."""
     chosen = dict(allowed)
@@ -199,7 +182,7 @@ def bench(path: str, *arguments: str) -> str:
     """One figure of a report at a dotted path, e.g.
     `models.iiwa14-pose.sizes.1000.service.median_ms` or `batch.singles_over_batch`."""
     chosen = options(arguments, {"report": "benchmark", "fmt": ""})
-    value = lookup(read_report(chosen["report"]), path, f"{chosen['report']}.json")
+    value = lookup(sources.benchmark(chosen["report"]), path, f"{chosen['report']}.json")
     if chosen["fmt"]:
         return format(value, chosen["fmt"])
     return auto(value, path.rsplit(".", 1)[-1])
@@ -211,7 +194,7 @@ def bench_machine(*arguments: str) -> str:
     threads per session, as one phrase (the commit it ran at is in the report itself: a
     page says what is measured, not the history of the code)."""
     chosen = options(arguments, {"report": "benchmark"})
-    report = read_report(chosen["report"])
+    report = sources.benchmark(chosen["report"])
     text = Machine.from_json(report["machine"]).describe()
     if "onnx_threads" in report:
         threads = report["onnx_threads"]
@@ -226,7 +209,7 @@ def speed_table(*arguments: str) -> str:
     configuration and its ratio to the service, random-restart DLS, over HTTP, and the
     count right of the service and of the paper's configuration."""
     chosen = options(arguments, {"report": "benchmark", "n": str(GOAL_NUM_SAMPLES)})
-    report, n = read_report(chosen["report"]), int(chosen["n"])
+    report, n = sources.benchmark(chosen["report"]), int(chosen["n"])
     rows = []
     for model_id, entry in report["models"].items():
         row = size_row(entry, n, chosen["report"])
@@ -261,7 +244,7 @@ def speed_goals(*arguments: str) -> str:
     the paper's configuration, truth no worse than the paper's configuration on the same
     targets, and the batch against single requests."""
     chosen = options(arguments, {"report": "benchmark"})
-    report = read_report(chosen["report"])
+    report = sources.benchmark(chosen["report"])
     rows = []
     for model_id, most_ms, least_x in GOALS:
         if model_id not in report["models"]:
@@ -302,7 +285,7 @@ def speed_bound(model_id: str, *arguments: str) -> str:
     alone passes the goal or the network evaluations the other stages leave for sampling,
     and the connect stage profiled alone."""
     chosen = options(arguments, {"report": "benchmark"})
-    report = read_report(chosen["report"])
+    report = sources.benchmark(chosen["report"])
     goals = {goal[0]: goal[1] for goal in GOALS}
     if model_id not in goals:
         raise KeyError(f"no time goal for {model_id!r}; the goals are for: {sorted(goals)}")
@@ -353,7 +336,7 @@ def speed_stages(*arguments: str) -> str:
     """The service's stages at N = 1000 (medians over the targets) in ms and as shares of
     its median, and one evaluation of the flow network (sample over Euler steps)."""
     chosen = options(arguments, {"report": "benchmark", "n": str(GOAL_NUM_SAMPLES)})
-    report, n = read_report(chosen["report"]), int(chosen["n"])
+    report, n = sources.benchmark(chosen["report"]), int(chosen["n"])
     rows = []
     for model_id, entry in report["models"].items():
         service = size_row(entry, n, chosen["report"])[SERVICE]
@@ -377,10 +360,11 @@ def speed_batch(*arguments: str) -> str:
     the default batch's time goes per target, and the ratio sampling and transport alone
     leave."""
     chosen = options(arguments, {"report": "benchmark"})
-    report = read_report(chosen["report"])
+    report = sources.benchmark(chosen["report"])
     if "batch" not in report:
-        raise KeyError(f"{chosen['report']}.json has no batch; reports with one: "
-                       f"{[r for r in report_names() if 'batch' in read_report(r)]}")  # fmt: skip
+        names = sources.names(sources.BENCHMARK)
+        with_batch = [r for r in names if "batch" in sources.benchmark(r)]
+        raise KeyError(f"{chosen['report']}.json has no batch; reports with one: {with_batch}")
     batch = report["batch"]
     runs = [("default (`SMM_BATCH_SAMPLING_THREADS=0`)", batch)]
     if "batch_sampling_ahead" in report:
@@ -419,10 +403,11 @@ def speed_batch(*arguments: str) -> str:
 def speed_judged(name: str) -> str:
     """docs/benchmark/judge-<name>.json side by side: the incumbent's and the candidate's
     defaults (and model, where it differs) and truth figures, and the verdict."""
-    judged = sorted(r.removeprefix("judge-") for r in report_names() if r.startswith("judge-"))
-    if name not in judged:
-        raise FileNotFoundError(f"no docs/benchmark/judge-{name}.json; the records are: {judged}")
-    record = read_report(f"judge-{name}")
+    if name not in sources.judged():
+        raise FileNotFoundError(
+            f"no docs/benchmark/judge-{name}.json; the records are: {sources.judged()}"
+        )
+    record = sources.benchmark(f"judge-{name}")
 
     def defaults(side: str) -> str:
         d = record[f"{side}_defaults"]
@@ -460,7 +445,7 @@ def bench_rows(n: str, *arguments: str) -> str:
     """Every configuration (or `configurations=service,base`) of every model (or of
     `models=a,b`) at N: median, stages and truth, as the report has them."""
     chosen = options(arguments, {"report": "benchmark", "models": "", "configurations": ""})
-    report = read_report(chosen["report"])
+    report = sources.benchmark(chosen["report"])
     wanted = [m for m in chosen["models"].split(",") if m] or list(report["models"])
     names = [ALIASES[c] for c in _short_names(chosen["configurations"])] or list(CONFIGURATIONS)
     rows = []
@@ -494,7 +479,7 @@ def replicas(*arguments: str) -> str:
     what HTTP adds to the wall time), and the requests per second one core and one pod
     (deploy/base/deployment.yaml's CPU limit) can answer, 1000 / t and cores x 1000 / t."""
     chosen = options(arguments, {"report": "benchmark", "n": str(GOAL_NUM_SAMPLES)})
-    report, n = read_report(chosen["report"]), int(chosen["n"])
+    report, n = sources.benchmark(chosen["report"]), int(chosen["n"])
     cores = pod_cores()
     rows = []
     for model_id, entry in report["models"].items():
@@ -516,7 +501,7 @@ def replicas_example(model_id: str, load: str, *arguments: str) -> str:
     """The pods a steady `load` (requests/s) of one model needs: load x t cores busy, over
     the pod's cores at the autoscaler's target, rounded up."""
     chosen = options(arguments, {"report": "benchmark", "n": str(GOAL_NUM_SAMPLES)})
-    report = read_report(chosen["report"])
+    report = sources.benchmark(chosen["report"])
     entry = model_entry(report, model_id, chosen["report"])
     t_s = cpu_time_ms(size_row(entry, int(chosen["n"]), chosen["report"])) / 1000
     rate = float(load)
@@ -534,7 +519,7 @@ def load_table(*arguments: str) -> str:
     """docs/benchmark/load.json: per run (clients), requests, answers per second, latency
     of the answers, errors, 503s, and the server's resident memory before and after."""
     chosen = options(arguments, {"report": "load"})
-    report = read_report(chosen["report"])
+    report = sources.benchmark(chosen["report"])
     rows = []
     for run in report["runs"]:
         rss = run.get("server_rss_mib") or {}
@@ -554,7 +539,7 @@ def load_models(*arguments: str) -> str:
     """docs/benchmark/load.json: per model, the median latency of its answers in each run
     (whole ms)."""
     chosen = options(arguments, {"report": "load"})
-    runs = read_report(chosen["report"])["runs"]
+    runs = sources.benchmark(chosen["report"])["runs"]
     models = sorted({m for run in runs for m in run["by_model"]})
     rows = [
         [f"`{m}`", *(_whole(run["by_model"].get(m, {}).get("p50_ms")) for run in runs)]
@@ -568,7 +553,7 @@ def speed_verdicts(model_id: str, *arguments: str) -> str:
     """The judge's verdicts on the cheaper configurations tried for a model (its manifest's
     `defaults.reasons.judged` when the report ran), one bullet each, or a line saying none."""
     chosen = options(arguments, {"report": "benchmark"})
-    entry = model_entry(read_report(chosen["report"]), model_id, chosen["report"])
+    entry = model_entry(sources.benchmark(chosen["report"]), model_id, chosen["report"])
     verdicts = entry.get("judged") or []
     if not verdicts:
         return f"- The judge has no verdict on `{model_id}`'s defaults."
