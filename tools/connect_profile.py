@@ -22,7 +22,7 @@ from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
 from service.pipeline.acceptance import accept
 from service.pipeline.arrays import FloatArray
-from service.pipeline.connectivity import connect
+from service.pipeline.connect import connect
 from service.pipeline.fibre import Fibre
 from service.pipeline.run import correct_samples, encode, sample
 from service.pipeline.types import Kinematics, KinematicsResult, Query

@@ -33,7 +33,7 @@ from service.manifest import (
 )
 from service.models.chain import SerialChainKinematics
 from service.models.sessions import OnnxKinematics, OnnxVelocityField, open_session
-from service.pipeline.coaxial import find_coaxial_sets
+from service.pipeline.connect import find_coaxial_sets
 from service.pipeline.types import CoaxialSet, Kinematics
 
 # chain.json against kinematics.onnx at load: configurations uniform in the joint limits
@@ -56,7 +56,7 @@ class ServedModel:
     manifest: Manifest
     networks: dict[str, OnnxVelocityField]  # by file: every flow network the manifest lists
     kinematics: Kinematics  # SerialChainKinematics (chain.json) or OnnxKinematics
-    coaxial_sets: tuple[CoaxialSet, ...]  # where the chain's twin branches meet (coaxial.py)
+    coaxial_sets: tuple[CoaxialSet, ...]  # where twin branches meet (connect/coaxial.py)
     version: str  # first 12 hex digits of the sha256 over the model's file digests
 
     def network(self, sampler: SamplerSpec) -> OnnxVelocityField:

@@ -19,7 +19,7 @@ tolerance and inside the limits: every returned configuration stays exact, and t
 others stay rejected for the limits, as they were.
 
 For r = 1 the tracing stage already walks from such samples along their curves into the
-limits (tracing.py), so this runs for r > 1 only.
+limits (connect/trace/), so this runs for r > 1 only.
 """
 
 from __future__ import annotations

@@ -18,7 +18,7 @@ import numpy as np
 from service.pipeline.acceptance import accept
 from service.pipeline.arrays import FloatArray
 from service.pipeline.components import summarise_all
-from service.pipeline.connectivity import connect
+from service.pipeline.connect import connect
 from service.pipeline.correction import correct
 from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.fibre import Fibre

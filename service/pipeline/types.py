@@ -59,7 +59,7 @@ class Kinematics(Protocol):
 @dataclass(frozen=True)
 class CoaxialSet:
     """Configurations with q_j = angle_rad, where joints j - 1 and j + 1 share one axis line
-    (coaxial.py finds them once per model): q + a slide stays on every fibre for any a."""
+    (connect/coaxial.py finds them once per model): q + a slide stays on every fibre for any a."""
 
     joint: int  # j, whose angle aligns the two axes
     angle_rad: float  # q_j on the set, inside joint j's limits

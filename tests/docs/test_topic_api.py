@@ -18,7 +18,8 @@ from typing import Any
 import pytest
 
 from service.config import Settings
-from service.pipeline import roadmap, tracing
+from service.pipeline.connect import roadmap
+from service.pipeline.connect.trace import walk
 from tools.docs.pages import ROOT, render_page
 from tools.docs.topics import api
 
@@ -132,17 +133,17 @@ def test_an_unknown_setting_lists_the_settings() -> None:
 
 
 def test_a_constant_is_the_module_attribute() -> None:
-    assert float(api.constant("pipeline.tracing", "meet_factor")) == tracing.MEET_FACTOR
-    assert float(api.constant("pipeline.tracing", "twin_sigma")) == tracing.TWIN_SIGMA
-    steer = api.constant("pipeline.roadmap", "roadmapsettings.steer_radius_rad")
+    assert float(api.constant("pipeline.connect.trace.walk", "meet_factor")) == walk.MEET_FACTOR
+    assert float(api.constant("pipeline.connect.trace.walk", "twin_sigma")) == walk.TWIN_SIGMA
+    steer = api.constant("pipeline.connect.roadmap", "roadmapsettings.steer_radius_rad")
     assert float(steer) == roadmap.RoadmapSettings.steer_radius_rad
 
 
 def test_an_unknown_constant_lists_the_choices() -> None:
-    with pytest.raises(KeyError, match=re.escape("pipeline.tracing")):
-        api.constant("pipeline.tracer", "meet_factor")
+    with pytest.raises(KeyError, match=re.escape("pipeline.connect.trace.walk")):
+        api.constant("pipeline.connect.trace.walker", "meet_factor")
     with pytest.raises(KeyError, match="MEET_FACTOR"):
-        api.constant("pipeline.tracing", "meet")
+        api.constant("pipeline.connect.trace.walk", "meeting")
     with pytest.raises(TypeError, match="not a number"):
         api.constant("pipeline.targets", "axis_names")
 

@@ -5,7 +5,7 @@ components. Either the service joined two components that are apart, or the refe
 split one (the 4-D references decide components by a link radius on a grid). For each
 merge and each pair of its reference components, the closest pair of the returned
 component's configurations across the two is joined by the projected local planner (the
-service's own, `service/pipeline/local_planner.py`) at a fine step: every step projected
+service's own, `service/pipeline/connect/local_planner.py`) at a fine step: every step projected
 onto the fibre to within `PROJECTION_TOLERANCE`, inside the limits, no step longer than
 2 x delta. Where that straight path holds, the two reference components are one: the
 reference split it. Where it fails, the merge stays unsettled (a longer way round may
@@ -34,9 +34,9 @@ from scipy.spatial import cKDTree
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
 from service.pipeline.arrays import BoolArray, FloatArray
+from service.pipeline.connect import PlannerSettings, edges_on_fibre
 from service.pipeline.fibre import Fibre
 from service.pipeline.joint_space import joint_distance
-from service.pipeline.local_planner import PlannerSettings, edges_on_fibre
 from training.evaluate.methods import MethodTarget, flow_target, reference_target
 from training.evaluate.metrics import counted_components, exact_labels
 from training.evaluate.report import REPORTS_DIR

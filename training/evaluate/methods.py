@@ -5,7 +5,7 @@ What a method returned is every configuration it hands a client: each component'
 configurations and, for a 1-D SMM, the points of its ordered path, all labelled with
 the component's index (a component that only the tracing found, with no accepted
 sample, still counts through its path). The service and random-restart DLS decide
-components with the same connect stage (`service.pipeline.connectivity.connect`).
+components with the same connect stage (`service.pipeline.connect.connect`).
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ import pytorch_kinematics as pk
 from service.models.registry import ServedModel
 from service.pipeline.acceptance import accept
 from service.pipeline.arrays import BoolArray, FloatArray
-from service.pipeline.connectivity import connect
+from service.pipeline.connect import connect
 from service.pipeline.correction import task_error, task_error_norms
 from service.pipeline.fibre import Fibre
 from service.pipeline.joint_space import joint_distance, wrap_periodic

@@ -4,7 +4,7 @@ code or the bundled models' manifests define, so a page cannot drift from them.
     <!-- figures: defaults-table -->                         the bundled models' request defaults
     <!-- figures: defaults connectivity.trace_step_rad -->  one manifest default, every model
     <!-- figures: setting max_num_samples -->              a setting's default (service/config.py)
-    <!-- figures: constant pipeline.tracing meet_factor --> a constant of a service module
+    <!-- figures: constant pipeline.connect.trace.walk meet_factor --> a service module constant
 
 Marker words are lower case, so `setting` and `constant` match names case-insensitively.
 """
@@ -96,7 +96,7 @@ def setting(name: str) -> str:
 
 
 def _service_modules() -> list[str]:
-    """Every module of `service/`, as `constant` names it (`pipeline.tracing`)."""
+    """Every module of `service/`, as `constant` names it (`pipeline.connect.trace.walk`)."""
     return sorted(
         ".".join(p.relative_to(SERVICE).with_suffix("").parts)
         for p in SERVICE.rglob("*.py")

@@ -16,11 +16,11 @@ import pytest
 
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
-from service.pipeline.connectivity import planner_settings, roadmap_settings
+from service.pipeline.connect import planner_settings, roadmap_settings
+from service.pipeline.connect.roadmap import Roadmap, roadmap_labels
 from service.pipeline.deadline import NO_DEADLINE
 from service.pipeline.fibre import project
 from service.pipeline.joint_space import joint_distance
-from service.pipeline.roadmap import _Roadmap, roadmap_labels
 from service.pipeline.run import run
 from service.pipeline.types import CoaxialSet, Query
 from tests.service.pipeline.fibre_support import null_space_walk, pose_fibre
@@ -154,7 +154,7 @@ def test_the_links_tried_between_components_are_the_shortest_by_brute_force(
     periodic = np.array([False, False, True, False, False, False, False])
     lower, upper, _ = iiwa14_position.manifest.joints.arrays()
     settings = roadmap_settings(iiwa14_position.manifest.defaults.connectivity)
-    roadmap = _Roadmap(
+    roadmap = Roadmap(
         pose_fibre(iiwa14_position, q[0]), q, lower, upper, periodic,
         planner_settings(iiwa14_position.manifest.defaults.connectivity), NO_DEADLINE, (),
     )  # fmt: skip

@@ -36,12 +36,12 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from service.pipeline.arrays import BoolArray, FloatArray, IntArray
-from service.pipeline.coaxial import slide_range
+from service.pipeline.connect.coaxial import slide_range
+from service.pipeline.connect.local_planner import PlannerSettings, edges_on_fibre
+from service.pipeline.connect.steering import SteerSettings, steer
 from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.fibre import Fibre, project
 from service.pipeline.joint_space import JointBox, wrap_to_pi
-from service.pipeline.local_planner import PlannerSettings, edges_on_fibre
-from service.pipeline.steering import SteerSettings, steer
 from service.pipeline.types import CoaxialSet
 
 
@@ -81,7 +81,7 @@ def roadmap_labels(
     num_nodes = len(q_rad)
     if num_nodes == 0:
         return np.zeros(0, dtype=np.int64)
-    roadmap = _Roadmap(
+    roadmap = Roadmap(
         fibre, q_rad, lower_rad, upper_rad, periodic, planner, deadline, tuple(coaxial)
     )
     roadmap.join_neighbours(settings)
@@ -95,7 +95,7 @@ def roadmap_labels(
 
 
 @dataclass
-class _Roadmap:
+class Roadmap:
     """Nodes on the fibre and the edges the planner walked between them (append-only)."""
 
     fibre: Fibre

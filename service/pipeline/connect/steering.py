@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from service.pipeline.arrays import BoolArray, FloatArray
-from service.pipeline.coaxial import crossings_on_fibre
+from service.pipeline.connect.coaxial import crossings_on_fibre
 from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.fibre import Fibre, evaluate, newton
 from service.pipeline.joint_space import joint_difference, wrap_periodic

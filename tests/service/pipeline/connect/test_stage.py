@@ -12,10 +12,10 @@ import pytest
 
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
-from service.pipeline.connectivity import _exact_paths
+from service.pipeline.connect.curves import exact_paths
+from service.pipeline.connect.trace import TracedPiece
 from service.pipeline.joint_space import joint_distance
 from service.pipeline.run import run
-from service.pipeline.tracing import TracedPiece
 from service.pipeline.types import Query, SmmResult
 from tests.service.pipeline.fibre_support import ordered_planar_loop
 from tests.support.iiwa14_dh import iiwa14_pose as dh_pose
@@ -189,7 +189,7 @@ def test_a_loop_is_cut_only_where_a_step_is_longer_than_a_continuation_step(
     keep[50 : 50 + removed] = False
     piece = TracedPiece(path_rad=q[keep], error=error[keep], closed=True)
     periodic = np.ones(3, dtype=bool)
-    paths, whole = _exact_paths(
+    paths, whole = exact_paths(
         piece, planar3r.manifest.task, 1e-6, 1e-6, periodic, SPACING_RAD, 0.3
     )
     assert len(paths) == 1 and paths[0].closed == closed

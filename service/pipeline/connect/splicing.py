@@ -30,11 +30,11 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from service.pipeline.arrays import BoolArray, FloatArray, IntArray
+from service.pipeline.connect.local_planner import PlannerSettings, walk_on_fibre
 from service.pipeline.correction import error_norms
 from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.fibre import Fibre, project
 from service.pipeline.joint_space import JointBox, joint_difference, joint_distance, wrap_periodic
-from service.pipeline.local_planner import PlannerSettings, walk_on_fibre
 from service.pipeline.types import CoaxialSet, ComponentPath
 
 # An end lies on a limit when a limited joint is within this of it (the trace refines its

@@ -11,7 +11,7 @@ import pytest
 
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
-from service.pipeline.coaxial import crossings_on_fibre, find_coaxial_sets, slide_range
+from service.pipeline.connect.coaxial import crossings_on_fibre, find_coaxial_sets, slide_range
 from tests.service.pipeline.fibre_support import null_space_walk, pose_fibre
 from tests.support.iiwa14_dh import LIMITS_RAD, iiwa14_pose
 from training.evaluate.references.iiwa14 import inverse_kinematics

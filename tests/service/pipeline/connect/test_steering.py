@@ -11,8 +11,8 @@ from scipy.linalg import null_space
 
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
+from service.pipeline.connect.steering import SteerSettings, steer, tangent_direction
 from service.pipeline.fibre import Fibre
-from service.pipeline.steering import SteerSettings, steer, tangent_direction
 from tests.service.pipeline.fibre_support import null_space_walk, pose_fibre
 from tests.support.iiwa14_dh import iiwa14_pose
 

@@ -4,7 +4,7 @@ and fails between different components however close (planar 3R closed form)."""
 import numpy as np
 
 from service.models.registry import ServedModel
-from service.pipeline.local_planner import PlannerSettings, edges_on_fibre
+from service.pipeline.connect.local_planner import PlannerSettings, edges_on_fibre
 from tests.service.pipeline.fibre_support import planar_fibre
 from training.evaluate.references.planar3r import closed_form_smm
 

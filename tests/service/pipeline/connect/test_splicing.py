@@ -12,11 +12,16 @@ from scipy.spatial import cKDTree
 
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
+from service.pipeline.connect.local_planner import PlannerSettings, edges_on_fibre, walk_on_fibre
+from service.pipeline.connect.splicing import (
+    SpliceSettings,
+    attach_by_walk,
+    open_ends,
+    splice_paths,
+)
 from service.pipeline.correction import error_norms
 from service.pipeline.fibre import Fibre
 from service.pipeline.joint_space import joint_distance
-from service.pipeline.local_planner import PlannerSettings, edges_on_fibre, walk_on_fibre
-from service.pipeline.splicing import SpliceSettings, attach_by_walk, open_ends, splice_paths
 from service.pipeline.types import ComponentPath
 from tests.service.pipeline.fibre_support import ordered_planar_loop, planar_fibre
 from training.evaluate.methods import flow_target

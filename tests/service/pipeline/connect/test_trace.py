@@ -10,15 +10,11 @@ import pytest
 
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
+from service.pipeline.connect.trace import TraceSettings, closest_strands_rad, trace_fibre
+from service.pipeline.connect.trace.limits import hermite
+from service.pipeline.connect.trace.seeds import spread_seeds
+from service.pipeline.connect.trace.strands import STRAND_ARC_FACTOR
 from service.pipeline.joint_space import joint_distance
-from service.pipeline.tracing import (
-    STRAND_ARC_FACTOR,
-    TraceSettings,
-    _hermite,
-    closest_strands_rad,
-    spread_seeds,
-    trace_fibre,
-)
 from tests.service.pipeline.fibre_support import pose_fibre
 from training.evaluate.references.iiwa14 import pose_smm
 
@@ -69,7 +65,7 @@ def test_hermite_follows_a_circle_to_fourth_order() -> None:
         p = np.stack([np.cos(theta), np.sin(theta)], axis=1)  # (2, 2)
         t = np.stack([-np.sin(theta), np.cos(theta)], axis=1)
         s = np.array([0.25, 0.5, 0.75])
-        point, direction = _hermite(
+        point, direction = hermite(
             np.repeat(p[:1], 3, 0), np.repeat(t[:1], 3, 0), np.repeat(p[1:], 3, 0),
             np.repeat(t[1:], 3, 0), s,
         )  # fmt: skip

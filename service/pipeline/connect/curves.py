@@ -1,0 +1,198 @@
+"""r = 1: the exact paths of every traced curve, and which path each sample lies on.
+
+A traced piece becomes paths of exact points only (cut where a step is no continuation
+step), a piece traced twice is kept once, and a sample joins the path whose segments
+pass within a fraction of the path spacing of it."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from service.manifest import ConnectivitySpec, TaskSpec
+from service.pipeline.arrays import BoolArray, FloatArray, IntArray
+from service.pipeline.connect.settings import trace_settings
+from service.pipeline.connect.trace import TracedPiece, trace_fibre
+from service.pipeline.correction import error_norms
+from service.pipeline.deadline import Deadline
+from service.pipeline.fibre import Fibre
+from service.pipeline.joint_space import JointBox, joint_difference, joint_distance
+from service.pipeline.types import ComponentPath
+
+# A sample lies on a traced curve when it is within this fraction of the path spacing of
+# the path's segments: the chord of a path step of 0.05 rad misses its curve by about
+# curvature x 0.05^2 / 8 (3e-4 rad at a curvature of 1), while a twin curve near a
+# singular value may pass 0.02 rad from it.
+ON_CURVE_FRACTION = 0.2
+
+
+def traced_paths(
+    fibre: Fibre,
+    q_on_fibre_rad: FloatArray,  # (M, n) seeds' source: samples within tolerance
+    lower_rad: FloatArray,
+    upper_rad: FloatArray,
+    periodic: BoolArray,
+    spec: ConnectivitySpec,
+    tolerance_position_m: float,
+    tolerance_orientation_rad: float,
+    deadline: Deadline,
+) -> tuple[list[ComponentPath], bool, float]:
+    """The exact paths of every curve through the samples; whether all are whole; the
+    least sigma_min met on them."""
+    trace = trace_fibre(
+        fibre, q_on_fibre_rad, lower_rad, upper_rad, periodic, trace_settings(spec), deadline
+    )
+    complete = trace.complete
+    paths: list[ComponentPath] = []
+    for piece in trace.pieces:
+        pieces, whole = exact_paths(
+            piece, fibre.task, tolerance_position_m, tolerance_orientation_rad, periodic,
+            spec.path_spacing_rad, 2.0 * spec.trace_step_rad,
+        )  # fmt: skip
+        complete &= whole
+        for path in pieces:
+            if not duplicate(path, paths, periodic, spec.path_spacing_rad):
+                paths.append(path)
+    return paths, complete, trace.min_singular_value
+
+
+def duplicate(
+    path: ComponentPath, paths: list[ComponentPath], periodic: BoolArray, spacing_rad: float
+) -> bool:
+    """The same piece traced twice (two chains over one curve): the same arc length, the
+    same ends (open pieces) and, checked last, most points on the other."""
+    if not paths:
+        return False
+    arcs = np.array([p.arc_length_rad for p in paths])  # (P,)
+    alike = np.abs(arcs - path.arc_length_rad) <= max(0.01 * path.arc_length_rad, spacing_rad)
+    for index in np.flatnonzero(alike).tolist():
+        other = paths[index]
+        if other.closed != path.closed:
+            continue
+        if not path.closed:
+            ends, other_ends = path.q_rad[[0, -1]], other.q_rad[[0, -1]]
+            same = joint_distance(ends, other_ends, periodic).max() <= spacing_rad
+            reversed_ = joint_distance(ends, other_ends[::-1], periodic).max() <= spacing_rad
+            if not (same or reversed_):
+                continue
+        if retraced(path, [other], periodic, ON_CURVE_FRACTION * spacing_rad):
+            return True
+    return False
+
+
+def retraced(
+    path: ComponentPath, paths: list[ComponentPath], periodic: BoolArray, on_curve_rad: float
+) -> bool:
+    """The path is one of `paths` traced again: most of its points lie on one of them."""
+    owner = owner_path(path.q_rad, paths, periodic, on_curve_rad)
+    return bool(np.mean(owner >= 0) > 0.5)
+
+
+def exact_paths(
+    piece: TracedPiece,
+    task: TaskSpec,
+    tolerance_position_m: float,
+    tolerance_orientation_rad: float,
+    periodic: BoolArray,
+    spacing_rad: float,
+    cut_rad: float,
+) -> tuple[list[ComponentPath], bool]:
+    """The piece as paths of exact points only, and whether it came whole: no point had
+    to be left out and no step exceeds the spacing.
+
+    A point Newton could not bring within tolerance (next to a singular point of the
+    fibre) is left out rather than returned inexact: the gap it leaves is a continuation
+    step, which the trace checked (under 2 h), and the caller flags the target as
+    near-singular. A step longer than `cut_rad` (2 h) is no continuation step: fronts
+    were chained across two strands (measured on a Panda pose target: 0.58 rad, between
+    two exact components), so nothing shows the fibre joins its ends and the path is cut
+    there; the splice step joins the pieces again where the local planner walks between
+    them (splicing.py).
+    """
+    position_error, orientation_error = error_norms(piece.error, task)
+    exact = (position_error <= tolerance_position_m) & (
+        orientation_error <= tolerance_orientation_rad
+    )
+    q = piece.path_rad[exact]
+    position, orientation = position_error[exact], orientation_error[exact]
+    steps = joint_distance(q[1:], q[:-1], periodic)  # (P - 1,)
+    closing = float(joint_distance(q[-1], q[0], periodic)) if piece.closed and len(q) > 1 else 0
+    whole = bool(exact.all()) and max(steps.max(initial=0.0), closing) <= spacing_rad
+    cuts = np.flatnonzero(steps > cut_rad) + 1  # a piece starts at each
+    closed = piece.closed
+    if closed and (len(cuts) or closing > cut_rad):  # the loop opens at a long step
+        closed = False
+        if closing <= cut_rad:  # at the first inner one: the closing step is kept
+            start = int(cuts[0])
+            turn = np.roll(np.arange(len(q)), -start)
+            q, position, orientation = q[turn], position[turn], orientation[turn]
+            cuts = cuts[1:] - start
+    paths = []
+    for rows in np.split(np.arange(len(q)), cuts):
+        if not len(rows):
+            continue
+        arc = float(joint_distance(q[rows][1:], q[rows][:-1], periodic).sum())
+        paths.append(
+            ComponentPath(
+                q_rad=q[rows],
+                position_error_m=position[rows],
+                orientation_error_rad=orientation[rows],
+                closed=closed,
+                arc_length_rad=arc + (closing if closed else 0.0),
+            )
+        )
+    return paths, whole
+
+
+def owner_path(
+    q_rad: FloatArray,  # (K, n) accepted samples
+    paths: list[ComponentPath],
+    periodic: BoolArray,
+    within_rad: float,
+    candidates: int = 4,
+) -> IntArray:  # (K,) index of the path each sample lies on, -1 for none
+    """Each sample joins the path that passes nearest to it, if within `within_rad`.
+
+    The distance is to the path's segments beside each of the sample's nearest path
+    points, not to the points: a sample lies on its own curve between two points up to
+    the spacing apart, while a twin curve near a singular value can pass nearer than
+    that to it without passing through it.
+    """
+    owner = np.full(len(q_rad), -1)
+    if not paths or not len(q_rad):
+        return owner
+    points = np.concatenate([p.q_rad for p in paths])  # (P, n)
+    which = np.concatenate([np.full(len(p.q_rad), i) for i, p in enumerate(paths)])
+    before, after = np.arange(len(points)) - 1, np.arange(len(points)) + 1  # neighbours ...
+    first = np.cumsum([0] + [len(p.q_rad) for p in paths[:-1]])
+    last = first + np.array([len(p.q_rad) for p in paths]) - 1
+    closed = np.array([p.closed for p in paths])
+    before[first] = np.where(closed, last, first)  # ... along each path (a loop wraps)
+    after[last] = np.where(closed, first, last)
+    box = JointBox.covering(np.concatenate([points, q_rad]), periodic, margin_rad=1.0)
+    k = min(candidates, len(points))
+    _, nearest = box.tree(points).query(box.points(q_rad), k=k)  # (K, k)
+    nearest = nearest.reshape(len(q_rad), k)
+    distance = np.minimum(
+        segment_distance(q_rad, points[nearest], points[before[nearest]], periodic),
+        segment_distance(q_rad, points[nearest], points[after[nearest]], periodic),
+    )  # (K, k)
+    best = np.argmin(distance, axis=1)
+    rows = np.arange(len(q_rad))
+    on_path = distance[rows, best] <= within_rad
+    owner[on_path] = which[nearest[rows, best]][on_path]
+    return owner
+
+
+def segment_distance(
+    q_rad: FloatArray,  # (K, n)
+    a_rad: FloatArray,  # (K, k, n) segment starts
+    b_rad: FloatArray,  # (K, k, n) segment ends
+    periodic: BoolArray,
+) -> FloatArray:  # (K, k) joint-metric distance from each q to each segment a-b
+    along = joint_difference(b_rad, a_rad, periodic)  # (K, k, n)
+    offset = joint_difference(q_rad[:, None, :], a_rad, periodic)
+    length2 = np.einsum("kcn,kcn->kc", along, along)
+    fraction = np.clip(
+        np.einsum("kcn,kcn->kc", offset, along) / np.maximum(length2, 1e-300), 0.0, 1.0
+    )
+    return np.linalg.norm(offset - fraction[..., None] * along, axis=2)

@@ -1,0 +1,275 @@
+"""Phase 4: curves refined where a step may pass through the joint limits unseen, then
+cut by the limits into runs of consecutive points inside them."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from service.pipeline.arrays import BoolArray, FloatArray, IntArray
+from service.pipeline.connect.trace.points import (
+    Curve,
+    Evaluated,
+    TraceSettings,
+    curve,
+    torus_difference,
+)
+from service.pipeline.fibre import Fibre, project, unit_tangent
+from service.pipeline.joint_space import TWO_PI
+
+
+def window_low(lower_rad: FloatArray, upper_rad: FloatArray, periodic: BoolArray) -> FloatArray:
+    """Lower end (n,) of the 2 pi window each joint angle is read in: the limits inside it."""
+    centre = np.where(periodic, 0.0, 0.5 * (lower_rad + upper_rad))
+    return centre - np.pi
+
+
+def to_window(q_rad: FloatArray, window_low: FloatArray) -> FloatArray:
+    """Angles (..., n) mapped into [window_low, window_low + 2 pi)."""
+    return window_low + np.mod(q_rad - window_low, TWO_PI)
+
+
+def refine_near_limits(
+    fibre: Fibre,
+    evaluated: Evaluated,
+    loops: list[Curve],
+    lower_rad: FloatArray,
+    upper_rad: FloatArray,
+    periodic: BoolArray,
+    settings: TraceSettings,
+    rounds: int = 3,
+    pieces: int = 4,
+) -> tuple[Evaluated, list[Curve]]:
+    """Curves with points added where a step may pass through the limits unseen.
+
+    A component shorter than a step can lie between two traced points that are both
+    outside the limits. Where the chord of a step, widened by how far a curve bends in
+    a step, meets the limit box, the step is split into `pieces` projected points (from
+    the Hermite curve through its ends); a few rounds, each looking again only at the
+    pieces of the steps the last one split, find components down to about
+    h / pieces**rounds long. The evaluated points come back with the added ones.
+    """
+    low = window_low(lower_rad, upper_rad, periodic)
+    steps = Steps.of(evaluated, loops)
+    added: list[Evaluated] = []
+    added_loop: list[IntArray] = []
+    added_key: list[FloatArray] = []  # place in the loop: its step's first point + fraction
+    fraction = np.arange(1, pieces) / pieces  # (p - 1,)
+    for _ in range(rounds):
+        a = to_window(steps.start, low)  # (C, n)
+        b = a + steps.delta
+        inside_a = np.all(periodic | ((a >= lower_rad) & (a <= upper_rad)), axis=1)
+        inside_b = np.all(periodic | ((b >= lower_rad) & (b <= upper_rad)), axis=1)
+        # A curve bends off its chord by ~kappa L^2 / 8: a margin of L / 4 per step.
+        margin = 0.25 * np.linalg.norm(steps.delta, axis=1, keepdims=True)  # (C, 1)
+        meets = chord_meets_box(a, b, lower_rad - margin, upper_rad + margin, periodic)
+        steps = steps.take(meets & ~inside_a & ~inside_b)
+        if not len(steps.loop):
+            break
+        count = len(steps.loop)
+        guess, direction = hermite(
+            np.repeat(steps.start, pieces - 1, axis=0),
+            np.repeat(steps.start_tangent, pieces - 1, axis=0),
+            np.repeat(steps.start + steps.delta, pieces - 1, axis=0),
+            np.repeat(steps.end_tangent, pieces - 1, axis=0),
+            np.tile(fraction, count),
+        )  # (C (p - 1), n)
+        projected = project(fibre, guess, 2, tangent=direction, until=settings.path_error)
+        ok = np.all((projected.error_norm < 1e-6).reshape(count, pieces - 1), axis=1)  # (C,)
+        if not ok.any():
+            break
+        new_rows = len(evaluated) + np.arange((pieces - 1) * ok.sum()).reshape(-1, pieces - 1)
+        keep = np.repeat(ok, pieces - 1)
+        new = Evaluated.of(projected, unit_tangent(projected.jacobian, previous=direction))
+        added.append(new.take(keep))
+        evaluated = evaluated.extended(added[-1])
+        steps = steps.take(ok)
+        added_loop.append(np.repeat(steps.loop, pieces - 1))
+        added_key.append((steps.key[:, None] + steps.span[:, None] * fraction).ravel())
+        steps = steps.split(new_rows, evaluated)
+    if not added:
+        return evaluated, loops
+    loop_of = np.concatenate(added_loop)
+    key = np.concatenate(added_key)
+    rows = len(evaluated) - len(loop_of) + np.arange(len(loop_of))  # the added rows, in order
+    loops = list(loops)
+    for k in np.unique(loop_of).tolist():
+        mine = loop_of == k
+        places = np.concatenate([np.arange(len(loops[k].rows)), key[mine]])
+        merged = np.concatenate([loops[k].rows, rows[mine]])[np.argsort(places, kind="stable")]
+        loops[k] = curve(evaluated, merged, loops[k].closed)
+    return evaluated, loops
+
+
+@dataclass(frozen=True)
+class Steps:
+    """Steps of traced curves between evaluated points (C of them), as the refinement
+    looks at them: unwrapped start and chord, tangents along the chord at both ends."""
+
+    loop: IntArray  # (C,) which curve
+    key: FloatArray  # (C,) where the step starts in the curve: point index (+ fraction)
+    span: FloatArray  # (C,) how much of the curve's step it is: 1, 1 / pieces, ...
+    start: FloatArray  # (C, n) unwrapped like the curve
+    delta: FloatArray  # (C, n) to the step's end, the short way on the torus
+    start_tangent: FloatArray  # (C, n) unit, along delta
+    end_tangent: FloatArray  # (C, n)
+
+    @classmethod
+    def of(cls, evaluated: Evaluated, loops: list[Curve]) -> Steps:
+        """Every step of every curve (the closing step of a closed one included)."""
+        n = evaluated.q_rad.shape[1]
+        if not loops:
+            none = np.zeros((0, n))
+            return cls(np.zeros(0, np.int64), np.zeros(0), np.zeros(0), none, none, none, none)
+        size = np.array([len(curve.rows) for curve in loops])  # (L,)
+        first = np.cumsum(size) - size  # (L,) where each curve starts
+        loop = np.repeat(np.arange(len(loops)), size)  # (P,)
+        place = np.arange(len(loop)) - first[loop]  # (P,) index in its curve
+        following = np.arange(len(loop)) + 1  # (P,) the point after, round a closed curve
+        last = place == size[loop] - 1
+        following[last] = first[loop[last]]
+        step = ~last | np.array([curve.closed for curve in loops])[loop]
+        rows = np.concatenate([curve.rows for curve in loops])
+        row_a, row_b = rows[step], rows[following[step]]  # (C,) each step's ends
+        delta = torus_difference(evaluated.q_rad[row_b], evaluated.q_rad[row_a])
+        return cls(
+            loop=loop[step],
+            key=place[step].astype(np.float64),
+            span=np.ones(len(delta)),
+            start=np.concatenate([curve.points for curve in loops])[step],
+            delta=delta,
+            start_tangent=along(evaluated.tangent[row_a], delta),
+            end_tangent=along(evaluated.tangent[row_b], delta),
+        )
+
+    def take(self, rows: BoolArray) -> Steps:
+        return Steps(
+            self.loop[rows], self.key[rows], self.span[rows], self.start[rows],
+            self.delta[rows], self.start_tangent[rows], self.end_tangent[rows],
+        )  # fmt: skip
+
+    def split(self, new_rows: IntArray, evaluated: Evaluated) -> Steps:
+        """Each step as its `pieces` steps through the new points (C, pieces - 1) inside it."""
+        count, inner = new_rows.shape
+        pieces = inner + 1
+        q = evaluated.q_rad[new_rows]  # (C, p - 1, n)
+        end = self.start + self.delta
+        # The new points in the step's unwrapped coordinates: each moved little from its guess.
+        q = self.start[:, None, :] + torus_difference(q, self.start[:, None, :])
+        nodes = np.concatenate([self.start[:, None], q, end[:, None]], axis=1)  # (C, p + 1, n)
+        tangents = np.concatenate(
+            [self.start_tangent[:, None], evaluated.tangent[new_rows], self.end_tangent[:, None]],
+            axis=1,
+        )  # (C, p + 1, n)
+        delta = np.diff(nodes, axis=1).reshape(-1, nodes.shape[2])  # (C p, n)
+        span = np.repeat(self.span / pieces, pieces)
+        return Steps(
+            loop=np.repeat(self.loop, pieces),
+            key=np.repeat(self.key, pieces) + span * np.tile(np.arange(pieces), count),
+            span=span,
+            start=nodes[:, :-1].reshape(-1, nodes.shape[2]),
+            delta=delta,
+            start_tangent=along(tangents[:, :-1].reshape(delta.shape), delta),
+            end_tangent=along(tangents[:, 1:].reshape(delta.shape), delta),
+        )
+
+
+def along(tangent: FloatArray, direction: FloatArray) -> FloatArray:  # (K, n) -> (K, n)
+    """Each tangent with the sign that points it along `direction`; where the tangent is
+    not finite (a rank-deficient Jacobian), the unit direction itself."""
+    if not np.isfinite(tangent).all():
+        with np.errstate(invalid="ignore", divide="ignore"):
+            unit = direction / np.linalg.norm(direction, axis=1, keepdims=True)
+        tangent = np.where(np.all(np.isfinite(tangent), axis=1, keepdims=True), tangent, unit)
+    return np.where(np.einsum("kn,kn->k", tangent, direction)[:, None] < 0.0, -tangent, tangent)
+
+
+def hermite(
+    p0: FloatArray,  # (K, n)
+    t0: FloatArray,  # (K, n) unit tangent at p0, pointing toward p1
+    p1: FloatArray,  # (K, n)
+    t1: FloatArray,  # (K, n) unit tangent at p1, pointing away from p0
+    s: FloatArray,  # (K,) in [0, 1]
+) -> tuple[FloatArray, FloatArray]:  # (K, n) points, (K, n) unit directions of the curve
+    """The cubic Hermite curve from p0 to p1 with end tangents t0, t1 scaled by the chord
+    length, at parameter s: off a smooth curve by O(L^4) where the chord is off by O(L^2)."""
+    chord = p1 - p0  # (K, n)
+    length = np.linalg.norm(chord, axis=1, keepdims=True)  # (K, 1)
+    s = s[:, None]
+    r = 1.0 - s
+    point = (
+        p0
+        + (s * s * (3.0 - 2.0 * s)) * chord
+        + (length * s * r * r) * t0
+        - (length * s * s * r) * t1
+    )
+    direction = (
+        (6.0 * s * r) * chord
+        + (length * r * (1.0 - 3.0 * s)) * t0
+        + (length * s * (3.0 * s - 2.0)) * t1
+    )
+    with np.errstate(invalid="ignore"):
+        direction = direction / np.linalg.norm(direction, axis=1, keepdims=True)
+    return point, direction
+
+
+def chord_meets_box(
+    a: FloatArray, b: FloatArray, lower: FloatArray, upper: FloatArray, periodic: BoolArray
+) -> BoolArray:  # (S,)
+    """Whether each segment a -> b (S, n) passes through the box (slab test, limited joints)."""
+    d = b - a
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t1 = (lower - a) / d
+        t2 = (upper - a) / d
+    entry = np.where(
+        d == 0, np.where((a >= lower) & (a <= upper), -np.inf, np.inf), np.minimum(t1, t2)
+    )
+    leave = np.where(
+        d == 0, np.where((a >= lower) & (a <= upper), np.inf, -np.inf), np.maximum(t1, t2)
+    )
+    entry = np.where(periodic, -np.inf, entry).max(axis=1)
+    leave = np.where(periodic, np.inf, leave).min(axis=1)
+    return (entry <= leave) & (leave >= 0.0) & (entry <= 1.0)
+
+
+@dataclass(frozen=True)
+class Run:
+    rows: IntArray  # (P,) evaluated points in order
+    points: FloatArray  # (P, n) those points unwrapped
+    closed: bool
+    start_exit: FloatArray | None  # (n,) the outside point before the run (open runs)
+    end_exit: FloatArray | None  # (n,) the outside point after the run
+
+
+def cut_by_limits(
+    loops: list[Curve], lower_rad: FloatArray, upper_rad: FloatArray, periodic: BoolArray
+) -> list[Run]:
+    """The runs of consecutive points of each curve that lie inside the limits."""
+    if not loops:
+        return []
+    low = window_low(lower_rad, upper_rad, periodic)
+    window = to_window(np.concatenate([loop.points for loop in loops]), low)  # (P, n)
+    inside_all = np.all(periodic | ((window >= lower_rad) & (window <= upper_rad)), axis=1)
+    per_loop = np.split(inside_all, np.cumsum([len(loop.rows) for loop in loops])[:-1])
+    runs = []
+    for loop, inside in zip(loops, per_loop, strict=True):
+        if inside.all():
+            runs.append(Run(loop.rows, loop.points, loop.closed, None, None))
+            continue
+        if not inside.any():
+            continue
+        rows, points, closed = loop.rows, loop.points, loop.closed
+        if closed:  # rotate so that the loop starts outside: runs never wrap
+            shift = int(np.argmin(inside))
+            turns = points[-1] + torus_difference(points[0], points[-1]) - points[0]  # (n,)
+            rows = np.concatenate([rows[shift:], rows[:shift]])
+            inside = np.concatenate([inside[shift:], inside[:shift]])
+            points = np.concatenate([points[shift:], points[:shift] + turns])
+        edges = np.diff(np.concatenate([[0], inside.astype(np.int8), [0]]))
+        starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+        for begin, end in zip(starts.tolist(), stops.tolist(), strict=True):
+            before = points[begin - 1] if begin > 0 else (points[-1] if closed else None)
+            after = points[end] if end < len(points) else (points[0] if closed else None)
+            runs.append(Run(rows[begin:end], points[begin:end], False, before, after))
+    return runs
