@@ -5,8 +5,11 @@ healthcheck, http/, api/), observability/, models/, pipeline/, the contract (err
 manifest, wire). A module imports its own layer or the layers inside it, never one
 outside; the client imports nothing of service/ but the contract; service/ never imports
 training/; training/ uses the service's contract, pipeline and models, never its edge. Every
-import counts, also one inside a function. The checks run over the real tree; the
-checker itself is tried on a synthetic tree first, so a test that cannot fail is caught.
+import counts, also one inside a function. The connect stage (service/pipeline/connect/) is a
+package with a chosen public API: code outside it imports only the names of its `__all__`,
+never its modules (its own tests, under tests/service/pipeline/connect/, test the modules).
+The checks run over the real tree; each checker is tried on a synthetic tree first, so a
+test that cannot fail is caught.
 """
 
 from __future__ import annotations
@@ -230,3 +233,74 @@ def test_the_client_imports_only_the_contract(graph: dict[str, set[str]]) -> Non
 
 def test_no_import_cycle_in_service_or_training(graph: dict[str, set[str]]) -> None:
     assert cycles(graph) == []
+
+
+# The connect stage's package: outside it, only the names of its __all__ are imported.
+CONNECT = "service.pipeline.connect"
+# Unit tests of the package's modules, which import them by design, and the docs test that
+# reads module constants by module name, as the docs' `constant` blocks name them.
+CONNECT_TESTS = ("tests.service.pipeline.connect", "tests.docs.test_topic_api")
+
+
+def public_names(package_init: Path) -> set[str]:
+    """The names in a package's `__all__` (read from its source, not imported)."""
+    for node in ast.parse(package_init.read_text()).body:
+        if isinstance(node, ast.Assign) and any(
+            isinstance(t, ast.Name) and t.id == "__all__" for t in node.targets
+        ):
+            return {ast.literal_eval(element) for element in node.value.elts}  # type: ignore[attr-defined]
+    raise AssertionError(f"{package_init} has no __all__")
+
+
+def private_imports(
+    root: Path, packages: Iterable[str], package: str, public: set[str]
+) -> list[str]:
+    """Imports of `package` from modules outside it that reach past its public names: one
+    of its modules, or a name not in `public`."""
+    found = []
+    for top in packages:
+        for path in sorted((root / top).rglob("*.py")):
+            module = module_name(path, root)
+            if module == package or module.startswith(package + "."):
+                continue
+            if any(module == t or module.startswith(t + ".") for t in CONNECT_TESTS):
+                continue
+            for node in ast.walk(ast.parse(path.read_text())):
+                if isinstance(node, ast.Import):
+                    names = [a.name for a in node.names if a.name.startswith(package + ".")]
+                    found += [f"{module} imports {name}" for name in names]
+                elif isinstance(node, ast.ImportFrom) and node.module:
+                    if node.module.startswith(package + "."):
+                        found.append(f"{module} imports {node.module}")
+                    elif node.module == package:
+                        hidden = sorted(a.name for a in node.names if a.name not in public)
+                        found += [f"{module} imports {package}.{name}" for name in hidden]
+    return found
+
+
+def test_the_connect_checker_catches_a_module_and_a_private_name(tmp_path: Path) -> None:
+    _write(
+        tmp_path,
+        {
+            "service/pipeline/connect/__init__.py": "from x import a\n__all__ = ['a']\n",
+            "service/pipeline/connect/roadmap.py": "from service.pipeline.connect import b\n",
+            "service/pipeline/run.py": "from service.pipeline.connect import a\n",
+            "training/methods.py": "from service.pipeline.connect.roadmap import Roadmap\n",
+            "tools/profile.py": "from service.pipeline.connect import a, b\n",
+            "tests/x.py": "import service.pipeline.connect.trace.walk\n",
+        },
+    )
+    public = public_names(tmp_path / "service/pipeline/connect/__init__.py")
+    assert public == {"a"}
+    found = private_imports(tmp_path, ["service", "training", "tools", "tests"], CONNECT, public)
+    assert sorted(found) == [
+        "tests.x imports service.pipeline.connect.trace.walk",
+        "tools.profile imports service.pipeline.connect.b",
+        "training.methods imports service.pipeline.connect.roadmap",
+    ]
+
+
+def test_code_outside_connect_imports_only_its_public_api() -> None:
+    public = public_names(ROOT / "service/pipeline/connect/__init__.py")
+    packages = ["service", "training", "tools", "tests"]
+    assert private_imports(ROOT, packages, CONNECT, public) == []

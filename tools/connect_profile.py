@@ -14,17 +14,16 @@ from __future__ import annotations
 import argparse
 import json
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
-from service.pipeline.acceptance import accept
 from service.pipeline.arrays import FloatArray
 from service.pipeline.connect import connect
 from service.pipeline.fibre import Fibre
-from service.pipeline.run import correct_samples, encode, sample
+from service.pipeline.run import correct_samples, encode, sample, space_of
 from service.pipeline.types import Kinematics, KinematicsResult, Query
 from training.evaluate.served import orientation_wxyz
 from training.evaluate.targets import uniform_configurations
@@ -53,7 +52,6 @@ def profile_connect(
     with the model's defaults at `num_samples` (None: the model's default), then stage 5
     with its kinematics behind a timer."""
     manifest, defaults = model.manifest, model.manifest.defaults
-    lower, upper, periodic = manifest.joints.arrays()
     rows: list[dict[str, float]] = []
     for i, q in enumerate(q_targets):
         fk = model.kinematics(q[None])
@@ -68,22 +66,13 @@ def profile_connect(
         )
         # Stages 1-4 as the pipeline runs them (service/pipeline/run.py).
         target = encode(model, query)
-        correction = correct_samples(
-            model, target, sample(model, query, target), query.tolerance_position_m,
-            query.tolerance_orientation_rad,
-        )  # fmt: skip
-        acceptance = accept(
-            correction, query.tolerance_position_m, query.tolerance_orientation_rad,
-            lower, upper, periodic,
-        )  # fmt: skip
+        space = space_of(model, target, query.tolerance)
+        correction = correct_samples(model, space, sample(model, query, target))
+        acceptance = space.accept(correction)
         timed = TimedKinematics(model.kinematics)
-        fibre = Fibre(target, manifest.task, timed, defaults.damping)
+        timed_space = replace(space, fibre=Fibre(target, manifest.task, timed, defaults.damping))
         start = time.perf_counter()
-        connection = connect(
-            fibre, correction, acceptance, lower, upper, periodic, defaults.connectivity,
-            query.tolerance_position_m, query.tolerance_orientation_rad,
-            coaxial_sets=model.coaxial_sets,
-        )  # fmt: skip
+        connection = connect(timed_space, correction, acceptance, defaults.connectivity)
         connect_ms = (time.perf_counter() - start) * 1e3
         rows.append(
             {

@@ -130,7 +130,7 @@ from service.manifest import (
 from service.models.registry import ServedModel, load_model
 from service.pipeline.arrays import BoolArray, FloatArray, IntArray
 from service.pipeline.correction import task_error_norms
-from service.pipeline.joint_space import JointBox
+from service.pipeline.joint_space import JointBox, JointLimits
 from service.pipeline.run import run
 from service.pipeline.sampling import sample_configurations
 from service.pipeline.targets import encode_target
@@ -691,7 +691,7 @@ def raw_error(
     """The flow's raw samples (no correction) with `sampler`, over the targets (seed + i)."""
     manifest = model.manifest
     task = manifest.task
-    periodic = np.asarray(manifest.joints.periodic, dtype=bool)
+    limits = JointLimits.of(manifest.joints)
     errors = []
     for i, (position, wxyz) in enumerate(
         zip(targets.position_m, targets.orientation_wxyz, strict=True)
@@ -699,7 +699,7 @@ def raw_error(
         target = encode_target(task, manifest.condition, position, wxyz)
         q_raw = sample_configurations(
             model.network(sampler), target.condition, num_samples, sampler,
-            manifest.joint_normalisation, periodic, np.random.default_rng(seed + i),
+            manifest.joint_normalisation, limits, np.random.default_rng(seed + i),
         )  # fmt: skip
         errors.append(task_error_norms(model.kinematics(q_raw), target, task))
     raw = summarise_raw(

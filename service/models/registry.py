@@ -34,6 +34,7 @@ from service.manifest import (
 from service.models.chain import SerialChainKinematics
 from service.models.sessions import OnnxKinematics, OnnxVelocityField, open_session
 from service.pipeline.connect import find_coaxial_sets
+from service.pipeline.joint_space import JointLimits
 from service.pipeline.types import CoaxialSet, Kinematics
 
 # chain.json against kinematics.onnx at load: configurations uniform in the joint limits
@@ -92,9 +93,9 @@ def _verify_file(path: Path, expected_sha256: str) -> None:
 
 def chain_difference(chain: Kinematics, reference: Kinematics, manifest: Manifest) -> float:
     """Largest |chain - reference| over position, rotation and Jacobian, in the joint limits."""
-    lower, upper, _ = manifest.joints.arrays()
+    limits = JointLimits.of(manifest.joints)
     q = np.random.default_rng(0).uniform(
-        lower, upper, (CHAIN_CHECK_CONFIGURATIONS, manifest.joints.count)
+        limits.lower_rad, limits.upper_rad, (CHAIN_CHECK_CONFIGURATIONS, limits.count)
     )
     a, b = chain(q), reference(q)
     pairs = ((a.position_m, b.position_m), (a.rotation, b.rotation), (a.jacobian, b.jacobian))
@@ -145,7 +146,7 @@ def load_model(model_dir: Path, threads: int) -> ServedModel:
             if name in manifest.files
         },
         kinematics=kinematics,
-        coaxial_sets=tuple(find_coaxial_sets(kinematics, *manifest.joints.arrays())),
+        coaxial_sets=tuple(find_coaxial_sets(kinematics, JointLimits.of(manifest.joints))),
         version=hashlib.sha256(combined.encode()).hexdigest()[:12],
     )
 

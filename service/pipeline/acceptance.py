@@ -4,23 +4,17 @@ from __future__ import annotations
 
 import numpy as np
 
-from service.pipeline.arrays import BoolArray, FloatArray
-from service.pipeline.types import Acceptance, Correction
+from service.pipeline.joint_space import JointLimits
+from service.pipeline.types import Acceptance, Correction, Tolerance
 
 
-def accept(
-    correction: Correction,
-    tolerance_position_m: float,
-    tolerance_orientation_rad: float,
-    lower_rad: FloatArray,  # (n,)
-    upper_rad: FloatArray,  # (n,)
-    periodic: BoolArray,  # (n,)
-) -> Acceptance:
-    """Tolerance mask (NaN and inf errors fail it) and joint-limit mask (periodic joints pass)."""
-    within_tolerance = (correction.position_error_m <= tolerance_position_m) & (
-        correction.orientation_error_rad <= tolerance_orientation_rad
-    )
+def accept(correction: Correction, tolerance: Tolerance, limits: JointLimits) -> Acceptance:
+    """Tolerance mask (NaN and inf errors fail it) and joint-limit mask (periodic joints
+    pass; a configuration that is not finite fails)."""
     q = correction.q_rad  # (N, n)
-    inside = (q >= lower_rad) & (q <= upper_rad)  # (N, n), False for NaN
-    within_limits = np.all(inside | periodic, axis=1) & np.all(np.isfinite(q), axis=1)
-    return Acceptance(within_tolerance=within_tolerance, within_limits=within_limits)
+    return Acceptance(
+        within_tolerance=tolerance.within(
+            correction.position_error_m, correction.orientation_error_rad
+        ),
+        within_limits=limits.contains(q) & np.all(np.isfinite(q), axis=1),
+    )

@@ -10,21 +10,21 @@ from __future__ import annotations
 
 import numpy as np
 
-from service.pipeline.arrays import BoolArray, FloatArray
+from service.pipeline.arrays import FloatArray
 from service.pipeline.deadline import NO_DEADLINE, Deadline
-from service.pipeline.joint_space import joint_distance, wrap_to_pi
+from service.pipeline.joint_space import JointLimits
 from service.pipeline.types import Component, ComponentSummary
 
 
-def joint_mean(q_rad: FloatArray, periodic: BoolArray) -> FloatArray:
+def joint_mean(q_rad: FloatArray, limits: JointLimits) -> FloatArray:
     """Mean (n,) of configurations (k, n): circular mean on periodic joints, plain elsewhere."""
     circular = np.arctan2(np.sin(q_rad).mean(axis=0), np.cos(q_rad).mean(axis=0))
-    return np.where(periodic, circular, q_rad.mean(axis=0))
+    return np.where(limits.periodic, circular, q_rad.mean(axis=0))
 
 
 def farthest_point_subset(
     q_rad: FloatArray,
-    periodic: BoolArray,
+    limits: JointLimits,
     start: int,
     count: int,
     deadline: Deadline = NO_DEADLINE,
@@ -33,18 +33,18 @@ def farthest_point_subset(
     if count >= len(q_rad):
         return q_rad
     chosen = [start]
-    distance = joint_distance(q_rad, q_rad[start], periodic)  # (k,)
+    distance = limits.distance(q_rad, q_rad[start])  # (k,)
     for _ in range(count - 1):
         deadline.check("summarise")
         nxt = int(np.argmax(distance))
         chosen.append(nxt)
-        distance = np.minimum(distance, joint_distance(q_rad, q_rad[nxt], periodic))
+        distance = np.minimum(distance, limits.distance(q_rad, q_rad[nxt]))
     return q_rad[np.asarray(chosen)]
 
 
 def summarise(
     component: Component,
-    periodic: BoolArray,
+    limits: JointLimits,
     reference_rad: FloatArray | None,
     max_configurations: int | None,
     include_path: bool,
@@ -62,17 +62,17 @@ def summarise(
         orientation_error = np.concatenate([orientation_error, path.orientation_error_rad])
     # The representative is a sample when there is one, else the path point nearest the mean.
     pool = q if len(q) else every
-    centre = joint_mean(pool, periodic)
-    representative = int(np.argmin(joint_distance(pool, centre, periodic)))
+    centre = joint_mean(pool, limits)
+    representative = int(np.argmin(limits.distance(pool, centre)))
     configurations = (
         q
         if max_configurations is None or not len(q)
-        else farthest_point_subset(q, periodic, representative, max_configurations, deadline)
+        else farthest_point_subset(q, limits, representative, max_configurations, deadline)
     )
     distance_to_reference = None
     nearest = None
     if reference_rad is not None:
-        distances = joint_distance(every, reference_rad, periodic)  # (k + P,)
+        distances = limits.distance(every, reference_rad)  # (k + P,)
         best = int(np.argmin(distances))
         distance_to_reference = float(distances[best])
         nearest = every[best]
@@ -94,7 +94,7 @@ def summarise(
 
 def summarise_all(
     components: list[Component],
-    periodic: BoolArray,
+    limits: JointLimits,
     reference_rad: FloatArray | None,
     max_configurations: int | None,
     include_paths: bool,
@@ -103,9 +103,9 @@ def summarise_all(
     """Summaries ordered by distance to the reference when given, else by size (largest first,
     then the longest path)."""
     if reference_rad is not None:
-        reference_rad = np.where(periodic, wrap_to_pi(reference_rad), reference_rad)
+        reference_rad = limits.wrap(reference_rad)
     summaries = [
-        summarise(c, periodic, reference_rad, max_configurations, include_paths, deadline)
+        summarise(c, limits, reference_rad, max_configurations, include_paths, deadline)
         for c in components
     ]
     if reference_rad is not None:

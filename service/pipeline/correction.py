@@ -13,9 +13,9 @@ from collections.abc import Callable
 import numpy as np
 
 from service.manifest import TaskSpec
-from service.pipeline.arrays import BoolArray, FloatArray, IntArray
+from service.pipeline.arrays import FloatArray, IntArray
 from service.pipeline.deadline import NO_DEADLINE, Deadline
-from service.pipeline.joint_space import wrap_periodic
+from service.pipeline.joint_space import JointLimits
 from service.pipeline.rotations import rotation_error
 from service.pipeline.targets import Target
 from service.pipeline.types import Correction, Kinematics, KinematicsResult
@@ -158,7 +158,7 @@ def correct(
     kinematics: Kinematics,
     steps: int,
     damping: float,
-    periodic: BoolArray,  # (n,)
+    limits: JointLimits,  # its periodic joints come back wrapped
     deadline: Deadline = NO_DEADLINE,
 ) -> Correction:
     """Up to `steps` DLS steps on every finite sample (a sample stops once its |e| is at
@@ -193,7 +193,7 @@ def correct(
     )
     position_error_m[finite], orientation_error_rad[finite] = error_norms(error, task)
     jacobian_out[finite] = jacobian
-    q_out[finite] = wrap_periodic(q, periodic)
+    q_out[finite] = limits.wrap(q)
     return Correction(
         q_rad=q_out,
         position_error_m=position_error_m,

@@ -1,4 +1,6 @@
-"""The joint metric: joint differences wrapped to (-pi, pi] for periodic joints only.
+"""The joint space: its limits and its metric, joint differences wrapped to (-pi, pi]
+for periodic joints only (`JointLimits` carries both; the functions below are its
+batched kernels).
 
 A joint is periodic when its range covers the full circle (a continuous joint).
 A limited joint is not a circle: +174 deg and -174 deg on the iiwa's joint 7 are
@@ -13,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from service.manifest import JointSpec
 from service.pipeline.arrays import BoolArray, FloatArray
 
 TWO_PI = 2.0 * np.pi
@@ -81,3 +84,58 @@ class JointBox:
         if not self.periodic.any():
             return cKDTree(self.points(q_rad))
         return cKDTree(self.points(q_rad), boxsize=self.box_rad)
+
+
+@dataclass(frozen=True)
+class JointLimits:
+    """The joint space: each joint's limits, and whether it is periodic (a continuous
+    joint, whose range is the whole circle and which the limits never bound), with the
+    joint metric's operations. Arrays are float64 / bool, one entry per joint."""
+
+    lower_rad: FloatArray  # (n,)
+    upper_rad: FloatArray  # (n,)
+    periodic: BoolArray  # (n,)
+
+    @classmethod
+    def of(cls, joints: JointSpec) -> JointLimits:
+        """The limits a model's manifest lists."""
+        return cls(
+            lower_rad=np.asarray(joints.lower_rad, dtype=np.float64),
+            upper_rad=np.asarray(joints.upper_rad, dtype=np.float64),
+            periodic=np.asarray(joints.periodic, dtype=bool),
+        )
+
+    @property
+    def count(self) -> int:
+        """n, the number of joints."""
+        return len(self.lower_rad)
+
+    def difference(self, q_a_rad: FloatArray, q_b_rad: FloatArray) -> FloatArray:
+        """q_a - q_b per joint (..., n), the shortest way round for periodic joints only."""
+        return joint_difference(q_a_rad, q_b_rad, self.periodic)
+
+    def distance(self, q_a_rad: FloatArray, q_b_rad: FloatArray) -> FloatArray:
+        """Joint-metric distance (...,) in rad."""
+        return joint_distance(q_a_rad, q_b_rad, self.periodic)
+
+    def wrap(self, q_rad: FloatArray) -> FloatArray:
+        """`q_rad` (..., n) with its periodic joints wrapped into (-pi, pi]."""
+        return wrap_periodic(q_rad, self.periodic)
+
+    def contains(self, q_rad: FloatArray) -> BoolArray:
+        """(...,) whether each configuration (..., n) lies inside the limits (a periodic
+        joint always does; a NaN limited joint does not)."""
+        inside = (q_rad >= self.lower_rad) & (q_rad <= self.upper_rad)
+        return np.all(self.periodic | inside, axis=-1)
+
+    def outside(self, q_rad: FloatArray) -> BoolArray:
+        """(..., n) which joints lie outside their limits (a periodic joint never does)."""
+        return ((q_rad < self.lower_rad) | (q_rad > self.upper_rad)) & ~self.periodic
+
+    def clip(self, q_rad: FloatArray) -> FloatArray:
+        """`q_rad` (..., n) with each limited joint clipped onto its limits."""
+        return np.where(self.periodic, q_rad, np.clip(q_rad, self.lower_rad, self.upper_rad))
+
+    def box(self, q_rad: FloatArray, margin_rad: float) -> JointBox:
+        """The KD-tree box for configurations q_rad (N, n) (`JointBox.covering`)."""
+        return JointBox.covering(q_rad, self.periodic, margin_rad)

@@ -26,12 +26,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from service.pipeline.acceptance import accept
-from service.pipeline.arrays import BoolArray, FloatArray
 from service.pipeline.correction import dls_step, error_norms
 from service.pipeline.deadline import NO_DEADLINE, Deadline
-from service.pipeline.fibre import Fibre
-from service.pipeline.types import Acceptance, Correction
+from service.pipeline.space import FibreSpace
+from service.pipeline.types import Correction
 
 # Locked-joint DLS steps. A locked joint can move a sample by a radian or more, which
 # undoes the task by up to the arm's reach; on the iiwa14 and Panda position targets 6
@@ -39,37 +37,17 @@ from service.pipeline.types import Acceptance, Correction
 PULL_STEPS = 6
 
 
-def outside_limits(
-    q_rad: FloatArray,  # (N, n)
-    lower_rad: FloatArray,  # (n,)
-    upper_rad: FloatArray,  # (n,)
-    periodic: BoolArray,  # (n,)
-) -> BoolArray:  # (N, n)
-    """Which joints of which rows lie outside their limits (a periodic joint never does)."""
-    return ((q_rad < lower_rad) | (q_rad > upper_rad)) & ~periodic
-
-
 def pull_into_limits(
     correction: Correction,
-    fibre: Fibre,
-    lower_rad: FloatArray,  # (n,)
-    upper_rad: FloatArray,  # (n,)
-    periodic: BoolArray,  # (n,)
-    tolerance_position_m: float,
-    tolerance_orientation_rad: float,
+    space: FibreSpace,
     steps: int = PULL_STEPS,
     deadline: Deadline = NO_DEADLINE,
 ) -> Correction:
     """`correction` with its samples that are within tolerance but outside the limits
-    replaced by locked-joint DLS pulls of them that end within tolerance and inside the
-    limits; every other row as it was."""
-
-    def gate(c: Correction) -> Acceptance:  # stage 4's own tolerance and limit masks
-        return accept(
-            c, tolerance_position_m, tolerance_orientation_rad, lower_rad, upper_rad, periodic
-        )
-
-    before = gate(correction)
+    replaced by locked-joint DLS pulls of them that end valid (`FibreSpace.accept`);
+    every other row as it was."""
+    fibre, limits = space.fibre, space.limits
+    before = space.accept(correction)
     rows = np.flatnonzero(before.within_tolerance & ~before.within_limits)  # (P,)
     if not len(rows):
         return correction
@@ -77,14 +55,14 @@ def pull_into_limits(
     locked = np.zeros(q.shape, dtype=bool)  # (P, n)
     for _ in range(steps):
         deadline.check("correct")
-        locked |= outside_limits(q, lower_rad, upper_rad, periodic)
-        q = np.where(periodic, q, np.clip(q, lower_rad, upper_rad))
+        locked |= limits.outside(q)
+        q = limits.clip(q)
         error, jacobian = fibre.residual(q)  # (P, m), (P, m, n)
         free_jacobian = np.where(locked[:, None, :], 0.0, jacobian)  # (P, m, n)
         q = q + dls_step(free_jacobian, error, fibre.damping)
     error, jacobian = fibre.residual(q)
     pulled = Correction(q, *error_norms(error, fibre.task), jacobian)  # (P,) rows
-    kept = gate(pulled).accepted  # (P,)
+    kept = space.accept(pulled).accepted  # (P,)
     if not kept.any():
         return correction
     into = rows[kept]

@@ -1,5 +1,8 @@
 """One query through the pipeline: target -> sample -> correct -> accept -> connect -> components.
 
+Stages 3 to 5 move in the query's `FibreSpace` (space.py): the target's fibre inside the
+joint limits, which says what configuration and what motion is valid.
+
 Each stage is timed under its name in `STAGES`; the result accounts for every sample
 (see `SampleCounts`). The pieces `encode`, `sample` and `answer_samples` are what `run`
 calls in order; `batch.run_batch` calls the same pieces for many queries of one model,
@@ -15,15 +18,16 @@ from typing import Literal
 
 import numpy as np
 
-from service.pipeline.acceptance import accept
 from service.pipeline.arrays import FloatArray
 from service.pipeline.components import summarise_all
 from service.pipeline.connect import connect
 from service.pipeline.correction import correct
 from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.fibre import Fibre
+from service.pipeline.joint_space import JointLimits
 from service.pipeline.limits import pull_into_limits
 from service.pipeline.sampling import sample_configurations
+from service.pipeline.space import FibreSpace
 from service.pipeline.targets import Target, encode_target
 from service.pipeline.types import (
     Correction,
@@ -33,6 +37,7 @@ from service.pipeline.types import (
     SmmResult,
     Stage,
     StageTimings,
+    Tolerance,
 )
 
 
@@ -84,7 +89,7 @@ def sample(
         num_samples=query.num_samples,
         sampler=manifest.defaults.sampler,
         joint_normalisation=manifest.joint_normalisation,
-        periodic=manifest.joints.arrays()[2],
+        limits=JointLimits.of(manifest.joints),
         rng=np.random.default_rng(query.seed),
         deadline=deadline,
     )
@@ -96,56 +101,47 @@ def fibre_of(model: SmmModel, target: Target) -> Fibre:
     return Fibre(target, manifest.task, model.kinematics, manifest.defaults.damping)
 
 
+def space_of(model: SmmModel, target: Target, tolerance: Tolerance) -> FibreSpace:
+    """The space stages 3 to 5 move in: the target's fibre inside the model's joint
+    limits, with the model's coaxial sets and the query's tolerance."""
+    return FibreSpace(
+        fibre=fibre_of(model, target),
+        limits=JointLimits.of(model.manifest.joints),
+        coaxial_sets=tuple(model.coaxial_sets),
+        tolerance=tolerance,
+    )
+
+
 def correct_samples(
     model: SmmModel,
-    target: Target,
+    space: FibreSpace,
     q_sampled_rad: FloatArray,  # (N, n)
-    tolerance_position_m: float,
-    tolerance_orientation_rad: float,
     deadline: Deadline = NO_DEADLINE,
 ) -> Correction:
     """Stage 3: the model's DLS steps on every sample, then for r > 1 the samples within
-    tolerance outside the limits pulled into them (limits.py)."""
+    tolerance outside the limits pulled into them (`into_limits`)."""
     manifest, defaults = model.manifest, model.manifest.defaults
     correction = correct(
         q_rad=q_sampled_rad,
-        target=target,
+        target=space.fibre.target,
         task=manifest.task,
         kinematics=model.kinematics,
         steps=defaults.correction_steps,
         damping=defaults.damping,
-        periodic=manifest.joints.arrays()[2],
+        limits=space.limits,
         deadline=deadline,
     )
-    return into_limits(
-        model, target, correction, tolerance_position_m, tolerance_orientation_rad, deadline
-    )
+    return into_limits(model, space, correction, deadline)
 
 
 def into_limits(
-    model: SmmModel,
-    target: Target,
-    correction: Correction,
-    tolerance_position_m: float,
-    tolerance_orientation_rad: float,
-    deadline: Deadline = NO_DEADLINE,
+    model: SmmModel, space: FibreSpace, correction: Correction, deadline: Deadline = NO_DEADLINE
 ) -> Correction:
     """For r > 1, the corrected samples within tolerance but outside the limits pulled
     into them (limits.py); for r = 1 the correction as it is."""
-    manifest = model.manifest
-    lower_rad, upper_rad, periodic = manifest.joints.arrays()
-    if manifest.redundancy == 1:
+    if model.manifest.redundancy == 1:
         return correction
-    return pull_into_limits(
-        correction=correction,
-        fibre=fibre_of(model, target),
-        lower_rad=lower_rad,
-        upper_rad=upper_rad,
-        periodic=periodic,
-        tolerance_position_m=tolerance_position_m,
-        tolerance_orientation_rad=tolerance_orientation_rad,
-        deadline=deadline,
-    )
+    return pull_into_limits(correction, space, deadline=deadline)
 
 
 def answer_samples(
@@ -156,46 +152,20 @@ def answer_samples(
     watch: Stopwatch,
     deadline: Deadline = NO_DEADLINE,
 ) -> SmmResult:
-    """Stages 3-6 on the query's samples, each timed on `watch`: correct
-    (`correct_samples`), accept, connect, summarise."""
-    manifest, defaults = model.manifest, model.manifest.defaults
-    lower_rad, upper_rad, periodic = manifest.joints.arrays()
+    """Stages 3-6 on the query's samples, each timed on `watch`, in the query's space
+    (`space_of`): correct (`correct_samples`), accept, connect, summarise."""
+    space = space_of(model, target, query.tolerance)
     with watch.stage("correct"):
-        correction = correct_samples(
-            model,
-            target,
-            q_sampled_rad,
-            tolerance_position_m=query.tolerance_position_m,
-            tolerance_orientation_rad=query.tolerance_orientation_rad,
-            deadline=deadline,
-        )
+        correction = correct_samples(model, space, q_sampled_rad, deadline)
     with watch.stage("accept"):
-        acceptance = accept(
-            correction=correction,
-            tolerance_position_m=query.tolerance_position_m,
-            tolerance_orientation_rad=query.tolerance_orientation_rad,
-            lower_rad=lower_rad,
-            upper_rad=upper_rad,
-            periodic=periodic,
-        )
+        acceptance = space.accept(correction)
     with watch.stage("connect"):
-        connection = connect(
-            fibre=fibre_of(model, target),
-            correction=correction,
-            acceptance=acceptance,
-            lower_rad=lower_rad,
-            upper_rad=upper_rad,
-            periodic=periodic,
-            spec=defaults.connectivity,
-            tolerance_position_m=query.tolerance_position_m,
-            tolerance_orientation_rad=query.tolerance_orientation_rad,
-            deadline=deadline,
-            coaxial_sets=model.coaxial_sets,
-        )
+        spec = model.manifest.defaults.connectivity
+        connection = connect(space, correction, acceptance, spec, deadline)
     with watch.stage("summarise"):
         summaries = summarise_all(
             components=connection.components,
-            periodic=periodic,
+            limits=space.limits,
             reference_rad=query.reference_rad,
             max_configurations=query.max_configurations_per_component,
             include_paths=query.include_paths,

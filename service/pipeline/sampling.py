@@ -28,9 +28,9 @@ from __future__ import annotations
 import numpy as np
 
 from service.manifest import AffineNormalisation, SamplerSpec
-from service.pipeline.arrays import BoolArray, Float32Array, FloatArray
+from service.pipeline.arrays import Float32Array, FloatArray
 from service.pipeline.deadline import NO_DEADLINE, Deadline
-from service.pipeline.joint_space import wrap_periodic
+from service.pipeline.joint_space import JointLimits
 from service.pipeline.types import VelocityField
 
 # Normalised joint ranges beyond the interpolants' hull that a sample may go (one range).
@@ -77,17 +77,15 @@ def sample_configurations(
     num_samples: int,
     sampler: SamplerSpec,
     joint_normalisation: AffineNormalisation,
-    periodic: BoolArray,  # (n,)
+    limits: JointLimits,
     rng: np.random.Generator,
     deadline: Deadline = NO_DEADLINE,
 ) -> FloatArray:  # (N, n) rad
     """Draw `num_samples` configurations for one target, periodic joints wrapped."""
-    n = len(periodic)
+    n = limits.count
     q_0 = rng.standard_normal((num_samples, n), dtype=np.float32)
     conditions = np.broadcast_to(condition, (num_samples, condition.shape[0]))
-    q_1 = euler_integrate(
-        velocity, q_0, np.ascontiguousarray(conditions), sampler.steps, deadline,
-        sampler.time_power,
-    )  # fmt: skip
+    conditions = np.ascontiguousarray(conditions)
+    q_1 = euler_integrate(velocity, q_0, conditions, sampler.steps, deadline, sampler.time_power)
     q_rad = joint_normalisation.denormalise(q_1.astype(np.float64))
-    return wrap_periodic(q_rad, periodic)
+    return limits.wrap(q_rad)

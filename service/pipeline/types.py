@@ -15,7 +15,7 @@ from typing import Literal, Protocol, get_args
 import numpy as np
 
 from service.errors import RequestFieldError
-from service.manifest import Manifest
+from service.manifest import Defaults, Manifest
 from service.pipeline.arrays import BoolArray, Float32Array, FloatArray
 from service.pipeline.targets import validate_target
 
@@ -111,6 +111,10 @@ class Query:
     max_configurations_per_component: int | None
     include_paths: bool  # r = 1: return each component's ordered path
 
+    @property
+    def tolerance(self) -> Tolerance:
+        return Tolerance(self.tolerance_position_m, self.tolerance_orientation_rad)
+
     @classmethod
     def for_model(
         cls,
@@ -165,6 +169,25 @@ class Query:
 
 
 # -- between the stages ------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Tolerance:
+    """The largest task error an answer's configuration may have (the query's)."""
+
+    position_m: float
+    orientation_rad: float  # a position task's orientation errors are 0
+
+    @classmethod
+    def of(cls, defaults: Defaults) -> Tolerance:
+        """A model's default tolerance."""
+        return cls(defaults.tolerance_position_m, defaults.tolerance_orientation_rad)
+
+    def within(self, position_error_m: FloatArray, orientation_error_rad: FloatArray) -> BoolArray:
+        """(N,) which errors (N,), (N,) are within it; NaN and inf are not."""
+        return (position_error_m <= self.position_m) & (
+            orientation_error_rad <= self.orientation_rad
+        )
 
 
 @dataclass(frozen=True)

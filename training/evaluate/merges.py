@@ -33,10 +33,12 @@ from scipy.spatial import cKDTree
 
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
-from service.pipeline.arrays import BoolArray, FloatArray
+from service.pipeline.arrays import FloatArray
 from service.pipeline.connect import PlannerSettings, edges_on_fibre
 from service.pipeline.fibre import Fibre
-from service.pipeline.joint_space import joint_distance
+from service.pipeline.joint_space import JointLimits
+from service.pipeline.space import FibreSpace
+from service.pipeline.types import Tolerance
 from training.evaluate.methods import MethodTarget, flow_target, reference_target
 from training.evaluate.metrics import counted_components, exact_labels
 from training.evaluate.report import REPORTS_DIR
@@ -59,20 +61,25 @@ class MergeCheck:
     joined: bool  # a straight projected path joins the pair on the fibre
 
 
-def fibre_of(model: ServedModel, q_target: FloatArray) -> Fibre:
-    """The fibre of the target that q_target (n,) reaches, as the service projects onto it."""
+def space_of(model: ServedModel, q_target: FloatArray) -> FibreSpace:
+    """The fibre of the target that q_target (n,) reaches inside the model's limits, as
+    the service projects onto it. Its walks do not test the coaxial sets (a step across
+    one off the fibre is not refused): the check walks as the committed reports measured
+    it."""
     target, _ = reference_target(model, q_target)
     manifest = model.manifest
-    return Fibre(target, manifest.task, model.kinematics, manifest.defaults.damping)
+    return FibreSpace(
+        fibre=Fibre(target, manifest.task, model.kinematics, manifest.defaults.damping),
+        limits=JointLimits.of(manifest.joints),
+        coaxial_sets=(),
+        tolerance=Tolerance.of(manifest.defaults),
+    )
 
 
 def joined_on_fibre(
-    fibre: Fibre,
+    space: FibreSpace,
     q_a_rad: FloatArray,  # (n,)
     q_b_rad: FloatArray,  # (n,)
-    lower_rad: FloatArray,
-    upper_rad: FloatArray,
-    periodic: BoolArray,
     delta_rad: float = DELTA_RAD,
 ) -> bool:
     """Whether the straight projected path from a to b holds at step `delta_rad`."""
@@ -83,9 +90,7 @@ def joined_on_fibre(
         projection_iterations=3,
         extra_iterations=6,
     )
-    reached = edges_on_fibre(
-        fibre, q_a_rad[None], q_b_rad[None], lower_rad, upper_rad, periodic, settings
-    )
+    reached = edges_on_fibre(space, q_a_rad[None], q_b_rad[None], settings)
     return bool(reached[0])
 
 
@@ -99,10 +104,9 @@ def check_merges(
 ) -> list[MergeCheck]:
     """Every merge of `answer` against `truth`, each checked on the fibre."""
     assert answer.labels is not None and truth.size is not None
-    lower, upper, periodic = model.manifest.joints.arrays()
     counted = counted_components(truth)
     exact = exact_labels(answer.returned, truth)  # (K,)
-    fibre = fibre_of(model, q_target)
+    space = space_of(model, q_target)
     checks = []
     for component in np.unique(answer.labels).tolist():
         mine = answer.labels == component
@@ -111,7 +115,7 @@ def check_merges(
             side_a = answer.returned[mine & (exact == a)]
             side_b = answer.returned[mine & (exact == b)]
             _, nearest = cKDTree(side_b).query(side_a)  # (A,) Euclidean candidates
-            gaps = joint_distance(side_a, side_b[nearest], periodic)
+            gaps = space.limits.distance(side_a, side_b[nearest])
             i = int(np.argmin(gaps))
             q_a, q_b = side_a[i], side_b[nearest[i]]
             checks.append(
@@ -121,7 +125,7 @@ def check_merges(
                     reference_components=(a, b),
                     shares=(float(truth.size[a]), float(truth.size[b])),
                     gap_rad=float(gaps[i]),
-                    joined=joined_on_fibre(fibre, q_a, q_b, lower, upper, periodic, delta_rad),
+                    joined=joined_on_fibre(space, q_a, q_b, delta_rad),
                 )
             )
     return checks
@@ -129,8 +133,10 @@ def check_merges(
 
 def report_target(model: ServedModel, index: int, num_samples: int = 1000) -> list[MergeCheck]:
     """The merges of the report's target `index`, checked."""
-    lower, upper, _ = model.manifest.joints.arrays()
-    q_target = uniform_configurations(lower, upper, REPORT_TARGETS, REPORT_SEED)[index]
+    limits = JointLimits.of(model.manifest.joints)
+    q_target = uniform_configurations(
+        limits.lower_rad, limits.upper_rad, REPORT_TARGETS, REPORT_SEED
+    )[index]
     truth = ground_truth(model, q_target, REPORT_SEED + index)
     answer = flow_target(model, q_target, num_samples, seed=index)
     return check_merges(model, index, q_target, answer, truth)

@@ -18,16 +18,14 @@ import numpy as np
 import pytorch_kinematics as pk
 
 from service.models.registry import ServedModel
-from service.pipeline.acceptance import accept
 from service.pipeline.arrays import BoolArray, FloatArray
 from service.pipeline.connect import connect
 from service.pipeline.correction import task_error, task_error_norms
-from service.pipeline.fibre import Fibre
-from service.pipeline.joint_space import joint_distance, wrap_periodic
-from service.pipeline.run import into_limits, run
+from service.pipeline.joint_space import JointLimits, joint_distance
+from service.pipeline.run import into_limits, run, space_of
 from service.pipeline.sampling import sample_configurations
 from service.pipeline.targets import Target, encode_target
-from service.pipeline.types import ComponentPath, Correction, Query
+from service.pipeline.types import ComponentPath, Correction, Query, Tolerance
 from training.evaluate.baselines.ode import trace_smm
 from training.evaluate.baselines.restart_dls import random_restart_dls
 from training.evaluate.served import orientation_wxyz, stage_times_ms
@@ -146,11 +144,15 @@ def flow_target(
     manifest = model.manifest
     answer = served_target(model, q_target, num_samples, seed)
     target = _target_of(model, q_target).encoded
-    _, _, periodic = manifest.joints.arrays()
     q_raw = sample_configurations(
-        model.velocity, target.condition, num_samples, manifest.defaults.sampler,
-        manifest.joint_normalisation, periodic, np.random.default_rng(seed),
-    )  # fmt: skip
+        velocity=model.velocity,
+        condition=target.condition,
+        num_samples=num_samples,
+        sampler=manifest.defaults.sampler,
+        joint_normalisation=manifest.joint_normalisation,
+        limits=JointLimits.of(manifest.joints),
+        rng=np.random.default_rng(seed),
+    )
     raw_p, raw_o = task_error_norms(model.kinematics(q_raw), target, manifest.task)
     return replace(answer, raw_position_m=raw_p, raw_orientation_rad=raw_o)
 
@@ -227,28 +229,17 @@ def restart_target(
     solutions = random_restart_dls(
         chain, manifest.joints, manifest.task, position_m, target.rotation, num_samples, seed
     )
-    lower, upper, periodic = manifest.joints.arrays()
-    q = wrap_periodic(solutions.q_rad.astype(np.float64), periodic)
+    space = space_of(model, target, Tolerance.of(defaults))
+    q = space.limits.wrap(solutions.q_rad.astype(np.float64))
     fk = model.kinematics(q)
     raw_p, raw_o = task_error_norms(fk, target, manifest.task)
     jacobian = task_error(fk, target, manifest.task)[1]
     start = time.perf_counter()
-    correction = into_limits(
-        model, target, Correction(q, raw_p, raw_o, jacobian),
-        defaults.tolerance_position_m, defaults.tolerance_orientation_rad,
-    )  # fmt: skip
+    correction = into_limits(model, space, Correction(q, raw_p, raw_o, jacobian))
     pulled_s = time.perf_counter()
-    acceptance = accept(
-        correction, defaults.tolerance_position_m, defaults.tolerance_orientation_rad,
-        lower, upper, periodic,
-    )  # fmt: skip
+    acceptance = space.accept(correction)
     accepted_s = time.perf_counter()
-    connection = connect(
-        Fibre(target, manifest.task, model.kinematics, defaults.damping), correction,
-        acceptance, lower, upper, periodic, defaults.connectivity,
-        defaults.tolerance_position_m, defaults.tolerance_orientation_rad,
-        coaxial_sets=model.coaxial_sets,
-    )  # fmt: skip
+    connection = connect(space, correction, acceptance, defaults.connectivity)
     connected_s = time.perf_counter()
     stages = {
         "solve": solutions.wall_time_ms,

@@ -23,11 +23,12 @@ import numpy as np
 
 from service.manifest import MANIFEST_FILE, Manifest, Quality, RawError, SamplerSpec
 from service.models.registry import ServedModel, load_model
-from service.pipeline.acceptance import accept
 from service.pipeline.correction import task_error_norms
-from service.pipeline.run import correct_samples
+from service.pipeline.joint_space import JointLimits
+from service.pipeline.run import correct_samples, space_of
 from service.pipeline.sampling import sample_configurations
 from service.pipeline.targets import encode_target
+from service.pipeline.types import Tolerance
 from training.evaluate.served import orientation_wxyz
 from training.evaluate.targets import held_out_targets
 
@@ -90,7 +91,7 @@ def measure_quality(
     (num_targets, seed) and samples, kept instead of measured again."""
     manifest = served.manifest
     task, defaults = manifest.task, manifest.defaults
-    lower, upper, periodic = manifest.joints.arrays()
+    limits, tolerance = JointLimits.of(manifest.joints), Tolerance.of(defaults)
     targets = held_out_targets(served, num_targets, seed)
     # The serving default first (it is also corrected), then the paper's sampler.
     samplers = [defaults.sampler]
@@ -114,24 +115,14 @@ def measure_quality(
                 samples,
                 sampler,
                 manifest.joint_normalisation,
-                periodic,
+                limits,
                 np.random.default_rng(seed + 1 + i),
             )
             sampler_errors.append(task_error_norms(served.kinematics(q_raw), target, task))
             if sampler != defaults.sampler:
                 continue
-            correction = correct_samples(
-                served, target, q_raw, defaults.tolerance_position_m,
-                defaults.tolerance_orientation_rad,
-            )  # fmt: skip
-            accepted = accept(
-                correction,
-                defaults.tolerance_position_m,
-                defaults.tolerance_orientation_rad,
-                lower,
-                upper,
-                periodic,
-            ).accepted
+            space = space_of(served, target, tolerance)
+            accepted = space.accept(correct_samples(served, space, q_raw)).accepted
             kept += int(accepted.sum())
             solved += int(accepted.any())
 

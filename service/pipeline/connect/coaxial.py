@@ -13,8 +13,9 @@ on it (roadmap.py).
 The sets also catch a walk that jumps between twins. A path on a fibre from one side of
 a set to the other (q_j - angle changing sign) passes through a point of the fibre on
 the set, so a step of a walk that crosses a set where the fibre does not reach it has
-jumped onto a nearby twin (`crossings_on_fibre`): near a set the twins can be a few
-hundredths of a radian apart, much less than a step.
+jumped onto a nearby twin (`FibreSpace.crossings_on_fibre`, part of whether a motion is
+valid): near a set the twins can be a few hundredths of a radian apart, much less than
+a step.
 
 Whether axes i and k coincide depends only on q_j (the chain between them), so the sets
 are found once per model from the kinematics alone: the twist columns J_i and J_k of
@@ -25,28 +26,21 @@ them (a curve in two angles) are not searched.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from service.pipeline.arrays import BoolArray, FloatArray
-from service.pipeline.fibre import Fibre, project
-from service.pipeline.joint_space import TWO_PI, wrap_to_pi
+from service.pipeline.arrays import FloatArray
+from service.pipeline.joint_space import TWO_PI, JointLimits, wrap_to_pi
 from service.pipeline.types import CoaxialSet, Kinematics
 
 SCAN_POINTS = 720  # angles of q_j scanned per joint (0.5 degree apart) before refinement
 COAXIAL_TOLERANCE = 1e-9  # |J_i -+ J_k| at the refined angle (m and rad, twist units)
 
 
-def find_coaxial_sets(
-    kinematics: Kinematics,
-    lower_rad: FloatArray,  # (n,)
-    upper_rad: FloatArray,  # (n,)
-    periodic: BoolArray,  # (n,)
-) -> list[CoaxialSet]:
+def find_coaxial_sets(kinematics: Kinematics, limits: JointLimits) -> list[CoaxialSet]:
     """Every angle of a joint j, inside its limits, at which joints j - 1 and j + 1 are coaxial."""
-    n = len(lower_rad)
+    n = limits.count
+    lower_rad, upper_rad, periodic = limits.lower_rad, limits.upper_rad, limits.periodic
     found: list[CoaxialSet] = []
     theta = np.linspace(-np.pi, np.pi, SCAN_POINTS, endpoint=False)  # (T,)
     for j in range(1, n - 1):
@@ -96,11 +90,10 @@ def find_coaxial_sets(
 def slide_range(
     coaxial: CoaxialSet,
     q_rad: FloatArray,  # (B, n) on the set
-    lower_rad: FloatArray,  # (n,)
-    upper_rad: FloatArray,  # (n,)
-    periodic: BoolArray,  # (n,)
+    limits: JointLimits,
 ) -> tuple[FloatArray, FloatArray]:  # (B,), (B,) smallest and largest a inside the limits
     """The interval of a for which q + a slide stays inside the limits (periodic: +-pi)."""
+    lower_rad, upper_rad, periodic = limits.lower_rad, limits.upper_rad, limits.periodic
     low = np.full(len(q_rad), -np.pi)
     high = np.full(len(q_rad), np.pi)
     for joint in coaxial.moving:
@@ -112,43 +105,3 @@ def slide_range(
         low = np.maximum(low, np.minimum(room_up, room_down))
         high = np.minimum(high, np.maximum(room_up, room_down))
     return low, high
-
-
-def crossings_on_fibre(
-    fibre: Fibre,
-    q_from_rad: FloatArray,  # (A, n) on the fibre
-    q_to_rad: FloatArray,  # (A, n) on the fibre, one step further
-    coaxial: Sequence[CoaxialSet],
-    periodic: BoolArray,  # (n,)
-    tolerance: float,  # |e| the crossing point must reach
-    iterations: int = 4,  # Newton steps onto the fibre at the crossing
-) -> BoolArray:  # (A,) False for a step that crosses a set where the fibre does not reach it
-    """Steps that cross no set, or cross one where the fibre reaches it.
-
-    For each set the step crosses (q_j - angle changes sign, both ends within pi/2 of
-    the angle), the point where the straight step meets the set is projected onto the
-    fibre with joint j held at the set's angle: it must converge within `tolerance`
-    without moving farther than the step is long.
-    """
-    ok = np.ones(len(q_from_rad), dtype=bool)
-    for coaxial_set in coaxial:
-        j = coaxial_set.joint
-        before = q_from_rad[:, j] - coaxial_set.angle_rad  # (A,)
-        after = q_to_rad[:, j] - coaxial_set.angle_rad
-        if periodic[j]:
-            before, after = wrap_to_pi(before), wrap_to_pi(after)
-        crossing = np.flatnonzero(
-            (before * after < 0) & (np.abs(before) < np.pi / 2) & (np.abs(after) < np.pi / 2)
-        )
-        if not len(crossing):
-            continue
-        fraction = before[crossing] / (before[crossing] - after[crossing])  # (C,)
-        step = q_to_rad[crossing] - q_from_rad[crossing]  # (C, n)
-        guess = q_from_rad[crossing] + fraction[:, None] * step
-        guess[:, j] = coaxial_set.angle_rad
-        locked = np.zeros_like(guess, dtype=bool)
-        locked[:, j] = True
-        on_set = project(fibre, guess, iterations, locked=locked)
-        moved = np.linalg.norm(on_set.q_rad - guess, axis=1)
-        ok[crossing] &= (on_set.error_norm <= tolerance) & (moved <= np.linalg.norm(step, axis=1))
-    return ok

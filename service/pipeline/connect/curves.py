@@ -8,14 +8,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from service.manifest import ConnectivitySpec, TaskSpec
-from service.pipeline.arrays import BoolArray, FloatArray, IntArray
+from service.manifest import ConnectivitySpec
+from service.pipeline.arrays import FloatArray, IntArray
 from service.pipeline.connect.settings import trace_settings
 from service.pipeline.connect.trace import TracedPiece, trace_fibre
 from service.pipeline.correction import error_norms
 from service.pipeline.deadline import Deadline
-from service.pipeline.fibre import Fibre
-from service.pipeline.joint_space import JointBox, joint_difference, joint_distance
+from service.pipeline.joint_space import JointLimits
+from service.pipeline.space import FibreSpace
 from service.pipeline.types import ComponentPath
 
 # A sample lies on a traced curve when it is within this fraction of the path spacing of
@@ -26,37 +26,27 @@ ON_CURVE_FRACTION = 0.2
 
 
 def traced_paths(
-    fibre: Fibre,
+    space: FibreSpace,
     q_on_fibre_rad: FloatArray,  # (M, n) seeds' source: samples within tolerance
-    lower_rad: FloatArray,
-    upper_rad: FloatArray,
-    periodic: BoolArray,
     spec: ConnectivitySpec,
-    tolerance_position_m: float,
-    tolerance_orientation_rad: float,
     deadline: Deadline,
 ) -> tuple[list[ComponentPath], bool, float]:
     """The exact paths of every curve through the samples; whether all are whole; the
     least sigma_min met on them."""
-    trace = trace_fibre(
-        fibre, q_on_fibre_rad, lower_rad, upper_rad, periodic, trace_settings(spec), deadline
-    )
+    trace = trace_fibre(space, q_on_fibre_rad, trace_settings(spec), deadline)
     complete = trace.complete
     paths: list[ComponentPath] = []
     for piece in trace.pieces:
-        pieces, whole = exact_paths(
-            piece, fibre.task, tolerance_position_m, tolerance_orientation_rad, periodic,
-            spec.path_spacing_rad, 2.0 * spec.trace_step_rad,
-        )  # fmt: skip
+        pieces, whole = exact_paths(piece, space, spec.path_spacing_rad, 2.0 * spec.trace_step_rad)
         complete &= whole
         for path in pieces:
-            if not duplicate(path, paths, periodic, spec.path_spacing_rad):
+            if not duplicate(path, paths, space.limits, spec.path_spacing_rad):
                 paths.append(path)
     return paths, complete, trace.min_singular_value
 
 
 def duplicate(
-    path: ComponentPath, paths: list[ComponentPath], periodic: BoolArray, spacing_rad: float
+    path: ComponentPath, paths: list[ComponentPath], limits: JointLimits, spacing_rad: float
 ) -> bool:
     """The same piece traced twice (two chains over one curve): the same arc length, the
     same ends (open pieces) and, checked last, most points on the other."""
@@ -70,31 +60,25 @@ def duplicate(
             continue
         if not path.closed:
             ends, other_ends = path.q_rad[[0, -1]], other.q_rad[[0, -1]]
-            same = joint_distance(ends, other_ends, periodic).max() <= spacing_rad
-            reversed_ = joint_distance(ends, other_ends[::-1], periodic).max() <= spacing_rad
+            same = limits.distance(ends, other_ends).max() <= spacing_rad
+            reversed_ = limits.distance(ends, other_ends[::-1]).max() <= spacing_rad
             if not (same or reversed_):
                 continue
-        if retraced(path, [other], periodic, ON_CURVE_FRACTION * spacing_rad):
+        if retraced(path, [other], limits, ON_CURVE_FRACTION * spacing_rad):
             return True
     return False
 
 
 def retraced(
-    path: ComponentPath, paths: list[ComponentPath], periodic: BoolArray, on_curve_rad: float
+    path: ComponentPath, paths: list[ComponentPath], limits: JointLimits, on_curve_rad: float
 ) -> bool:
     """The path is one of `paths` traced again: most of its points lie on one of them."""
-    owner = owner_path(path.q_rad, paths, periodic, on_curve_rad)
+    owner = owner_path(path.q_rad, paths, limits, on_curve_rad)
     return bool(np.mean(owner >= 0) > 0.5)
 
 
 def exact_paths(
-    piece: TracedPiece,
-    task: TaskSpec,
-    tolerance_position_m: float,
-    tolerance_orientation_rad: float,
-    periodic: BoolArray,
-    spacing_rad: float,
-    cut_rad: float,
+    piece: TracedPiece, space: FibreSpace, spacing_rad: float, cut_rad: float
 ) -> tuple[list[ComponentPath], bool]:
     """The piece as paths of exact points only, and whether it came whole: no point had
     to be left out and no step exceeds the spacing.
@@ -108,14 +92,13 @@ def exact_paths(
     there; the splice step joins the pieces again where the local planner walks between
     them (splicing.py).
     """
-    position_error, orientation_error = error_norms(piece.error, task)
-    exact = (position_error <= tolerance_position_m) & (
-        orientation_error <= tolerance_orientation_rad
-    )
+    limits = space.limits
+    position_error, orientation_error = error_norms(piece.error, space.fibre.task)
+    exact = space.tolerance.within(position_error, orientation_error)  # (all inside the limits)
     q = piece.path_rad[exact]
     position, orientation = position_error[exact], orientation_error[exact]
-    steps = joint_distance(q[1:], q[:-1], periodic)  # (P - 1,)
-    closing = float(joint_distance(q[-1], q[0], periodic)) if piece.closed and len(q) > 1 else 0
+    steps = limits.distance(q[1:], q[:-1])  # (P - 1,)
+    closing = float(limits.distance(q[-1], q[0])) if piece.closed and len(q) > 1 else 0
     whole = bool(exact.all()) and max(steps.max(initial=0.0), closing) <= spacing_rad
     cuts = np.flatnonzero(steps > cut_rad) + 1  # a piece starts at each
     closed = piece.closed
@@ -130,7 +113,7 @@ def exact_paths(
     for rows in np.split(np.arange(len(q)), cuts):
         if not len(rows):
             continue
-        arc = float(joint_distance(q[rows][1:], q[rows][:-1], periodic).sum())
+        arc = float(limits.distance(q[rows][1:], q[rows][:-1]).sum())
         paths.append(
             ComponentPath(
                 q_rad=q[rows],
@@ -146,7 +129,7 @@ def exact_paths(
 def owner_path(
     q_rad: FloatArray,  # (K, n) accepted samples
     paths: list[ComponentPath],
-    periodic: BoolArray,
+    limits: JointLimits,
     within_rad: float,
     candidates: int = 4,
 ) -> IntArray:  # (K,) index of the path each sample lies on, -1 for none
@@ -168,13 +151,13 @@ def owner_path(
     closed = np.array([p.closed for p in paths])
     before[first] = np.where(closed, last, first)  # ... along each path (a loop wraps)
     after[last] = np.where(closed, first, last)
-    box = JointBox.covering(np.concatenate([points, q_rad]), periodic, margin_rad=1.0)
+    box = limits.box(np.concatenate([points, q_rad]), margin_rad=1.0)
     k = min(candidates, len(points))
     _, nearest = box.tree(points).query(box.points(q_rad), k=k)  # (K, k)
     nearest = nearest.reshape(len(q_rad), k)
     distance = np.minimum(
-        segment_distance(q_rad, points[nearest], points[before[nearest]], periodic),
-        segment_distance(q_rad, points[nearest], points[after[nearest]], periodic),
+        segment_distance(q_rad, points[nearest], points[before[nearest]], limits),
+        segment_distance(q_rad, points[nearest], points[after[nearest]], limits),
     )  # (K, k)
     best = np.argmin(distance, axis=1)
     rows = np.arange(len(q_rad))
@@ -187,10 +170,10 @@ def segment_distance(
     q_rad: FloatArray,  # (K, n)
     a_rad: FloatArray,  # (K, k, n) segment starts
     b_rad: FloatArray,  # (K, k, n) segment ends
-    periodic: BoolArray,
+    limits: JointLimits,
 ) -> FloatArray:  # (K, k) joint-metric distance from each q to each segment a-b
-    along = joint_difference(b_rad, a_rad, periodic)  # (K, k, n)
-    offset = joint_difference(q_rad[:, None, :], a_rad, periodic)
+    along = limits.difference(b_rad, a_rad)  # (K, k, n)
+    offset = limits.difference(q_rad[:, None, :], a_rad)
     length2 = np.einsum("kcn,kcn->kc", along, along)
     fraction = np.clip(
         np.einsum("kcn,kcn->kc", offset, along) / np.maximum(length2, 1e-300), 0.0, 1.0

@@ -4,28 +4,26 @@ The check of constrained sampling-based planning (OMPL's ProjectedStateSpace,
 `discreteGeodesic`; Kingston, Moll and Kavraki): from a, repeatedly step `delta` along
 the joint-space segment toward b (the shorter way round only on periodic joints; a
 limited joint never crosses its +-pi seam), project the step onto the fibre with Newton
-(float64) and accept it only if the projection converged, stayed inside the limits, did
-not jump (a step no longer than lambda x delta, and no step across a coaxial set where
-the fibre does not reach it: coaxial.py), made progress toward b and the path so far is
-no longer than lambda x the chord. The edge holds when b is reached. A failed
-edge is evidence that a and b lie on different components, so candidate edges may be
-long without merging what is separate. All edges advance in lockstep: one batched
-kinematics call per Newton iteration for every edge still walking.
+(float64) and accept it only if it is a valid motion of the space (`FibreSpace.motion_valid`:
+the projection converged, stayed inside the limits and did not jump, a step no longer
+than lambda x delta and none across a coaxial set where the fibre does not reach it),
+made progress toward b and the path so far is no longer than lambda x the chord. The
+edge holds when b is reached. A failed edge is evidence that a and b lie on different
+components, so candidate edges may be long without merging what is separate. All edges
+advance in lockstep: one batched kinematics call per Newton iteration for every edge
+still walking.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from service.pipeline.arrays import BoolArray, FloatArray, IntArray
-from service.pipeline.connect.coaxial import crossings_on_fibre
 from service.pipeline.deadline import NO_DEADLINE, Deadline
-from service.pipeline.fibre import Fibre, project
-from service.pipeline.joint_space import joint_difference
-from service.pipeline.types import CoaxialSet
+from service.pipeline.fibre import project
+from service.pipeline.space import FibreSpace
 
 
 @dataclass(frozen=True)
@@ -38,22 +36,17 @@ class PlannerSettings:
 
 
 def edges_on_fibre(
-    fibre: Fibre,
-    q_from_rad: FloatArray,  # (E, n) on the fibre
-    q_to_rad: FloatArray,  # (E, n) on the fibre
-    lower_rad: FloatArray,  # (n,)
-    upper_rad: FloatArray,  # (n,)
-    periodic: BoolArray,  # (n,)
+    space: FibreSpace,
+    q_from_rad: FloatArray,  # (E, n) valid configurations
+    q_to_rad: FloatArray,  # (E, n) valid configurations
     settings: PlannerSettings,
     lambda_: float | None = None,  # overrides settings.lambda_
     deadline: Deadline = NO_DEADLINE,
-    coaxial: Sequence[CoaxialSet] = (),  # sets a step may cross only where the fibre does
 ) -> BoolArray:  # (E,) True where a path on the fibre joins the two ends
     """Walk every edge on the fibre in lockstep; True for the edges that reach their end."""
     return walk_on_fibre(
-        fibre, q_from_rad, q_to_rad, lower_rad, upper_rad, periodic, settings, lambda_,
-        deadline, coaxial, record=False,
-    ).reached  # fmt: skip
+        space, q_from_rad, q_to_rad, settings, lambda_, deadline, record=False
+    ).reached
 
 
 @dataclass(frozen=True)
@@ -66,16 +59,12 @@ class Walks:
 
 
 def walk_on_fibre(
-    fibre: Fibre,
-    q_from_rad: FloatArray,  # (E, n) on the fibre
-    q_to_rad: FloatArray,  # (E, n) on the fibre
-    lower_rad: FloatArray,  # (n,)
-    upper_rad: FloatArray,  # (n,)
-    periodic: BoolArray,  # (n,)
+    space: FibreSpace,
+    q_from_rad: FloatArray,  # (E, n) valid configurations
+    q_to_rad: FloatArray,  # (E, n) valid configurations
     settings: PlannerSettings,
     lambda_: float | None = None,
     deadline: Deadline = NO_DEADLINE,
-    coaxial: Sequence[CoaxialSet] = (),
     record: bool = True,
 ) -> Walks:
     """`edges_on_fibre`, keeping the walks' points when `record` (to build a path from)."""
@@ -86,7 +75,8 @@ def walk_on_fibre(
         return Walks(reached, [])
     stretch = settings.lambda_ if lambda_ is None else lambda_
     delta = settings.delta_rad
-    goal = q_from_rad + joint_difference(q_to_rad, q_from_rad, periodic)  # (E, n) unwrapped
+    fibre = space.fibre
+    goal = q_from_rad + space.limits.difference(q_to_rad, q_from_rad)  # (E, n) unwrapped
     chord = np.linalg.norm(goal - q_from_rad, axis=1)  # (E,)
     q = q_from_rad.copy()
     travelled = np.zeros(num_edges)
@@ -114,20 +104,12 @@ def walk_on_fibre(
             q_new[slow], error_norm[slow] = again.q_rad, again.error_norm
             slow = slow[~(again.error_norm <= settings.projection_tolerance)]
         moved = np.linalg.norm(q_new - q[index], axis=1)
-        inside = np.all(periodic | ((q_new >= lower_rad) & (q_new <= upper_rad)), axis=1)
-        ok = (
-            (error_norm <= settings.projection_tolerance)
-            & inside
-            & (moved <= stretch * delta)
-            & (np.linalg.norm(goal[index] - q_new, axis=1) < distance[index])
-            & (travelled[index] + moved <= stretch * chord[index])
+        nearer = np.linalg.norm(goal[index] - q_new, axis=1) < distance[index]
+        no_detour = travelled[index] + moved <= stretch * chord[index]
+        tolerance = settings.projection_tolerance
+        ok = space.motion_valid(
+            q[index], q_new, error_norm, stretch * delta, tolerance, also=nearer & no_detour
         )
-        if coaxial and ok.any():
-            crossed = np.flatnonzero(ok)
-            ok[crossed] = crossings_on_fibre(
-                fibre, q[index[crossed]], q_new[crossed], coaxial, periodic,
-                settings.projection_tolerance,
-            )  # fmt: skip
         walking[index[~ok]] = False
         q[index[ok]] = q_new[ok]
         travelled[index[ok]] += moved[ok]

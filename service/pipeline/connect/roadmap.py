@@ -28,7 +28,6 @@ component of its own.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -40,8 +39,9 @@ from service.pipeline.connect.coaxial import slide_range
 from service.pipeline.connect.local_planner import PlannerSettings, edges_on_fibre
 from service.pipeline.connect.steering import SteerSettings, steer
 from service.pipeline.deadline import NO_DEADLINE, Deadline
-from service.pipeline.fibre import Fibre, project
+from service.pipeline.fibre import project
 from service.pipeline.joint_space import JointBox, wrap_to_pi
+from service.pipeline.space import FibreSpace
 from service.pipeline.types import CoaxialSet
 
 
@@ -67,27 +67,21 @@ class RoadmapSettings:
 
 
 def roadmap_labels(
-    fibre: Fibre,
-    q_rad: FloatArray,  # (K, n) on the fibre, inside the limits
-    lower_rad: FloatArray,
-    upper_rad: FloatArray,
-    periodic: BoolArray,
+    space: FibreSpace,
+    q_rad: FloatArray,  # (K, n) valid configurations
     planner: PlannerSettings,
     settings: RoadmapSettings,
     deadline: Deadline = NO_DEADLINE,
-    coaxial: Sequence[CoaxialSet] = (),
 ) -> IntArray:  # (K,) component labels 0..C-1, largest component first
     """Components of q_rad joined by edges checked on the fibre."""
     num_nodes = len(q_rad)
     if num_nodes == 0:
         return np.zeros(0, dtype=np.int64)
-    roadmap = Roadmap(
-        fibre, q_rad, lower_rad, upper_rad, periodic, planner, deadline, tuple(coaxial)
-    )
+    roadmap = Roadmap(space, q_rad, planner, deadline)
     roadmap.join_neighbours(settings)
     roadmap.bridge(settings)
     apart = len(np.unique(roadmap.roots()[:num_nodes])) > 1
-    if apart and coaxial and roadmap.add_coaxial_nodes(coaxial, num_nodes, settings):
+    if apart and space.coaxial_sets and roadmap.add_coaxial_nodes(num_nodes, settings):
         roadmap.bridge(settings)
     if len(np.unique(roadmap.roots()[:num_nodes])) > 1:
         roadmap.steer_between(settings)
@@ -98,14 +92,10 @@ def roadmap_labels(
 class Roadmap:
     """Nodes on the fibre and the edges the planner walked between them (append-only)."""
 
-    fibre: Fibre
+    space: FibreSpace  # where the nodes lie and the edges are walked
     q_rad: FloatArray  # (N, n)
-    lower_rad: FloatArray
-    upper_rad: FloatArray
-    periodic: BoolArray
     planner: PlannerSettings
     deadline: Deadline
-    coaxial: tuple[CoaxialSet, ...]  # no walked step may cross a set off the fibre
     joined_from: list[IntArray] = field(default_factory=list)
     joined_to: list[IntArray] = field(default_factory=list)
     tested: set[int] = field(default_factory=set)  # a * N_max + b of every edge tried
@@ -123,11 +113,8 @@ class Roadmap:
     def check(self, a: IntArray, b: IntArray, lambda_: float | None = None) -> None:
         """Walk the edges a-b with the planner and keep those that reach their end."""
         self.tested.update((np.minimum(a, b) * self._KEY + np.maximum(a, b)).tolist())
-        joined = edges_on_fibre(
-            self.fibre, self.q_rad[a], self.q_rad[b], self.lower_rad, self.upper_rad,
-            self.periodic, self.planner, lambda_=lambda_, deadline=self.deadline,
-            coaxial=self.coaxial,
-        )  # fmt: skip
+        q_a, q_b = self.q_rad[a], self.q_rad[b]
+        joined = edges_on_fibre(self.space, q_a, q_b, self.planner, lambda_, self.deadline)
         self.join(a[joined], b[joined])
 
     def untested(self, a: IntArray, b: IntArray) -> BoolArray:
@@ -139,7 +126,7 @@ class Roadmap:
     def _box(self, settings: RoadmapSettings) -> JointBox:
         """KD-tree coordinates over every node, exact for neighbours up to a bridge apart."""
         margin_rad = 2.0 * max(settings.bridge_radius_rad, settings.steer_radius_rad) + 1.0
-        return JointBox.covering(self.q_rad, self.periodic, margin_rad=margin_rad)
+        return self.space.limits.box(self.q_rad, margin_rad=margin_rad)
 
     def _neighbours(
         self, k: int, radius_rad: float, settings: RoadmapSettings
@@ -173,10 +160,9 @@ class Roadmap:
                 break
             candidate = np.flatnonzero(open_)  # sorted by length
             # First (shortest) open edge of each component, from either end.
-            chosen = np.unique(
-                np.concatenate([_first_per(root[a[candidate]], candidate),
-                                _first_per(root[b[candidate]], candidate)])
-            )  # fmt: skip
+            from_a = _first_per(root[a[candidate]], candidate)
+            from_b = _first_per(root[b[candidate]], candidate)
+            chosen = np.unique(np.concatenate([from_a, from_b]))
             untested[chosen] = False
             self.check(a[chosen], b[chosen])
 
@@ -257,14 +243,13 @@ class Roadmap:
             return
         start = np.concatenate([rows, cols])  # (W,) walks both ways
         goal = np.concatenate([cols, rows])
-        walk = steer(
-            self.fibre, self.q_rad[start], self.q_rad[goal], self.lower_rad, self.upper_rad,
-            self.periodic, SteerSettings(
-                step_rad=settings.steer_step_rad, max_steps=settings.steer_max_steps,
-                lambda_=self.planner.lambda_,
-                projection_tolerance=self.planner.projection_tolerance,
-            ), self.deadline, self.coaxial,
-        )  # fmt: skip
+        steering = SteerSettings(
+            step_rad=settings.steer_step_rad,
+            max_steps=settings.steer_max_steps,
+            lambda_=self.planner.lambda_,
+            projection_tolerance=self.planner.projection_tolerance,
+        )
+        walk = steer(self.space, self.q_rad[start], self.q_rad[goal], steering, self.deadline)
         first = len(self.q_rad)
         end = np.arange(first, first + len(start))  # (W,) each walk's end, a new node
         self.q_rad = np.concatenate([self.q_rad, walk.q_end_rad])
@@ -281,13 +266,11 @@ class Roadmap:
         nearest_other = neighbour[np.arange(len(start)), np.argmax(other, axis=1)]
         a = np.concatenate([end, end[has_other]])
         b = np.concatenate([goal, nearest_other[has_other]])
-        distinct = np.concatenate([np.ones(len(end), dtype=bool), nearest_other[has_other]
-                                   != goal[has_other]])  # fmt: skip
+        other_than_goal = nearest_other[has_other] != goal[has_other]
+        distinct = np.concatenate([np.ones(len(end), dtype=bool), other_than_goal])
         self.check(a[distinct], b[distinct], lambda_=settings.bridge_lambda)
 
-    def add_coaxial_nodes(
-        self, coaxial: Sequence[CoaxialSet], num_samples: int, settings: RoadmapSettings
-    ) -> bool:
+    def add_coaxial_nodes(self, num_samples: int, settings: RoadmapSettings) -> bool:
         """Lines of nodes along each coaxial set's self-motion, reached from the samples
         of every component nearest the set; True when any were added."""
         root = self.roots()
@@ -296,11 +279,12 @@ class Roadmap:
         origins: list[int] = []  # the sample each line was reached from ...
         on_line: list[int] = []  # ... and the line's node where it arrived (a = 0)
         next_node = len(self.q_rad)  # index of the first node of the next line
-        for coaxial_set in coaxial:
+        limits = self.space.limits
+        for coaxial_set in self.space.coaxial_sets:
             self.deadline.check("connect")
             j = coaxial_set.joint
             gap = q[:, j] - coaxial_set.angle_rad
-            gap = np.abs(wrap_to_pi(gap) if self.periodic[j] else gap)  # (K,)
+            gap = np.abs(wrap_to_pi(gap) if limits.periodic[j] else gap)  # (K,)
             near = np.flatnonzero(gap <= settings.coaxial_reach_rad)
             if not len(near):
                 continue
@@ -310,8 +294,7 @@ class Roadmap:
             origin = order[rank < settings.coaxial_nodes]  # (O,)
             q_set, good = self._walk_onto_set(q[origin], coaxial_set, settings)
             origin, q_set = origin[good], q_set[good]
-            low, high = slide_range(coaxial_set, q_set, self.lower_rad, self.upper_rad,
-                                    self.periodic)  # fmt: skip
+            low, high = slide_range(coaxial_set, q_set, limits)
             step = settings.slide_step_rad
             for o, point, a_low, a_high in zip(origin, q_set, low, high, strict=True):
                 # a = 0 (the point itself) and steps of at most slide_step both ways.
@@ -344,7 +327,7 @@ class Roadmap:
         j = coaxial_set.joint
         start = q_rad[:, j]
         gap = coaxial_set.angle_rad - start
-        if self.periodic[j]:
+        if self.space.limits.periodic[j]:
             gap = wrap_to_pi(gap)
         step_rad = settings.slide_step_rad / 3.0
         steps = max(int(np.ceil(np.abs(gap).max() / step_rad)), 1)
@@ -355,16 +338,12 @@ class Roadmap:
         for s in range(1, steps + 1):
             guess = q.copy()
             guess[:, j] = start + gap * s / steps
-            walked = project(self.fibre, guess, settings.projection_iterations, locked=locked)
+            walked = project(self.space.fibre, guess, settings.projection_iterations, locked=locked)
             moved = np.linalg.norm(walked.q_rad - q, axis=1)
-            inside = np.all(
-                self.periodic
-                | ((walked.q_rad >= self.lower_rad) & (walked.q_rad <= self.upper_rad)),
-                axis=1,
-            )
+            # A valid motion but for the coaxial crossings: the walk ends on a set.
             ok &= (
                 (walked.error_norm <= self.planner.projection_tolerance)
-                & inside
+                & self.space.limits.contains(walked.q_rad)
                 & (moved <= self.planner.lambda_ * max(np.abs(gap).max() / steps, step_rad))
             )
             q = np.where(ok[:, None], walked.q_rad, q)

@@ -24,9 +24,7 @@ def trace_settings(spec: ConnectivitySpec) -> TraceSettings:
     )
 
 
-def splice_settings(
-    spec: ConnectivitySpec, tolerance_position_m: float, tolerance_orientation_rad: float
-) -> SpliceSettings:
+def splice_settings(spec: ConnectivitySpec) -> SpliceSettings:
     """Open ends within one trace step are candidates; the walk between them is the local
     planner's (lambda, tolerance) at steps of h / SPLICE_DIVISIONS."""
     return SpliceSettings(
@@ -37,8 +35,6 @@ def splice_settings(
             projection_tolerance=spec.projection_tolerance,
         ),
         spacing_rad=spec.path_spacing_rad,
-        tolerance_position_m=tolerance_position_m,
-        tolerance_orientation_rad=tolerance_orientation_rad,
     )
 
 

@@ -29,13 +29,14 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from service.pipeline.arrays import BoolArray, FloatArray, IntArray
+from service.pipeline.arrays import FloatArray, IntArray
 from service.pipeline.connect.local_planner import PlannerSettings, walk_on_fibre
 from service.pipeline.correction import error_norms
 from service.pipeline.deadline import NO_DEADLINE, Deadline
-from service.pipeline.fibre import Fibre, project
-from service.pipeline.joint_space import JointBox, joint_difference, joint_distance, wrap_periodic
-from service.pipeline.types import CoaxialSet, ComponentPath
+from service.pipeline.fibre import project
+from service.pipeline.joint_space import JointLimits
+from service.pipeline.space import FibreSpace
+from service.pipeline.types import ComponentPath, Correction
 
 # An end lies on a limit when a limited joint is within this of it (the trace refines its
 # cut ends onto the limit exactly).
@@ -48,9 +49,7 @@ POLISH_ERROR = 5e-11  # |e| a gap point is taken to, like the trace's path point
 class SpliceSettings:
     reach_rad: float  # open ends at most this far apart are candidates
     planner: PlannerSettings  # the walk that must join them
-    spacing_rad: float  # largest step of the spliced path
-    tolerance_position_m: float  # every added point within the answer's tolerance
-    tolerance_orientation_rad: float
+    spacing_rad: float  # largest step of the spliced path (every added point valid)
 
 
 @dataclass(frozen=True)
@@ -76,12 +75,9 @@ class _End:
     last: bool  # its last point (else its first)
 
 
-def open_ends(
-    paths: Sequence[ComponentPath], lower_rad: FloatArray, upper_rad: FloatArray,
-    periodic: BoolArray,
-) -> list[_End]:  # fmt: skip
+def open_ends(paths: Sequence[ComponentPath], limits: JointLimits) -> list[_End]:
     """The ends of the open paths that are not on a joint limit: where a trace stopped."""
-    limited = ~periodic
+    lower_rad, upper_rad, limited = limits.lower_rad, limits.upper_rad, ~limits.periodic
     ends = []
     for index, path in enumerate(paths):
         if path.closed or not len(path.q_rad):
@@ -97,21 +93,17 @@ def open_ends(
 
 
 def splice_paths(
-    fibre: Fibre,
+    space: FibreSpace,
     paths: list[ComponentPath],
-    lower_rad: FloatArray,  # (n,)
-    upper_rad: FloatArray,  # (n,)
-    periodic: BoolArray,  # (n,)
     settings: SpliceSettings,
     deadline: Deadline = NO_DEADLINE,
-    coaxial: Sequence[CoaxialSet] = (),
 ) -> list[ComponentPath]:
     """The paths with every pair of open ends that the fibre joins spliced into one."""
-    ends = open_ends(paths, lower_rad, upper_rad, periodic)
+    ends = open_ends(paths, space.limits)
     if len(ends) < 2:
         return paths
     q_end = np.array([_point(paths, e) for e in ends])  # (U, n)
-    distance = joint_distance(q_end[:, None], q_end[None], periodic)  # (U, U)
+    distance = space.limits.distance(q_end[:, None], q_end[None])  # (U, U)
     a, b = np.nonzero(np.triu(distance <= settings.reach_rad, k=1))
     # A path's own two ends close a loop only round a path longer than the gap's detour
     # (a piece of one point, a seed whose fronts never moved, has both ends in one place).
@@ -122,25 +114,19 @@ def splice_paths(
     length = distance[a, b]
     if not len(a):
         return paths
-    walks = walk_on_fibre(
-        fibre, q_end[a], q_end[b], lower_rad, upper_rad, periodic, settings.planner,
-        deadline=deadline, coaxial=coaxial,
-    )  # fmt: skip
+    walks = walk_on_fibre(space, q_end[a], q_end[b], settings.planner, deadline=deadline)
     joins: dict[int, tuple[int, _Points]] = {}  # end -> (the end it joins, points between)
     for p in np.flatnonzero(walks.reached)[np.argsort(length[walks.reached], kind="stable")]:
         i, j = int(a[p]), int(b[p])
         if i in joins or j in joins:
             continue
-        gap = _gap_points(
-            fibre, q_end[i], q_end[j], walks.points_rad[p], lower_rad, upper_rad, periodic,
-            settings,
-        )  # fmt: skip
+        gap = _gap_points(space, q_end[i], q_end[j], walks.points_rad[p], settings)
         if gap is None:
             continue
         joins[i], joins[j] = (j, gap), (i, gap.reversed())
     if not joins:
         return paths
-    return _chains(paths, ends, joins, periodic)
+    return _chains(paths, ends, joins, space.limits)
 
 
 def _point(paths: Sequence[ComponentPath], end: _End) -> FloatArray:
@@ -148,19 +134,17 @@ def _point(paths: Sequence[ComponentPath], end: _End) -> FloatArray:
 
 
 def _gap_points(
-    fibre: Fibre,
+    space: FibreSpace,
     q_a: FloatArray,  # (n,)
     q_b: FloatArray,  # (n,)
     walked: FloatArray,  # (k, n) the walk's points from a toward b (unwrapped from a)
-    lower_rad: FloatArray,  # (n,)
-    upper_rad: FloatArray,  # (n,)
-    periodic: BoolArray,
     settings: SpliceSettings,
-) -> _Points | None:  # None: a point could not be made exact inside the limits
+) -> _Points | None:  # None: a point could not be made valid
     """Points of the walk, thinned so that no step of a -> points -> b exceeds the
-    spacing, each taken onto the fibre by undamped Newton and checked against the
-    tolerance and the limits."""
-    goal = q_a + joint_difference(q_b, q_a, periodic)  # b as the walk reached it
+    spacing, each taken onto the fibre by undamped Newton and checked valid
+    (`FibreSpace.accept`: within the tolerance, inside the limits)."""
+    fibre, limits = space.fibre, space.limits
+    goal = q_a + limits.difference(q_b, q_a)  # b as the walk reached it
     chain = np.concatenate([q_a[None], walked, goal[None]])  # (k + 2, n), unwrapped
     arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(chain, axis=0), axis=1))])
     count = int(np.ceil(arc[-1] / (0.9 * settings.spacing_rad))) - 1  # inner points needed
@@ -172,17 +156,10 @@ def _gap_points(
         replace(fibre, damping=0.0), chain[picks], POLISH_ITERATIONS, until=POLISH_ERROR
     )
     position, orientation = error_norms(polished.error, fibre.task)
-    q = np.asarray(wrap_periodic(polished.q_rad, periodic))
-    inside = np.all(periodic | ((q >= lower_rad) & (q <= upper_rad)), axis=1)
-    exact = (
-        (position <= settings.tolerance_position_m)
-        & (orientation <= settings.tolerance_orientation_rad)
-        & inside
-    )
-    steps = joint_distance(
-        np.concatenate([q_a[None], polished.q_rad]), np.concatenate([polished.q_rad, q_b[None]]),
-        periodic,
-    )  # fmt: skip
+    q = np.asarray(limits.wrap(polished.q_rad))
+    exact = space.accept(Correction(q, position, orientation, polished.jacobian)).accepted
+    before = np.concatenate([q_a[None], polished.q_rad])
+    steps = limits.distance(before, np.concatenate([polished.q_rad, q_b[None]]))
     if not exact.all() or steps.max() > settings.spacing_rad:
         return None
     return _Points(q, position, orientation)
@@ -192,7 +169,7 @@ def _chains(
     paths: list[ComponentPath],
     ends: list[_End],
     joins: dict[int, tuple[int, _Points]],
-    periodic: BoolArray,
+    limits: JointLimits,
 ) -> list[ComponentPath]:
     """Each run of paths joined end to end as one path (closed when it comes back round);
     paths not spliced are returned as they were."""
@@ -204,9 +181,8 @@ def _chains(
             continue
         # Enter `start` at an end with no join (else anywhere: the chain is a loop).
         first = end_of.get((start, False))
-        entered_last = first is not None and first in joins and (
-            end_of.get((start, True)) not in joins
-        )  # fmt: skip
+        unjoined_last = end_of.get((start, True)) not in joins
+        entered_last = first is not None and first in joins and unjoined_last
         parts: list[tuple[ComponentPath, bool]] = []  # (path, walked backwards)
         gaps: list[_Points] = []
         path, backwards, closed = start, entered_last, False
@@ -228,7 +204,7 @@ def _chains(
         if len(parts) == 1 and not closed:
             spliced.append(paths[start])
             continue
-        spliced.append(_joined(parts, gaps, closed, periodic))
+        spliced.append(_joined(parts, gaps, closed, limits))
     return spliced
 
 
@@ -245,7 +221,7 @@ def _chain_starts(
 
 
 def _joined(
-    parts: list[tuple[ComponentPath, bool]], gaps: list[_Points], closed: bool, periodic: BoolArray
+    parts: list[tuple[ComponentPath, bool]], gaps: list[_Points], closed: bool, limits: JointLimits
 ) -> ComponentPath:
     """Pieces (each forwards or backwards) with the gap points between them, as one path
     (a loop ends with the gap that closes it)."""
@@ -256,8 +232,8 @@ def _joined(
         if index < len(gaps):
             blocks.append(gaps[index])
     q = np.concatenate([b.q_rad for b in blocks])
-    steps = joint_distance(q[1:], q[:-1], periodic)
-    arc = float(steps.sum()) + (float(joint_distance(q[-1], q[0], periodic)) if closed else 0.0)
+    steps = limits.distance(q[1:], q[:-1])
+    arc = float(steps.sum()) + (float(limits.distance(q[-1], q[0])) if closed else 0.0)
     return ComponentPath(
         q_rad=q,
         position_error_m=np.concatenate([b.position_error_m for b in blocks]),
@@ -268,15 +244,11 @@ def _joined(
 
 
 def attach_by_walk(
-    fibre: Fibre,
-    q_rad: FloatArray,  # (K, n) samples on the fibre, inside the limits
+    space: FibreSpace,
+    q_rad: FloatArray,  # (K, n) valid samples
     paths: Sequence[ComponentPath],
-    lower_rad: FloatArray,  # (n,)
-    upper_rad: FloatArray,  # (n,)
-    periodic: BoolArray,  # (n,)
     settings: SpliceSettings,
     deadline: Deadline = NO_DEADLINE,
-    coaxial: Sequence[CoaxialSet] = (),
 ) -> IntArray:  # (K,) the path each sample's walk reached, -1 for none
     """Each sample joins the path whose nearest point (within `reach_rad`) the local
     planner walks to from it."""
@@ -285,14 +257,13 @@ def attach_by_walk(
         return owner
     points = np.concatenate([p.q_rad for p in paths])  # (P, n)
     which = np.concatenate([np.full(len(p.q_rad), i) for i, p in enumerate(paths)])  # (P,)
-    box = JointBox.covering(np.concatenate([points, q_rad]), periodic, margin_rad=1.0)
+    box = space.limits.box(np.concatenate([points, q_rad]), margin_rad=1.0)
     distance, nearest = box.tree(points).query(box.points(q_rad))  # (K,), (K,)
     near = np.flatnonzero(distance <= settings.reach_rad)
     if not len(near):
         return owner
     walks = walk_on_fibre(
-        fibre, q_rad[near], points[nearest[near]], lower_rad, upper_rad, periodic,
-        settings.planner, deadline=deadline, coaxial=coaxial, record=False,
-    )  # fmt: skip
+        space, q_rad[near], points[nearest[near]], settings.planner, deadline=deadline, record=False
+    )
     owner[near[walks.reached]] = which[nearest[near[walks.reached]]]
     return owner

@@ -19,23 +19,22 @@ structure is ambiguous.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from service.manifest import ConnectivitySpec
-from service.pipeline.arrays import BoolArray, FloatArray, IntArray
+from service.pipeline.arrays import IntArray
 from service.pipeline.connect.curves import ON_CURVE_FRACTION, owner_path, retraced, traced_paths
 from service.pipeline.connect.roadmap import roadmap_labels
 from service.pipeline.connect.settings import planner_settings, roadmap_settings, splice_settings
 from service.pipeline.connect.splicing import attach_by_walk, open_ends, splice_paths
 from service.pipeline.connect.trace import MEET_FACTOR, closest_strands_rad
 from service.pipeline.deadline import NO_DEADLINE, Deadline
-from service.pipeline.fibre import Fibre, smallest_singular_value
+from service.pipeline.fibre import smallest_singular_value
+from service.pipeline.space import FibreSpace
 from service.pipeline.types import (
     Acceptance,
-    CoaxialSet,
     Component,
     ComponentPath,
     Correction,
@@ -50,22 +49,15 @@ class Connection:
 
 
 def connect(
-    fibre: Fibre,
+    space: FibreSpace,
     correction: Correction,
     acceptance: Acceptance,
-    lower_rad: FloatArray,  # (n,)
-    upper_rad: FloatArray,  # (n,)
-    periodic: BoolArray,  # (n,)
     spec: ConnectivitySpec,
-    tolerance_position_m: float,
-    tolerance_orientation_rad: float,
     deadline: Deadline = NO_DEADLINE,
-    *,
-    coaxial_sets: Sequence[CoaxialSet],
 ) -> Connection:
-    """The accepted samples grouped into components decided on the fibre; `coaxial_sets`
-    (the model's, `SmmModel.coaxial_sets`) has no default, so that every caller, the
-    evaluation's baselines and tools included, connects as the service does."""
+    """The accepted samples grouped into components decided on the fibre, walking only
+    where `space` says a motion is valid (inside its limits, never across its coaxial
+    sets off the fibre)."""
     deadline.check("connect")
     accepted = np.flatnonzero(acceptance.accepted)  # (K,)
     redundancy = correction.q_rad.shape[1] - correction.jacobian.shape[1]
@@ -77,59 +69,13 @@ def connect(
     leftover = accepted
     complete = True
     if redundancy == 1:
-        paths, complete, sigma = traced_paths(
-            fibre, correction.q_rad[acceptance.within_tolerance], lower_rad, upper_rad,
-            periodic, spec, tolerance_position_m, tolerance_orientation_rad, deadline,
-        )  # fmt: skip
-        on_curve_rad = ON_CURVE_FRACTION * spec.path_spacing_rad
-        owner = owner_path(correction.q_rad[accepted], paths, periodic, on_curve_rad)
-        if (owner < 0).any():
-            # Samples on no traced curve: curves the first seeds missed, such as a twin
-            # a few hundredths of a radian from a traced one near a singular value.
-            more, more_complete, more_sigma = traced_paths(
-                fibre, correction.q_rad[accepted[owner < 0]], lower_rad, upper_rad,
-                periodic, spec, tolerance_position_m, tolerance_orientation_rad, deadline,
-            )  # fmt: skip
-            new = [p for p in more if not retraced(p, paths, periodic, on_curve_rad)]
-            paths += new
-            complete &= more_complete
-            sigma = min(sigma, more_sigma)
-            owner = owner_path(correction.q_rad[accepted], paths, periodic, on_curve_rad)
-        # A piece that ends off the limits is where a front stopped or a cut went wrong:
-        # splice the pieces the fibre joins (splicing.py); an end left open means the
-        # curve is not whole.
-        walk = splice_settings(spec, tolerance_position_m, tolerance_orientation_rad)
-        spliced = splice_paths(
-            fibre, paths, lower_rad, upper_rad, periodic, walk, deadline, coaxial_sets
-        )
-        if len(spliced) < len(paths):
-            paths = spliced
-            owner = owner_path(correction.q_rad[accepted], paths, periodic, on_curve_rad)
-        stray = np.flatnonzero(owner < 0)
-        if len(stray):  # samples on no path: attached where a walk leads to one
-            owner[stray] = attach_by_walk(
-                fibre, correction.q_rad[accepted[stray]], paths, lower_rad, upper_rad,
-                periodic, walk, deadline, coaxial_sets,
-            )  # fmt: skip
-        complete &= not open_ends(paths, lower_rad, upper_rad, periodic)
-        min_sigma = min(min_sigma, sigma)
-        # Strands closer than the fronts' meeting distance may have been joined or told
-        # apart wrongly: the structure there is not resolved (trace.closest_strands_rad).
-        strands_rad = closest_strands_rad(
-            [(p.q_rad, p.closed) for p in paths], periodic, MEET_FACTOR * spec.trace_step_rad
-        )
-        complete &= not np.isfinite(strands_rad)
-        for index, path in enumerate(paths):
-            members = accepted[owner == index]
-            components.append(_component(correction, members, path))
-        leftover = accepted[owner < 0]
-        complete &= len(leftover) == 0
+        curves = _curve_components(space, correction, acceptance, spec, deadline)
+        components, leftover = curves.components, curves.leftover
+        complete, min_sigma = curves.complete, min(min_sigma, curves.min_singular_value)
     if len(leftover):
-        labels = roadmap_labels(
-            fibre, correction.q_rad[leftover], lower_rad, upper_rad, periodic,
-            planner_settings(spec), roadmap_settings(spec), deadline,
-            coaxial=coaxial_sets,
-        )  # fmt: skip
+        q_leftover = correction.q_rad[leftover]
+        planner, roadmap = planner_settings(spec), roadmap_settings(spec)
+        labels = roadmap_labels(space, q_leftover, planner, roadmap, deadline)
         for label in range(labels.max() + 1):
             components.append(_component(correction, leftover[labels == label], None))
     structure = FibreStructure(
@@ -138,6 +84,68 @@ def connect(
         traced=redundancy == 1,
     )
     return Connection(components=components, structure=structure)
+
+
+@dataclass(frozen=True)
+class _Curves:
+    """r = 1: the traced components, the accepted samples on none of them, whether the
+    curves came whole, and the least sigma_min met on them."""
+
+    components: list[Component]
+    leftover: IntArray  # (L,) rows of the correction
+    complete: bool
+    min_singular_value: float
+
+
+def _curve_components(
+    space: FibreSpace,
+    correction: Correction,
+    acceptance: Acceptance,
+    spec: ConnectivitySpec,
+    deadline: Deadline,
+) -> _Curves:
+    """Every curve through the samples within tolerance traced whole and cut by the
+    limits, pieces the fibre joins spliced, and each accepted sample on the path it lies
+    on (or walks to)."""
+    accepted = np.flatnonzero(acceptance.accepted)  # (K,)
+    q_accepted = correction.q_rad[accepted]
+    limits = space.limits
+    q_within = correction.q_rad[acceptance.within_tolerance]
+    paths, complete, sigma = traced_paths(space, q_within, spec, deadline)
+    on_curve_rad = ON_CURVE_FRACTION * spec.path_spacing_rad
+    owner = owner_path(q_accepted, paths, limits, on_curve_rad)
+    if (owner < 0).any():
+        # Samples on no traced curve: curves the first seeds missed, such as a twin
+        # a few hundredths of a radian from a traced one near a singular value.
+        q_stray = correction.q_rad[accepted[owner < 0]]
+        more, more_complete, more_sigma = traced_paths(space, q_stray, spec, deadline)
+        paths += [p for p in more if not retraced(p, paths, limits, on_curve_rad)]
+        complete &= more_complete
+        sigma = min(sigma, more_sigma)
+        owner = owner_path(q_accepted, paths, limits, on_curve_rad)
+    # A piece that ends off the limits is where a front stopped or a cut went wrong:
+    # splice the pieces the fibre joins (splicing.py); an end left open means the
+    # curve is not whole.
+    walk = splice_settings(spec)
+    spliced = splice_paths(space, paths, walk, deadline)
+    if len(spliced) < len(paths):
+        paths = spliced
+        owner = owner_path(q_accepted, paths, limits, on_curve_rad)
+    stray = np.flatnonzero(owner < 0)
+    if len(stray):  # samples on no path: attached where a walk leads to one
+        owner[stray] = attach_by_walk(space, q_accepted[stray], paths, walk, deadline)
+    complete &= not open_ends(paths, limits)
+    # Strands closer than the fronts' meeting distance may have been joined or told
+    # apart wrongly: the structure there is not resolved (trace.closest_strands_rad).
+    meeting_rad = MEET_FACTOR * spec.trace_step_rad
+    strands_rad = closest_strands_rad([(p.q_rad, p.closed) for p in paths], limits, meeting_rad)
+    complete &= not np.isfinite(strands_rad)
+    components = [
+        _component(correction, accepted[owner == index], path) for index, path in enumerate(paths)
+    ]
+    leftover = accepted[owner < 0]
+    complete &= len(leftover) == 0
+    return _Curves(components, leftover, bool(complete), sigma)
 
 
 def _component(correction: Correction, members: IntArray, path: ComponentPath | None) -> Component:

@@ -21,17 +21,14 @@ call per Newton iteration for every walk still going.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from service.pipeline.arrays import BoolArray, FloatArray
-from service.pipeline.connect.coaxial import crossings_on_fibre
 from service.pipeline.deadline import NO_DEADLINE, Deadline
-from service.pipeline.fibre import Fibre, evaluate, newton
-from service.pipeline.joint_space import joint_difference, wrap_periodic
-from service.pipeline.types import CoaxialSet
+from service.pipeline.fibre import evaluate, newton
+from service.pipeline.space import FibreSpace
 
 
 @dataclass(frozen=True)
@@ -54,19 +51,17 @@ class Steer:
 
 
 def steer(
-    fibre: Fibre,
-    q_from_rad: FloatArray,  # (E, n) on the fibre, inside the limits
+    space: FibreSpace,
+    q_from_rad: FloatArray,  # (E, n) valid configurations
     q_to_rad: FloatArray,  # (E, n)
-    lower_rad: FloatArray,  # (n,)
-    upper_rad: FloatArray,  # (n,)
-    periodic: BoolArray,  # (n,)
     settings: SteerSettings,
     deadline: Deadline = NO_DEADLINE,
-    coaxial: Sequence[CoaxialSet] = (),  # sets a step may cross only where the fibre does
 ) -> Steer:
     """Walk every a toward its b on the fibre; the walks advance in lockstep."""
+    fibre, limits = space.fibre, space.limits
+    lower_rad, upper_rad, periodic = limits.lower_rad, limits.upper_rad, limits.periodic
     num_walks = len(q_from_rad)
-    goal = q_from_rad + joint_difference(q_to_rad, q_from_rad, periodic)  # (E, n) unwrapped
+    goal = q_from_rad + limits.difference(q_to_rad, q_from_rad)  # (E, n) unwrapped
     state = evaluate(fibre, q_from_rad.copy())
     q, jacobian = state.q_rad.copy(), state.jacobian.copy()  # (E, n), (E, m, n)
     arrived = np.zeros(num_walks, dtype=bool)
@@ -92,28 +87,18 @@ def steer(
             direction
             * (np.minimum(settings.step_rad, length) / np.maximum(length, 1e-300))[:, None]
         )
-        guess = np.clip(q_a + step, np.where(periodic, -np.inf, lower_rad),
-                        np.where(periodic, np.inf, upper_rad))  # fmt: skip
+        guess = limits.clip(q_a + step)  # (A, n) a joint that would cross a limit stops on it
         on_limit = ~periodic & ((guess <= lower_rad) | (guess >= upper_rad))  # (A, n)
+        tolerance = settings.projection_tolerance
+        start = evaluate(fibre, guess)
         projected = newton(
-            fibre, evaluate(fibre, guess), settings.projection_iterations,
-            locked=on_limit, until=settings.projection_tolerance,
-        )  # fmt: skip
-        q_new = projected.q_rad
-        moved = np.linalg.norm(q_new - q_a, axis=1)
-        inside = np.all(periodic | ((q_new >= lower_rad) & (q_new <= upper_rad)), axis=1)
-        ok = (
-            moving
-            & (projected.error_norm <= settings.projection_tolerance)
-            & inside
-            & (moved <= settings.lambda_ * settings.step_rad)
+            fibre, start, settings.projection_iterations, locked=on_limit, until=tolerance
         )
-        if coaxial and ok.any():
-            crossed = np.flatnonzero(ok)
-            ok[crossed] = crossings_on_fibre(
-                fibre, q_a[crossed], q_new[crossed], coaxial, periodic,
-                settings.projection_tolerance,
-            )  # fmt: skip
+        q_new = projected.q_rad
+        max_move_rad = settings.lambda_ * settings.step_rad
+        ok = space.motion_valid(
+            q_a, q_new, projected.error_norm, max_move_rad, tolerance, also=moving
+        )
         walking[index[~ok]] = False
         good = index[ok]
         q[good] = q_new[ok]
@@ -124,7 +109,7 @@ def steer(
         since_best[good] = np.where(improved, 0, since_best[good] + 1)
         walking[good[since_best[good] >= settings.stall_steps]] = False
     arrived |= walking & (np.linalg.norm(goal - q, axis=1) <= settings.step_rad)
-    return Steer(q_end_rad=wrap_periodic(q, periodic), arrived=arrived)
+    return Steer(q_end_rad=limits.wrap(q), arrived=arrived)
 
 
 def tangent_direction(

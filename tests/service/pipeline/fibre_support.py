@@ -1,4 +1,5 @@
-"""Fibres of the bundled models for the connect-stage tests, and exact points on them."""
+"""Fibres of the bundled models for the connect-stage tests, the spaces the stages move
+in on them, and exact points on them."""
 
 from __future__ import annotations
 
@@ -6,9 +7,24 @@ import numpy as np
 
 from service.models.registry import ServedModel
 from service.pipeline.fibre import Fibre, project
-from service.pipeline.joint_space import joint_distance
+from service.pipeline.joint_space import JointLimits, joint_distance
+from service.pipeline.space import FibreSpace
 from service.pipeline.targets import Target
+from service.pipeline.types import CoaxialSet, Tolerance
 from training.evaluate.references.planar3r import closed_form_smm
+
+TOLERANCE = Tolerance(position_m=1e-6, orientation_rad=1e-6)  # the bundled manifests' query default
+
+
+def fibre_space(
+    fibre: Fibre,
+    limits: JointLimits,
+    coaxial_sets: tuple[CoaxialSet, ...],
+    tolerance: Tolerance = TOLERANCE,
+) -> FibreSpace:
+    """The space on `fibre` inside `limits`: a walk in it may cross the given coaxial sets
+    only where the fibre reaches them (none: `()`)."""
+    return FibreSpace(fibre=fibre, limits=limits, coaxial_sets=coaxial_sets, tolerance=tolerance)
 
 
 def planar_fibre(model: ServedModel, target_m: np.ndarray) -> Fibre:
@@ -52,7 +68,7 @@ def null_space_walk(
     With `held`, that joint keeps its value: the step lies in the null space of J's
     other columns and the projection holds it."""
     fibre = pose_fibre(model, q0)
-    lower, upper, _ = model.manifest.joints.arrays()
+    limits = JointLimits.of(model.manifest.joints)
     rng = np.random.default_rng(seed)
     n = len(q0)
     free = np.arange(n) != (-1 if held is None else held)
@@ -68,7 +84,8 @@ def null_space_walk(
         d[free] = h_free - np.linalg.pinv(j_free) @ (j_free @ h_free)  # tangent part
         projected = project(fibre, (q + 0.05 * d / np.linalg.norm(d))[None], 4, locked=locked)
         nxt = projected.q_rad[0]
-        if projected.error_norm[0] < 1e-10 and np.all((nxt >= lower) & (nxt <= upper)):
+        inside = np.all((nxt >= limits.lower_rad) & (nxt <= limits.upper_rad))
+        if projected.error_norm[0] < 1e-10 and inside:
             walk.append(nxt)
         else:
             heading = rng.normal(size=n)

@@ -3,7 +3,10 @@
 import numpy as np
 
 from service.pipeline.acceptance import accept
-from service.pipeline.types import Correction, SampleCounts
+from service.pipeline.joint_space import JointLimits
+from service.pipeline.types import Correction, SampleCounts, Tolerance
+
+TOLERANCE = Tolerance(position_m=1e-6, orientation_rad=1e-6)
 
 
 def test_masks_and_counts() -> None:
@@ -15,9 +18,8 @@ def test_masks_and_counts() -> None:
         jacobian=np.full((5, 1, 2), np.nan),  # acceptance does not read it
     )
     periodic = np.array([True, False])
-    acceptance = accept(
-        correction, 1e-6, 1e-6, np.array([-np.pi, -2.0]), np.array([np.pi, 2.0]), periodic
-    )
+    limits = JointLimits(np.array([-np.pi, -2.0]), np.array([np.pi, 2.0]), periodic)
+    acceptance = accept(correction, TOLERANCE, limits)
     assert acceptance.within_tolerance.tolist() == [True, True, True, False, False]
     # Joint 1 is periodic (3.0 passes); joint 2 is limited to +-2 (2.5 fails).
     assert acceptance.within_limits.tolist() == [True, False, True, True, False]
@@ -39,7 +41,6 @@ def test_orientation_tolerance_applies() -> None:
         orientation_error_rad=np.array([1e-7, 1e-5]),
         jacobian=np.full((2, 1, 1), np.nan),  # acceptance does not read it
     )
-    acceptance = accept(
-        correction, 1e-6, 1e-6, np.array([-1.0]), np.array([1.0]), np.array([False])
-    )
+    limits = JointLimits(np.array([-1.0]), np.array([1.0]), np.array([False]))
+    acceptance = accept(correction, TOLERANCE, limits)
     assert acceptance.accepted.tolist() == [True, False]

@@ -3,10 +3,11 @@
 import numpy as np
 
 from service.pipeline.components import farthest_point_subset, joint_mean, summarise_all
-from service.pipeline.joint_space import joint_distance
+from service.pipeline.joint_space import JointLimits, joint_distance
 from service.pipeline.types import Component
 
 PERIODIC = np.array([True, True])
+LIMITS = JointLimits(np.full(2, -np.pi), np.full(2, np.pi), PERIODIC)  # only periodic is read
 
 
 def component(q: np.ndarray) -> Component:
@@ -22,11 +23,11 @@ def arc(centre: float, count: int) -> np.ndarray:
 
 def test_ordered_by_size_without_reference_and_by_distance_with_one() -> None:
     small, large = component(arc(2.0, 10)), component(arc(-1.0, 30))
-    by_size = summarise_all([small, large], PERIODIC, None, None, include_paths=True)
+    by_size = summarise_all([small, large], LIMITS, None, None, include_paths=True)
     assert [s.size for s in by_size] == [30, 10]
     assert by_size[0].distance_to_reference_rad is None
     reference = np.array([2.2, 0.1])
-    by_reference = summarise_all([large, small], PERIODIC, reference, None, include_paths=True)
+    by_reference = summarise_all([large, small], LIMITS, reference, None, include_paths=True)
     assert [s.size for s in by_reference] == [10, 30]
     nearest = by_reference[0].nearest_to_reference_rad
     brute = small.q_rad[np.argmin(joint_distance(small.q_rad, reference, PERIODIC))]
@@ -36,7 +37,7 @@ def test_ordered_by_size_without_reference_and_by_distance_with_one() -> None:
 def test_reference_is_wrapped_on_periodic_joints() -> None:
     near_seam = component(np.array([[3.1, 0.0], [3.0, 0.0]]))
     (summary,) = summarise_all(
-        [near_seam], PERIODIC, np.array([-3.1 + 2 * np.pi * 3, 0.0]), None, include_paths=True
+        [near_seam], LIMITS, np.array([-3.1 + 2 * np.pi * 3, 0.0]), None, include_paths=True
     )
     assert summary.distance_to_reference_rad is not None
     assert summary.distance_to_reference_rad < 0.1
@@ -44,17 +45,18 @@ def test_reference_is_wrapped_on_periodic_joints() -> None:
 
 def test_capped_configurations_cover_the_component_and_size_counts_all() -> None:
     q = arc(0.0, 200)
-    (summary,) = summarise_all([component(q)], PERIODIC, None, 11, include_paths=True)
+    (summary,) = summarise_all([component(q)], LIMITS, None, 11, include_paths=True)
     assert summary.size == 200 and len(summary.configurations_rad) == 11
     gaps = [joint_distance(summary.configurations_rad, p, PERIODIC).min() for p in q]
     # 11 points on an arc of length 1 cover it within 0.05 at best; farthest-point
     # sampling is within twice the best covering radius.
     assert max(gaps) <= 0.1 + 1e-9
-    subset = farthest_point_subset(q, PERIODIC, 100, 3)
+    subset = farthest_point_subset(q, LIMITS, 100, 3)
     np.testing.assert_allclose(sorted(subset[:, 0]), [-0.5, 0.0, 0.5], atol=1e-2)
 
 
 def test_joint_mean_is_circular_on_periodic_joints() -> None:
     q = np.array([[3.1, 1.0], [-3.1, 2.0]])
-    mean = joint_mean(q, np.array([True, False]))
+    limits = JointLimits(np.full(2, -np.pi), np.full(2, np.pi), np.array([True, False]))
+    mean = joint_mean(q, limits)
     assert abs(abs(mean[0]) - np.pi) < 1e-9 and mean[1] == 1.5

@@ -6,12 +6,13 @@ import numpy as np
 from service.manifest import TaskSpec
 from service.models.registry import ServedModel
 from service.pipeline.correction import CONVERGED_ERROR, correct, dls_step
+from service.pipeline.joint_space import JointLimits
 from service.pipeline.targets import Target
 from service.pipeline.types import KinematicsResult
 from training.evaluate.references.planar3r import planar3r_jacobian, planar3r_position
 
 POSITION_2D = TaskSpec(name="position", position_axes=[0, 1], orientation=False)
-PERIODIC = np.array([True, True, True])
+LIMITS = JointLimits(np.full(3, -np.pi), np.full(3, np.pi), np.array([True, True, True]))
 
 
 def closed_form_kinematics(q_rad: np.ndarray) -> KinematicsResult:
@@ -65,7 +66,7 @@ def test_correct_converges_with_the_exported_kinematics(planar3r: ServedModel) -
     q_true = rng.uniform(-np.pi, np.pi, (1, 3))
     target = planar3r_position(q_true)[0]
     q = q_true + rng.normal(0, 0.01, (100, 3))  # raw flow samples are mm, i.e. mrad, off
-    result = correct(q, target_at(target), POSITION_2D, planar3r.kinematics, 3, 1e-3, PERIODIC)
+    result = correct(q, target_at(target), POSITION_2D, planar3r.kinematics, 3, 1e-3, LIMITS)
     closed_form_error = np.linalg.norm(planar3r_position(result.q_rad) - target, axis=1)
     assert closed_form_error.max() < 1e-9
     np.testing.assert_allclose(result.position_error_m, closed_form_error, atol=1e-12)
@@ -78,7 +79,7 @@ def test_a_converged_sample_stops_and_the_others_take_every_step() -> None:
     q_off = q_on + np.array([0.2, -0.1, 0.1])  # far enough to need every step
     result = correct(
         np.stack([q_on, q_off]), target_at(target), POSITION_2D, closed_form_kinematics, 3,
-        1e-3, PERIODIC,
+        1e-3, LIMITS,
     )  # fmt: skip
     # On the fibre already (|e| ~ 1e-16 < CONVERGED_ERROR): not moved at all.
     np.testing.assert_array_equal(result.q_rad[0], q_on)
@@ -96,7 +97,7 @@ def test_non_finite_samples_get_infinite_error_and_leave_the_others_alone() -> N
     q_true = np.array([[0.3, 0.4, -0.2]])
     target = planar3r_position(q_true)[0]
     q = np.array([[0.31, 0.41, -0.21], [np.nan, 0.0, 0.0], [np.inf, 1.0, 1.0]])
-    result = correct(q, target_at(target), POSITION_2D, closed_form_kinematics, 4, 1e-3, PERIODIC)
+    result = correct(q, target_at(target), POSITION_2D, closed_form_kinematics, 4, 1e-3, LIMITS)
     assert result.position_error_m[0] < 1e-10
     assert np.all(np.isinf(result.position_error_m[1:]))
     assert np.all(np.isnan(result.q_rad[1:]))
@@ -105,7 +106,7 @@ def test_non_finite_samples_get_infinite_error_and_leave_the_others_alone() -> N
 def test_all_non_finite_samples_skip_the_kinematics(planar3r: ServedModel) -> None:
     q = np.full((4, 3), np.nan)
     target = target_at(np.array([0.5, 0.0]))
-    result = correct(q, target, POSITION_2D, planar3r.kinematics, 3, 1e-3, PERIODIC)
+    result = correct(q, target, POSITION_2D, planar3r.kinematics, 3, 1e-3, LIMITS)
     assert np.all(np.isinf(result.position_error_m)) and np.all(np.isnan(result.q_rad))
 
 
@@ -145,8 +146,8 @@ def test_a_nan_from_the_kinematics_rejects_only_its_own_sample() -> None:
 
     q = np.array([[0.1, 1.0, 1.0], [2.0, 1.0, 1.0], [-0.4, 1.2, 0.9]])
     target = target_at(planar3r_position(q[:1])[0] + 0.01)
-    correction = correct(q, target, POSITION_2D, faulty_kinematics, 3, 1e-3, PERIODIC)
+    correction = correct(q, target, POSITION_2D, faulty_kinematics, 3, 1e-3, LIMITS)
     assert np.isnan(correction.position_error_m[1])
     assert np.all(np.isfinite(correction.position_error_m[[0, 2]]))
-    healthy = correct(q[[0, 2]], target, POSITION_2D, closed_form_kinematics, 3, 1e-3, PERIODIC)
+    healthy = correct(q[[0, 2]], target, POSITION_2D, closed_form_kinematics, 3, 1e-3, LIMITS)
     np.testing.assert_array_equal(correction.q_rad[[0, 2]], healthy.q_rad)

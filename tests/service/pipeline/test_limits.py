@@ -10,13 +10,15 @@ import pytest
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
 from service.pipeline.correction import correct, error_norms
-from service.pipeline.limits import outside_limits, pull_into_limits
-from service.pipeline.run import correct_samples, encode, run, sample
-from service.pipeline.types import Correction, Query
-from tests.service.pipeline.fibre_support import pose_fibre
+from service.pipeline.joint_space import JointLimits
+from service.pipeline.limits import pull_into_limits
+from service.pipeline.run import correct_samples, encode, run, sample, space_of
+from service.pipeline.types import Correction, Query, Tolerance
+from tests.service.pipeline.fibre_support import fibre_space, pose_fibre
 from tests.support.iiwa14_dh import iiwa14_pose
 
 TOLERANCE_M = 1e-6
+TOLERANCE = Tolerance(position_m=TOLERANCE_M, orientation_rad=TOLERANCE_M)
 
 
 @pytest.fixture(scope="module")
@@ -36,9 +38,10 @@ def corrected(model: ServedModel, q_target: np.ndarray, q_rad: np.ndarray) -> Co
 def test_a_sample_outside_the_limits_is_pulled_onto_the_fibre_inside_them(
     iiwa14_position: ServedModel,
 ) -> None:
-    lower, upper, periodic = iiwa14_position.manifest.joints.arrays()
+    limits = JointLimits.of(iiwa14_position.manifest.joints)
+    lower, upper = limits.lower_rad, limits.upper_rad
     q_target = np.array([0.4, 2.3, -0.6, -1.2, 0.5, 1.1, 0.3])  # q2 0.2 rad past 2.094
-    assert outside_limits(q_target[None], lower, upper, periodic)[0].tolist() == [
+    assert limits.outside(q_target[None])[0].tolist() == [
         False, True, False, False, False, False, False,
     ]  # fmt: skip
     inside = np.array([0.4, 1.9, -0.6, -1.2, 0.5, 1.1, 0.3])  # not on the fibre: far off
@@ -49,7 +52,7 @@ def test_a_sample_outside_the_limits_is_pulled_onto_the_fibre_inside_them(
     assert correction.position_error_m[0] < 1e-12 and correction.position_error_m[1] > 0.01
 
     fibre = pose_fibre(iiwa14_position, q_target)
-    pulled = pull_into_limits(correction, fibre, lower, upper, periodic, TOLERANCE_M, TOLERANCE_M)
+    pulled = pull_into_limits(correction, fibre_space(fibre, limits, (), TOLERANCE))
     q = pulled.q_rad[0]
     assert np.all((q >= lower) & (q <= upper))
     assert q[1] == upper[1]  # held on the limit it crossed
@@ -66,21 +69,16 @@ def test_a_sample_outside_the_limits_is_pulled_onto_the_fibre_inside_them(
 def test_rows_inside_the_limits_and_failed_pulls_are_left_as_they_were(
     iiwa14_position: ServedModel,
 ) -> None:
-    lower, upper, periodic = iiwa14_position.manifest.joints.arrays()
+    limits = JointLimits.of(iiwa14_position.manifest.joints)
     q_target = np.array([0.4, 2.3, -0.6, -1.2, 0.5, 1.1, 0.3])
     q_inside = np.array([0.2, 1.0, 0.3, -1.0, 0.4, 0.8, 0.1])
     fibre = pose_fibre(iiwa14_position, q_inside)
     correction = corrected(iiwa14_position, q_inside, q_inside[None])
-    assert (
-        pull_into_limits(correction, fibre, lower, upper, periodic, TOLERANCE_M, TOLERANCE_M)
-        is correction
-    )
+    assert pull_into_limits(correction, fibre_space(fibre, limits, (), TOLERANCE)) is correction
     # No step at all: the row stays outside the limits, so it is not replaced.
     correction = corrected(iiwa14_position, q_target, q_target[None])
-    unpulled = pull_into_limits(
-        correction, pose_fibre(iiwa14_position, q_target), lower, upper, periodic,
-        TOLERANCE_M, TOLERANCE_M, steps=0,
-    )  # fmt: skip
+    target_space = fibre_space(pose_fibre(iiwa14_position, q_target), limits, (), TOLERANCE)
+    unpulled = pull_into_limits(correction, target_space, steps=0)
     np.testing.assert_array_equal(unpulled.q_rad, correction.q_rad)
 
 
@@ -88,7 +86,7 @@ def test_the_pipeline_pulls_for_r_above_1_and_accounts_for_every_sample(
     iiwa14_position: ServedModel, planar3r: ServedModel
 ) -> None:
     manifest = iiwa14_position.manifest
-    lower, upper, periodic = manifest.joints.arrays()
+    limits = JointLimits.of(manifest.joints)
     q_target = np.array([0.4, 1.7, -0.6, -1.2, 0.5, 1.1, 0.3])
     position_m = iiwa14_pose(q_target[None])[0, :3, 3]
     query = Query.for_model(manifest, position_m=position_m.tolist(), num_samples=400, seed=3)
@@ -97,12 +95,13 @@ def test_the_pipeline_pulls_for_r_above_1_and_accounts_for_every_sample(
     d = manifest.defaults
     dls_only = correct(
         q_sampled, target, manifest.task, iiwa14_position.kinematics, d.correction_steps,
-        d.damping, periodic,
+        d.damping, limits,
     )  # fmt: skip
-    stage3 = correct_samples(iiwa14_position, target, q_sampled, TOLERANCE_M, TOLERANCE_M)
+    space = space_of(iiwa14_position, target, TOLERANCE)
+    stage3 = correct_samples(iiwa14_position, space, q_sampled)
 
     def exact_outside(c: Correction) -> int:
-        out = outside_limits(c.q_rad, lower, upper, periodic).any(axis=1)
+        out = limits.outside(c.q_rad).any(axis=1)
         return int((out & (c.position_error_m <= TOLERANCE_M)).sum())
 
     assert exact_outside(dls_only) > exact_outside(stage3)  # some were pulled in
@@ -114,7 +113,7 @@ def test_the_pipeline_pulls_for_r_above_1_and_accounts_for_every_sample(
     assert counts.rejected_joint_limits == exact_outside(stage3)
     members = np.concatenate([c.configurations_rad for c in result.components])
     assert len(members) == counts.accepted
-    assert np.all((members >= lower) & (members <= upper))
+    assert np.all((members >= limits.lower_rad) & (members <= limits.upper_rad))
     np.testing.assert_allclose(
         iiwa14_pose(members)[:, :3, 3], np.tile(position_m, (len(members), 1)), atol=2e-6
     )
@@ -125,8 +124,7 @@ def test_the_pipeline_pulls_for_r_above_1_and_accounts_for_every_sample(
     q = np.array([[0.1, 0.2, 0.3], [2.0, -1.0, 0.5]])
     alone = correct(
         q, planar_target, planar.task, planar3r.kinematics, planar.defaults.correction_steps,
-        planar.defaults.damping, planar.joints.arrays()[2],
+        planar.defaults.damping, JointLimits.of(planar.joints),
     )  # fmt: skip
-    np.testing.assert_array_equal(
-        correct_samples(planar3r, planar_target, q, TOLERANCE_M, TOLERANCE_M).q_rad, alone.q_rad
-    )
+    planar_space = space_of(planar3r, planar_target, TOLERANCE)
+    np.testing.assert_array_equal(correct_samples(planar3r, planar_space, q).q_rad, alone.q_rad)

@@ -8,6 +8,7 @@ import pytest
 
 from service.manifest import AffineNormalisation, SamplerSpec
 from service.models.registry import ServedModel
+from service.pipeline.joint_space import JointLimits
 from service.pipeline.sampling import (
     ENVELOPE_MARGIN,
     euler_integrate,
@@ -83,12 +84,12 @@ def test_a_field_that_pushes_outwards_ends_finite_inside_the_envelope() -> None:
 
 def test_samples_are_seeded_denormalised_and_wrapped(planar3r: ServedModel) -> None:
     manifest = planar3r.manifest
-    periodic = np.array(manifest.joints.periodic)
+    limits = JointLimits.of(manifest.joints)
     condition = np.zeros(2, np.float32)
 
     def draw(seed: int, normalisation: AffineNormalisation) -> np.ndarray:
         return sample_configurations(
-            planar3r.velocity, condition, 100, SamplerSpec(steps=5), normalisation, periodic,
+            planar3r.velocity, condition, 100, SamplerSpec(steps=5), normalisation, limits,
             np.random.default_rng(seed),
         )  # fmt: skip
 

@@ -15,13 +15,13 @@ import pytest
 
 from service.manifest import REPO_MODELS_DIR, SamplerSpec
 from service.models.registry import ServedModel, load_model
-from service.pipeline.joint_space import joint_distance
+from service.pipeline.joint_space import JointLimits, joint_distance
 from training.evaluate.merges import (
     MergeCheck,
-    fibre_of,
     joined_on_fibre,
     report_target,
     settled,
+    space_of,
 )
 from training.evaluate.references.iiwa14 import pose_smm
 from training.evaluate.served import with_defaults
@@ -33,9 +33,10 @@ def iiwa14_pose() -> ServedModel:
 
 
 def test_one_exact_component_is_joined_two_never(iiwa14_pose: ServedModel) -> None:
-    lower, upper, periodic = iiwa14_pose.manifest.joints.arrays()
-    q_target = np.random.default_rng(3).uniform(0.7 * lower, 0.7 * upper)
-    fibre = fibre_of(iiwa14_pose, q_target)
+    limits = JointLimits.of(iiwa14_pose.manifest.joints)
+    q_target = np.random.default_rng(3).uniform(0.7 * limits.lower_rad, 0.7 * limits.upper_rad)
+    space = space_of(iiwa14_pose, q_target)
+    periodic = limits.periodic
     fk = iiwa14_pose.kinematics(q_target[None])
     exact = [c.q_rad for c in pose_smm(fk.position_m[0], fk.rotation[0]) if len(c.q_rad) > 40]
     assert len(exact) >= 2
@@ -43,12 +44,12 @@ def test_one_exact_component_is_joined_two_never(iiwa14_pose: ServedModel) -> No
     arc = exact[0]
     steps = np.concatenate([[0.0], np.cumsum(joint_distance(arc[1:], arc[:-1], periodic))])
     far = int(np.searchsorted(steps, 0.3))
-    assert joined_on_fibre(fibre, arc[0], arc[far], lower, upper, periodic)
+    assert joined_on_fibre(space, arc[0], arc[far])
     # Across two arcs: the nearest pair between them, never joined.
     for other in exact[1:]:
         gaps = joint_distance(exact[0][:, None, :], other[None, :, :], periodic)
         i, j = np.unravel_index(np.argmin(gaps), gaps.shape)
-        assert not joined_on_fibre(fibre, exact[0][i], other[j], lower, upper, periodic)
+        assert not joined_on_fibre(space, exact[0][i], other[j])
 
 
 def test_the_panda_position_reference_splits_two_pieces_of_target_98() -> None:

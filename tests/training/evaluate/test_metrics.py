@@ -23,7 +23,7 @@ import pytest
 
 from service.models.registry import ServedModel
 from service.pipeline.components import summarise_all
-from service.pipeline.joint_space import joint_distance
+from service.pipeline.joint_space import JointLimits, joint_distance
 from service.pipeline.types import (
     Component,
     ComponentPath,
@@ -154,6 +154,10 @@ def _targets(count: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
     return q, iiwa14_pose(q)
 
 
+# The iiwa's joints, none periodic (summarise_all reads only which are).
+IIWA_LIMITS = JointLimits(-LIMITS_RAD, LIMITS_RAD, np.zeros(7, dtype=bool))
+
+
 def _answer(pieces: list[np.ndarray], paths: list[np.ndarray] | None = None) -> SmmResult:
     """Components with the given members and (optionally) the given paths."""
     paths = paths or []
@@ -174,7 +178,7 @@ def _answer(pieces: list[np.ndarray], paths: list[np.ndarray] | None = None) -> 
     return SmmResult(
         counts=SampleCounts(sampled=accepted, accepted=accepted, rejected_tolerance=0,
                             rejected_joint_limits=0),
-        components=summarise_all(components, np.zeros(7, dtype=bool), None, None, True),
+        components=summarise_all(components, IIWA_LIMITS, None, None, True),
         structure=FibreStructure(near_singular=False, min_singular_value=None, traced=True),
         timings=StageTimings(stage_ms={}, total_ms=0.0),
     )  # fmt: skip

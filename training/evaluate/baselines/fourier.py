@@ -74,6 +74,8 @@ from service.models.registry import ServedModel
 from service.pipeline.acceptance import accept
 from service.pipeline.arrays import FloatArray
 from service.pipeline.correction import correct, task_error_norms
+from service.pipeline.joint_space import JointLimits
+from service.pipeline.types import Tolerance
 from training.evaluate.methods import MethodTarget, reference_target
 from training.evaluate.packages import WITHOUT_DEPENDENCIES, missing_message, requiring
 
@@ -308,7 +310,7 @@ def fourier_targets(
     after the service's DLS correction and acceptance (model defaults), branch labels kept:
     the FOURIER and FOURIER_DLS rows. The second's time includes the prediction."""
     manifest, defaults = model.manifest, model.manifest.defaults
-    lower, upper, periodic = manifest.joints.arrays()
+    limits = JointLimits.of(manifest.joints)
     target, _ = reference_target(model, q_target)
     smm = predict(fourier, target.position_m, num_samples)
     raw_p, raw_o = task_error_norms(model.kinematics(smm.q_rad), target, manifest.task)
@@ -317,15 +319,12 @@ def fourier_targets(
         {"predict": smm.wall_time_ms, "total": smm.wall_time_ms},
     )  # fmt: skip
     start = time.perf_counter()
+    task, steps = manifest.task, defaults.correction_steps
     correction = correct(
-        smm.q_rad, target, manifest.task, model.kinematics, defaults.correction_steps,
-        defaults.damping, periodic,
-    )  # fmt: skip
+        smm.q_rad, target, task, model.kinematics, steps, defaults.damping, limits
+    )
     corrected_s = time.perf_counter()
-    kept = accept(
-        correction, defaults.tolerance_position_m, defaults.tolerance_orientation_rad,
-        lower, upper, periodic,
-    ).accepted  # fmt: skip
+    kept = accept(correction, Tolerance.of(defaults), limits).accepted
     accepted_s = time.perf_counter()
     labels = np.unique(smm.branch[kept], return_inverse=True)[1]  # a branch lost is no component
     stages = {

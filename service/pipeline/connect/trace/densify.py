@@ -3,6 +3,8 @@ spacing on the cubic Hermite curve through its points, every point put on the fi
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from service.pipeline.arrays import BoolArray, FloatArray, IntArray
@@ -14,16 +16,36 @@ from service.pipeline.connect.trace.points import (
     torus_difference,
 )
 from service.pipeline.fibre import Fibre, Projection, evaluate, newton, project, unit_tangent
-from service.pipeline.joint_space import wrap_to_pi
+from service.pipeline.joint_space import JointLimits, wrap_to_pi
+
+
+@dataclass(frozen=True)
+class Nodes:
+    """Every run's nodes in order (its traced points and its refined limit points), as
+    rows of the evaluated points extended by the limit points."""
+
+    q_rad: FloatArray  # (N, n) unwrapped along each run
+    row: IntArray  # (N,) rows of `evaluated.extended(limits)`
+    run: IntArray  # (N,) the run each node belongs to
+    last: BoolArray  # (N,) the run's last node: no segment after it
+
+
+@dataclass(frozen=True)
+class Layout:
+    """The dense path: each node, then the inner points of the segment to the next."""
+
+    inner: IntArray  # (N,) inner points after each node
+    offset: IntArray  # (N,) dense row of each node
+    segment: IntArray  # (D,) the node each dense row follows
+    between: IntArray  # (I,) dense rows that are inner points
+    part: IntArray  # (D,) 0 for a node, k for the k-th inner point after it
 
 
 def densify(
     fibre: Fibre,
     evaluated: Evaluated,
     runs: list[Run],
-    lower_rad: FloatArray,
-    upper_rad: FloatArray,
-    periodic: BoolArray,
+    limits: JointLimits,
     settings: TraceSettings,
 ) -> list[TracedPiece]:
     """Each run with its ends refined onto the limits, at the path spacing, all evaluated.
@@ -40,21 +62,71 @@ def densify(
     if not runs:
         return []
     n = runs[0].points.shape[1]
-    low = window_low(lower_rad, upper_rad, periodic)
-    limits, limits_window, limit_of = limit_points(
-        fibre, runs, evaluated, lower_rad, upper_rad, periodic, low, settings
+    low = window_low(limits)
+    found, found_window, limit_of = limit_points(fibre, runs, evaluated, limits, low, settings)
+    nodes = evaluated.extended(found)  # a limit point's row: len(evaluated) + its index
+    node = _nodes(runs, evaluated, found, limit_of)
+    chord = np.diff(node.q_rad, axis=0)  # (N - 1, n)
+    layout = _layout(node, chord, settings.path_spacing_rad)
+    k = layout.segment[layout.between]
+    guess, direction = hermite(
+        node.q_rad[k],
+        along(nodes.tangent[node.row[k]], chord[k]),
+        node.q_rad[k + 1],
+        along(nodes.tangent[node.row[k + 1]], chord[k]),
+        layout.part[layout.between] / (layout.inner[k] + 1),
+    )  # (I, n)
+    # The closing node of a closed run repeats its first; a limit point is kept as it is.
+    repeated = np.zeros(len(node.row), dtype=bool)
+    repeated[np.flatnonzero(node.last)] = [run.closed for run in runs]
+    limit_node = node.row >= len(evaluated)
+    moving_node = np.flatnonzero(~repeated & ~limit_node)
+    placed = np.empty((len(layout.segment), n))  # (D, n) where each point was put before Newton
+    placed[layout.offset] = node.q_rad
+    placed[layout.between] = guess
+    known_rows = node.row[moving_node]
+    known = Projection(node.q_rad[moving_node], nodes.error[known_rows], nodes.jacobian[known_rows])
+    start = _stack(known, evaluate(fibre, guess)) if len(guess) else known
+    tangent = np.concatenate([nodes.tangent[known_rows], direction])
+    moved = newton(
+        fibre, start, settings.path_iterations, tangent=tangent, until=settings.path_error
     )
-    nodes = evaluated.extended(limits)  # a limit point's row: len(evaluated) + its index
+    q = placed.copy()
+    error = np.empty((len(layout.segment), nodes.error.shape[1]))
+    error[layout.offset] = nodes.error[node.row]  # the limit points' (the others are set next)
+    moved_rows = np.concatenate([layout.offset[moving_node], layout.between])
+    q[moved_rows], error[moved_rows] = moved.q_rad, moved.error
+    # A point that Newton carried away from its place on the path is left out.
+    strayed = np.linalg.norm(q - placed, axis=1) > 0.5 * settings.path_spacing_rad
+    q = to_window(q, low)
+    # A limit point as refined, on its limit exactly (not through its run's coordinates).
+    q[layout.offset[limit_node]] = found_window[node.row[limit_node] - len(evaluated)]
+    inside = limits.contains(q) & ~strayed
+    inside[layout.offset[repeated]] = False
+    q = np.where(limits.periodic, wrap_to_pi(q), q)
+    bounds = np.searchsorted(node.run[layout.segment], np.arange(len(runs) + 1))
+    pieces = []
+    for r, run in enumerate(runs):
+        rows = np.arange(bounds[r], bounds[r + 1])
+        rows = rows[inside[rows]]  # a point the projection pushed past a limit is left out
+        path = TracedPiece(path_rad=q[rows].reshape(-1, n), error=error[rows], closed=run.closed)
+        pieces.append(path)
+    return pieces
+
+
+def _nodes(runs: list[Run], evaluated: Evaluated, found: Evaluated, limit_of: IntArray) -> Nodes:
+    """Each run's nodes: its refined start, its traced points, its refined end, and for a
+    closed run its first point again (the short way round)."""
     node_q: list[FloatArray] = []  # per run (N_r, n), unwrapped
     node_rows: list[IntArray] = []  # per run (N_r,) rows of `nodes`
     for r, run in enumerate(runs):
         first, last = limit_of[2 * r], limit_of[2 * r + 1]
         points, rows = run.points, run.rows
         if first >= 0:
-            points = np.concatenate([limits.q_rad[first][None], points])
+            points = np.concatenate([found.q_rad[first][None], points])
             rows = np.concatenate([[len(evaluated) + first], rows])
         if last >= 0:
-            points = np.concatenate([points, limits.q_rad[last][None]])
+            points = np.concatenate([points, found.q_rad[last][None]])
             rows = np.concatenate([rows, [len(evaluated) + last]])
         if run.closed:  # back to the first point, the short way round
             closing = points[-1:] + torus_difference(points[:1], points[-1:])
@@ -62,65 +134,26 @@ def densify(
         node_q.append(points)
         node_rows.append(rows)
     run_of = np.repeat(np.arange(len(runs)), [len(rows) for rows in node_rows])  # (N,)
-    q_node = np.concatenate(node_q)  # (N, n)
-    row = np.concatenate(node_rows)  # (N,)
-    last_node = np.append(run_of[1:] != run_of[:-1], True)  # (N,) no segment after it
-    # Dense layout: each node, then the inner points of the segment to the next node.
-    chord = np.diff(q_node, axis=0)  # (N - 1, n)
-    inner = np.ceil(np.linalg.norm(chord, axis=1) / (0.9 * settings.path_spacing_rad))
-    inner = np.append(np.where(last_node[:-1], 0, np.maximum(inner, 1) - 1), 0).astype(np.int64)
-    offset = np.cumsum(inner + 1) - (inner + 1)  # (N,) dense row of each node
-    segment = np.repeat(np.arange(len(row)), inner + 1)  # (D,) the node each dense row follows
-    part = np.arange(len(segment)) - offset[segment]  # (D,) 0 for the node itself
-    between = np.flatnonzero(part > 0)  # (I,)
-    k = segment[between]
-    guess, direction = hermite(
-        q_node[k],
-        along(nodes.tangent[row[k]], chord[k]),
-        q_node[k + 1],
-        along(nodes.tangent[row[k + 1]], chord[k]),
-        part[between] / (inner[k] + 1),
-    )  # (I, n)
-    # The closing node of a closed run repeats its first; a limit point is kept as it is.
-    repeated = np.zeros(len(row), dtype=bool)
-    repeated[np.flatnonzero(last_node)] = [run.closed for run in runs]
-    limit_node = row >= len(evaluated)
-    moving_node = np.flatnonzero(~repeated & ~limit_node)
-    placed = np.empty((len(segment), n))  # (D, n) where each point was put before Newton
-    placed[offset] = q_node
-    placed[between] = guess
-    known = Projection(q_node[moving_node], nodes.error[row[moving_node]],
-                       nodes.jacobian[row[moving_node]])  # fmt: skip
-    start = stack(known, evaluate(fibre, guess)) if len(guess) else known
-    tangent = np.concatenate([nodes.tangent[row[moving_node]], direction])
-    moved = newton(
-        fibre, start, settings.path_iterations, tangent=tangent, until=settings.path_error
+    return Nodes(
+        q_rad=np.concatenate(node_q),
+        row=np.concatenate(node_rows),
+        run=run_of,
+        last=np.append(run_of[1:] != run_of[:-1], True),
     )
-    q = placed.copy()
-    error = np.empty((len(segment), nodes.error.shape[1]))
-    error[offset] = nodes.error[row]  # the limit points' (the others are set next)
-    moved_rows = np.concatenate([offset[moving_node], between])
-    q[moved_rows], error[moved_rows] = moved.q_rad, moved.error
-    # A point that Newton carried away from its place on the path is left out.
-    strayed = np.linalg.norm(q - placed, axis=1) > 0.5 * settings.path_spacing_rad
-    q = to_window(q, low)
-    # A limit point as refined, on its limit exactly (not through its run's coordinates).
-    q[offset[limit_node]] = limits_window[row[limit_node] - len(evaluated)]
-    inside = np.all(periodic | ((q >= lower_rad) & (q <= upper_rad)), axis=1) & ~strayed
-    inside[offset[repeated]] = False
-    q = np.where(periodic, wrap_to_pi(q), q)
-    run_of_dense = run_of[segment]
-    bounds = np.searchsorted(run_of_dense, np.arange(len(runs) + 1))
-    pieces = []
-    for r, run in enumerate(runs):
-        rows = np.arange(bounds[r], bounds[r + 1])
-        rows = rows[inside[rows]]  # a point the projection pushed past a limit is left out
-        pieces.append(TracedPiece(path_rad=q[rows].reshape(-1, n), error=error[rows],
-                                  closed=run.closed))  # fmt: skip
-    return pieces
 
 
-def stack(*parts: Projection) -> Projection:
+def _layout(node: Nodes, chord: FloatArray, spacing_rad: float) -> Layout:
+    """How many inner points each segment gets (chord / (0.9 spacing), rounded up, less
+    one; none after a run's last node) and where every point lies in the dense path."""
+    inner = np.ceil(np.linalg.norm(chord, axis=1) / (0.9 * spacing_rad))
+    inner = np.append(np.where(node.last[:-1], 0, np.maximum(inner, 1) - 1), 0).astype(np.int64)
+    offset = np.cumsum(inner + 1) - (inner + 1)  # (N,) dense row of each node
+    segment = np.repeat(np.arange(len(node.row)), inner + 1)  # (D,)
+    part = np.arange(len(segment)) - offset[segment]  # (D,) 0 for the node itself
+    return Layout(inner, offset, segment, np.flatnonzero(part > 0), part)
+
+
+def _stack(*parts: Projection) -> Projection:
     return Projection(
         q_rad=np.concatenate([p.q_rad for p in parts]),
         error=np.concatenate([p.error for p in parts]),
@@ -129,9 +162,13 @@ def stack(*parts: Projection) -> Projection:
 
 
 def limit_points(
-    fibre: Fibre, runs: list[Run], evaluated: Evaluated, lower_rad: FloatArray,
-    upper_rad: FloatArray, periodic: BoolArray, window_low: FloatArray, settings: TraceSettings,
-) -> tuple[Evaluated, FloatArray, IntArray]:  # fmt: skip
+    fibre: Fibre,
+    runs: list[Run],
+    evaluated: Evaluated,
+    limits: JointLimits,
+    window_low: FloatArray,  # (n,)
+    settings: TraceSettings,
+) -> tuple[Evaluated, FloatArray, IntArray]:
     """Each run's start and end refined onto the joint limit its curve crosses there: the
     refined points (L,), unwrapped like their runs, the same (L, n) in window coordinates
     (the limited joint on its limit exactly), and for each run end (2 x runs, start then
@@ -152,6 +189,7 @@ def limit_points(
             inner.append(run.points[-1])
             outer.append(run.end_exit)
             keys.append(2 * r + 1)
+    lower_rad, upper_rad, periodic = limits.lower_rad, limits.upper_rad, limits.periodic
     found = np.full(2 * len(runs), -1)
     n, m = evaluated.q_rad.shape[1], evaluated.error.shape[1]
     if not inner:
@@ -176,7 +214,7 @@ def limit_points(
     refined = project(fibre, guess, iterations=6, locked=locked, until=settings.path_error)
     q = refined.q_rad
     q[rows, joint] = bound  # exactly on the limit (the locked joint did not move)
-    inside = np.all(periodic | ((q >= lower_rad) & (q <= upper_rad)), axis=1)
+    inside = limits.contains(q)
     close = np.linalg.norm(q - a_w, axis=1) <= 2.0 * np.linalg.norm(b_w - a_w, axis=1)
     good = inside & close & (refined.error_norm < 1e-8)
     # Back to the runs' unwrapped coordinates: the same offset as each inner point.

@@ -16,12 +16,12 @@ from service.pipeline.connect.trace.points import (
     torus_difference,
 )
 from service.pipeline.fibre import Fibre, project, unit_tangent
-from service.pipeline.joint_space import TWO_PI
+from service.pipeline.joint_space import TWO_PI, JointLimits
 
 
-def window_low(lower_rad: FloatArray, upper_rad: FloatArray, periodic: BoolArray) -> FloatArray:
+def window_low(limits: JointLimits) -> FloatArray:
     """Lower end (n,) of the 2 pi window each joint angle is read in: the limits inside it."""
-    centre = np.where(periodic, 0.0, 0.5 * (lower_rad + upper_rad))
+    centre = np.where(limits.periodic, 0.0, 0.5 * (limits.lower_rad + limits.upper_rad))
     return centre - np.pi
 
 
@@ -34,9 +34,7 @@ def refine_near_limits(
     fibre: Fibre,
     evaluated: Evaluated,
     loops: list[Curve],
-    lower_rad: FloatArray,
-    upper_rad: FloatArray,
-    periodic: BoolArray,
+    limits: JointLimits,
     settings: TraceSettings,
     rounds: int = 3,
     pieces: int = 4,
@@ -50,7 +48,8 @@ def refine_near_limits(
     pieces of the steps the last one split, find components down to about
     h / pieces**rounds long. The evaluated points come back with the added ones.
     """
-    low = window_low(lower_rad, upper_rad, periodic)
+    low = window_low(limits)
+    lower_rad, upper_rad, periodic = limits.lower_rad, limits.upper_rad, limits.periodic
     steps = Steps.of(evaluated, loops)
     added: list[Evaluated] = []
     added_loop: list[IntArray] = []
@@ -59,8 +58,7 @@ def refine_near_limits(
     for _ in range(rounds):
         a = to_window(steps.start, low)  # (C, n)
         b = a + steps.delta
-        inside_a = np.all(periodic | ((a >= lower_rad) & (a <= upper_rad)), axis=1)
-        inside_b = np.all(periodic | ((b >= lower_rad) & (b <= upper_rad)), axis=1)
+        inside_a, inside_b = limits.contains(a), limits.contains(b)
         # A curve bends off its chord by ~kappa L^2 / 8: a margin of L / 4 per step.
         margin = 0.25 * np.linalg.norm(steps.delta, axis=1, keepdims=True)  # (C, 1)
         meets = chord_meets_box(a, b, lower_rad - margin, upper_rad + margin, periodic)
@@ -242,15 +240,12 @@ class Run:
     end_exit: FloatArray | None  # (n,) the outside point after the run
 
 
-def cut_by_limits(
-    loops: list[Curve], lower_rad: FloatArray, upper_rad: FloatArray, periodic: BoolArray
-) -> list[Run]:
+def cut_by_limits(loops: list[Curve], limits: JointLimits) -> list[Run]:
     """The runs of consecutive points of each curve that lie inside the limits."""
     if not loops:
         return []
-    low = window_low(lower_rad, upper_rad, periodic)
-    window = to_window(np.concatenate([loop.points for loop in loops]), low)  # (P, n)
-    inside_all = np.all(periodic | ((window >= lower_rad) & (window <= upper_rad)), axis=1)
+    window = to_window(np.concatenate([loop.points for loop in loops]), window_low(limits))
+    inside_all = limits.contains(window)  # (P,)
     per_loop = np.split(inside_all, np.cumsum([len(loop.rows) for loop in loops])[:-1])
     runs = []
     for loop, inside in zip(loops, per_loop, strict=True):

@@ -31,26 +31,25 @@ from __future__ import annotations
 
 import numpy as np
 
-from service.pipeline.arrays import BoolArray, FloatArray
+from service.pipeline.arrays import FloatArray
 from service.pipeline.connect.trace.densify import densify
 from service.pipeline.connect.trace.limits import cut_by_limits, refine_near_limits
 from service.pipeline.connect.trace.points import Evaluated, Trace, TraceSettings
 from service.pipeline.connect.trace.seeds import spread_seeds
 from service.pipeline.connect.trace.walk import walk_fronts
 from service.pipeline.deadline import NO_DEADLINE, Deadline
-from service.pipeline.fibre import Fibre, evaluate, min_singular_value, unit_tangent
+from service.pipeline.fibre import evaluate, min_singular_value, unit_tangent
+from service.pipeline.space import FibreSpace
 
 
 def trace_fibre(
-    fibre: Fibre,
+    space: FibreSpace,
     q_on_fibre_rad: FloatArray,  # (M, n) samples within tolerance, inside the limits or not
-    lower_rad: FloatArray,  # (n,)
-    upper_rad: FloatArray,  # (n,)
-    periodic: BoolArray,  # (n,)
     settings: TraceSettings,
     deadline: Deadline = NO_DEADLINE,
 ) -> Trace:
     """Every curve through `q_on_fibre_rad`, cut by the limits, as ordered dense paths."""
+    fibre, limits = space.fibre, space.limits
     if len(q_on_fibre_rad) == 0:
         return Trace(pieces=[], complete=True, min_singular_value=np.inf)
     start = evaluate(fibre, spread_seeds(q_on_fibre_rad, settings.seed_spacing_rad))  # (S,)
@@ -59,9 +58,7 @@ def trace_fibre(
     evaluated, loops, complete = walk_fronts(fibre, seeds, settings, deadline)
     # sigma_min over the seeds and every point the fronts reached.
     sigma = min_singular_value(np.concatenate([start.jacobian, evaluated.jacobian[len(seeds) :]]))
-    evaluated, loops = refine_near_limits(
-        fibre, evaluated, loops, lower_rad, upper_rad, periodic, settings
-    )
-    runs = cut_by_limits(loops, lower_rad, upper_rad, periodic)
-    dense = densify(fibre, evaluated, runs, lower_rad, upper_rad, periodic, settings)
+    evaluated, loops = refine_near_limits(fibre, evaluated, loops, limits, settings)
+    runs = cut_by_limits(loops, limits)
+    dense = densify(fibre, evaluated, runs, limits, settings)
     return Trace(pieces=dense, complete=complete, min_singular_value=sigma)

@@ -10,7 +10,7 @@ from scipy.spatial import cKDTree
 
 from service.pipeline.arrays import BoolArray, FloatArray, IntArray
 from service.pipeline.connect.trace.points import Curve, Evaluated, curve, torus_difference
-from service.pipeline.joint_space import joint_difference
+from service.pipeline.joint_space import JointLimits, joint_difference
 
 # Two traced points are on different strands of one curve when they lie more than this
 # many meeting distances apart along it (nearer, they are neighbours on one strand).
@@ -21,7 +21,7 @@ STRAND_GROUP = 3  # consecutive path points per point of closest_strands_rad's t
 
 def closest_strands_rad(
     curves: Sequence[tuple[FloatArray, bool]],  # (P_c, n) ordered points, closed or not
-    periodic: BoolArray,  # (n,)
+    limits: JointLimits,
     within_rad: float,
 ) -> float:
     """The closest approach (joint metric) of two strands of the traced fibre: points of
@@ -47,6 +47,7 @@ def closest_strands_rad(
     curves = [(q, closed) for q, closed in curves if len(q)]
     if not curves:
         return np.inf
+    periodic = limits.periodic
     arc, length = [], []
     for q, closed in curves:
         steps = np.linalg.norm(joint_difference(q[1:], q[:-1], periodic), axis=1)

@@ -11,8 +11,9 @@ import pytest
 
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
-from service.pipeline.connect.coaxial import crossings_on_fibre, find_coaxial_sets, slide_range
-from tests.service.pipeline.fibre_support import null_space_walk, pose_fibre
+from service.pipeline.connect.coaxial import find_coaxial_sets, slide_range
+from service.pipeline.joint_space import JointLimits
+from tests.service.pipeline.fibre_support import fibre_space, null_space_walk, pose_fibre
 from tests.support.iiwa14_dh import LIMITS_RAD, iiwa14_pose
 from training.evaluate.references.iiwa14 import inverse_kinematics
 
@@ -23,8 +24,8 @@ def iiwa14() -> ServedModel:
 
 
 def test_the_iiwa14_has_its_shoulder_elbow_and_wrist_sets(iiwa14: ServedModel) -> None:
-    lower, upper, periodic = iiwa14.manifest.joints.arrays()
-    sets = find_coaxial_sets(iiwa14.kinematics, lower, upper, periodic)
+    limits = JointLimits.of(iiwa14.manifest.joints)
+    sets = find_coaxial_sets(iiwa14.kinematics, limits)
     assert [s.joint for s in sets] == [1, 3, 5]
     assert [s.moving for s in sets] == [(0, 2), (2, 4), (4, 6)]
     for coaxial in sets:
@@ -35,7 +36,7 @@ def test_the_iiwa14_has_its_shoulder_elbow_and_wrist_sets(iiwa14: ServedModel) -
         rng = np.random.default_rng(coaxial.joint)
         q = rng.uniform(-LIMITS_RAD, LIMITS_RAD, (20, 7))
         q[:, coaxial.joint] = coaxial.angle_rad
-        low, high = slide_range(coaxial, q, lower, upper, periodic)
+        low, high = slide_range(coaxial, q, limits)
         a = rng.uniform(low, high)  # (20,) inside the limits
         slid = q + a[:, None] * coaxial.slide
         assert np.all(np.abs(slid) <= LIMITS_RAD + 1e-12)
@@ -46,8 +47,7 @@ def test_the_iiwa14_has_its_shoulder_elbow_and_wrist_sets(iiwa14: ServedModel) -
 
 
 def test_the_planar_arm_folded_back_turns_about_its_base(planar3r: ServedModel) -> None:
-    lower, upper, periodic = planar3r.manifest.joints.arrays()
-    sets = find_coaxial_sets(planar3r.kinematics, lower, upper, periodic)
+    sets = find_coaxial_sets(planar3r.kinematics, JointLimits.of(planar3r.manifest.joints))
     assert len(sets) == 1 and sets[0].joint == 1
     assert abs(sets[0].angle_rad) == pytest.approx(np.pi, abs=1e-9)
     q = np.random.default_rng(0).uniform(-np.pi, np.pi, (10, 3))
@@ -65,8 +65,8 @@ def test_a_step_may_cross_a_set_only_where_the_fibre_reaches_it(iiwa14: ServedMo
     """A step between two points of a position fibre that crosses q2 = 0 is refused where
     the link lengths keep the fibre off that set, and kept where a walk along the fibre
     really crosses the wrist set q6 = 0."""
-    lower, upper, periodic = iiwa14.manifest.joints.arrays()
-    sets = find_coaxial_sets(iiwa14.kinematics, lower, upper, periodic)
+    limits = JointLimits.of(iiwa14.manifest.joints)
+    sets = find_coaxial_sets(iiwa14.kinematics, limits)
     shoulder, wrist = sets[0], sets[2]
     # The end effector is 0.555 m from the elbow-up point; q2 = 0 allows at most 0.526.
     q_a = np.array([-1.8321, 0.3116, -2.7316, 1.2636, 2.7301, 1.4829, -2.7446])
@@ -83,14 +83,17 @@ def test_a_step_may_cross_a_set_only_where_the_fibre_reaches_it(iiwa14: ServedMo
     q_b = twins[np.argmin(np.linalg.norm(twins - q_a, axis=1))]
     np.testing.assert_allclose(iiwa14_pose(q_b[None])[0, :3, 3], position, atol=1e-9)
     assert q_b[1] < 0.0 < q_a[1]
-    crossed = crossings_on_fibre(fibre, q_a[None], q_b[None], [shoulder], periodic, 1e-4)
+    crossed = fibre_space(fibre, limits, (shoulder,)).crossings_on_fibre(q_a[None], q_b[None], 1e-4)
     assert not crossed[0]
     # A walk along one component through q6 = 0: each of its steps is kept.
     walk = null_space_walk(iiwa14, np.array([0.3, 0.5, -0.4, -1.3, 0.6, 0.9, 0.2]), 400, 0)
     across = np.flatnonzero(np.sign(walk[1:, 5]) != np.sign(walk[:-1, 5]))
     assert len(across) >= 1
     walk_fibre = pose_fibre(iiwa14, walk[0])
-    kept = crossings_on_fibre(walk_fibre, walk[across], walk[across + 1], [wrist], periodic, 1e-4)
+    kept = fibre_space(walk_fibre, limits, (wrist,)).crossings_on_fibre(
+        walk[across], walk[across + 1], 1e-4
+    )
     assert kept.all()
     # A step that crosses no set is never refused.
-    assert crossings_on_fibre(walk_fibre, walk[:5], walk[1:6], [shoulder], periodic, 1e-4).all()
+    across_shoulder = fibre_space(walk_fibre, limits, (shoulder,))
+    assert across_shoulder.crossings_on_fibre(walk[:5], walk[1:6], 1e-4).all()

@@ -5,29 +5,29 @@ import numpy as np
 
 from service.models.registry import ServedModel
 from service.pipeline.connect.local_planner import PlannerSettings, edges_on_fibre
-from tests.service.pipeline.fibre_support import planar_fibre
+from service.pipeline.joint_space import JointLimits
+from tests.service.pipeline.fibre_support import fibre_space, planar_fibre
 from training.evaluate.references.planar3r import closed_form_smm
 
 SETTINGS = PlannerSettings(delta_rad=0.05, lambda_=2.0, projection_tolerance=1e-4)
 PERIODIC = np.ones(3, dtype=bool)
 LOWER, UPPER = np.full(3, -np.pi), np.full(3, np.pi)
+LIMITS = JointLimits(LOWER, UPPER, PERIODIC)
 
 
 def test_points_of_one_loop_join_and_of_two_loops_do_not(planar3r: ServedModel) -> None:
     target = np.array([0.99, 0.0])  # just inside rho = 1: two loops, 0.34 rad apart at most
     loop_a, loop_b = closed_form_smm(target, phi_step_rad=0.001)
-    fibre = planar_fibre(planar3r, target)
+    space = fibre_space(planar_fibre(planar3r, target), LIMITS, ())
     # Along one loop: pairs about 0.3 and 1 rad apart (joint metric) join.
-    same = edges_on_fibre(
-        fibre, loop_a[[0, 0]], loop_a[[150, 500]], LOWER, UPPER, PERIODIC, SETTINGS
-    )
+    same = edges_on_fibre(space, loop_a[[0, 0]], loop_a[[150, 500]], SETTINGS)
     assert same.tolist() == [True, True]
     # Across the loops: the nearest pairs, closer than points that do join, fail.
     a, b = loop_a[::5], loop_b[::5]
     d = np.linalg.norm(np.angle(np.exp(1j * (a[:, None, :] - b[None, :, :]))), axis=2)
     i, j = np.unravel_index(np.argsort(d, axis=None)[:5], d.shape)  # (A, B) joint metric
     assert d[i, j].max() < 0.4
-    across = edges_on_fibre(fibre, a[i], b[j], LOWER, UPPER, PERIODIC, SETTINGS)
+    across = edges_on_fibre(space, a[i], b[j], SETTINGS)
     assert not across.any()
 
 
@@ -46,8 +46,9 @@ def test_an_edge_fails_when_the_path_leaves_the_limits(planar3r: ServedModel) ->
     upper[joint] = loop[peak, joint] - 0.005
     assert loop[before, joint] < upper[joint] and loop[after, joint] < upper[joint]
     assert q[peak] - 0.005 > max(q[before], q[after])
-    free = edges_on_fibre(fibre, a[None], b[None], LOWER, UPPER, PERIODIC, SETTINGS)
-    blocked = edges_on_fibre(fibre, a[None], b[None], LOWER, upper, limited, SETTINGS)
+    free = edges_on_fibre(fibre_space(fibre, LIMITS, ()), a[None], b[None], SETTINGS)
+    cut = fibre_space(fibre, JointLimits(LOWER, upper, limited), ())
+    blocked = edges_on_fibre(cut, a[None], b[None], SETTINGS)
     assert free.tolist() == [True]
     assert blocked.tolist() == [False]
 

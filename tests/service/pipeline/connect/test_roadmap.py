@@ -20,10 +20,10 @@ from service.pipeline.connect import planner_settings, roadmap_settings
 from service.pipeline.connect.roadmap import Roadmap, roadmap_labels
 from service.pipeline.deadline import NO_DEADLINE
 from service.pipeline.fibre import project
-from service.pipeline.joint_space import joint_distance
+from service.pipeline.joint_space import JointLimits, joint_distance
 from service.pipeline.run import run
 from service.pipeline.types import CoaxialSet, Query
-from tests.service.pipeline.fibre_support import null_space_walk, pose_fibre
+from tests.service.pipeline.fibre_support import fibre_space, null_space_walk, pose_fibre
 from tests.support.iiwa14_dh import iiwa14_pose
 
 OLD_RADIUS_RAD = 2.5  # the radius graph's default for this model before stage 5
@@ -45,11 +45,9 @@ def test_a_random_walk_along_one_component_is_one_component(
     assert walk[:, 5].min() < 0.0 < walk[:, 5].max()
     nodes = walk[::6][np.random.default_rng(1).permutation(len(walk[::6]))]  # ~0.3 rad apart
     spec = iiwa14_position.manifest.defaults.connectivity
-    lower, upper, periodic = iiwa14_position.manifest.joints.arrays()
-    labels = roadmap_labels(
-        pose_fibre(iiwa14_position, q0), nodes, lower, upper, periodic,
-        planner_settings(spec), roadmap_settings(spec),
-    )  # fmt: skip
+    limits = JointLimits.of(iiwa14_position.manifest.joints)
+    space = fibre_space(pose_fibre(iiwa14_position, q0), limits, ())
+    labels = roadmap_labels(space, nodes, planner_settings(spec), roadmap_settings(spec))
     assert set(labels.tolist()) == {0}
 
 
@@ -91,7 +89,7 @@ def walk_holding(model: ServedModel, q0: np.ndarray, joint: int, to_rad: float) 
 def test_samples_joined_only_through_the_shoulder_set_are_one_component(
     iiwa14_position: ServedModel,
 ) -> None:
-    lower, upper, periodic = iiwa14_position.manifest.joints.arrays()
+    limits = JointLimits.of(iiwa14_position.manifest.joints)
     on_set = np.array([-0.3, 0.0, 0.4, 1.0, -0.5, 1.2, 0.0])  # q2 = 0
     slid = on_set + 2.4 * np.array([1.0, 0, -1.0, 0, 0, 0, 0])  # the set's self-motion
     # By the DH table (independent of the service): the slide keeps the position.
@@ -99,7 +97,7 @@ def test_samples_joined_only_through_the_shoulder_set_are_one_component(
     a = walk_holding(iiwa14_position, on_set, joint=1, to_rad=0.35)
     b = walk_holding(iiwa14_position, slid, joint=1, to_rad=-0.35)
     for q in (a, b):
-        assert np.all((q >= lower) & (q <= upper))
+        assert np.all((q >= limits.lower_rad) & (q <= limits.upper_rad))
         np.testing.assert_allclose(
             iiwa14_pose(q[None])[0, :3, 3], iiwa14_pose(on_set[None])[0, :3, 3], atol=1e-9
         )
@@ -110,14 +108,12 @@ def test_samples_joined_only_through_the_shoulder_set_are_one_component(
 
     def labels(coaxial: tuple[CoaxialSet, ...], steer_pairs: int) -> list[int]:
         settings = replace(roadmap_settings(spec), steer_pairs=steer_pairs)
-        return roadmap_labels(
-            fibre, np.stack([a, b]), lower, upper, periodic, planner_settings(spec),
-            settings, coaxial=coaxial,
-        ).tolist()  # fmt: skip
+        space = fibre_space(fibre, limits, coaxial)
+        return roadmap_labels(space, np.stack([a, b]), planner_settings(spec), settings).tolist()
 
     assert labels((), steer_pairs=0) == [0, 1]
     # ... but joined through the set's line of nodes, or by a walk steered along the fibre.
-    assert labels(iiwa14_position.coaxial_sets, steer_pairs=0) == [0, 0]
+    assert labels(tuple(iiwa14_position.coaxial_sets), steer_pairs=0) == [0, 0]
     assert labels((), steer_pairs=roadmap_settings(spec).steer_pairs) == [0, 0]
 
 
@@ -152,12 +148,12 @@ def test_the_links_tried_between_components_are_the_shortest_by_brute_force(
     rng = np.random.default_rng(3)
     q = rng.uniform(-2.0, 2.0, size=(160, 7))
     periodic = np.array([False, False, True, False, False, False, False])
-    lower, upper, _ = iiwa14_position.manifest.joints.arrays()
+    manifest_limits = JointLimits.of(iiwa14_position.manifest.joints)
+    limits = JointLimits(manifest_limits.lower_rad, manifest_limits.upper_rad, periodic)
     settings = roadmap_settings(iiwa14_position.manifest.defaults.connectivity)
-    roadmap = Roadmap(
-        pose_fibre(iiwa14_position, q[0]), q, lower, upper, periodic,
-        planner_settings(iiwa14_position.manifest.defaults.connectivity), NO_DEADLINE, (),
-    )  # fmt: skip
+    space = fibre_space(pose_fibre(iiwa14_position, q[0]), limits, ())
+    planner = planner_settings(iiwa14_position.manifest.defaults.connectivity)
+    roadmap = Roadmap(space, q, planner, NO_DEADLINE)
     groups = rng.integers(0, 12, size=60)  # nodes 0..59 in 12 groups, 60..159 alone
     for g in range(12):
         members = np.flatnonzero(groups == g)

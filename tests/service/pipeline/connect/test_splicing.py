@@ -21,9 +21,10 @@ from service.pipeline.connect.splicing import (
 )
 from service.pipeline.correction import error_norms
 from service.pipeline.fibre import Fibre
-from service.pipeline.joint_space import joint_distance
-from service.pipeline.types import ComponentPath
-from tests.service.pipeline.fibre_support import ordered_planar_loop, planar_fibre
+from service.pipeline.joint_space import JointLimits, joint_distance
+from service.pipeline.space import FibreSpace
+from service.pipeline.types import ComponentPath, Tolerance
+from tests.service.pipeline.fibre_support import fibre_space, ordered_planar_loop, planar_fibre
 from training.evaluate.methods import flow_target
 from training.evaluate.metrics import component_agreement
 from training.evaluate.references.planar3r import closed_form_smm
@@ -31,14 +32,19 @@ from training.evaluate.truth import ground_truth
 
 PERIODIC = np.ones(3, dtype=bool)
 LOWER, UPPER = np.full(3, -np.pi), np.full(3, np.pi)
+LIMITS = JointLimits(LOWER, UPPER, PERIODIC)
 SPACING = 0.05
 SETTINGS = SpliceSettings(
     reach_rad=0.15,
     planner=PlannerSettings(delta_rad=0.15 / 32, lambda_=2.0, projection_tolerance=1e-4),
     spacing_rad=SPACING,
-    tolerance_position_m=1e-6,
-    tolerance_orientation_rad=1e-6,
 )
+TOLERANCE = Tolerance(position_m=1e-6, orientation_rad=1e-6)  # every added point within it
+
+
+def space(fibre: Fibre) -> FibreSpace:
+    """The planar arm's space on `fibre`: no limits, no coaxial set a walk must check."""
+    return fibre_space(fibre, LIMITS, (), TOLERANCE)
 
 
 def _path(fibre: Fibre, q: np.ndarray, closed: bool = False) -> ComponentPath:
@@ -74,7 +80,7 @@ def test_a_loop_cut_into_pieces_is_spliced_whole(planar3r: ServedModel) -> None:
         joint_distance(pieces[2][-1], pieces[0][0], PERIODIC),
     ]
     assert min(gaps) > SPACING and max(gaps) < SETTINGS.reach_rad
-    spliced = splice_paths(fibre, paths, LOWER, UPPER, PERIODIC, SETTINGS)
+    spliced = splice_paths(space(fibre), paths, SETTINGS)
     assert len(spliced) == 1 and spliced[0].closed
     _assert_whole(fibre, spliced[0])
     length = float(steps.sum())
@@ -99,7 +105,7 @@ def test_pieces_of_two_loops_are_not_joined_however_close(planar3r: ServedModel)
     a = np.roll(loop_a, -i - 1, axis=0)[-2000::40]  # ends at loop_a[i]
     b = np.roll(loop_b, -j, axis=0)[:2000:40]  # starts at loop_b[j]
     paths = [_path(fibre, a), _path(fibre, b)]
-    spliced = splice_paths(fibre, paths, LOWER, UPPER, PERIODIC, SETTINGS)
+    spliced = splice_paths(space(fibre), paths, SETTINGS)
     assert len(spliced) == 2
 
 
@@ -107,7 +113,7 @@ def test_a_piece_of_one_point_is_not_closed_on_itself(planar3r: ServedModel) -> 
     target = np.array([-1.5, -0.1])
     fibre = planar_fibre(planar3r, target)
     loop = ordered_planar_loop(target, every_rad=0.03)
-    spliced = splice_paths(fibre, [_path(fibre, loop[:1])], LOWER, UPPER, PERIODIC, SETTINGS)
+    spliced = splice_paths(space(fibre), [_path(fibre, loop[:1])], SETTINGS)
     assert len(spliced) == 1 and not spliced[0].closed
 
 
@@ -118,9 +124,10 @@ def test_an_end_on_a_joint_limit_is_not_open(planar3r: ServedModel) -> None:
     lower = LOWER.copy()
     lower[0] = path.q_rad[0, 0]  # the first point sits on joint 1's lower limit
     limited = np.zeros(3, dtype=bool)
-    assert [e.last for e in open_ends([path], lower, UPPER, limited)] == [True]
+    assert [e.last for e in open_ends([path], JointLimits(lower, UPPER, limited))] == [True]
     # A periodic joint has no limit: both ends are open.
-    assert [e.last for e in open_ends([path], lower, UPPER, PERIODIC)] == [False, True]
+    periodic = JointLimits(lower, UPPER, PERIODIC)
+    assert [e.last for e in open_ends([path], periodic)] == [False, True]
 
 
 def test_a_recorded_walk_is_the_edge_walk_with_its_points_on_the_fibre(
@@ -131,8 +138,8 @@ def test_a_recorded_walk_is_the_edge_walk_with_its_points_on_the_fibre(
     loop = ordered_planar_loop(target, every_rad=0.01)
     start, end = loop[[0, 0, 200]], loop[[20, 50, 215]]
     planner = PlannerSettings(delta_rad=0.02, lambda_=2.0, projection_tolerance=1e-4)
-    walks = walk_on_fibre(fibre, start, end, LOWER, UPPER, PERIODIC, planner)
-    reached = edges_on_fibre(fibre, start, end, LOWER, UPPER, PERIODIC, planner)
+    walks = walk_on_fibre(space(fibre), start, end, planner)
+    reached = edges_on_fibre(space(fibre), start, end, planner)
     np.testing.assert_array_equal(walks.reached, reached)
     for e, points in enumerate(walks.points_rad):
         assert len(points) > 0
@@ -160,9 +167,7 @@ def test_a_sample_attaches_to_the_path_its_walk_reaches_not_to_a_twin(
     gap = joint_distance(loop_b, loop_a[nearest], PERIODIC)
     on_b = loop_b[np.argsort(gap)[:5]]  # loop b's points nearest loop a
     assert joint_distance(on_b[:, None], path.q_rad[None], PERIODIC).min() < SETTINGS.reach_rad
-    owner = attach_by_walk(
-        fibre, np.concatenate([on_a, on_b]), [path], LOWER, UPPER, PERIODIC, SETTINGS
-    )
+    owner = attach_by_walk(space(fibre), np.concatenate([on_a, on_b]), [path], SETTINGS)
     assert owner[: len(on_a)].tolist() == [0] * len(on_a)
     assert owner[len(on_a) :].tolist() == [-1] * len(on_b)
 

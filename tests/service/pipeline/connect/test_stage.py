@@ -14,10 +14,10 @@ from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
 from service.pipeline.connect.curves import exact_paths
 from service.pipeline.connect.trace import TracedPiece
-from service.pipeline.joint_space import joint_distance
+from service.pipeline.joint_space import JointLimits, joint_distance
 from service.pipeline.run import run
-from service.pipeline.types import Query, SmmResult
-from tests.service.pipeline.fibre_support import ordered_planar_loop
+from service.pipeline.types import Query, SmmResult, Tolerance
+from tests.service.pipeline.fibre_support import fibre_space, ordered_planar_loop, planar_fibre
 from tests.support.iiwa14_dh import iiwa14_pose as dh_pose
 from training.evaluate.references.iiwa14 import pose_smm
 from training.evaluate.references.planar3r import planar3r_position
@@ -32,9 +32,7 @@ def iiwa14_pose() -> ServedModel:
     return load_model(REPO_MODELS_DIR / "iiwa14-pose", threads=1)
 
 
-def check_paths(
-    result: SmmResult, lower: np.ndarray, upper: np.ndarray, periodic: np.ndarray
-) -> None:
+def check_paths(result: SmmResult, limits: JointLimits) -> None:
     """Every component has a path: in the limits, spaced <= 0.05 rad, closed or at limits.
 
     Next to a singular point (the answer says near_singular) a point Newton cannot make
@@ -42,6 +40,7 @@ def check_paths(
     path is cut where the trace could not show the fibre joins two points, so an open
     end may lie off the limits.
     """
+    lower, upper, periodic = limits.lower_rad, limits.upper_rad, limits.periodic
     spacing = 0.3 if result.structure.near_singular else SPACING_RAD
     for component in result.components:
         path = component.path
@@ -69,8 +68,7 @@ def test_planar_components_follow_the_closed_form(
     query = Query.for_model(planar3r.manifest, position_m=target.tolist(), num_samples=600)
     result = run(planar3r, query)
     assert len(result.components) == loops
-    lower, upper, periodic = planar3r.manifest.joints.arrays()
-    check_paths(result, lower, upper, periodic)
+    check_paths(result, JointLimits.of(planar3r.manifest.joints))
     for component in result.components:
         assert component.closed  # no limits on the planar arm: every component is a loop
         reached = planar3r_position(component.path.q_rad)  # type: ignore[union-attr]
@@ -99,8 +97,8 @@ def test_planar_twins_closer_than_the_trace_resolves_are_flagged(
 def test_iiwa_pose_components_match_the_srs_ik(iiwa14_pose: ServedModel, seed: int) -> None:
     """Count and membership against the exact S-R-S components; paths exact by the DH table."""
     manifest = iiwa14_pose.manifest
-    lower, upper, periodic = manifest.joints.arrays()
-    q_target = np.random.default_rng(seed).uniform(0.8 * lower, 0.8 * upper)
+    limits = JointLimits.of(manifest.joints)
+    q_target = np.random.default_rng(seed).uniform(0.8 * limits.lower_rad, 0.8 * limits.upper_rad)
     fk = iiwa14_pose.kinematics(q_target[None])
     position, rotation = fk.position_m[0], fk.rotation[0]
     query = Query.for_model(
@@ -125,7 +123,7 @@ def test_iiwa_pose_components_match_the_srs_ik(iiwa14_pose: ServedModel, seed: i
         pose = dh_pose(q)  # the paper's DH table: independent of the URDF and ONNX
         assert np.abs(pose[:, :3, 3] - position).max() <= 1e-6
     assert hit == set(range(len(exact)))
-    check_paths(result, lower, upper, periodic)
+    check_paths(result, limits)
 
 
 @pytest.mark.parametrize("q4_rad", [0.015, 0.03])
@@ -188,10 +186,10 @@ def test_a_loop_is_cut_only_where_a_step_is_longer_than_a_continuation_step(
     keep = np.ones(len(q), dtype=bool)
     keep[50 : 50 + removed] = False
     piece = TracedPiece(path_rad=q[keep], error=error[keep], closed=True)
-    periodic = np.ones(3, dtype=bool)
-    paths, whole = exact_paths(
-        piece, planar3r.manifest.task, 1e-6, 1e-6, periodic, SPACING_RAD, 0.3
-    )
+    limits = JointLimits(np.full(3, -np.pi), np.full(3, np.pi), np.ones(3, dtype=bool))
+    tolerance = Tolerance(position_m=1e-6, orientation_rad=1e-6)
+    space = fibre_space(planar_fibre(planar3r, target), limits, (), tolerance)
+    paths, whole = exact_paths(piece, space, SPACING_RAD, 0.3)
     assert len(paths) == 1 and paths[0].closed == closed
     assert whole == (removed == 0)
     if not closed:

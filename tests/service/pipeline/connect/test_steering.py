@@ -13,7 +13,9 @@ from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
 from service.pipeline.connect.steering import SteerSettings, steer, tangent_direction
 from service.pipeline.fibre import Fibre
-from tests.service.pipeline.fibre_support import null_space_walk, pose_fibre
+from service.pipeline.joint_space import JointLimits
+from service.pipeline.space import FibreSpace
+from tests.service.pipeline.fibre_support import fibre_space, null_space_walk, pose_fibre
 from tests.support.iiwa14_dh import iiwa14_pose
 
 SETTINGS = SteerSettings(step_rad=0.15, max_steps=100, lambda_=2.0, projection_tolerance=1e-4)
@@ -48,15 +50,17 @@ def assert_on_fibre(points: np.ndarray, q0: np.ndarray) -> None:
     assert np.linalg.norm(error, axis=1).max() <= SETTINGS.projection_tolerance
 
 
-def _walk_points(
-    fibre: Fibre, start: np.ndarray, goal: np.ndarray, lower: np.ndarray, upper: np.ndarray
-) -> list[np.ndarray]:
+def space(fibre: Fibre, limits: JointLimits) -> FibreSpace:
+    """The space on `fibre` inside `limits`, with no coaxial set a walk must check."""
+    return fibre_space(fibre, limits, ())
+
+
+def _walk_points(space: FibreSpace, start: np.ndarray, goal: np.ndarray) -> list[np.ndarray]:
     """The configurations a steered walk visits, one step of the walk at a time."""
-    periodic = np.zeros(7, dtype=bool)
     points = [start]
     for steps in range(1, SETTINGS.max_steps + 1):
         settings = SteerSettings(**{**SETTINGS.__dict__, "max_steps": steps})
-        walk = steer(fibre, start[None], goal[None], lower, upper, periodic, settings)
+        walk = steer(space, start[None], goal[None], settings)
         points.append(walk.q_end_rad[0])
         if walk.arrived[0] or np.array_equal(points[-1], points[-2]):
             break
@@ -66,20 +70,20 @@ def _walk_points(
 def test_a_walk_reaches_the_far_end_of_a_random_walk_on_one_component(
     iiwa14_position: ServedModel,
 ) -> None:
-    lower, upper, periodic = iiwa14_position.manifest.joints.arrays()
+    limits = JointLimits.of(iiwa14_position.manifest.joints)
     q0 = np.array([0.3, 0.5, -0.4, -1.3, 0.6, 0.9, 0.2])
     path = null_space_walk(iiwa14_position, q0, steps=400, seed=0)
     start, goal = path[0], path[-1]
     assert np.linalg.norm(goal - start) > 1.0
-    fibre = pose_fibre(iiwa14_position, q0)
-    walk = steer(fibre, start[None], goal[None], lower, upper, periodic, SETTINGS)
+    on_fibre = space(pose_fibre(iiwa14_position, q0), limits)
+    walk = steer(on_fibre, start[None], goal[None], SETTINGS)
     assert walk.arrived[0]
     assert np.linalg.norm(walk.q_end_rad[0] - goal) <= SETTINGS.step_rad
     # Every step of the walk is on the fibre (DH table, independent of the service),
     # inside the limits, and no step jumps.
-    points = np.stack(_walk_points(fibre, start, goal, lower, upper))
+    points = np.stack(_walk_points(on_fibre, start, goal))
     assert_on_fibre(points, q0)
-    assert np.all((points >= lower) & (points <= upper))
+    assert np.all((points >= limits.lower_rad) & (points <= limits.upper_rad))
     steps = np.linalg.norm(np.diff(points, axis=0), axis=1)
     assert steps.max() <= SETTINGS.lambda_ * SETTINGS.step_rad
 
@@ -87,14 +91,14 @@ def test_a_walk_reaches_the_far_end_of_a_random_walk_on_one_component(
 def test_walks_between_elbow_up_and_down_never_arrive(iiwa14_position: ServedModel) -> None:
     # 0.674 m from the shoulder: q4 = 0 would put the end effector 0.82 +- 0.126 m from
     # it, so no path on this fibre changes the sign of q4 (test_roadmap has the same target).
-    lower, upper, periodic = iiwa14_position.manifest.joints.arrays()
+    limits = JointLimits.of(iiwa14_position.manifest.joints)
     up = np.array([0.3, 0.5, -0.4, 1.3, 0.6, 0.9, 0.2])
     fibre = pose_fibre(iiwa14_position, up)
     down = null_space_walk(iiwa14_position, up, steps=60, seed=2)
     down = down * np.array([1, -1, 1, -1, 1, -1, 1])  # the mirror: q2, q4, q6 negated
     np.testing.assert_allclose(iiwa14_pose(down)[:, :3, 3].std(axis=0), 0.0, atol=1e-3)
     start = np.repeat(up[None], len(down), axis=0)
-    walk = steer(fibre, start, down, lower, upper, periodic, SETTINGS)
+    walk = steer(space(fibre, limits), start, down, SETTINGS)
     assert not walk.arrived.any()
     assert np.all(walk.q_end_rad[:, 3] > 0.0)
 
@@ -103,18 +107,19 @@ def test_a_walk_slides_along_a_joint_limit_to_its_goal(iiwa14_position: ServedMo
     # Start and goal joined by a path with q6 held at 0.9 (so they are one component when
     # q6 may not exceed 0.9); the walk with the usual limits overshoots 0.9, so with that
     # limit it must hold q6 on it and slide.
-    lower, upper, periodic = iiwa14_position.manifest.joints.arrays()
+    limits = JointLimits.of(iiwa14_position.manifest.joints)
     q0 = np.array([0.3, 0.5, -0.4, -1.3, 0.6, 0.9, 0.2])
     witness = null_space_walk(iiwa14_position, q0, steps=300, seed=1, held=5)
     start, goal = witness[0], witness[-1]
     assert np.linalg.norm(goal - start) > 2.0 and np.all(witness[:, 5] == 0.9)
     fibre = pose_fibre(iiwa14_position, q0)
-    unlimited = np.stack(_walk_points(fibre, start, goal, lower, upper))
+    unlimited = np.stack(_walk_points(space(fibre, limits), start, goal))
     assert unlimited[:, 5].max() > 0.9 + 0.05
-    limited_upper = upper.copy()
+    limited_upper = limits.upper_rad.copy()
     limited_upper[5] = 0.9
-    walk = steer(fibre, start[None], goal[None], lower, limited_upper, periodic, SETTINGS)
+    limited = space(fibre, JointLimits(limits.lower_rad, limited_upper, limits.periodic))
+    walk = steer(limited, start[None], goal[None], SETTINGS)
     assert walk.arrived[0]
-    points = np.stack(_walk_points(fibre, start, goal, lower, limited_upper))
+    points = np.stack(_walk_points(limited, start, goal))
     assert np.all(points[:, 5] <= 0.9) and np.sum(points[:, 5] == 0.9) > len(points) // 2
     assert_on_fibre(points, q0)

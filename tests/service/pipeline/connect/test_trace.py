@@ -14,8 +14,8 @@ from service.pipeline.connect.trace import TraceSettings, closest_strands_rad, t
 from service.pipeline.connect.trace.limits import hermite
 from service.pipeline.connect.trace.seeds import spread_seeds
 from service.pipeline.connect.trace.strands import STRAND_ARC_FACTOR
-from service.pipeline.joint_space import joint_distance
-from tests.service.pipeline.fibre_support import pose_fibre
+from service.pipeline.joint_space import JointLimits, joint_distance
+from tests.service.pipeline.fibre_support import fibre_space, pose_fibre
 from training.evaluate.references.iiwa14 import pose_smm
 
 SETTINGS = TraceSettings(
@@ -80,13 +80,14 @@ def test_every_path_point_is_exact_where_it_is_returned(iiwa14_pose: ServedModel
     the kinematics measures at the returned point, within 1e-9; the points are inside
     the limits and at most 0.05 rad apart; an open path ends on a joint limit."""
     manifest = iiwa14_pose.manifest
-    lower, upper, periodic = manifest.joints.arrays()
+    limits = JointLimits.of(manifest.joints)
+    lower, upper, periodic = limits.lower_rad, limits.upper_rad, limits.periodic
     q_target = np.random.default_rng(8).uniform(0.8 * lower, 0.8 * upper)
     fibre = pose_fibre(iiwa14_pose, q_target)
     fk = iiwa14_pose.kinematics(q_target[None])
     exact = pose_smm(fk.position_m[0], fk.rotation[0])
     samples = np.concatenate([component.q_rad[::150] for component in exact])
-    trace = trace_fibre(fibre, samples, lower, upper, periodic, SETTINGS)
+    trace = trace_fibre(fibre_space(fibre, limits, ()), samples, SETTINGS)
     assert trace.complete and len(trace.pieces) == len(exact)
     for piece in trace.pieces:
         q = piece.path_rad
@@ -106,9 +107,15 @@ def test_every_path_point_is_exact_where_it_is_returned(iiwa14_pose: ServedModel
 Curves = list[tuple[np.ndarray, bool]]
 
 
-def _curves(*curves: tuple[np.ndarray, bool]) -> tuple[Curves, np.ndarray]:
+def torus(periodic: np.ndarray) -> JointLimits:
+    """Joint limits with these joints periodic (closest_strands_rad reads only which are:
+    the others get limits of +-pi, which it does not read)."""
+    return JointLimits(np.full(len(periodic), -np.pi), np.full(len(periodic), np.pi), periodic)
+
+
+def _curves(*curves: tuple[np.ndarray, bool]) -> tuple[Curves, JointLimits]:
     """The curves with every joint periodic (the tracer's torus)."""
-    return list(curves), np.ones(curves[0][0].shape[1], dtype=bool)
+    return list(curves), torus(np.ones(curves[0][0].shape[1], dtype=bool))
 
 
 def brute_force_closest_strands(curves: Curves, periodic: np.ndarray, within_rad: float) -> float:
@@ -141,7 +148,7 @@ def test_closest_strands_equal_every_pair_measured(seed: int) -> None:
         q = np.cumsum(rng.normal(0, step, (int(rng.integers(1, 60)), 3)), axis=0)
         curves.append((q + rng.normal(0, 0.3, 3), bool(rng.random() < 0.3)))
     for within in (0.05, 0.165, 0.4):
-        assert closest_strands_rad(curves, periodic, within) == pytest.approx(
+        assert closest_strands_rad(curves, torus(periodic), within) == pytest.approx(
             brute_force_closest_strands(curves, periodic, within), abs=1e-12
         )
 
@@ -169,7 +176,7 @@ def test_closest_strands_are_two_curves_or_a_hairpin_never_neighbours() -> None:
     assert closest_strands_rad(*_curves((circle, True)), within) == np.inf
     # A limited joint does not wrap: a twin a whole turn away on it is far.
     limited = [(line, False), (twin + np.array([0.0, 2 * np.pi]), False)]
-    assert closest_strands_rad(limited, np.array([True, False]), within) == np.inf
+    assert closest_strands_rad(limited, torus(np.array([True, False])), within) == np.inf
     # On the torus: a twin read a whole turn away is as near as one beside it.
     turned = twin + np.array([2 * np.pi, -2 * np.pi])
     assert closest_strands_rad(*_curves((line, False), (turned, False)), within) == pytest.approx(

@@ -13,8 +13,9 @@ from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
 from service.pipeline.acceptance import accept
 from service.pipeline.correction import task_error_norms
+from service.pipeline.joint_space import JointLimits
 from service.pipeline.targets import Target
-from service.pipeline.types import Correction
+from service.pipeline.types import Correction, Tolerance
 from tests.support.iiwa14_dh import LIMITS_RAD, iiwa14_pose, rotation_angle_rad
 from training.evaluate.baselines.restart_dls import random_restart_dls
 from training.evaluate.references.planar3r import planar3r_position
@@ -32,10 +33,10 @@ def _accepted(
         condition=np.zeros(1, np.float32),
     )
     position_error, orientation_error = task_error_norms(model.kinematics(q), target, manifest.task)
-    lower, upper, periodic = manifest.joints.arrays()
+    limits = JointLimits.of(manifest.joints)
     unused_jacobian = np.full((len(q), 1, q.shape[1]), np.nan)  # acceptance does not read it
     correction = Correction(q, position_error, orientation_error, unused_jacobian)
-    return q[accept(correction, 1e-6, 1e-6, lower, upper, periodic).accepted]
+    return q[accept(correction, Tolerance(1e-6, 1e-6), limits).accepted]
 
 
 def test_planar_solutions_reach_the_target(planar3r: ServedModel) -> None:

@@ -1,0 +1,101 @@
+"""The space the pipeline moves in (OMPL's SpaceInformation, for a fibre): the target's
+fibre, the joint limits, the chain's coaxial sets and the query's tolerance, with the one
+question every stage asks of it: is this configuration valid, is this motion valid.
+
+A configuration is valid when it reaches the target within the tolerance and lies inside
+the limits (`accept`). A motion from a valid configuration to the projection of a step
+is valid (`motion_valid`) when the projection converged, lies inside the limits, moved
+no farther than the step allows (no jump), and does not cross a coaxial set where the
+fibre does not reach it (`crossings_on_fibre`: such a step has jumped onto a nearby twin
+branch). Every stage that keeps configurations or walks between them asks here, so a
+new condition on what is valid is added in this module, not in each stage's signature.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from service.pipeline.acceptance import accept
+from service.pipeline.arrays import BoolArray, FloatArray
+from service.pipeline.fibre import Fibre, project
+from service.pipeline.joint_space import JointLimits, wrap_to_pi
+from service.pipeline.types import Acceptance, CoaxialSet, Correction, Tolerance
+
+__all__ = ["FibreSpace", "Tolerance"]
+
+
+@dataclass(frozen=True)
+class FibreSpace:
+    """One target's fibre inside the joint limits, as the stages move on it."""
+
+    fibre: Fibre
+    limits: JointLimits
+    coaxial_sets: tuple[CoaxialSet, ...]  # the model's (SmmModel.coaxial_sets)
+    tolerance: Tolerance  # the query's: what an answer's configuration must reach
+
+    def accept(self, correction: Correction) -> Acceptance:
+        """Which corrected configurations are valid: within the tolerance (NaN and inf
+        errors fail it) and inside the limits."""
+        return accept(correction, self.tolerance, self.limits)
+
+    def motion_valid(
+        self,
+        q_from_rad: FloatArray,  # (A, n) valid configurations
+        q_to_rad: FloatArray,  # (A, n) the projections of a step from each
+        error_norm: FloatArray,  # (A,) |e| at q_to_rad
+        max_move_rad: float,  # a longer move is a jump
+        tolerance: float,  # |e| a projected step must reach
+        also: BoolArray | None = None,  # (A,) the walker's own conditions
+    ) -> BoolArray:  # (A,)
+        """Which steps q_from -> q_to are valid motions on the fibre; the coaxial
+        crossings are checked last, only for the steps that pass everything else."""
+        moved = np.linalg.norm(q_to_rad - q_from_rad, axis=1)
+        ok = (error_norm <= tolerance) & self.limits.contains(q_to_rad) & (moved <= max_move_rad)
+        if also is not None:
+            ok &= also
+        if self.coaxial_sets and ok.any():
+            crossed = np.flatnonzero(ok)
+            ok[crossed] = self.crossings_on_fibre(q_from_rad[crossed], q_to_rad[crossed], tolerance)
+        return ok
+
+    def crossings_on_fibre(
+        self,
+        q_from_rad: FloatArray,  # (A, n) on the fibre
+        q_to_rad: FloatArray,  # (A, n) on the fibre, one step further
+        tolerance: float,  # |e| the crossing point must reach
+        iterations: int = 4,  # Newton steps onto the fibre at the crossing
+    ) -> BoolArray:  # (A,) False for a step that crosses a set where the fibre does not reach it
+        """Steps that cross no coaxial set, or cross one where the fibre reaches it.
+
+        A path on a fibre from one side of a set to the other (q_j - angle changing sign)
+        passes through a point of the fibre on the set (connect/coaxial.py). For each set
+        the step crosses (both ends within pi/2 of the angle), the point where the
+        straight step meets the set is projected onto the fibre with joint j held at the
+        set's angle: it must converge within `tolerance` without moving farther than the
+        step is long.
+        """
+        ok = np.ones(len(q_from_rad), dtype=bool)
+        for coaxial_set in self.coaxial_sets:
+            j = coaxial_set.joint
+            before = q_from_rad[:, j] - coaxial_set.angle_rad  # (A,)
+            after = q_to_rad[:, j] - coaxial_set.angle_rad
+            if self.limits.periodic[j]:
+                before, after = wrap_to_pi(before), wrap_to_pi(after)
+            crossing = np.flatnonzero(
+                (before * after < 0) & (np.abs(before) < np.pi / 2) & (np.abs(after) < np.pi / 2)
+            )
+            if not len(crossing):
+                continue
+            fraction = before[crossing] / (before[crossing] - after[crossing])  # (C,)
+            step = q_to_rad[crossing] - q_from_rad[crossing]  # (C, n)
+            guess = q_from_rad[crossing] + fraction[:, None] * step
+            guess[:, j] = coaxial_set.angle_rad
+            locked = np.zeros_like(guess, dtype=bool)
+            locked[:, j] = True
+            on_set = project(self.fibre, guess, iterations, locked=locked)
+            moved = np.linalg.norm(on_set.q_rad - guess, axis=1)
+            reached = (on_set.error_norm <= tolerance) & (moved <= np.linalg.norm(step, axis=1))
+            ok[crossing] &= reached
+        return ok
