@@ -9,8 +9,9 @@ What it checks, over HTTP on 127.0.0.1 against the image's CMD (run with
   models/, each loaded and verified (sha256 against its manifest) at start-up;
 - POST /smm for every bundled model: every returned configuration reaches the target
   within the requested tolerance by a forward kinematics independent of the image (the
-  planar 3R's closed form; the iiwa14's DH table, tests/support/iiwa14_dh.py), lies within the
-  joint limits, and the configuration the target was made from is close to an answer;
+  references in training/evaluate/references/: the planar 3R's closed form, the iiwa14's
+  DH table, the Panda's URDF read in float64), lies within the joint limits, and the
+  configuration the target was made from is close to an answer;
 - settings reach the process from the environment (`docker run -e`): SMM_PORT,
   SMM_API_KEY (401 without the key, 200 with it) and SMM_MAX_NUM_SAMPLES (413 beyond);
 - one access-log line per request, the service's JSON one, none from uvicorn;
@@ -67,10 +68,12 @@ import numpy as np
 import yaml
 from scipy.spatial.transform import Rotation
 
-from tests.support.iiwa14_dh import LIMITS_RAD as IIWA14_LIMITS_RAD
-from tests.support.iiwa14_dh import iiwa14_pose, rotation_angle_rad
-from tests.support.urdf_chain import read_chain
 from tools.local_server import LOOPBACK, free_port
+from training.evaluate.references.iiwa14 import LIMITS_RAD as IIWA14_LIMITS_RAD
+from training.evaluate.references.iiwa14 import dh_pose as iiwa14_pose
+from training.evaluate.references.planar3r import planar3r_position
+from training.evaluate.references.rotations import rotation_angle_rad
+from training.evaluate.references.urdf_chain import read_chain
 
 ROOT = Path(__file__).resolve().parent.parent
 FIGURES = ROOT / "docs" / "container.json"
@@ -265,12 +268,6 @@ class Target:
     distance: Callable[[np.ndarray, np.ndarray], np.ndarray]  # (B, n), (n,) -> (B,) rad
 
 
-def planar3r_position(q: np.ndarray) -> np.ndarray:
-    """(B, 2) tip of the paper's planar 3R arm (three 1 m links), closed form."""
-    angles = np.cumsum(q, axis=-1)
-    return np.stack([np.cos(angles).sum(-1), np.sin(angles).sum(-1)], axis=-1)
-
-
 def planar3r_target() -> Target:
     q_source = np.array([0.4, 1.1, -0.7])
     goal = planar3r_position(q_source[None])[0]
@@ -341,7 +338,7 @@ def spatial_target(
 
 
 def iiwa14_target(task: str) -> Target:
-    """The iiwa14 checked by the paper's DH table (tests/support/iiwa14_dh.py)."""
+    """The iiwa14 checked by the paper's DH table (references.iiwa14)."""
     q_source = np.array([0.3, 0.6, 0.0, -1.2, 0.0, 0.9, 0.0])
     return spatial_target(
         "iiwa14", task, q_source, iiwa14_pose, -IIWA14_LIMITS_RAD, IIWA14_LIMITS_RAD
@@ -349,7 +346,8 @@ def iiwa14_target(task: str) -> Target:
 
 
 def panda_target(task: str) -> Target:
-    """The Panda checked by the tests' own float64 URDF chain (not pytorch-kinematics)."""
+    """The Panda checked by the float64 URDF chain of the references (not
+    pytorch-kinematics, not the served chain.json kernel)."""
     chain = read_chain(ROOT / "models" / "robots" / "panda.urdf", "panda_hand_tcp", "panda_link0")
     q_source = np.array([0.3, -0.4, 0.2, -2.0, 0.1, 1.8, 0.5])
     return spatial_target("panda", task, q_source, chain.pose, chain.lower, chain.upper)

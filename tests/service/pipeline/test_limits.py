@@ -14,7 +14,7 @@ from service.pipeline.limits import outside_limits, pull_into_limits
 from service.pipeline.run import correct_samples, encode, run, sample
 from service.pipeline.types import Correction, Query
 from tests.service.pipeline.fibre_support import pose_fibre
-from tests.support.iiwa14_dh import iiwa14_pose
+from training.evaluate.references.iiwa14 import dh_pose as iiwa14_pose
 
 TOLERANCE_M = 1e-6
 

@@ -14,7 +14,7 @@ from service.models.registry import ServedModel, load_model
 from service.pipeline.fibre import Fibre
 from service.pipeline.steering import SteerSettings, steer, tangent_direction
 from tests.service.pipeline.fibre_support import null_space_walk, pose_fibre
-from tests.support.iiwa14_dh import iiwa14_pose
+from training.evaluate.references.iiwa14 import dh_pose as iiwa14_pose
 
 SETTINGS = SteerSettings(step_rad=0.15, max_steps=100, lambda_=2.0, projection_tolerance=1e-4)
 

@@ -29,43 +29,14 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+# training/evaluate/iiwa14.py takes the rotation angle from here, with the DH FK.
+from training.evaluate.references.rotations import rotation_angle_rad as rotation_angle_rad
+
 D_M = np.array([0.360, 0.0, 0.420, 0.0, 0.400, 0.0, 0.081])  # seed Table 1; a = 0
 ALPHA_RAD = np.radians([-90.0, 90.0, 90.0, -90.0, -90.0, 90.0, 0.0])
 END_EFFECTOR_OFFSET_M = 0.045  # along the link-7 z axis (the flange)
 TWO_PI = 2.0 * np.pi
 LIMITS_RAD = np.radians([170.0, 120.0, 170.0, 120.0, 170.0, 120.0, 175.0])
-
-
-def dh_pose(q_rad: np.ndarray) -> np.ndarray:
-    """(B, 4, 4) end-effector poses of configurations (B, 7): product of standard DH links."""
-    pose = np.tile(np.eye(4), (len(q_rad), 1, 1))  # (B, 4, 4)
-    for i in range(7):
-        ct, st = np.cos(q_rad[:, i]), np.sin(q_rad[:, i])
-        ca, sa = np.cos(ALPHA_RAD[i]), np.sin(ALPHA_RAD[i])
-        link = np.zeros_like(pose)
-        link[:, 0, :3] = np.stack([ct, -st * ca, st * sa], axis=1)
-        link[:, 1, :3] = np.stack([st, ct * ca, -ct * sa], axis=1)
-        link[:, 2, 1:] = [sa, ca, D_M[i]]
-        link[:, 3, 3] = 1.0
-        pose = pose @ link
-    pose[:, :3, 3] += END_EFFECTOR_OFFSET_M * pose[:, :3, 2]
-    return pose
-
-
-def rotation_angle_rad(r_a: np.ndarray, r_b: np.ndarray) -> np.ndarray:
-    """(B,) angle of r_a r_b^T from its skew part and trace (accurate near zero)."""
-    relative = r_a @ np.swapaxes(r_b, -1, -2)  # (B, 3, 3)
-    skew = relative - np.swapaxes(relative, -1, -2)
-    sin = 0.5 * np.linalg.norm(np.stack([skew[:, 2, 1], skew[:, 0, 2], skew[:, 1, 0]], 1), axis=1)
-    cos = (np.trace(relative, axis1=1, axis2=2) - 1.0) / 2.0
-    return np.arctan2(sin, cos)
-
-
-SHOULDER_M = np.array([0.0, 0.0, D_M[0]])
-UPPER_ARM_M = D_M[2]  # |SE|
-FOREARM_M = D_M[4]  # |EW|
-WRIST_TO_EE_M = D_M[6] + END_EFFECTOR_OFFSET_M
-BRANCHES = [(s, e, w) for s in (1, -1) for e in (1, -1) for w in (1, -1)]
 
 
 def _dh_rotation(q_rad: np.ndarray, alpha_rad: float) -> np.ndarray:
@@ -81,6 +52,27 @@ def _dh_rotation(q_rad: np.ndarray, alpha_rad: float) -> np.ndarray:
         ],
         -2,
     )
+
+
+def dh_pose(q_rad: np.ndarray) -> np.ndarray:
+    """(B, 4, 4) end-effector poses of configurations (B, 7) (or one (7,)): the product of
+    the standard DH links A_i = Rz(q_i) Tz(d_i) Rx(alpha_i), then the flange along z."""
+    q_rad = np.atleast_2d(q_rad)
+    pose = np.tile(np.eye(4), (len(q_rad), 1, 1))  # (B, 4, 4)
+    for i in range(7):
+        link = np.tile(np.eye(4), (len(q_rad), 1, 1))
+        link[:, :3, :3] = _dh_rotation(q_rad[:, i], ALPHA_RAD[i])
+        link[:, 2, 3] = D_M[i]
+        pose = pose @ link
+    pose[:, :3, 3] += END_EFFECTOR_OFFSET_M * pose[:, :3, 2]
+    return pose
+
+
+SHOULDER_M = np.array([0.0, 0.0, D_M[0]])
+UPPER_ARM_M = D_M[2]  # |SE|
+FOREARM_M = D_M[4]  # |EW|
+WRIST_TO_EE_M = D_M[6] + END_EFFECTOR_OFFSET_M
+BRANCHES = [(s, e, w) for s in (1, -1) for e in (1, -1) for w in (1, -1)]
 
 
 def wrist_centre(position_m: np.ndarray, rotation: np.ndarray) -> np.ndarray:
