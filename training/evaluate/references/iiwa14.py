@@ -323,6 +323,36 @@ def position_smm(
     `num_points` nodes are drawn with the sphere's area weight and given q7 uniform in
     its range.
     """
+    grid = _position_grid(position_m, grid_steps)
+    edges = _grid_links(grid, max_jump_rad)
+    points6 = grid.q6[grid.feasible]  # (F, 6)
+    contact, num_nodes = _contact_links(
+        grid.index[grid.feasible], points6, grid.feasible.size, contact_rad, position_m
+    )
+    rows, cols = zip(*edges, *contact, strict=True)
+    graph = coo_matrix(
+        (np.ones(sum(map(len, rows))), (np.concatenate(rows), np.concatenate(cols))),
+        shape=(num_nodes, num_nodes),
+    )
+    _, labels = connected_components(graph, directed=False)
+    nodes = grid.index[grid.feasible]
+    _, component = np.unique(labels[nodes], return_inverse=True)  # renumber 0..C-1
+    return _drawn_fibre(grid, points6, component, num_points, seed)
+
+
+@dataclass(frozen=True)
+class _PositionGrid:
+    """The closed-form IK of a position on the grid (branch, azimuth, polar angle, psi)."""
+
+    polar_rad: np.ndarray  # (P,) polar angles of the end-effector z axis (cell centres)
+    q6: np.ndarray  # (8, A, P, K, 6) q1..q6 at every node, NaN where W is out of reach
+    feasible: np.ndarray  # (8, A, P, K) within the limits of q1..q6 (False on NaN)
+    index: np.ndarray  # (8, A, P, K) node numbers, row-major
+    spacing_rad: float  # grid step of the direction and of psi
+
+
+def _position_grid(position_m: np.ndarray, grid_steps: int) -> _PositionGrid:
+    """Every branch's IK at every (end-effector z axis, arm angle) node of the grid."""
     n_azimuth, n_polar, n_psi = grid_steps, grid_steps // 2, grid_steps
     azimuth = np.linspace(-np.pi, np.pi, n_azimuth, endpoint=False)
     polar = (np.arange(n_polar) + 0.5) * np.pi / n_polar
@@ -347,19 +377,33 @@ def position_smm(
     q6 = q[..., :6].reshape(*shape, 6)
     feasible = np.all(np.abs(q6) <= LIMITS_RAD[:6], axis=-1)  # (8, A, P, K); False on NaN
     index = np.arange(feasible.size).reshape(shape)
-    rows: list[np.ndarray] = []
-    cols: list[np.ndarray] = []
+    return _PositionGrid(polar, q6, feasible, index, float(2 * np.pi / grid_steps))
+
+
+def _grid_links(grid: _PositionGrid, max_jump_rad: float) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(from, to) node pairs of feasible grid neighbours along azimuth, polar angle and psi
+    (same branch) that the IK does not jump between by more than `max_jump_rad`."""
+    edges = []
     for axis, periodic in ((1, True), (2, False), (3, True)):
-        after = np.roll(index, -1, axis=axis)
-        jump = np.linalg.norm(q6 - np.roll(q6, -1, axis=axis), axis=-1)
-        linked = feasible & np.roll(feasible, -1, axis=axis) & (jump <= max_jump_rad)
+        after = np.roll(grid.index, -1, axis=axis)
+        jump = np.linalg.norm(grid.q6 - np.roll(grid.q6, -1, axis=axis), axis=-1)
+        linked = grid.feasible & np.roll(grid.feasible, -1, axis=axis) & (jump <= max_jump_rad)
         if not periodic:  # the last polar row has no successor
             np.moveaxis(linked, axis, 0)[-1] = False
-        rows.append(index[linked])
-        cols.append(after[linked])
-    nodes = index[feasible]
-    points6 = q6[feasible]  # (F, 6)
-    num_nodes = feasible.size
+        edges.append((grid.index[linked], after[linked]))
+    return edges
+
+
+def _contact_links(
+    nodes: np.ndarray,  # (F,) node numbers of the feasible nodes
+    points6: np.ndarray,  # (F, 6) their q1..q6
+    num_nodes: int,
+    contact_rad: float,
+    position_m: np.ndarray,
+) -> tuple[list[tuple[np.ndarray, np.ndarray]], int]:
+    """(from, to) node pairs closer than `contact_rad` in each of `_contact_coordinates`,
+    and the node count with the singular sets' exact points added as extra nodes."""
+    edges = []
     for coordinates, near, on_set in _contact_coordinates(points6, contact_rad, position_m):
         # Nodes within contact_rad of each other, near the set, are one component only
         # where the fibre really reaches the set: each is linked to the exact points of
@@ -367,36 +411,41 @@ def position_smm(
         # the set), never to each other across a gap the fibre does not cross.
         if on_set is None:
             pairs = cKDTree(coordinates).query_pairs(contact_rad, output_type="ndarray")
-            rows.append(nodes[near][pairs[:, 0]])
-            cols.append(nodes[near][pairs[:, 1]])
+            edges.append((nodes[near][pairs[:, 0]], nodes[near][pairs[:, 1]]))
             continue
         set_index = num_nodes + np.arange(len(on_set))
         num_nodes += len(on_set)
         tree = cKDTree(on_set)
         for node, hits in zip(nodes[near], tree.query_ball_point(coordinates, contact_rad),
                               strict=True):  # fmt: skip
-            rows.append(np.full(len(hits), node))
-            cols.append(set_index[np.asarray(hits, dtype=np.int64)])
+            edges.append((np.full(len(hits), node), set_index[np.asarray(hits, dtype=np.int64)]))
         pairs = tree.query_pairs(contact_rad, output_type="ndarray")  # along the set
-        rows.append(set_index[pairs[:, 0]])
-        cols.append(set_index[pairs[:, 1]])
-    edges = np.concatenate(rows), np.concatenate(cols)
-    graph = coo_matrix((np.ones(len(edges[0])), edges), shape=(num_nodes, num_nodes))
-    _, labels = connected_components(graph, directed=False)
-    _, component = np.unique(labels[nodes], return_inverse=True)  # renumber 0..C-1
-    spacing_rad = float(2 * np.pi / grid_steps)
-    if len(nodes) == 0:
-        return PositionSmm(np.zeros((0, 7)), np.zeros(0, int), np.zeros(0), spacing_rad)
-    area = np.broadcast_to(np.sin(polar)[None, None, :, None], shape)[feasible]  # (F,)
+        edges.append((set_index[pairs[:, 0]], set_index[pairs[:, 1]]))
+    return edges, num_nodes
+
+
+def _drawn_fibre(
+    grid: _PositionGrid,
+    points6: np.ndarray,  # (F, 6) q1..q6 of the feasible nodes
+    component: np.ndarray,  # (F,) their components, 0..C-1
+    num_points: int,
+    seed: int,
+) -> PositionSmm:
+    """`num_points` feasible nodes drawn with the sphere's area weight, q7 uniform in its
+    range, and each component's share of the fibre."""
+    if len(points6) == 0:
+        return PositionSmm(np.zeros((0, 7)), np.zeros(0, int), np.zeros(0), grid.spacing_rad)
+    area = np.broadcast_to(np.sin(grid.polar_rad)[None, None, :, None], grid.feasible.shape)
+    area = area[grid.feasible]  # (F,)
     share = np.bincount(component, weights=area) / area.sum()  # of the feasible fibre
     rng = np.random.default_rng(seed)
-    drawn = rng.choice(len(nodes), size=num_points, p=area / area.sum())
+    drawn = rng.choice(len(points6), size=num_points, p=area / area.sum())
     q7 = rng.uniform(-LIMITS_RAD[6], LIMITS_RAD[6], num_points)
     return PositionSmm(
         np.concatenate([points6[drawn], q7[:, None]], axis=1),
         component[drawn],
         share,
-        spacing_rad,
+        grid.spacing_rad,
         points6.astype(np.float32),
         component,
     )
