@@ -109,24 +109,35 @@ def inverse_kinematics(
     `branch` = (shoulder, elbow, wrist) signs, each +1 or -1. Angles are in (-pi, pi];
     the joint limits are not applied. None when the pose is out of reach.
     """
-    shoulder, elbow, wrist = branch
     wrist_m = wrist_centre(position_m[None], rotation[None])[0]
     elbow_m = elbow_positions(wrist_m, psi_rad)
     if elbow_m is None:
         return None
-    z2 = (elbow_m - SHOULDER_M) / UPPER_ARM_M  # (K, 3)
-    q2 = shoulder * np.arccos(np.clip(z2[:, 2], -1.0, 1.0))
-    q1 = np.arctan2(shoulder * z2[:, 1], shoulder * z2[:, 0])
-    r_02 = _dh_rotation(q1, ALPHA_RAD[0]) @ _dh_rotation(q2, ALPHA_RAD[1])  # (K, 3, 3)
-    z4 = np.einsum("kji,kj->ki", r_02, (wrist_m - elbow_m) / FOREARM_M)  # in frame 2
-    q4 = elbow * np.arccos(np.clip(z4[:, 2], -1.0, 1.0))
-    q3 = np.arctan2(-elbow * z4[:, 1], -elbow * z4[:, 0])
+    return _joint_angles(elbow_m, wrist_m, rotation, branch)
+
+
+def _joint_angles(
+    elbow_m: np.ndarray,  # (..., 3) the elbow E on its circle
+    wrist_m: np.ndarray,  # (..., 3) the wrist centre W
+    rotation: np.ndarray,  # (..., 3, 3) the end effector's rotation R
+    branch: tuple[int, int, int],
+) -> np.ndarray:
+    """(..., 7) the S-R-S closed form (see the module): q1, q2 from S->E, q3, q4 from E->W
+    in frame 2, q5..q7 from R_47 = R_04^T R; each pair's sign from `branch`."""
+    shoulder, elbow, wrist = branch
+    z2 = (elbow_m - SHOULDER_M) / UPPER_ARM_M  # (..., 3)
+    q2 = shoulder * np.arccos(np.clip(z2[..., 2], -1.0, 1.0))
+    q1 = np.arctan2(shoulder * z2[..., 1], shoulder * z2[..., 0])
+    r_02 = _dh_rotation(q1, ALPHA_RAD[0]) @ _dh_rotation(q2, ALPHA_RAD[1])  # (..., 3, 3)
+    z4 = np.einsum("...ji,...j->...i", r_02, (wrist_m - elbow_m) / FOREARM_M)  # in frame 2
+    q4 = elbow * np.arccos(np.clip(z4[..., 2], -1.0, 1.0))
+    q3 = np.arctan2(-elbow * z4[..., 1], -elbow * z4[..., 0])
     r_04 = r_02 @ _dh_rotation(q3, ALPHA_RAD[2]) @ _dh_rotation(q4, ALPHA_RAD[3])
-    r_47 = np.swapaxes(r_04, 1, 2) @ rotation  # (K, 3, 3)
-    q6 = wrist * np.arccos(np.clip(r_47[:, 2, 2], -1.0, 1.0))
-    q5 = np.arctan2(wrist * r_47[:, 1, 2], wrist * r_47[:, 0, 2])
-    q7 = np.arctan2(wrist * r_47[:, 2, 1], -wrist * r_47[:, 2, 0])
-    return np.stack([q1, q2, q3, q4, q5, q6, q7], axis=1)
+    r_47 = np.swapaxes(r_04, -1, -2) @ rotation  # (..., 3, 3)
+    q6 = wrist * np.arccos(np.clip(r_47[..., 2, 2], -1.0, 1.0))
+    q5 = np.arctan2(wrist * r_47[..., 1, 2], wrist * r_47[..., 0, 2])
+    q7 = np.arctan2(wrist * r_47[..., 2, 1], -wrist * r_47[..., 2, 0])
+    return np.stack([q1, q2, q3, q4, q5, q6, q7], axis=-1)
 
 
 @dataclass(frozen=True)
@@ -581,8 +592,7 @@ def _inverse_kinematics_grid(
     `reference` basis projected onto each circle's plane, so neighbouring rotations get
     neighbouring elbows.
     """
-    shoulder, elbow, wrist = branch
-    wrist_m = position_m - WRIST_TO_EE_M * rotation[:, :, 2]  # (D, 3)
+    wrist_m = wrist_centre(position_m, rotation)  # (D, 3)
     shoulder_to_wrist = wrist_m - SHOULDER_M
     distance = np.linalg.norm(shoulder_to_wrist, axis=1, keepdims=True)  # (D, 1)
     reachable = (abs(UPPER_ARM_M - FOREARM_M) < distance) & (distance < UPPER_ARM_M + FOREARM_M)
@@ -594,17 +604,5 @@ def _inverse_kinematics_grid(
     psi = np.atleast_2d(psi_rad)  # (1, K) or (D, K)
     circle = np.cos(psi)[..., None] * u[:, None] + np.sin(psi)[..., None] * v[:, None]
     elbow_m = SHOULDER_M + (along * axis)[:, None] + radius[:, :, None] * circle  # (D, K, 3)
-    z2 = (elbow_m - SHOULDER_M) / UPPER_ARM_M
-    q2 = shoulder * np.arccos(np.clip(z2[..., 2], -1.0, 1.0))
-    q1 = np.arctan2(shoulder * z2[..., 1], shoulder * z2[..., 0])
-    r_02 = _dh_rotation(q1, ALPHA_RAD[0]) @ _dh_rotation(q2, ALPHA_RAD[1])  # (D, K, 3, 3)
-    z4 = np.einsum("dkji,dkj->dki", r_02, (wrist_m[:, None] - elbow_m) / FOREARM_M)
-    q4 = elbow * np.arccos(np.clip(z4[..., 2], -1.0, 1.0))
-    q3 = np.arctan2(-elbow * z4[..., 1], -elbow * z4[..., 0])
-    r_04 = r_02 @ _dh_rotation(q3, ALPHA_RAD[2]) @ _dh_rotation(q4, ALPHA_RAD[3])
-    r_47 = np.swapaxes(r_04, -1, -2) @ rotation[:, None]  # (D, K, 3, 3)
-    q6 = wrist * np.arccos(np.clip(r_47[..., 2, 2], -1.0, 1.0))
-    q5 = np.arctan2(wrist * r_47[..., 1, 2], wrist * r_47[..., 0, 2])
-    q7 = np.arctan2(wrist * r_47[..., 2, 1], -wrist * r_47[..., 2, 0])
-    q = np.stack([q1, q2, q3, q4, q5, q6, q7], axis=-1)
+    q = _joint_angles(elbow_m, wrist_m[:, None], rotation[:, None], branch)  # (D, K, 7)
     return np.where(reachable[:, :, None], q, np.nan)
