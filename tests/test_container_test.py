@@ -7,9 +7,11 @@ joint limits, with a wrong count or another status fails. The image scan finds t
 a compiler and a download cache planted in a fake root, and nothing in a clean one; the
 baked models are compared file by file; hard links count once in the root's size. Log
 lines that are not JSON are skipped; the deployment's env and memory limit are read from
-deploy/base/deployment.yaml; a child process is found below its parent. The report
-is written only when every check passed, with the keys of the committed
-docs/container.json (tools/docs reads it), and its exit status says which.
+deploy/base/deployment.yaml; a child process is found below its parent. Against a real
+server on 127.0.0.1 with the settings the container gets, every HTTP check passes, each
+request is logged once, and SIGTERM ends it with its "shut down" line. The report is
+written only when every check passed, with the keys of the committed docs/container.json
+(tools/docs reads it), and its exit status says which.
 """
 
 from __future__ import annotations
@@ -28,12 +30,15 @@ from fastapi.testclient import TestClient
 
 from tools.container_test import FIGURES, ROOT
 from tools.container_test.__main__ import parse_arguments
+from tools.container_test.http_checks import API_KEY, MAX_NUM_SAMPLES, run_http_checks
 from tools.container_test.image import baked_model_differences, scan_image, tree_bytes
 from tools.container_test.outcomes import Checks
 from tools.container_test.read_only import deployment_env, deployment_memory_limit_bytes
 from tools.container_test.report import finish
 from tools.container_test.server import descendants, json_lines
+from tools.container_test.server_checks import check_access_log, check_graceful_stop
 from tools.container_test.targets import NEAREST_BOUND_RAD, TARGETS, bundled_models, check_answer
+from tools.local_server import LocalServer
 
 
 def one_configuration_answer(q: np.ndarray, accepted: int = 1) -> dict[str, Any]:
@@ -175,3 +180,22 @@ def test_the_figures_go_to_docs_container_json_unless_told() -> None:
     assert parse_arguments([]).figures == ROOT / "docs" / "container.json"
     assert parse_arguments(["--figures", "/tmp/x.json"]).figures == Path("/tmp/x.json")
     assert parse_arguments([]).base == "auto"
+
+
+def test_the_http_checks_pass_against_a_real_server_with_the_containers_settings() -> None:
+    checks = Checks()
+    figures: dict[str, Any] = {}
+    with LocalServer(api_key=API_KEY, max_num_samples=MAX_NUM_SAMPLES) as server:
+        request_ids = run_http_checks(server.url, {"X-API-Key": API_KEY}, checks, figures)
+        log_path = Path(server._log.name)
+        check_access_log(log_path, request_ids, checks)
+        assert server.process is not None
+        with log_path.open() as log:
+            check_graceful_stop("SIGTERM", server.pid, server.process, log, log_path, checks)
+    assert checks.failed == [], checks.results
+    assert [name for name, _, _ in checks.results][-2:] == [
+        "one JSON access-log line per request, none from uvicorn",
+        "SIGTERM",
+    ]
+    assert len(request_ids) == len(set(request_ids)) == 2 + len(bundled_models()) + 2
+    assert sorted(figures["first_request_ms"]) == bundled_models()

@@ -114,7 +114,7 @@ def check_graceful_stop(
     name: str,
     pid: int,
     server: subprocess.Popen[bytes],  # `buildah run`
-    log: IO[str],
+    log: IO[Any],  # the log file the server writes
     log_path: Path,
     checks: Checks,
 ) -> None:
