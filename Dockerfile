@@ -4,7 +4,8 @@
 # Nothing is written at run time (the bytecode is compiled at build; the service writes
 # no file), so it runs on a read-only root file system with no writable volume, as the
 # Kubernetes pod of deploy/ does.
-# tools/container_test.py builds and runs this file (.ci/run runs it).
+# tools/container_test (python -m tools.container_test) builds and runs this file (.ci/run
+# runs it).
 
 # Build stage: the service and its run-time dependencies, at the versions of
 # constraints.txt (the README's install uses the same file), into a venv; then pip and

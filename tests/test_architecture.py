@@ -4,12 +4,14 @@ service/ is layered, outermost first: the Python client (client/), the edge (mai
 healthcheck, http/, api/), observability/, models/, pipeline/, the contract (errors,
 manifest, wire). A module imports its own layer or the layers inside it, never one
 outside; the client imports nothing of service/ but the contract; service/ never imports
-training/; training/ uses the service's contract, pipeline and models, never its edge. Every
-import counts, also one inside a function. The connect stage (service/pipeline/connect/) is a
-package with a chosen public API: code outside it imports only the names of its `__all__`,
-never its modules (its own tests, under tests/service/pipeline/connect/, test the modules).
-The checks run over the real tree; each checker is tried on a synthetic tree first, so a
-test that cannot fail is caught.
+training/; training/ uses the service's contract, pipeline and models, never its edge;
+tools/ never imports tests/ (the container test checks answers with the references in
+training/evaluate/references/, not with test code). Every import counts, also one inside
+a function. The connect stage (service/pipeline/connect/) is a package with a chosen
+public API: code outside it imports only the names of its `__all__`, never its modules
+(its own tests, under tests/service/pipeline/connect/, test the modules). The checks run
+over the real tree; each checker is tried on a synthetic tree first, so a test that
+cannot fail is caught.
 """
 
 from __future__ import annotations
@@ -125,6 +127,16 @@ def direction_violations(graph: dict[str, set[str]]) -> list[str]:
     return violations
 
 
+def imports_from(graph: dict[str, set[str]], package: str) -> list[str]:
+    """Every import of `package` or a module in it, as readable lines."""
+    return [
+        f"{module} imports {imported}"
+        for module, imports in sorted(graph.items())
+        for imported in sorted(imports)
+        if imported == package or imported.startswith(package + ".")
+    ]
+
+
 def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
     """Strongly connected groups of more than one module (Tarjan), each sorted."""
     index: dict[str, int] = {}
@@ -187,6 +199,9 @@ def test_the_checker_catches_an_outward_import_a_training_import_and_a_cycle(
             "training/__init__.py": "",
             "training/cli.py": "from service.api import smm\nfrom training import train\n",
             "training/train.py": "def main():\n    from training.cli import go\n",
+            "tools/__init__.py": "",
+            "tools/check.py": "def main():\n    from tests.support import oracle\n",
+            "tools/fine.py": "from training import train\nimport testsuite\n",
         },
     )
     graph = import_graph(tmp_path, ["service", "training"])
@@ -202,6 +217,11 @@ def test_the_checker_catches_an_outward_import_a_training_import_and_a_cycle(
     assert not any("service.errors" in v for v in violations)  # edge -> contract is fine
     assert ["service.models.registry", "service.pipeline.run"] in cycles(graph)
     assert ["training.cli", "training.train"] in cycles(graph)
+    tools = import_graph(tmp_path, ["tools"])
+    assert imports_from(tools, "tests") == [
+        "tools.check imports tests.support",
+        "tools.check imports tests.support.oracle",
+    ]
 
 
 @pytest.fixture(scope="module")
@@ -304,3 +324,9 @@ def test_code_outside_connect_imports_only_its_public_api() -> None:
     public = public_names(ROOT / "service/pipeline/connect/__init__.py")
     packages = ["service", "training", "tools", "tests"]
     assert private_imports(ROOT, packages, CONNECT, public) == []
+
+
+def test_tools_import_nothing_from_tests() -> None:
+    tools = import_graph(ROOT, ["tools"])
+    assert "tools.container_test.targets" in tools
+    assert imports_from(tools, "tests") == []

@@ -1,6 +1,6 @@
 """Dockerfile and .dockerignore, statically: lint, the deployable shape, the build context.
 
-tools/container_test.py (run by .ci/run) builds the image and runs it; these checks are
+tools/container_test (run by .ci/run) builds the image and runs it; these checks are
 the fast half: hadolint-clean at warning level; the final stage runs `smm-serve` as a
 non-root user with a HEALTHCHECK that follows SMM_PORT and the models baked in; the build
 installs the pinned versions of constraints.txt; the build context is exactly what the

@@ -14,7 +14,7 @@ ruff is missing or part of the document cannot be expressed) against the server'
   pose target parses into the generated models with no field the document leaves out,
   every accepted sample in exactly one component, and every returned configuration and
   path point reaches the target by the independent DH forward kinematics of
-  tests/support/iiwa14_dh.py (1e-6 m, 1e-6 rad) within the limits `list_robots` gives;
+  training/evaluate/references/iiwa14.py (1e-6 m, 1e-6 rad) within the limits `list_robots` gives;
   `smm_batch`, the probes and a 422 parse into their models;
 - the page's Python examples (the generated client's, and service.client's) run as
   written against the server, and print lines of the shape of the page's real output
@@ -37,8 +37,9 @@ import httpx
 import numpy as np
 import pytest
 
-from tests.support.iiwa14_dh import iiwa14_pose, rotation_angle_rad
 from tools.local_server import LocalServer
+from training.evaluate.references.iiwa14 import dh_pose as iiwa14_pose
+from training.evaluate.references.rotations import rotation_angle_rad
 
 ROOT = Path(__file__).resolve().parents[2]
 PAGE = ROOT / "docs" / "client.md"

@@ -7,7 +7,8 @@ the chosen component is the one nearest to q; the chosen configuration has the l
 joint-limit margin over that component's configurations and path points (the smallest
 margin first, ties to 1e-6 rad broken by the next: on this pose q4 is constant on the
 component), and the margins and limiting joint are what the example says; it reaches
-the target by the independent DH forward kinematics of tests/support/iiwa14_dh.py
+the target by the independent DH forward kinematics of
+training/evaluate/references/iiwa14.py
 (1e-6 m, 1e-6 rad) and lies inside the limits; the walk starts at the path point
 nearest to the component's member nearest to q, ends at the chosen configuration, and its
 length is the sum of its steps, no shorter than the straight line between its ends and no
@@ -27,8 +28,9 @@ import httpx
 import numpy as np
 import pytest
 
-from tests.support.iiwa14_dh import iiwa14_pose, rotation_angle_rad
 from tools.local_server import LocalServer
+from training.evaluate.references.iiwa14 import dh_pose as iiwa14_pose
+from training.evaluate.references.rotations import rotation_angle_rad
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -6,8 +6,8 @@ unnormalised oblique axis), a fixed tool, and a gripper branch off the last link
 prismatic finger and a revolute finger that mimics it). `arm_pose` multiplies the URDF's
 transforms out from the same numbers the URDF is written from (origin: translation,
 then Rz(yaw) Ry(pitch) Rx(roll); motion: Rodrigues about the unit axis), with neither
-pytorch-kinematics nor training/ (the origin and Rodrigues helpers of
-tests/support/urdf_chain.py).
+pytorch-kinematics nor the training code under test (the origin and Rodrigues helpers of
+training/evaluate/references/).
 """
 
 from __future__ import annotations
@@ -16,7 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from tests.support.urdf_chain import origin_matrix, rodrigues
+from training.evaluate.references.rotations import rodrigues
+from training.evaluate.references.urdf_chain import origin_matrix
 
 # (name, type, parent, child, xyz, rpy, axis, limits): the arm the URDF is written from.
 JOINTS: list[tuple[str, str, str, str, tuple, tuple, tuple | None, tuple | None]] = [

@@ -2,8 +2,8 @@
 (models/robots/iiwa14.urdf) as read by `load_chain` equals the paper's DH table.
 
 The planar 3R's continuous joints are periodic with limits pi. For the iiwa14, FK is checked
-against the tests' own DH evaluation (tests/support/iiwa14_dh.py) in float64, the
-geometric Jacobian against central finite differences of that DH FK, and the joint
+against the DH evaluation of the references (training/evaluate/references/iiwa14.py)
+in float64, the geometric Jacobian against central finite differences of that DH FK, and the joint
 limits against the paper's degrees. Raw pytorch-kinematics (float32 origins) is ~1e-8 m
 off; `load_chain` must be exact. `chain_spec` (chain.json) refuses a prismatic joint.
 The measured reach equals the closed forms: 3 m for the planar 3R (three unit links
@@ -21,7 +21,8 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from service.manifest import REPO_MODELS_DIR
-from tests.support.iiwa14_dh import LIMITS_RAD, iiwa14_pose
+from training.evaluate.references.iiwa14 import LIMITS_RAD
+from training.evaluate.references.iiwa14 import dh_pose as iiwa14_pose
 from training.kinematics import (
     ForwardKinematics,
     chain_spec,

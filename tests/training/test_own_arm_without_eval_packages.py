@@ -9,7 +9,7 @@ without them would). The budget is tiny and no flag sets the work after training
 the command scales it down itself and prints its plan first: the sweep on its floor of
 targets, the reflow off, the judge not run. The model is then served by the real app in process, and
 every configuration it returns reaches the target pose by the test's own float64 FK of
-the URDF (tests/support/urdf_chain.py), within the joint limits.
+the URDF (training/evaluate/references/urdf_chain.py), within the joint limits.
 
 Where the packages are needed, their absence raises MissingEvaluationPackage, whose
 message names the one command that installs them (the command tools/lock.py pins).
@@ -26,11 +26,11 @@ from scipy.spatial.transform import Rotation
 from service.manifest import Manifest
 from tests.support.app import make_client
 from tests.support.not_installed import RUN_SMM_TRAIN, refuse_evaluation_packages
-from tests.support.urdf_chain import read_chain
 from tools import lock
 from training.evaluate.baselines import fourier
 from training.evaluate.packages import MissingEvaluationPackage, no_deps_command
 from training.evaluate.references import panda
+from training.evaluate.references.urdf_chain import read_chain
 
 ROOT = Path(__file__).resolve().parents[2]
 

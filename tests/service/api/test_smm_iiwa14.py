@@ -1,10 +1,10 @@
 """POST /smm for the iiwa14 pose (r=1) and position (r=4) models, over HTTP.
 
-Every returned configuration is re-checked with the tests' own DH forward kinematics
-(tests/support/iiwa14_dh.py): it must reach the target within the tolerance and lie within
-the paper's joint limits, and every sample must be accounted for. Shape errors name the
-field; an unreachable target is `no_solution`; components are ordered by their distance
-to a reference configuration, each reporting its nearest member.
+Every returned configuration is re-checked with the references' DH forward kinematics
+(training/evaluate/references/iiwa14.py): it must reach the target within the tolerance
+and lie within the paper's joint limits, and every sample must be accounted for. Shape
+errors name the field; an unreachable target is `no_solution`; components are ordered by
+their distance to a reference configuration, each reporting its nearest member.
 """
 
 from __future__ import annotations
@@ -17,7 +17,9 @@ from fastapi.testclient import TestClient
 from scipy.spatial.transform import Rotation
 
 from tests.support.bundled import default_num_samples
-from tests.support.iiwa14_dh import LIMITS_RAD, iiwa14_pose, rotation_angle_rad
+from training.evaluate.references.iiwa14 import LIMITS_RAD
+from training.evaluate.references.iiwa14 import dh_pose as iiwa14_pose
+from training.evaluate.references.rotations import rotation_angle_rad
 
 TASKS = ("pose", "position")
 

@@ -1,9 +1,10 @@
 """POST /smm for the Franka Panda pose model (r = 1), over HTTP, against exact truth.
 
 The Panda is served from its robot file and URDF alone (models/robots/panda.*). Every
-returned configuration, samples and path points, is re-checked by the tests' own float64
-URDF chain (tests/support/urdf_chain.py, not pytorch-kinematics): it reaches the target
-within the tolerance and lies inside the Panda's own limits (q4 and q6 not symmetric).
+returned configuration, samples and path points, is re-checked by the references' float64
+URDF chain (training/evaluate/references/urdf_chain.py, not pytorch-kinematics): it
+reaches the target within the tolerance and lies inside the Panda's own limits (q4 and q6
+not symmetric).
 Against the exact SMM (eaik's 6R IK over a q7 sweep, training/evaluate/references/panda.py)
 every component of 0.5 rad or more holds a returned configuration within 0.05 rad.
 """
@@ -17,8 +18,8 @@ from fastapi.testclient import TestClient
 from scipy.spatial.transform import Rotation
 
 from service.manifest import REPO_MODELS_DIR
-from tests.support.urdf_chain import read_chain
 from training.evaluate.references.panda import pose_smm
+from training.evaluate.references.urdf_chain import read_chain
 
 CHAIN = read_chain(REPO_MODELS_DIR / "robots" / "panda.urdf", "panda_hand_tcp", "panda_link0")
 TOLERANCE = 1e-6

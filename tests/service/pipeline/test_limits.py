@@ -15,7 +15,7 @@ from service.pipeline.limits import pull_into_limits
 from service.pipeline.run import correct_samples, encode, run, sample, space_of
 from service.pipeline.types import Correction, Query, Tolerance
 from tests.service.pipeline.fibre_support import fibre_space, pose_fibre
-from tests.support.iiwa14_dh import iiwa14_pose
+from training.evaluate.references.iiwa14 import dh_pose as iiwa14_pose
 
 TOLERANCE_M = 1e-6
 TOLERANCE = Tolerance(position_m=TOLERANCE_M, orientation_rad=TOLERANCE_M)

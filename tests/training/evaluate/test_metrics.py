@@ -32,7 +32,6 @@ from service.pipeline.types import (
     SmmResult,
     StageTimings,
 )
-from tests.support.iiwa14_dh import LIMITS_RAD, iiwa14_pose
 from training.evaluate.methods import MethodTarget
 from training.evaluate.metrics import (
     Agreement,
@@ -50,8 +49,10 @@ from training.evaluate.metrics import (
     wrong_count_targets,
 )
 from training.evaluate.references.iiwa14 import (
+    LIMITS_RAD,
     pose_smm,
 )
+from training.evaluate.references.iiwa14 import dh_pose as iiwa14_pose
 from training.evaluate.truth import SHARE_BUCKETS, Truth
 
 

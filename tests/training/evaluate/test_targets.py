@@ -10,8 +10,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel
-from tests.support.iiwa14_dh import LIMITS_RAD, iiwa14_pose
+from training.evaluate.references.urdf_chain import read_chain
 from training.evaluate.targets import (
     dh_targets,
     distance_from_base_m,
@@ -46,8 +47,9 @@ def test_held_out_targets_are_the_models_fk_of_the_drawn_configurations(
 def test_dh_targets_are_the_independent_dh_fk_within_the_iiwa_limits() -> None:
     targets = dh_targets(6, seed=3)
     assert targets.q_rad.shape == (6, 7) and targets.pose.shape == (6, 4, 4)
-    assert (np.abs(targets.q_rad) <= LIMITS_RAD).all()
-    np.testing.assert_allclose(targets.pose, iiwa14_pose(targets.q_rad), atol=1e-12)
+    urdf = read_chain(REPO_MODELS_DIR / "robots" / "iiwa14.urdf", "ee")  # float64, not DH
+    assert ((targets.q_rad >= urdf.lower) & (targets.q_rad <= urdf.upper)).all()
+    np.testing.assert_allclose(targets.pose, urdf.pose(targets.q_rad), atol=1e-12)
 
 
 def test_planar_targets_by_distance_cover_both_regimes() -> None:

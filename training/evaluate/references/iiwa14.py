@@ -29,43 +29,14 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+# training/evaluate/iiwa14.py takes the rotation angle from here, with the DH FK.
+from training.evaluate.references.rotations import rotation_angle_rad as rotation_angle_rad
+
 D_M = np.array([0.360, 0.0, 0.420, 0.0, 0.400, 0.0, 0.081])  # seed Table 1; a = 0
 ALPHA_RAD = np.radians([-90.0, 90.0, 90.0, -90.0, -90.0, 90.0, 0.0])
 END_EFFECTOR_OFFSET_M = 0.045  # along the link-7 z axis (the flange)
 TWO_PI = 2.0 * np.pi
 LIMITS_RAD = np.radians([170.0, 120.0, 170.0, 120.0, 170.0, 120.0, 175.0])
-
-
-def dh_pose(q_rad: np.ndarray) -> np.ndarray:
-    """(B, 4, 4) end-effector poses of configurations (B, 7): product of standard DH links."""
-    pose = np.tile(np.eye(4), (len(q_rad), 1, 1))  # (B, 4, 4)
-    for i in range(7):
-        ct, st = np.cos(q_rad[:, i]), np.sin(q_rad[:, i])
-        ca, sa = np.cos(ALPHA_RAD[i]), np.sin(ALPHA_RAD[i])
-        link = np.zeros_like(pose)
-        link[:, 0, :3] = np.stack([ct, -st * ca, st * sa], axis=1)
-        link[:, 1, :3] = np.stack([st, ct * ca, -ct * sa], axis=1)
-        link[:, 2, 1:] = [sa, ca, D_M[i]]
-        link[:, 3, 3] = 1.0
-        pose = pose @ link
-    pose[:, :3, 3] += END_EFFECTOR_OFFSET_M * pose[:, :3, 2]
-    return pose
-
-
-def rotation_angle_rad(r_a: np.ndarray, r_b: np.ndarray) -> np.ndarray:
-    """(B,) angle of r_a r_b^T from its skew part and trace (accurate near zero)."""
-    relative = r_a @ np.swapaxes(r_b, -1, -2)  # (B, 3, 3)
-    skew = relative - np.swapaxes(relative, -1, -2)
-    sin = 0.5 * np.linalg.norm(np.stack([skew[:, 2, 1], skew[:, 0, 2], skew[:, 1, 0]], 1), axis=1)
-    cos = (np.trace(relative, axis1=1, axis2=2) - 1.0) / 2.0
-    return np.arctan2(sin, cos)
-
-
-SHOULDER_M = np.array([0.0, 0.0, D_M[0]])
-UPPER_ARM_M = D_M[2]  # |SE|
-FOREARM_M = D_M[4]  # |EW|
-WRIST_TO_EE_M = D_M[6] + END_EFFECTOR_OFFSET_M
-BRANCHES = [(s, e, w) for s in (1, -1) for e in (1, -1) for w in (1, -1)]
 
 
 def _dh_rotation(q_rad: np.ndarray, alpha_rad: float) -> np.ndarray:
@@ -81,6 +52,27 @@ def _dh_rotation(q_rad: np.ndarray, alpha_rad: float) -> np.ndarray:
         ],
         -2,
     )
+
+
+def dh_pose(q_rad: np.ndarray) -> np.ndarray:
+    """(B, 4, 4) end-effector poses of configurations (B, 7) (or one (7,)): the product of
+    the standard DH links A_i = Rz(q_i) Tz(d_i) Rx(alpha_i), then the flange along z."""
+    q_rad = np.atleast_2d(q_rad)
+    pose = np.tile(np.eye(4), (len(q_rad), 1, 1))  # (B, 4, 4)
+    for i in range(7):
+        link = np.tile(np.eye(4), (len(q_rad), 1, 1))
+        link[:, :3, :3] = _dh_rotation(q_rad[:, i], ALPHA_RAD[i])
+        link[:, 2, 3] = D_M[i]
+        pose = pose @ link
+    pose[:, :3, 3] += END_EFFECTOR_OFFSET_M * pose[:, :3, 2]
+    return pose
+
+
+SHOULDER_M = np.array([0.0, 0.0, D_M[0]])
+UPPER_ARM_M = D_M[2]  # |SE|
+FOREARM_M = D_M[4]  # |EW|
+WRIST_TO_EE_M = D_M[6] + END_EFFECTOR_OFFSET_M
+BRANCHES = [(s, e, w) for s in (1, -1) for e in (1, -1) for w in (1, -1)]
 
 
 def wrist_centre(position_m: np.ndarray, rotation: np.ndarray) -> np.ndarray:
@@ -117,24 +109,35 @@ def inverse_kinematics(
     `branch` = (shoulder, elbow, wrist) signs, each +1 or -1. Angles are in (-pi, pi];
     the joint limits are not applied. None when the pose is out of reach.
     """
-    shoulder, elbow, wrist = branch
     wrist_m = wrist_centre(position_m[None], rotation[None])[0]
     elbow_m = elbow_positions(wrist_m, psi_rad)
     if elbow_m is None:
         return None
-    z2 = (elbow_m - SHOULDER_M) / UPPER_ARM_M  # (K, 3)
-    q2 = shoulder * np.arccos(np.clip(z2[:, 2], -1.0, 1.0))
-    q1 = np.arctan2(shoulder * z2[:, 1], shoulder * z2[:, 0])
-    r_02 = _dh_rotation(q1, ALPHA_RAD[0]) @ _dh_rotation(q2, ALPHA_RAD[1])  # (K, 3, 3)
-    z4 = np.einsum("kji,kj->ki", r_02, (wrist_m - elbow_m) / FOREARM_M)  # in frame 2
-    q4 = elbow * np.arccos(np.clip(z4[:, 2], -1.0, 1.0))
-    q3 = np.arctan2(-elbow * z4[:, 1], -elbow * z4[:, 0])
+    return _joint_angles(elbow_m, wrist_m, rotation, branch)
+
+
+def _joint_angles(
+    elbow_m: np.ndarray,  # (..., 3) the elbow E on its circle
+    wrist_m: np.ndarray,  # (..., 3) the wrist centre W
+    rotation: np.ndarray,  # (..., 3, 3) the end effector's rotation R
+    branch: tuple[int, int, int],
+) -> np.ndarray:
+    """(..., 7) the S-R-S closed form (see the module): q1, q2 from S->E, q3, q4 from E->W
+    in frame 2, q5..q7 from R_47 = R_04^T R; each pair's sign from `branch`."""
+    shoulder, elbow, wrist = branch
+    z2 = (elbow_m - SHOULDER_M) / UPPER_ARM_M  # (..., 3)
+    q2 = shoulder * np.arccos(np.clip(z2[..., 2], -1.0, 1.0))
+    q1 = np.arctan2(shoulder * z2[..., 1], shoulder * z2[..., 0])
+    r_02 = _dh_rotation(q1, ALPHA_RAD[0]) @ _dh_rotation(q2, ALPHA_RAD[1])  # (..., 3, 3)
+    z4 = np.einsum("...ji,...j->...i", r_02, (wrist_m - elbow_m) / FOREARM_M)  # in frame 2
+    q4 = elbow * np.arccos(np.clip(z4[..., 2], -1.0, 1.0))
+    q3 = np.arctan2(-elbow * z4[..., 1], -elbow * z4[..., 0])
     r_04 = r_02 @ _dh_rotation(q3, ALPHA_RAD[2]) @ _dh_rotation(q4, ALPHA_RAD[3])
-    r_47 = np.swapaxes(r_04, 1, 2) @ rotation  # (K, 3, 3)
-    q6 = wrist * np.arccos(np.clip(r_47[:, 2, 2], -1.0, 1.0))
-    q5 = np.arctan2(wrist * r_47[:, 1, 2], wrist * r_47[:, 0, 2])
-    q7 = np.arctan2(wrist * r_47[:, 2, 1], -wrist * r_47[:, 2, 0])
-    return np.stack([q1, q2, q3, q4, q5, q6, q7], axis=1)
+    r_47 = np.swapaxes(r_04, -1, -2) @ rotation  # (..., 3, 3)
+    q6 = wrist * np.arccos(np.clip(r_47[..., 2, 2], -1.0, 1.0))
+    q5 = np.arctan2(wrist * r_47[..., 1, 2], wrist * r_47[..., 0, 2])
+    q7 = np.arctan2(wrist * r_47[..., 2, 1], -wrist * r_47[..., 2, 0])
+    return np.stack([q1, q2, q3, q4, q5, q6, q7], axis=-1)
 
 
 @dataclass(frozen=True)
@@ -331,6 +334,36 @@ def position_smm(
     `num_points` nodes are drawn with the sphere's area weight and given q7 uniform in
     its range.
     """
+    grid = _position_grid(position_m, grid_steps)
+    edges = _grid_links(grid, max_jump_rad)
+    points6 = grid.q6[grid.feasible]  # (F, 6)
+    contact, num_nodes = _contact_links(
+        grid.index[grid.feasible], points6, grid.feasible.size, contact_rad, position_m
+    )
+    rows, cols = zip(*edges, *contact, strict=True)
+    graph = coo_matrix(
+        (np.ones(sum(map(len, rows))), (np.concatenate(rows), np.concatenate(cols))),
+        shape=(num_nodes, num_nodes),
+    )
+    _, labels = connected_components(graph, directed=False)
+    nodes = grid.index[grid.feasible]
+    _, component = np.unique(labels[nodes], return_inverse=True)  # renumber 0..C-1
+    return _drawn_fibre(grid, points6, component, num_points, seed)
+
+
+@dataclass(frozen=True)
+class _PositionGrid:
+    """The closed-form IK of a position on the grid (branch, azimuth, polar angle, psi)."""
+
+    polar_rad: np.ndarray  # (P,) polar angles of the end-effector z axis (cell centres)
+    q6: np.ndarray  # (8, A, P, K, 6) q1..q6 at every node, NaN where W is out of reach
+    feasible: np.ndarray  # (8, A, P, K) within the limits of q1..q6 (False on NaN)
+    index: np.ndarray  # (8, A, P, K) node numbers, row-major
+    spacing_rad: float  # grid step of the direction and of psi
+
+
+def _position_grid(position_m: np.ndarray, grid_steps: int) -> _PositionGrid:
+    """Every branch's IK at every (end-effector z axis, arm angle) node of the grid."""
     n_azimuth, n_polar, n_psi = grid_steps, grid_steps // 2, grid_steps
     azimuth = np.linspace(-np.pi, np.pi, n_azimuth, endpoint=False)
     polar = (np.arange(n_polar) + 0.5) * np.pi / n_polar
@@ -355,19 +388,33 @@ def position_smm(
     q6 = q[..., :6].reshape(*shape, 6)
     feasible = np.all(np.abs(q6) <= LIMITS_RAD[:6], axis=-1)  # (8, A, P, K); False on NaN
     index = np.arange(feasible.size).reshape(shape)
-    rows: list[np.ndarray] = []
-    cols: list[np.ndarray] = []
+    return _PositionGrid(polar, q6, feasible, index, float(2 * np.pi / grid_steps))
+
+
+def _grid_links(grid: _PositionGrid, max_jump_rad: float) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(from, to) node pairs of feasible grid neighbours along azimuth, polar angle and psi
+    (same branch) that the IK does not jump between by more than `max_jump_rad`."""
+    edges = []
     for axis, periodic in ((1, True), (2, False), (3, True)):
-        after = np.roll(index, -1, axis=axis)
-        jump = np.linalg.norm(q6 - np.roll(q6, -1, axis=axis), axis=-1)
-        linked = feasible & np.roll(feasible, -1, axis=axis) & (jump <= max_jump_rad)
+        after = np.roll(grid.index, -1, axis=axis)
+        jump = np.linalg.norm(grid.q6 - np.roll(grid.q6, -1, axis=axis), axis=-1)
+        linked = grid.feasible & np.roll(grid.feasible, -1, axis=axis) & (jump <= max_jump_rad)
         if not periodic:  # the last polar row has no successor
             np.moveaxis(linked, axis, 0)[-1] = False
-        rows.append(index[linked])
-        cols.append(after[linked])
-    nodes = index[feasible]
-    points6 = q6[feasible]  # (F, 6)
-    num_nodes = feasible.size
+        edges.append((grid.index[linked], after[linked]))
+    return edges
+
+
+def _contact_links(
+    nodes: np.ndarray,  # (F,) node numbers of the feasible nodes
+    points6: np.ndarray,  # (F, 6) their q1..q6
+    num_nodes: int,
+    contact_rad: float,
+    position_m: np.ndarray,
+) -> tuple[list[tuple[np.ndarray, np.ndarray]], int]:
+    """(from, to) node pairs closer than `contact_rad` in each of `_contact_coordinates`,
+    and the node count with the singular sets' exact points added as extra nodes."""
+    edges = []
     for coordinates, near, on_set in _contact_coordinates(points6, contact_rad, position_m):
         # Nodes within contact_rad of each other, near the set, are one component only
         # where the fibre really reaches the set: each is linked to the exact points of
@@ -375,36 +422,41 @@ def position_smm(
         # the set), never to each other across a gap the fibre does not cross.
         if on_set is None:
             pairs = cKDTree(coordinates).query_pairs(contact_rad, output_type="ndarray")
-            rows.append(nodes[near][pairs[:, 0]])
-            cols.append(nodes[near][pairs[:, 1]])
+            edges.append((nodes[near][pairs[:, 0]], nodes[near][pairs[:, 1]]))
             continue
         set_index = num_nodes + np.arange(len(on_set))
         num_nodes += len(on_set)
         tree = cKDTree(on_set)
         for node, hits in zip(nodes[near], tree.query_ball_point(coordinates, contact_rad),
                               strict=True):  # fmt: skip
-            rows.append(np.full(len(hits), node))
-            cols.append(set_index[np.asarray(hits, dtype=np.int64)])
+            edges.append((np.full(len(hits), node), set_index[np.asarray(hits, dtype=np.int64)]))
         pairs = tree.query_pairs(contact_rad, output_type="ndarray")  # along the set
-        rows.append(set_index[pairs[:, 0]])
-        cols.append(set_index[pairs[:, 1]])
-    edges = np.concatenate(rows), np.concatenate(cols)
-    graph = coo_matrix((np.ones(len(edges[0])), edges), shape=(num_nodes, num_nodes))
-    _, labels = connected_components(graph, directed=False)
-    _, component = np.unique(labels[nodes], return_inverse=True)  # renumber 0..C-1
-    spacing_rad = float(2 * np.pi / grid_steps)
-    if len(nodes) == 0:
-        return PositionSmm(np.zeros((0, 7)), np.zeros(0, int), np.zeros(0), spacing_rad)
-    area = np.broadcast_to(np.sin(polar)[None, None, :, None], shape)[feasible]  # (F,)
+        edges.append((set_index[pairs[:, 0]], set_index[pairs[:, 1]]))
+    return edges, num_nodes
+
+
+def _drawn_fibre(
+    grid: _PositionGrid,
+    points6: np.ndarray,  # (F, 6) q1..q6 of the feasible nodes
+    component: np.ndarray,  # (F,) their components, 0..C-1
+    num_points: int,
+    seed: int,
+) -> PositionSmm:
+    """`num_points` feasible nodes drawn with the sphere's area weight, q7 uniform in its
+    range, and each component's share of the fibre."""
+    if len(points6) == 0:
+        return PositionSmm(np.zeros((0, 7)), np.zeros(0, int), np.zeros(0), grid.spacing_rad)
+    area = np.broadcast_to(np.sin(grid.polar_rad)[None, None, :, None], grid.feasible.shape)
+    area = area[grid.feasible]  # (F,)
     share = np.bincount(component, weights=area) / area.sum()  # of the feasible fibre
     rng = np.random.default_rng(seed)
-    drawn = rng.choice(len(nodes), size=num_points, p=area / area.sum())
+    drawn = rng.choice(len(points6), size=num_points, p=area / area.sum())
     q7 = rng.uniform(-LIMITS_RAD[6], LIMITS_RAD[6], num_points)
     return PositionSmm(
         np.concatenate([points6[drawn], q7[:, None]], axis=1),
         component[drawn],
         share,
-        spacing_rad,
+        grid.spacing_rad,
         points6.astype(np.float32),
         component,
     )
@@ -540,8 +592,7 @@ def _inverse_kinematics_grid(
     `reference` basis projected onto each circle's plane, so neighbouring rotations get
     neighbouring elbows.
     """
-    shoulder, elbow, wrist = branch
-    wrist_m = position_m - WRIST_TO_EE_M * rotation[:, :, 2]  # (D, 3)
+    wrist_m = wrist_centre(position_m, rotation)  # (D, 3)
     shoulder_to_wrist = wrist_m - SHOULDER_M
     distance = np.linalg.norm(shoulder_to_wrist, axis=1, keepdims=True)  # (D, 1)
     reachable = (abs(UPPER_ARM_M - FOREARM_M) < distance) & (distance < UPPER_ARM_M + FOREARM_M)
@@ -553,17 +604,5 @@ def _inverse_kinematics_grid(
     psi = np.atleast_2d(psi_rad)  # (1, K) or (D, K)
     circle = np.cos(psi)[..., None] * u[:, None] + np.sin(psi)[..., None] * v[:, None]
     elbow_m = SHOULDER_M + (along * axis)[:, None] + radius[:, :, None] * circle  # (D, K, 3)
-    z2 = (elbow_m - SHOULDER_M) / UPPER_ARM_M
-    q2 = shoulder * np.arccos(np.clip(z2[..., 2], -1.0, 1.0))
-    q1 = np.arctan2(shoulder * z2[..., 1], shoulder * z2[..., 0])
-    r_02 = _dh_rotation(q1, ALPHA_RAD[0]) @ _dh_rotation(q2, ALPHA_RAD[1])  # (D, K, 3, 3)
-    z4 = np.einsum("dkji,dkj->dki", r_02, (wrist_m[:, None] - elbow_m) / FOREARM_M)
-    q4 = elbow * np.arccos(np.clip(z4[..., 2], -1.0, 1.0))
-    q3 = np.arctan2(-elbow * z4[..., 1], -elbow * z4[..., 0])
-    r_04 = r_02 @ _dh_rotation(q3, ALPHA_RAD[2]) @ _dh_rotation(q4, ALPHA_RAD[3])
-    r_47 = np.swapaxes(r_04, -1, -2) @ rotation[:, None]  # (D, K, 3, 3)
-    q6 = wrist * np.arccos(np.clip(r_47[..., 2, 2], -1.0, 1.0))
-    q5 = np.arctan2(wrist * r_47[..., 1, 2], wrist * r_47[..., 0, 2])
-    q7 = np.arctan2(wrist * r_47[..., 2, 1], -wrist * r_47[..., 2, 0])
-    q = np.stack([q1, q2, q3, q4, q5, q6, q7], axis=-1)
+    q = _joint_angles(elbow_m, wrist_m[:, None], rotation[:, None], branch)  # (D, K, 7)
     return np.where(reachable[:, :, None], q, np.nan)

@@ -14,8 +14,8 @@ from service.models.registry import ServedModel, load_model
 from service.pipeline.connect.coaxial import find_coaxial_sets, slide_range
 from service.pipeline.joint_space import JointLimits
 from tests.service.pipeline.fibre_support import fibre_space, null_space_walk, pose_fibre
-from tests.support.iiwa14_dh import LIMITS_RAD, iiwa14_pose
-from training.evaluate.references.iiwa14 import inverse_kinematics
+from training.evaluate.references.iiwa14 import LIMITS_RAD, inverse_kinematics
+from training.evaluate.references.iiwa14 import dh_pose as iiwa14_pose
 
 
 @pytest.fixture(scope="module")

@@ -24,7 +24,7 @@ from service.pipeline.joint_space import JointLimits, joint_distance
 from service.pipeline.run import run
 from service.pipeline.types import CoaxialSet, Query
 from tests.service.pipeline.fibre_support import fibre_space, null_space_walk, pose_fibre
-from tests.support.iiwa14_dh import iiwa14_pose
+from training.evaluate.references.iiwa14 import dh_pose as iiwa14_pose
 
 OLD_RADIUS_RAD = 2.5  # the radius graph's default for this model before stage 5
 

@@ -18,8 +18,7 @@ from service.pipeline.joint_space import JointLimits, joint_distance
 from service.pipeline.run import run
 from service.pipeline.types import Query, SmmResult, Tolerance
 from tests.service.pipeline.fibre_support import fibre_space, ordered_planar_loop, planar_fibre
-from tests.support.iiwa14_dh import iiwa14_pose as dh_pose
-from training.evaluate.references.iiwa14 import pose_smm
+from training.evaluate.references.iiwa14 import dh_pose, pose_smm
 from training.evaluate.references.planar3r import planar3r_position
 from training.evaluate.served import orientation_wxyz
 from training.evaluate.targets import dh_targets

@@ -16,7 +16,7 @@ from service.pipeline.fibre import Fibre
 from service.pipeline.joint_space import JointLimits
 from service.pipeline.space import FibreSpace
 from tests.service.pipeline.fibre_support import fibre_space, null_space_walk, pose_fibre
-from tests.support.iiwa14_dh import iiwa14_pose
+from training.evaluate.references.iiwa14 import dh_pose as iiwa14_pose
 
 SETTINGS = SteerSettings(step_rad=0.15, max_steps=100, lambda_=2.0, projection_tolerance=1e-4)
 

@@ -13,10 +13,11 @@ from scipy.spatial import cKDTree
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
 from service.pipeline.joint_space import joint_distance
-from tests.support.iiwa14_dh import iiwa14_pose, rotation_angle_rad
 from training.evaluate.baselines.ode import CLOSURE_RAD, trace_smm
 from training.evaluate.references.iiwa14 import BRANCHES, inverse_kinematics
+from training.evaluate.references.iiwa14 import dh_pose as iiwa14_pose
 from training.evaluate.references.planar3r import closed_form_smm, planar3r_position
+from training.evaluate.references.rotations import rotation_angle_rad
 
 
 def test_planar_trace_closes_on_the_closed_form_loop(planar3r: ServedModel) -> None:

@@ -16,9 +16,11 @@ from service.pipeline.correction import task_error_norms
 from service.pipeline.joint_space import JointLimits
 from service.pipeline.targets import Target
 from service.pipeline.types import Correction, Tolerance
-from tests.support.iiwa14_dh import LIMITS_RAD, iiwa14_pose, rotation_angle_rad
 from training.evaluate.baselines.restart_dls import random_restart_dls
+from training.evaluate.references.iiwa14 import LIMITS_RAD
+from training.evaluate.references.iiwa14 import dh_pose as iiwa14_pose
 from training.evaluate.references.planar3r import planar3r_position
+from training.evaluate.references.rotations import rotation_angle_rad
 from training.kinematics import load_chain
 
 

@@ -1,13 +1,16 @@
-"""references.iiwa14: the S-R-S IK ground truth of the iiwa14.
+"""references.iiwa14: the DH table and the S-R-S IK ground truth of the iiwa14.
 
-The IK's configurations are checked by the tests' own DH FK (tests/support/iiwa14_dh.py) to
-1e-9 on all 8 branches; the configuration that made a target must lie on its exact SMM;
-each feasible component stays within the limits and is continuous, also where it passes
-next to the shoulder set and q1, q3 swing fast against each other; the 4-D position SMM
-is exact and feasible, q7 does not move the position, a feasible walk along the
-position fibre stays in one component, the exact points of the singular sets are exact,
-and a fibre that cannot reach the shoulder or elbow set (by the link lengths alone)
-keeps the sign of q2 and q4 within each component, so its twins stay apart.
+The DH forward kinematics equals the bundled URDF (models/robots/iiwa14.urdf) read by the
+float64 URDF chain (references.urdf_chain: Rodrigues and URDF origins, no DH table) to
+1e-12 at random configurations, and the DH limits are the URDF's. Everything else is
+checked by that URDF chain, not by the DH FK under test: the IK's configurations reach
+the pose to 1e-9 on all 8 branches; the configuration that made a target must lie on its
+exact SMM; each feasible component stays within the limits and is continuous, also where
+it passes next to the shoulder set and q1, q3 swing fast against each other; the 4-D
+position SMM is exact and feasible, q7 does not move the position, a feasible walk along
+the position fibre stays in one component, the exact points of the singular sets are
+exact, and a fibre that cannot reach the shoulder or elbow set (by the link lengths
+alone) keeps the sign of q2 and q4 within each component, so its twins stay apart.
 """
 
 from __future__ import annotations
@@ -16,7 +19,8 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from tests.support.iiwa14_dh import LIMITS_RAD, iiwa14_pose, rotation_angle_rad
+from service.manifest import REPO_MODELS_DIR
+from training.evaluate.references import iiwa14
 from training.evaluate.references.iiwa14 import (
     BRANCHES,
     inverse_kinematics,
@@ -24,10 +28,31 @@ from training.evaluate.references.iiwa14 import (
     position_smm,
     singular_set_points,
 )
+from training.evaluate.references.rotations import rotation_angle_rad
+from training.evaluate.references.urdf_chain import read_chain
 
-# Link lengths of the DH table, for the reach arguments (tests/support/iiwa14_dh.py).
-SHOULDER = np.array([0.0, 0.0, 0.36])
-UPPER_ARM, FOREARM, WRIST_TO_EE = 0.42, 0.40, 0.081 + 0.045
+# The tests' FK of the iiwa14: its URDF in float64, independent of the DH table under test.
+URDF = read_chain(REPO_MODELS_DIR / "robots" / "iiwa14.urdf", "ee")
+iiwa14_pose = URDF.pose
+LIMITS_RAD = URDF.upper  # symmetric: URDF.lower is -URDF.upper (test_the_dh_table_is_the_urdfs)
+# Link lengths of the DH table, for the reach arguments (the DH table is the URDF's).
+SHOULDER = iiwa14.SHOULDER_M
+UPPER_ARM, FOREARM, WRIST_TO_EE = iiwa14.UPPER_ARM_M, iiwa14.FOREARM_M, iiwa14.WRIST_TO_EE_M
+
+
+def test_the_dh_table_is_the_urdfs() -> None:
+    q = np.random.default_rng(1).uniform(-iiwa14.LIMITS_RAD, iiwa14.LIMITS_RAD, (200, 7))
+    np.testing.assert_allclose(iiwa14.dh_pose(q), URDF.pose(q), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(iiwa14.dh_pose(q[0]), URDF.pose(q[:1]), rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(URDF.upper, iiwa14.LIMITS_RAD)
+    np.testing.assert_array_equal(URDF.lower, -iiwa14.LIMITS_RAD)
+    # The link lengths the reach arguments use: the shoulder, the elbow and the wrist.
+    origins = URDF.frames(np.zeros((1, 7)))[0][0, :, :3, 3]  # (7, 3) joint origins, arm up
+    assert origins[1, 2] == pytest.approx(SHOULDER[2], abs=1e-12)
+    assert origins[3, 2] - origins[1, 2] == pytest.approx(UPPER_ARM, abs=1e-12)
+    assert origins[5, 2] - origins[3, 2] == pytest.approx(FOREARM, abs=1e-12)
+    tip = URDF.pose(np.zeros((1, 7)))[0, 2, 3]
+    assert tip - origins[5, 2] == pytest.approx(WRIST_TO_EE, abs=1e-12)
 
 
 def _targets(count: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -188,7 +213,7 @@ def test_twins_stay_apart_where_the_fibre_cannot_reach_the_shoulder_or_elbow_set
     # most 0.40 + 0.126 m from there; with q4 = 0 it is at least 0.82 - 0.126 m from
     # the shoulder. This target violates both: no path on its fibre changes the sign of
     # q2 or of q4, so the shoulder and elbow twins are separate components, four in all,
-    # however near q2 = 0 the fibre comes (the old contact rule joined them).
+    # however near q2 = 0 the fibre comes (a contact rule by distance alone joins them).
     q = np.array([-1.8321, 0.3116, -2.7316, 1.2636, 2.7301, 1.4829, -2.7446])
     position = iiwa14_pose(q[None])[0, :3, 3]
     elbow_up = SHOULDER + np.array([0.0, 0.0, UPPER_ARM])

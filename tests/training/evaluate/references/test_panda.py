@@ -1,17 +1,16 @@
 """references.panda and the bundled Panda: the exact ground truth, checked independently.
 
-The tests' own float64 URDF chain (tests/support/urdf_chain.py) matches a closed-form
-planar arm and the iiwa14's DH table to 1e-12, and reads the bundled panda.urdf as the
-source ships it (panda_hand_tcp 0.1034 m beyond the hand, the limits, the reference's
-DH table to 1e-12, q7 not moving the TCP). On 20 random targets, by that chain: every
-point of the exact pose SMM reaches the target within 1e-9 m and 1e-9 rad inside the
-limits, consecutive points are at most 0.05 rad apart, the generating configuration
-lies on a component, and an independent predictor-corrector continuation along the
-Jacobian's null space, started inside each component, stays on that component alone
-and runs to the limits (or around the loop) over the component's arc length: so the
-components are neither split nor merged. The 4-D position SMM's points are exact and
-in the limits, hold the generating configuration, and a feasible walk along the fibre
-stays in one component.
+The float64 URDF chain (references.urdf_chain, checked on its own in test_urdf_chain.py)
+reads the bundled panda.urdf as the source ships it (panda_hand_tcp 0.1034 m beyond the
+hand, the limits, the reference's DH table and limits to 1e-12, q7 not moving the TCP).
+On 20 random targets, by that chain: every point of the exact pose SMM reaches the
+target within 1e-9 m and 1e-9 rad inside the limits, consecutive points are at most
+0.05 rad apart, the generating configuration lies on a component, and an independent
+predictor-corrector continuation along the Jacobian's null space, started inside each
+component, stays on that component alone and runs to the limits (or around the loop)
+over the component's arc length: so the components are neither split nor merged. The
+4-D position SMM's points are exact and in the limits, hold the generating
+configuration, and a feasible walk along the fibre stays in one component.
 """
 
 from __future__ import annotations
@@ -23,66 +22,19 @@ import pytest
 from scipy.spatial import cKDTree
 
 from service.manifest import REPO_MODELS_DIR
-from tests.support.urdf_chain import UrdfChain, read_chain
-from training.evaluate.references import iiwa14, panda
+from training.evaluate.references import panda
 from training.evaluate.references.iiwa14 import PositionSmm
+from training.evaluate.references.rotations import rotation_angle_rad
+from training.evaluate.references.urdf_chain import UrdfChain, read_chain
 
 PANDA_URDF = REPO_MODELS_DIR / "robots" / "panda.urdf"
 LOWER = np.array([-2.8973, -1.7628, -2.8973, -3.0718, -2.8973, -0.0175, -2.8973])
 UPPER = np.array([2.8973, 1.7628, 2.8973, -0.0698, 2.8973, 3.7525, 2.8973])
-PLANAR_URDF = """<robot name="planar">
-  <link name="base"/> <link name="l1"/> <link name="l2"/> <link name="tip"/>
-  <joint name="j1" type="revolute"> <parent link="base"/> <child link="l1"/>
-    <origin xyz="0 0 0" rpy="0 0 0"/> <axis xyz="0 0 1"/>
-    <limit lower="-3" upper="3" effort="0" velocity="0"/> </joint>
-  <joint name="j2" type="continuous"> <parent link="l1"/> <child link="l2"/>
-    <origin xyz="0.7 0 0" rpy="0 0 0"/> <axis xyz="0 0 2"/> </joint>
-  <joint name="tool" type="fixed"> <parent link="l2"/> <child link="tip"/>
-    <origin xyz="0.4 0 0" rpy="0 0 0.5"/> </joint>
-</robot>"""
 
 
 @pytest.fixture(scope="module")
 def chain() -> UrdfChain:
     return read_chain(PANDA_URDF, "panda_hand_tcp", "panda_link0")
-
-
-def rotation_angle_rad(r_a: np.ndarray, r_b: np.ndarray) -> np.ndarray:
-    """(B,) angle of r_a r_b^T from its skew part and trace."""
-    relative = r_a @ np.swapaxes(r_b, -1, -2)
-    skew = (relative - np.swapaxes(relative, -1, -2)) / 2.0
-    sin = np.linalg.norm(np.stack([skew[..., 2, 1], skew[..., 0, 2], skew[..., 1, 0]], -1), axis=-1)
-    cos = (np.trace(relative, axis1=-2, axis2=-1) - 1.0) / 2.0
-    return np.arctan2(sin, cos)
-
-
-def test_urdf_chain_matches_a_closed_form_planar_arm() -> None:
-    planar = read_chain(PLANAR_URDF, "tip")
-    q = np.random.default_rng(0).uniform(-3, 3, (100, 2))
-    pose = planar.pose(q)
-    angle = q[:, 0] + q[:, 1]
-    x = 0.7 * np.cos(q[:, 0]) + 0.4 * np.cos(angle)
-    y = 0.7 * np.sin(q[:, 0]) + 0.4 * np.sin(angle)
-    np.testing.assert_allclose(pose[:, :3, 3], np.stack([x, y, 0 * x], 1), rtol=0, atol=1e-12)
-    heading = angle + 0.5
-    np.testing.assert_allclose(pose[:, 0, :2], np.stack([np.cos(heading), -np.sin(heading)], 1),
-                               rtol=0, atol=1e-12)  # fmt: skip
-    assert planar.lower[0] == -3 and planar.upper[1] == np.inf
-
-
-def test_urdf_chain_matches_the_iiwa14_dh_table_and_its_jacobian_the_differences() -> None:
-    iiwa = read_chain(REPO_MODELS_DIR / "robots" / "iiwa14.urdf", "ee")
-    q = np.random.default_rng(1).uniform(-iiwa14.LIMITS_RAD, iiwa14.LIMITS_RAD, (200, 7))
-    np.testing.assert_allclose(iiwa.pose(q), iiwa14.dh_pose(q), rtol=0, atol=1e-12)
-    step = 1e-6
-    ahead = np.stack([iiwa.pose(q[:5] + step * e) for e in np.eye(7)], -1)  # (5, 4, 4, 7)
-    behind = np.stack([iiwa.pose(q[:5] - step * e) for e in np.eye(7)], -1)
-    linear = (ahead[:, :3, 3] - behind[:, :3, 3]) / (2 * step)  # (5, 3, 7)
-    turn = np.einsum("bijn,bkjn->bikn", ahead[:, :3, :3], behind[:, :3, :3])  # R+ R-^T
-    skew = (turn - np.swapaxes(turn, 1, 2)) / 2
-    angular = np.stack([skew[:, 2, 1], skew[:, 0, 2], skew[:, 1, 0]], 1) / (2 * step)
-    expected = np.concatenate([linear, angular], 1)
-    np.testing.assert_allclose(iiwa.jacobian(q[:5]), expected, rtol=0, atol=1e-8)
 
 
 def test_the_bundled_panda_urdf_is_the_source_chain(chain: UrdfChain) -> None:
@@ -92,6 +44,8 @@ def test_the_bundled_panda_urdf_is_the_source_chain(chain: UrdfChain) -> None:
     assert [j.name for j in chain.movable] == [f"panda_joint{i}" for i in range(1, 8)]
     np.testing.assert_array_equal(chain.lower, LOWER)
     np.testing.assert_array_equal(chain.upper, UPPER)
+    np.testing.assert_array_equal(panda.LOWER_RAD, LOWER)  # the reference's limits
+    np.testing.assert_array_equal(panda.UPPER_RAD, UPPER)
     q = np.random.default_rng(2).uniform(LOWER, UPPER, (500, 7))
     tcp = chain.pose(q)
     hand = read_chain(PANDA_URDF, "panda_hand", "panda_link0").pose(q)

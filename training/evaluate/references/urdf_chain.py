@@ -1,11 +1,13 @@
-"""An independent float64 forward kinematics of a URDF chain, for the tests.
+"""A float64 forward kinematics of a URDF chain, independent of the service and the export.
 
 Reads the URDF with xml.etree (not pytorch-kinematics, which parses origins in float32,
-nor training.kinematics): the chain from the base link to the end-effector link is the
-product, joint by joint, of the joint's origin (translation xyz, then the fixed-axis
-roll-pitch-yaw rotation Rz(yaw) Ry(pitch) Rx(roll)) and its motion: a rotation by q
-about the unit joint axis (Rodrigues) for revolute and continuous joints, a translation
-by q along it for prismatic ones, nothing for fixed ones.
+nor training.kinematics, nor the service's chain.json kernel): the chain from the base
+link to the end-effector link is the product, joint by joint, of the joint's origin
+(translation xyz, then the fixed-axis roll-pitch-yaw rotation Rz(yaw) Ry(pitch)
+Rx(roll)) and its motion: a rotation by q about the unit joint axis (Rodrigues) for
+revolute and continuous joints, a translation by q along it for prismatic ones, nothing
+for fixed ones. The tests check the references' DH tables with it, and
+tools/container_test checks the Panda's answers with it.
 """
 
 from __future__ import annotations
@@ -15,6 +17,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from training.evaluate.references.rotations import rodrigues
 
 MOVABLE = ("revolute", "continuous", "prismatic")
 
@@ -82,13 +86,6 @@ class UrdfChain:
         linear = np.where(prismatic[None, :, None], axes, np.cross(axes, lever))
         angular = np.where(prismatic[None, :, None], 0.0, axes)
         return np.concatenate([linear, angular], axis=2).transpose(0, 2, 1)
-
-
-def rodrigues(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
-    """(B, 3, 3) rotations by angle (B,) about the unit axis (3,)."""
-    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    s, c = np.sin(angle)[:, None, None], np.cos(angle)[:, None, None]
-    return np.eye(3) + s * k + (1 - c) * (k @ k)
 
 
 def origin_matrix(xyz: np.ndarray, rpy: np.ndarray) -> np.ndarray:
