@@ -5,8 +5,10 @@ healthcheck, http/, api/), observability/, models/, pipeline/, the contract (err
 manifest, wire). A module imports its own layer or the layers inside it, never one
 outside; the client imports nothing of service/ but the contract; service/ never imports
 training/; training/ uses the service's contract, pipeline and models, never its edge. Every
-import counts, also one inside a function. The checks run over the real tree; the
-checker itself is tried on a synthetic tree first, so a test that cannot fail is caught.
+import counts, also one inside a function. Within training/sweep/, each module imports
+only those before it: plan, measures, rule, reasons, search, command. The checks run over
+the real tree; the checker itself is tried on a synthetic tree first, so a test that
+cannot fail is caught.
 """
 
 from __future__ import annotations
@@ -230,3 +232,19 @@ def test_the_client_imports_only_the_contract(graph: dict[str, set[str]]) -> Non
 
 def test_no_import_cycle_in_service_or_training(graph: dict[str, set[str]]) -> None:
     assert cycles(graph) == []
+
+
+# training/sweep/: each module imports only those before it (its package docstring).
+SWEEP_ORDER = ("plan", "measures", "rule", "reasons", "search", "command")
+
+
+def test_the_sweep_package_imports_one_way(graph: dict[str, set[str]]) -> None:
+    modules = [f"training.sweep.{name}" for name in SWEEP_ORDER]
+    assert all(module in graph for module in modules)
+    backwards = [
+        f"{module} imports {imported}"
+        for position, module in enumerate(modules)
+        for imported in sorted(graph[module])
+        if imported in modules[position:] or imported == "training.sweep"
+    ]
+    assert backwards == []

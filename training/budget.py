@@ -177,7 +177,7 @@ def sweep_target_s(
     costs: UnitCosts, axes: Sequence[Axis] = AXES, reflowed: bool = False,
     plan: SweepPlan | None = None,
 ) -> float:  # fmt: skip
-    """One target of a sweep over `axes` (training/sweep.py): the dense reference, the time
+    """One target of a sweep over `axes` (training/sweep/): the dense reference, the time
     grid's powers, and every candidate of every axis at the starting samples and steps
     (`reflowed`: the model has a reflowed network, whose axis is swept jointly with the
     DLS steps). An upper bound: the sweep measures a setting once however many axes hold

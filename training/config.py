@@ -77,7 +77,7 @@ class TrainConfig:
     # ~30 times.
     reflow_steps: int = 30_000
     reflow_pairs: int = 1_000_000
-    # Serving defaults chosen after export by the built-in sweep (training/sweep.py) on this
+    # Serving defaults chosen after export by the built-in sweep (training/sweep/) on this
     # many held-out targets (0: keep the starting defaults of training/defaults.py), with a
     # seed of their own so the defaults are not chosen on the quality targets.
     sweep_targets: int = 20

@@ -9,7 +9,7 @@ flow (512 x 5 MLP, 1000 samples, one onnxruntime thread, AMD EPYC with AVX512-VN
 unsigned weights ran at 15 ms.
 
 Whether int8 serves is not decided here: the sweep measures the sampler with it
-(training/sweep.py, its raw error against float32's) and the evaluation judges the
+(training/sweep/, its raw error against float32's) and the evaluation judges the
 answers. Here only a guard: an int8 network whose velocity differs from the float32 one
 by more than INT8_RELATIVE_ERROR_MAX on the export's parity inputs is a broken
 quantisation, and nothing is written.

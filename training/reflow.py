@@ -412,7 +412,7 @@ def export_reflow(
     """reflow.onnx and reflow_int8.onnx into `model_dir` (None: keep the ones there), the
     manifest's `reflow` record, then the sweep (which may choose the reflowed sampler),
     the judgement of its choice against the exact SMMs (the base flow's defaults serve
-    unless it is no worse on `judge_targets` report targets, training/sweep.py
+    unless it is no worse on `judge_targets` report targets, training/sweep/
     `judged_sweep`) and the quality measurement; all on a hidden copy swapped in only
     when it succeeds."""
     with staged_copy(model_dir) as staging:

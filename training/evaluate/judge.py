@@ -1,6 +1,6 @@
 """Judging serving defaults against the exact SMMs: is a candidate's answer no worse?
 
-The sweep (training/sweep.py) compares settings on 20 targets with a dense answer of the
+The sweep (training/sweep/) compares settings on 20 targets with a dense answer of the
 same pipeline; it cannot see a rare loss. A reflowed few-step sampler chosen by it lost
 one of 24 exact components on one of 200 targets and merged the two loops of the planar
 3R at rho = 0.999, where they pass 0.1 rad apart: a sampler change that the sweep
