@@ -23,7 +23,7 @@ learn, branch by branch; where two branches meet in noise space it must turn sha
 and samples drawn there land between branches (the correction and acceptance judge them
 like any other sample; the sweep measures what is lost).
 
-    python -m training.reflow --model-dir models/iiwa14-pose      # --resume continues
+    smm-train reflow --model-dir models/iiwa14-pose      # --resume continues
 
 The teacher pairs (runs/<model-id>/reflow/pairs.pt) and the training state (last.pt,
 written every `checkpoint_minutes`) stay out of git; a stopped run continues with
@@ -37,7 +37,6 @@ import copy
 import json
 import math
 import shlex
-import sys
 import time
 from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
@@ -501,7 +500,7 @@ def reflow_model(
         if manifest.reflow is None or REFLOW_FILE not in manifest.files:
             raise ValueError(
                 f"{model_dir}: no reflow to export again; train one first: "
-                f"python -m training.reflow --model-dir {model_dir}"
+                f"smm-train reflow --model-dir {model_dir}"
             )
         record = manifest.reflow.model_copy(update={"export_git_commit": git_commit()})
     else:
@@ -528,14 +527,11 @@ def reflow_command(model_dir: Path, config: ReflowConfig) -> str:
         if getattr(config, f.name) != getattr(defaults, f.name)
         for arg in (f"--{f.name.replace('_', '-')}", str(getattr(config, f.name)))
     ]
-    return shlex.join(["python", "-m", "training.reflow", "--model-dir", str(model_dir), *flags])
+    return shlex.join(["smm-train", "reflow", "--model-dir", str(model_dir), *flags])
 
 
-def parse_args(argv: list[str]) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(
-        prog="python -m training.reflow",
-        description="Reflow a trained flow for few-step sampling (module docstring).",
-    )
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options of `smm-train reflow`: the model, the run, and a flag per ReflowConfig field."""
     parser.add_argument("--model-dir", type=Path, required=True)
     parser.add_argument("--runs-dir", type=Path, default=Path("runs"))
     parser.add_argument("--resume", action="store_true")
@@ -558,11 +554,11 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         "--sweep-targets", type=int, default=None,
         help="targets of the sweep after export (default: the base training's, manifest)",
     )  # fmt: skip
-    return parser.parse_args(argv)
 
 
-def main(argv: list[str] | None = None) -> None:
-    args = parse_args(sys.argv[1:] if argv is None else argv)
+def run_command(args: argparse.Namespace, parser: argparse.ArgumentParser) -> None:
+    """`smm-train reflow`: train (or continue, or only export again) and print the result."""
+    del parser  # every check is the options' own
     overrides = {
         f.name: getattr(args, f.name)
         for f in fields(ReflowConfig)
@@ -574,7 +570,3 @@ def main(argv: list[str] | None = None) -> None:
         reflow_command(args.model_dir, config), args.sweep_targets, args.export_only,
     )  # fmt: skip
     print(json.dumps(manifest.model_dump(include={"defaults", "quality"}), indent=1))
-
-
-if __name__ == "__main__":
-    main()

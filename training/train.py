@@ -4,7 +4,7 @@
 with a run directory it writes, after every epoch, `log.jsonl` and `loss.png` (run_log.py)
 and `last.pt` (checkpoint.py), and `last.pt` also mid-epoch at most every
 `checkpoint_minutes`, so a run that is stopped anywhere continues with `resume=True` to the
-same weights. The command line is `training/cli.py`.
+same weights. The command line is `smm-train train` (training/train_command.py).
 
 Given `Processes` of a distributed run (training/distributed.py), the processes train one
 model together: each draws the shared shuffle of every epoch and trains on its shard with

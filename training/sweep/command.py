@@ -1,5 +1,10 @@
 """`smm-train sweep`: sweep a model's serving defaults, print the table, and with
-`--write` write the judged defaults into its manifest."""
+`--write` write the judged defaults into its manifest. The design: docs/sweep.md.
+
+    smm-train sweep --model-dir models/iiwa14-pose --targets 20 [--out sweep.json]
+    smm-train sweep --model-dir models/iiwa14-pose \
+        --axes flow_precision_bits,sampler_steps --write   # re-sweep some axes, keep the rest
+"""
 
 from __future__ import annotations
 
@@ -20,10 +25,8 @@ def _to_stderr(line: str) -> None:
     print(line, file=sys.stderr, flush=True)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawTextHelpFormatter
-    )
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options of `smm-train sweep`."""
     parser.add_argument("--model-dir", required=True, type=Path)
     parser.add_argument("--targets", type=int, default=20)
     parser.add_argument("--seed", type=int, default=11, help="seed of the held-out targets")
@@ -40,7 +43,10 @@ def main() -> None:
         "served ones against the exact SMMs (training/evaluate/judge.py), else the first "
         "judged no worse of the defaults as each earlier axis left them, else keep those",
     )  # fmt: skip
-    args = parser.parse_args()
+
+
+def run_command(args: argparse.Namespace, parser: argparse.ArgumentParser) -> None:
+    """`smm-train sweep`: sweep, print the table, and with --write the judged defaults."""
     axes = [axis.strip() for axis in args.axes.split(",") if axis.strip()]
     unknown = [axis for axis in axes if axis not in AXES]
     if unknown:
