@@ -9,8 +9,10 @@ tools/ never imports tests/ (the container test checks answers with the referenc
 training/evaluate/references/, not with test code). Every import counts, also one inside
 a function. The connect stage (service/pipeline/connect/) is a package with a chosen
 public API: code outside it imports only the names of its `__all__`, never its modules
-(its own tests, under tests/service/pipeline/connect/, test the modules). The checks run
-over the real tree; each checker is tried on a synthetic tree first, so a test that
+(its own tests, under tests/service/pipeline/connect/, test the modules). Within
+training/sweep/, each module imports only those before it: plan, measures, rule,
+reasons, search, command. The checks run over the real tree; each checker is tried on a
+synthetic tree first, so a test that
 cannot fail is caught.
 """
 
@@ -330,3 +332,19 @@ def test_tools_import_nothing_from_tests() -> None:
     tools = import_graph(ROOT, ["tools"])
     assert "tools.container_test.targets" in tools
     assert imports_from(tools, "tests") == []
+
+
+# training/sweep/: each module imports only those before it (its package docstring).
+SWEEP_ORDER = ("plan", "measures", "rule", "reasons", "search", "command")
+
+
+def test_the_sweep_package_imports_one_way(graph: dict[str, set[str]]) -> None:
+    modules = [f"training.sweep.{name}" for name in SWEEP_ORDER]
+    assert all(module in graph for module in modules)
+    backwards = [
+        f"{module} imports {imported}"
+        for position, module in enumerate(modules)
+        for imported in sorted(graph[module])
+        if imported in modules[position:] or imported == "training.sweep"
+    ]
+    assert backwards == []

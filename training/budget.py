@@ -177,7 +177,7 @@ def sweep_target_s(
     costs: UnitCosts, axes: Sequence[Axis] = AXES, reflowed: bool = False,
     plan: SweepPlan | None = None,
 ) -> float:  # fmt: skip
-    """One target of a sweep over `axes` (training/sweep.py): the dense reference, the time
+    """One target of a sweep over `axes` (training/sweep/): the dense reference, the time
     grid's powers, and every candidate of every axis at the starting samples and steps
     (`reflowed`: the model has a reflowed network, whose axis is swept jointly with the
     DLS steps). An upper bound: the sweep measures a setting once however many axes hold
@@ -315,6 +315,29 @@ def judge_package_missing(robot: str) -> str | None:
     return missing_message(package, f"The judge of {robot}'s reflowed sampler")
 
 
+def judge_stage(config: TrainConfig, task: TaskSpec, costs: UnitCosts) -> Stage:
+    """The judge's stage of the plan: what it judges, or why it does not run."""
+    robot = config.robot
+    if config.reflow_steps <= 0 or config.sweep_targets <= 0:
+        return Stage(
+            "judge", "it judges the reflow's sweep, and the reflow or the sweep is off", None
+        )  # fmt: skip
+    if not robot_has_ground_truth(robot):
+        return Stage(
+            "judge", f"no exact reference for robot {robot!r}: the sweep's choice serves "
+            "unjudged", None,
+        )  # fmt: skip
+    near = near_singular_for(config.judge_targets)
+    return Stage(
+        "judge",
+        f"{config.judge_targets} report targets and {near} near-singular ones against "
+        "the exact SMMs, if the reflow's sweep changes what serves (each further "
+        "candidate judged costs as much again)",
+        judge_s(config, costs, robot, task.name),
+        at_most=True,
+    )
+
+
 def plan_run(
     config: TrainConfig, task: TaskSpec, costs: UnitCosts, *, trains: bool = True,
     given: Collection[str] = (), full: TrainConfig | None = None,
@@ -365,26 +388,7 @@ def plan_run(
             "reflow", f"off: this budget's share is {share:,} steps, under "
             f"{MIN_REFLOW_STEPS:,} (--reflow-steps N runs it)", None,
         ))  # fmt: skip
-    robot = config.robot
-    if config.reflow_steps <= 0 or config.sweep_targets <= 0:
-        stages.append(Stage(
-            "judge", "it judges the reflow's sweep, and the reflow or the sweep is off", None
-        ))  # fmt: skip
-    elif not robot_has_ground_truth(robot):
-        stages.append(Stage(
-            "judge", f"no exact reference for robot {robot!r}: the sweep's choice serves "
-            "unjudged", None,
-        ))  # fmt: skip
-    else:
-        near = near_singular_for(config.judge_targets)
-        stages.append(Stage(
-            "judge",
-            f"{config.judge_targets} report targets and {near} near-singular ones against "
-            "the exact SMMs, if the reflow's sweep changes what serves (each further "
-            "candidate judged costs as much again)",
-            judge_s(config, costs, robot, task.name),
-            at_most=True,
-        ))  # fmt: skip
+    stages.append(judge_stage(config, task, costs))
     stages.append(Stage(
         "quality",
         f"{config.eval_targets} held-out targets x {config.eval_samples_per_target} samples, "

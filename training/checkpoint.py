@@ -10,7 +10,6 @@
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
@@ -18,6 +17,7 @@ from typing import Any
 import torch
 
 from training.config import TrainConfig
+from training.loop import atomic_torch_save, resume_payload
 from training.model import VelocityField
 
 BEST_FILE = "best.pt"
@@ -78,17 +78,10 @@ class BestCheckpoint:
         )
 
 
-def _atomic_save(payload: dict[str, Any], path: Path) -> None:
-    """Write `path` whole or not at all: a run killed mid-write keeps its previous file."""
-    partial = path.with_name(path.name + ".partial")
-    torch.save(payload, partial)
-    os.replace(partial, path)
-
-
 def save_best(
     path: Path, result: TrainResult, config: TrainConfig, command: str, git_commit: str
 ) -> None:
-    _atomic_save(
+    atomic_torch_save(
         {
             "git_commit": git_commit,
             "state_dict": result.model.state_dict(),
@@ -148,12 +141,13 @@ class RunState:
 def save_state(path: Path, state: RunState) -> None:
     payload = {f.name: getattr(state, f.name) for f in fields(RunState)}
     payload["config"] = state.config.as_dict()
-    _atomic_save(payload, path)
+    atomic_torch_save(payload, path)
 
 
-def load_state(path: Path, config: TrainConfig) -> RunState:
-    """The run state in `path`; ValueError naming the fields when it was made by another config."""
-    payload = torch.load(path, map_location="cpu", weights_only=False)
+def load_state(path: Path | None, config: TrainConfig) -> RunState:
+    """The run state in `path`; ValueError when there is none, or naming the fields when it
+    was made by another config."""
+    payload = resume_payload(path)
     saved = TrainConfig(**payload["config"])
     if saved.world_size != config.world_size:
         raise ValueError(

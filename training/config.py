@@ -44,7 +44,7 @@ class TrainConfig:
     # world_size times fewer steps; the learning rate is not scaled. On CUDA, one GPU each.
     world_size: int = 1
     # Training options beyond the paper, all off (the paper's recipe) until the evaluation
-    # shows they help (python -m training.evaluate.recipe).
+    # shows they help (smm-train recipe).
     # Exponential moving average of the weights after every step (0 = off; 0.999 averages
     # over ~1000 steps): smooths the noise of the last steps, so validation, best.pt and
     # the export use the averaged weights when on.
@@ -77,7 +77,7 @@ class TrainConfig:
     # ~30 times.
     reflow_steps: int = 30_000
     reflow_pairs: int = 1_000_000
-    # Serving defaults chosen after export by the built-in sweep (training/sweep.py) on this
+    # Serving defaults chosen after export by the built-in sweep (training/sweep/) on this
     # many held-out targets (0: keep the starting defaults of training/defaults.py), with a
     # seed of their own so the defaults are not chosen on the quality targets.
     sweep_targets: int = 20

@@ -1,13 +1,14 @@
 """Training one model in several processes: PyTorch's DistributedDataParallel under torchrun.
 
-    torchrun --standalone --nproc-per-node 2 -m training.cli --robot planar3r --task position
+    torchrun --standalone --nproc-per-node 2 --no-python smm-train train \
+        --robot planar3r --task position
 
 torchrun starts the processes and tells each its rank through the environment
 (`from_environment`); `process_group` joins them (gloo on the CPU, nccl on CUDA, one GPU per
 process); `wrap` puts the model in DistributedDataParallel, which averages the gradients of
 every step over the processes. Every process draws the same shuffle of the training split
 each epoch and trains on its own `shard` of it, with its own noise and flow times. Run as
-one process (plain `smm-train`, or torchrun with one), nothing here changes anything: every
+one process (plain `smm-train train`, or torchrun with one), nothing here changes anything: every
 helper is then the identity and no process group is made.
 """
 
@@ -52,7 +53,7 @@ class Processes:
         return chosen
 
     def launcher(self) -> list[str]:
-        """The command that starts this set of processes, up to the module's arguments.
+        """The command that starts this set of processes, up to the subcommand and its arguments.
 
         Rendezvous flags (--standalone, --master-port, ...) are left out: they decide where
         the processes meet, not what they train."""
@@ -61,7 +62,7 @@ class Processes:
         nodes = self.world_size // self.local_world_size
         per_node = ["--nproc-per-node", str(self.local_world_size)]
         return ["torchrun", *(["--nnodes", str(nodes)] if nodes > 1 else []), *per_node,
-                "-m", "training.cli"]  # fmt: skip
+                "--no-python", "smm-train"]  # fmt: skip
 
     def shard(self, order: torch.Tensor) -> torch.Tensor:
         """This process's part of an epoch's shuffled order (N,): see `shard`."""

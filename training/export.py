@@ -296,7 +296,7 @@ def sweep_and_measure(
     each step written into its manifest. `paper_row`: the paper sampler's raw errors
     already measured on the same network and targets (`measure_quality`). `incumbent`:
     the defaults served until now; the swept ones replace them only if judged no worse
-    against the exact SMMs on `judge_targets` report targets (training/sweep.py
+    against the exact SMMs on `judge_targets` report targets (training/sweep/
     `judged_sweep`)."""
     manifest_path = model_dir / MANIFEST_FILE
     served = load_model(model_dir, threads=threads)

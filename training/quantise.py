@@ -9,12 +9,12 @@ flow (512 x 5 MLP, 1000 samples, one onnxruntime thread, AMD EPYC with AVX512-VN
 unsigned weights ran at 15 ms.
 
 Whether int8 serves is not decided here: the sweep measures the sampler with it
-(training/sweep.py, its raw error against float32's) and the evaluation judges the
+(training/sweep/, its raw error against float32's) and the evaluation judges the
 answers. Here only a guard: an int8 network whose velocity differs from the float32 one
 by more than INT8_RELATIVE_ERROR_MAX on the export's parity inputs is a broken
 quantisation, and nothing is written.
 
-    python -m training.quantise --model-dir models/iiwa14-pose   # add flow_int8.onnx
+    smm-train quantise --model-dir models/iiwa14-pose   # add flow_int8.onnx
 """
 
 from __future__ import annotations
@@ -108,15 +108,13 @@ def add_int8(model_dir: Path, threads: int = 1) -> Manifest:
     return manifest
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawTextHelpFormatter
-    )
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options of `smm-train quantise`."""
     parser.add_argument("--model-dir", required=True, type=Path)
-    args = parser.parse_args()
+
+
+def run_command(args: argparse.Namespace, parser: argparse.ArgumentParser) -> None:
+    """`smm-train quantise`: write the int8 network and list it in the manifest."""
+    del parser
     add_int8(args.model_dir)
     print(f"{args.model_dir / FLOW_INT8_FILE}: written and listed in {MANIFEST_FILE}")
-
-
-if __name__ == "__main__":
-    main()

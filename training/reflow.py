@@ -23,7 +23,7 @@ learn, branch by branch; where two branches meet in noise space it must turn sha
 and samples drawn there land between branches (the correction and acceptance judge them
 like any other sample; the sweep measures what is lost).
 
-    python -m training.reflow --model-dir models/iiwa14-pose      # --resume continues
+    smm-train reflow --model-dir models/iiwa14-pose      # --resume continues
 
 The teacher pairs (runs/<model-id>/reflow/pairs.pt) and the training state (last.pt,
 written every `checkpoint_minutes`) stay out of git; a stopped run continues with
@@ -36,9 +36,7 @@ import argparse
 import copy
 import json
 import math
-import os
 import shlex
-import sys
 import time
 from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
@@ -64,20 +62,21 @@ from service.manifest import (
 from service.models.registry import load_model, sha256_of
 from service.pipeline.sampling import euler_integrate
 from service.pipeline.types import VelocityField as NumpyVelocityField
+from training.checkpoint import LAST_FILE
 from training.config import TrainConfig
 from training.data import Labeller
 from training.evaluate.judge import REPORT_TARGETS
 from training.evaluate.quality import PAPER_SAMPLER, same_sampler
 from training.export import export_flow, git_commit, sweep_and_measure
 from training.kinematics import ForwardKinematics, load_chain
+from training.loop import Best, Optimiser, RunClock, atomic_torch_save, resume_payload
 from training.model import VelocityField
 from training.quantise import quantise_flow
+from training.run_log import LOG_FILE
 from training.staging import staged_copy
 from training.sweep import Axis
 
 PAIRS_FILE = "pairs.pt"
-LAST_FILE = "last.pt"
-LOG_FILE = "log.jsonl"
 
 
 @dataclass(frozen=True)
@@ -246,10 +245,33 @@ class ReflowState:
     teacher_wall_time_s: float
 
 
-def _save(path: Path, state: ReflowState) -> None:
-    partial = path.with_name(path.name + ".partial")
-    torch.save({f.name: getattr(state, f.name) for f in fields(ReflowState)}, partial)
-    os.replace(partial, path)
+def load_reflow_state(path: Path, config: ReflowConfig) -> ReflowState:
+    """The run state in `path`; ValueError when there is none, or naming the settings
+    that differ from `config`."""
+    state = ReflowState(**resume_payload(path))
+    if state.config != config.as_dict():
+        differing = sorted(k for k, v in config.as_dict().items() if state.config.get(k) != v)
+        raise ValueError(
+            f"{path} was written with other settings ({', '.join(differing)}); "
+            "resume with the same flags, or start afresh without --resume"
+        )
+    return state
+
+
+def cached_pairs(
+    model_dir: Path, teacher: VelocityField, config: ReflowConfig, run_dir: Path,
+    state: ReflowState | None,
+) -> tuple[TeacherPairs, float]:  # fmt: skip
+    """The teacher pairs of a resumed run's pairs.pt, else new ones written there; and the
+    seconds the teacher took (over the run)."""
+    pairs_path = run_dir / PAIRS_FILE
+    if state is not None and pairs_path.is_file():
+        return TeacherPairs(**torch.load(pairs_path, map_location="cpu")), state.teacher_wall_time_s
+    started = time.perf_counter()
+    pairs = teacher_pairs(model_dir, teacher, config)
+    teacher_wall_time_s = time.perf_counter() - started
+    torch.save(asdict(pairs), pairs_path)
+    return pairs, teacher_wall_time_s
 
 
 def train_reflow(
@@ -259,33 +281,14 @@ def train_reflow(
     torch.manual_seed(config.seed)
     teacher = base_flow(model_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
-    pairs_path, last_path = run_dir / PAIRS_FILE, run_dir / LAST_FILE
-    state: ReflowState | None = None
-    if resume:
-        if not last_path.is_file():
-            raise ValueError(f"nothing to resume: {last_path} does not exist")
-        state = ReflowState(**torch.load(last_path, map_location="cpu", weights_only=False))
-        if state.config != config.as_dict():
-            differing = sorted(k for k, v in config.as_dict().items() if state.config.get(k) != v)
-            raise ValueError(
-                f"{last_path} was written with other settings ({', '.join(differing)}); "
-                "resume with the same flags, or start afresh without --resume"
-            )
-    teacher_wall_time_s = 0.0 if state is None else state.teacher_wall_time_s
-    if resume and pairs_path.is_file():
-        pairs = TeacherPairs(**torch.load(pairs_path, map_location="cpu"))
-    else:
-        started = time.perf_counter()
-        pairs = teacher_pairs(model_dir, teacher, config)
-        teacher_wall_time_s = time.perf_counter() - started
-        torch.save(asdict(pairs), pairs_path)
-    train_rows = config.pairs
-    validation = TeacherPairs(*(x[train_rows:] for x in (pairs.z, pairs.q_1, pairs.condition)))
+    last_path = run_dir / LAST_FILE
+    state = load_reflow_state(last_path, config) if resume else None
+    pairs, teacher_wall_time_s = cached_pairs(model_dir, teacher, config, run_dir, state)
+    validation = TeacherPairs(*(x[config.pairs :] for x in (pairs.z, pairs.q_1, pairs.condition)))
     student = copy.deepcopy(teacher).train()
-    optimizer = torch.optim.AdamW(
-        student.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay
+    optimiser = Optimiser.cosine_adamw(
+        student, config.learning_rate, config.weight_decay, config.steps
     )
-    scheduler = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, T_max=config.steps)
     generator = torch.Generator().manual_seed(config.seed + 1)
     if state is None:
         error = endpoint_error(student, validation, steps=1)
@@ -298,59 +301,84 @@ def train_reflow(
         print(f"one-step endpoint error of the base flow: {error:.4f}", flush=True)
     else:
         student.load_state_dict(state.model)
-        optimizer.load_state_dict(state.optimizer)
-        scheduler.load_state_dict(state.scheduler)
+        optimiser.load(state.optimizer, state.scheduler)
         generator.set_state(state.generator)
-    session_start, last_saved = time.perf_counter(), time.perf_counter()
-    elapsed_before = state.wall_time_s
+    steps = ReflowSteps(config, student, optimiser, generator, pairs, validation)
+    run_steps(steps, state, last_path, run_dir / LOG_FILE)
+    student.load_state_dict(state.best_model)
+    return student.eval(), state
+
+
+@dataclass(frozen=True)
+class ReflowSteps:
+    """What the student's optimiser steps run on: the training pairs are the first
+    `config.pairs` of `pairs`, `validation` the rest."""
+
+    config: ReflowConfig
+    student: VelocityField
+    optimiser: Optimiser
+    generator: torch.Generator  # the batches' rows and times
+    pairs: TeacherPairs
+    validation: TeacherPairs
+
+    def step(self) -> float:
+        """One optimiser step on a batch drawn from the training pairs; its loss."""
+        config = self.config
+        self.student.train()
+        index = torch.randint(0, config.pairs, (config.batch_size,), generator=self.generator)
+        t = reflow_times(config.batch_size, config.zero_time_fraction, self.generator)
+        with torch.autocast("cpu", dtype=torch.bfloat16, enabled=config.autocast_bf16):
+            loss = reflow_loss(
+                self.student,
+                self.pairs.z[index],
+                self.pairs.q_1[index],
+                self.pairs.condition[index],
+                t,
+            )
+        self.optimiser.step(loss)
+        return loss.item()
+
+
+def run_steps(steps: ReflowSteps, state: ReflowState, last_path: Path, log_path: Path) -> None:
+    """The optimiser steps from `state.step` to `config.steps`: validated every
+    `validate_every` (and at the last), the best kept, last.pt written when due and at the end."""
+    config, student = steps.config, steps.student
+    best = Best(state.best_error, state.best_step, state.best_model)
+    clock = RunClock(config.checkpoint_minutes, before_s=state.wall_time_s)
 
     def checkpoint() -> None:
-        nonlocal last_saved
         state.model = student.state_dict()
-        state.optimizer = optimizer.state_dict()
-        state.scheduler = scheduler.state_dict()
-        state.generator = generator.get_state()
-        state.wall_time_s = elapsed_before + time.perf_counter() - session_start
-        _save(last_path, state)
-        last_saved = time.perf_counter()
+        state.optimizer = steps.optimiser.optimizer.state_dict()
+        state.scheduler = steps.optimiser.scheduler.state_dict()
+        state.generator = steps.generator.get_state()
+        state.best_error, state.best_step, state.best_model = best.value, best.at, best.state
+        state.wall_time_s = clock.wall_time_s()
+        atomic_torch_save({f.name: getattr(state, f.name) for f in fields(ReflowState)}, last_path)
+        clock.saved()
 
     with (
-        (run_dir / LOG_FILE).open("a") as log,
+        log_path.open("a") as log,
         tqdm(total=config.steps, initial=state.step, unit="step", mininterval=5.0) as progress,
     ):
         while state.step < config.steps:
-            student.train()
-            index = torch.randint(0, train_rows, (config.batch_size,), generator=generator)
-            t = reflow_times(config.batch_size, config.zero_time_fraction, generator)
-            with torch.autocast("cpu", dtype=torch.bfloat16, enabled=config.autocast_bf16):
-                loss = reflow_loss(
-                    student, pairs.z[index], pairs.q_1[index], pairs.condition[index], t
-                )
-            optimizer.zero_grad(set_to_none=True)
-            loss.backward()
-            optimizer.step()
-            scheduler.step()
+            loss = steps.step()
             state.step += 1
             progress.update(1)
             if state.step % config.validate_every == 0 or state.step == config.steps:
-                error = endpoint_error(student, validation, steps=1)
+                error = endpoint_error(student, steps.validation, steps=1)
                 row = {
                     "step": state.step,
-                    "train_loss": loss.item(),
+                    "train_loss": loss,
                     "one_step_error": error,
-                    "wall_time_s": elapsed_before + time.perf_counter() - session_start,
+                    "wall_time_s": clock.wall_time_s(),
                 }
                 log.write(json.dumps(row) + "\n")
                 log.flush()
-                progress.set_postfix(loss=f"{loss.item():.4f}", one_step=f"{error:.4f}")
-                if error < state.best_error:
-                    state.best_error, state.best_step = error, state.step
-                    state.best_model = copy.deepcopy(student.state_dict())
-            if time.perf_counter() - last_saved >= 60 * config.checkpoint_minutes:
+                progress.set_postfix(loss=f"{loss:.4f}", one_step=f"{error:.4f}")
+                best.offer(error, state.step, student)
+            if clock.checkpoint_due():
                 checkpoint()
     checkpoint()
-    student.load_state_dict(state.best_model)
-    return student.eval(), state
 
 
 def base_sampler(manifest: Manifest) -> SamplerSpec | None:
@@ -383,7 +411,7 @@ def export_reflow(
     """reflow.onnx and reflow_int8.onnx into `model_dir` (None: keep the ones there), the
     manifest's `reflow` record, then the sweep (which may choose the reflowed sampler),
     the judgement of its choice against the exact SMMs (the base flow's defaults serve
-    unless it is no worse on `judge_targets` report targets, training/sweep.py
+    unless it is no worse on `judge_targets` report targets, training/sweep/
     `judged_sweep`) and the quality measurement; all on a hidden copy swapped in only
     when it succeeds."""
     with staged_copy(model_dir) as staging:
@@ -472,7 +500,7 @@ def reflow_model(
         if manifest.reflow is None or REFLOW_FILE not in manifest.files:
             raise ValueError(
                 f"{model_dir}: no reflow to export again; train one first: "
-                f"python -m training.reflow --model-dir {model_dir}"
+                f"smm-train reflow --model-dir {model_dir}"
             )
         record = manifest.reflow.model_copy(update={"export_git_commit": git_commit()})
     else:
@@ -499,14 +527,11 @@ def reflow_command(model_dir: Path, config: ReflowConfig) -> str:
         if getattr(config, f.name) != getattr(defaults, f.name)
         for arg in (f"--{f.name.replace('_', '-')}", str(getattr(config, f.name)))
     ]
-    return shlex.join(["python", "-m", "training.reflow", "--model-dir", str(model_dir), *flags])
+    return shlex.join(["smm-train", "reflow", "--model-dir", str(model_dir), *flags])
 
 
-def parse_args(argv: list[str]) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(
-        prog="python -m training.reflow",
-        description="Reflow a trained flow for few-step sampling (module docstring).",
-    )
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options of `smm-train reflow`: the model, the run, and a flag per ReflowConfig field."""
     parser.add_argument("--model-dir", type=Path, required=True)
     parser.add_argument("--runs-dir", type=Path, default=Path("runs"))
     parser.add_argument("--resume", action="store_true")
@@ -529,11 +554,11 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         "--sweep-targets", type=int, default=None,
         help="targets of the sweep after export (default: the base training's, manifest)",
     )  # fmt: skip
-    return parser.parse_args(argv)
 
 
-def main(argv: list[str] | None = None) -> None:
-    args = parse_args(sys.argv[1:] if argv is None else argv)
+def run_command(args: argparse.Namespace, parser: argparse.ArgumentParser) -> None:
+    """`smm-train reflow`: train (or continue, or only export again) and print the result."""
+    del parser  # every check is the options' own
     overrides = {
         f.name: getattr(args, f.name)
         for f in fields(ReflowConfig)
@@ -545,7 +570,3 @@ def main(argv: list[str] | None = None) -> None:
         reflow_command(args.model_dir, config), args.sweep_targets, args.export_only,
     )  # fmt: skip
     print(json.dumps(manifest.model_dump(include={"defaults", "quality"}), indent=1))
-
-
-if __name__ == "__main__":
-    main()

@@ -7,9 +7,10 @@ a resumed run drops the lines of epochs it redoes and no epoch is logged twice.
 from __future__ import annotations
 
 import json
-import os
 from collections.abc import Sequence
 from pathlib import Path
+
+from training.loop import atomic_write
 
 LOG_FILE = "log.jsonl"
 LOSS_PLOT_FILE = "loss.png"
@@ -24,9 +25,8 @@ def read_log(path: Path) -> list[dict[str, float]]:
 
 def write_log(path: Path, rows: Sequence[dict[str, float]]) -> None:
     """Write `rows` as JSON lines, whole or not at all."""
-    partial = path.with_name(path.name + ".partial")
-    partial.write_text("".join(json.dumps(row) + "\n" for row in rows))
-    os.replace(partial, path)
+    text = "".join(json.dumps(row) + "\n" for row in rows)
+    atomic_write(path, lambda partial: partial.write_text(text))
 
 
 def plot_losses(path: Path, history: Sequence[dict[str, float]]) -> None:
@@ -46,6 +46,4 @@ def plot_losses(path: Path, history: Sequence[dict[str, float]]) -> None:
     axes.grid(True, which="both", alpha=0.3)
     axes.legend()
     figure.tight_layout()
-    partial = path.with_name(path.name + ".partial")
-    figure.savefig(partial, format="png")
-    os.replace(partial, path)
+    atomic_write(path, lambda partial: figure.savefig(partial, format="png"))

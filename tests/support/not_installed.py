@@ -4,7 +4,7 @@ every module under them with the ModuleNotFoundError a missing package raises.
 
 In process, `refuse_evaluation_packages(monkeypatch)` for one test (modules of theirs that
 earlier tests imported are forgotten, then restored); in a subprocess, `RUN_SMM_TRAIN`:
-`python -c RUN_SMM_TRAIN <smm-train arguments>`, run from the repository root.
+`python -c RUN_SMM_TRAIN <subcommand> <its arguments>`, run from the repository root.
 """
 
 from __future__ import annotations

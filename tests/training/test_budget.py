@@ -31,10 +31,11 @@ from training.budget import (
     plan_run,
     scaled_config,
 )
-from training.cli import config_from_args, main, parse_args
+from training.cli import main
 from training.config import TrainConfig
 from training.evaluate.packages import no_deps_command
 from training.robots import robot_spec
+from training.train_command import config_from_args, parse_args
 
 FULL = TrainConfig()
 COSTS = UnitCosts(evaluation_s=15e-6, training_sample_s=60e-6)
@@ -110,7 +111,7 @@ def test_a_judge_whose_package_is_missing_is_refused_before_training(
         "--models-dir", str(tmp_path / "models"), "--runs-dir", str(tmp_path / "runs"),
     ]  # fmt: skip
     with pytest.raises(SystemExit) as refused:
-        main(argv)
+        main(["train", *argv])
     message = str(refused.value)
     assert message.startswith("smm-train: error: The judge of panda's reflowed sampler needs")
     assert no_deps_command() in message and "--reflow-steps 0" in message

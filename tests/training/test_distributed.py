@@ -9,8 +9,8 @@ writes last.pt and the log; a run stopped mid-epoch resumes with the same two pr
 the history and weights of a run never stopped, and one process is refused its last.pt by
 a message naming both counts.
 
-End to end, `python -m torch.distributed.run --nproc-per-node 2 -m training.cli` trains a
-tiny planar 3R model: each process reports its half, rank 0 alone writes one set of run
+End to end, `python -m torch.distributed.run --nproc-per-node 2 --no-python smm-train train`
+trains a tiny planar 3R model: each process reports its half, rank 0 alone writes one set of run
 files and the export (flow.onnx, flow_int8.onnx, manifest recording two processes and the
 torchrun command), and the served model's every configuration reaches the target.
 """
@@ -162,7 +162,7 @@ def test_torchrun_trains_one_model_in_two_processes_that_is_exported_and_served(
     ]  # fmt: skip
     command = [
         sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc-per-node", "2",
-        "-m", "training.cli", *arguments,
+        "--no-python", str(Path(sys.executable).with_name("smm-train")), "train", *arguments,
     ]  # fmt: skip
     environment = {k: v for k, v in os.environ.items() if k not in ("RANK", "WORLD_SIZE")}
     result = subprocess.run(
@@ -187,7 +187,7 @@ def test_torchrun_trains_one_model_in_two_processes_that_is_exported_and_served(
     manifest = Manifest.model_validate_json((model_dir / "manifest.json").read_text())
     assert manifest.training.config["world_size"] == 2
     assert manifest.training.command == shlex.join(
-        ["torchrun", "--nproc-per-node", "2", "-m", "training.cli", *arguments]
+        ["torchrun", "--nproc-per-node", "2", "--no-python", "smm-train", "train", *arguments]
     )
     assert (manifest.training.samples, manifest.training.epochs) == (600, 2)
     assert sorted(manifest.files) == [

@@ -3,7 +3,7 @@ where the Panda's exact reference or the Fourier baseline runs.
 
 A 7-joint arm the project has never seen (xArm7-like: seven revolute joints, four of them
 turning through 4 pi, a fixed end-effector link), written by the test, trains through
-`smm-train --urdf ... --task pose` in a process where neither package can be imported
+`smm-train train --urdf ... --task pose` in a process where neither package can be imported
 (tests/support/not_installed.py: the import system refuses them, as an environment
 without them would). The budget is tiny and no flag sets the work after training, so
 the command scales it down itself and prints its plan first: the sweep on its floor of
@@ -72,7 +72,7 @@ def test_a_seven_joint_arm_trains_and_is_served_without_the_evaluation_packages(
     models, runs = tmp_path / "models", tmp_path / "runs"
     urdf = write_seven_joint_arm(tmp_path)
     command = [
-        sys.executable, "-c", RUN_SMM_TRAIN,
+        sys.executable, "-c", RUN_SMM_TRAIN, "train",
         "--urdf", str(urdf), "--end-effector", "link_eef", "--task", "pose",
         "--samples", "2000", "--epochs", "2", "--hidden-width", "64", "--hidden-layers", "2",
         "--batch-size", "256", "--models-dir", str(models), "--runs-dir", str(runs),

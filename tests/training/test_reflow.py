@@ -146,7 +146,7 @@ def test_the_export_is_served_and_its_one_step_answers_are_exact(tmp_path: Path)
     model_dir = _planar_copy(tmp_path)
     student, state = reflow.train_reflow(model_dir, tmp_path / "run", SMALL, resume=False)
     base = Manifest.model_validate_json((model_dir / MANIFEST_FILE).read_bytes())
-    record = reflow.reflow_record(base, SMALL, state, "python -m training.reflow --model-dir x")
+    record = reflow.reflow_record(base, SMALL, state, "smm-train reflow --model-dir x")
     manifest = reflow.export_reflow(
         model_dir, student, record, threads=1, sweep_targets=0, sweep_seed=1, eval_targets=3,
         eval_samples_per_target=100, eval_seed=5,

@@ -1,4 +1,4 @@
-"""The serving-defaults sweep (training/sweep.py).
+"""The serving-defaults sweep (training/sweep/, docs/sweep.md).
 
 Checked: the rule, on sweep tables built by hand, picks the cheapest candidate answering the
 most targets within the stated margins of the best (and falls back to the best count right
@@ -27,7 +27,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-import training.sweep as sweep_module
+import training.sweep.search as sweep_search
 from service.manifest import REFLOW_FILE, REPO_MODELS_DIR, Defaults, SamplerSpec, TaskSpec
 from service.models.registry import ServedModel, load_model
 from service.pipeline.joint_space import joint_distance
@@ -467,7 +467,7 @@ def test_a_refused_reflowed_sampler_is_followed_by_the_next_costlier_one(
             return incumbent.model_copy(update={"reasons": {**incumbent.reasons, JUDGED: reason}})
         return swept.model_copy(update={"reasons": {**swept.reasons, JUDGED: "serves"}})
 
-    monkeypatch.setattr(sweep_module, "judged_defaults", verdict)
+    monkeypatch.setattr(sweep_search, "judged_defaults", verdict)
     # The reflowed pairs are ordered by measured time, which on one target can put 2 steps
     # before 1; here the order is network evaluations, then DLS steps, so that each sweep
     # picks the same way and what is checked is the descent alone.
@@ -477,7 +477,7 @@ def test_a_refused_reflowed_sampler_is_followed_by_the_next_costlier_one(
             + 0.01 * row.setting.correction_steps
         )
     )
-    monkeypatch.setattr(sweep_module.Candidate, "cost", by_evaluations)
+    monkeypatch.setattr(Candidate, "cost", by_evaluations)
     plan = replace(TINY_PLAN, sampler_steps=(20,), reflow_steps=(0, 1, 2))
     incumbent = planar.manifest.defaults
     lines: list[str] = []
@@ -510,7 +510,7 @@ def test_a_refused_reflowed_sampler_is_followed_by_the_next_costlier_one(
             return swept
         return refused
 
-    monkeypatch.setattr(sweep_module, "judged_defaults", quiet_verdict)
+    monkeypatch.setattr(sweep_search, "judged_defaults", quiet_verdict)
     least["steps"] = 2
     judged.clear()
     quiet = judged_sweep(planar, 1, SEED, incumbent, plan, axes=["reflow_steps"])
@@ -543,7 +543,7 @@ def test_a_refused_axis_leaves_the_earlier_axes_choices_to_be_judged(
         return swept.model_copy(update={"reasons": {**swept.reasons, JUDGED: "serves"}})
 
     refuse_all = False
-    monkeypatch.setattr(sweep_module, "judged_defaults", verdict)
+    monkeypatch.setattr(sweep_search, "judged_defaults", verdict)
     plan = replace(TINY_PLAN, reflow_steps=(0, 1))
     axes: list[Axis] = ["reflow_steps", "num_samples"]
     start = planar.manifest.defaults

@@ -1,6 +1,6 @@
 """Judging serving defaults against the exact SMMs: is a candidate's answer no worse?
 
-The sweep (training/sweep.py) compares settings on 20 targets with a dense answer of the
+The sweep (training/sweep/) compares settings on 20 targets with a dense answer of the
 same pipeline; it cannot see a rare loss. A reflowed few-step sampler chosen by it lost
 one of 24 exact components on one of 200 targets and merged the two loops of the planar
 3R at rho = 0.999, where they pass 0.1 rad apart: a sampler change that the sweep
@@ -21,11 +21,11 @@ components).
 Only robots with an exact reference can be judged (planar3r, iiwa14, panda);
 `has_ground_truth` says which. `judged_defaults` applies the verdict wherever swept
 defaults would replace served ones: the reflow's export (training/reflow.py, through
-training/export.py `sweep_and_measure`) and `python -m training.sweep --write`.
+training/export.py `sweep_and_measure`) and `smm-train sweep --write`.
 
-`python -m training.evaluate.judge --model <id> --candidate paper|<JSON>` judges the
+`smm-train judge --model <id> --candidate paper|<JSON>` judges the
 paper's configuration, or any change of the served defaults, against what serves,
-writing nothing but its `--out` record (`main`); with `--write`, a candidate judged no
+writing nothing but its `--out` record (`run_command`); with `--write`, a candidate judged no
 worse replaces the served defaults (`served_candidate`). That is how a change the sweep
 cannot propose serves: the sweep's rule measures agreement with a dense answer of the
 same pipeline on 20 targets, a stand-in that counts as merges the components a sampler
@@ -33,10 +33,16 @@ unlike the reference's joins where the reference splits them, while the judge me
 against the exact SMMs on 220.
 
 `--candidate-model-dir <dir>` judges another trained network of the same robot and task
-(`smm-train --models-dir`, a narrower one, say) against the served one, at its own
+(`smm-train train --models-dir`, a narrower one, say) against the served one, at its own
 defaults or, with `--candidate`, at the served defaults so changed (`'{}'`: as they are,
 so only the network differs). It serves by replacing the model directory, which the
 judge does not do.
+
+    smm-train judge --model iiwa14-pose --candidate paper --num-samples 1000
+    smm-train judge --model planar3r-position \
+        --candidate '{"sampler": {"flow": "reflow", "steps": 2, "time_power": 1.0}}'
+    smm-train judge --model planar3r-position \
+        --candidate-model-dir /tmp/narrow/models/planar3r-position [--candidate '{}']
 """
 
 from __future__ import annotations
@@ -380,16 +386,8 @@ def candidate_defaults(served: Defaults, candidate: str) -> Defaults:
     )
 
 
-def main(argv: list[str] | None = None) -> None:
-    """Judge a configuration against the served defaults on the judge's targets:
-
-    python -m training.evaluate.judge --model iiwa14-pose --candidate paper --num-samples 1000
-    python -m training.evaluate.judge --model planar3r-position \\
-        --candidate '{"sampler": {"flow": "reflow", "steps": 2, "time_power": 1.0}}'
-    python -m training.evaluate.judge --model planar3r-position \\
-        --candidate-model-dir /tmp/narrow/models/planar3r-position [--candidate '{}']
-    """
-    parser = argparse.ArgumentParser(description=main.__doc__)
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options of `smm-train judge`."""
     parser.add_argument("--model", required=True, help="a model id under models/")
     parser.add_argument(
         "--candidate", help="paper, or a JSON object: a change of the served defaults"
@@ -397,7 +395,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument(
         "--candidate-model-dir", type=Path,
         help="another trained model directory of the same robot and task (smm-train "
-        "--models-dir): its network answers, at its own defaults, or with --candidate at "
+        "train --models-dir): its network answers, at its own defaults, or with --candidate at "
         "the served defaults so changed ('{}': the served defaults as they are)",
     )  # fmt: skip
     parser.add_argument(
@@ -413,7 +411,10 @@ def main(argv: list[str] | None = None) -> None:
         help="serve the candidate (write it into the model's manifest) if judged no worse",
     )  # fmt: skip
     parser.add_argument("--models-dir", type=Path, default=REPO_MODELS_DIR)
-    args = parser.parse_args(argv)
+
+
+def run_command(args: argparse.Namespace, parser: argparse.ArgumentParser) -> None:
+    """`smm-train judge`: judge the candidate, print (and --out) the judgement, --write it."""
     if args.candidate is None and args.candidate_model_dir is None:
         parser.error("give --candidate, --candidate-model-dir or both")
     if args.write and args.num_samples is not None:
@@ -463,12 +464,8 @@ def main(argv: list[str] | None = None) -> None:
         if not judgement.no_worse:
             raise SystemExit(f"not written: {judgement.summary()}")
         proposal = (
-            f"the candidate {args.candidate} (python -m training.evaluate.judge --model "
+            f"the candidate {args.candidate} (smm-train judge --model "
             f"{args.model} --candidate '{args.candidate}' --write)"
         )
         write_defaults(model_dir, served_candidate(incumbent, candidate, judgement, proposal))
         print(f"written to {model_dir / MANIFEST_FILE}", flush=True)
-
-
-if __name__ == "__main__":
-    main()

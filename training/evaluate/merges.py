@@ -11,8 +11,8 @@ onto the fibre to within `PROJECTION_TOLERANCE`, inside the limits, no step long
 reference split it. Where it fails, the merge stays unsettled (a longer way round may
 still join them).
 
-    python -m training.evaluate.merges --model panda-position   # every merge of its report
-    python -m training.evaluate.merges --model panda-position --targets 2 19 29
+    smm-train merges --model panda-position   # every merge of its report
+    smm-train merges --model panda-position --targets 2 19 29
 
 The targets are the report's (`training.evaluate.report`: the FK of configurations uniform
 in the limits, seed 7, and the answer with the same sample seed), so a merge the report
@@ -161,16 +161,18 @@ def merge_targets(model_id: str) -> list[int]:
     return [t["index"] for t in report.get("wrong_count_targets", []) if t.get("merges")]
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawTextHelpFormatter
-    )
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options of `smm-train merges`."""
     parser.add_argument("--model", required=True, help="a model id under models/")
     parser.add_argument(
         "--targets", type=int, nargs="+", help="report indices (default: every one the "
         "committed report lists with merges)",
     )  # fmt: skip
-    args = parser.parse_args()
+
+
+def run_command(args: argparse.Namespace, parser: argparse.ArgumentParser) -> None:
+    """`smm-train merges`: every merge of the report's targets, and how many settle."""
+    del parser
     model = load_model(REPO_MODELS_DIR / args.model, threads=1)
     reference_splits = unsettled = 0
     for index in args.targets or merge_targets(args.model):
@@ -187,7 +189,3 @@ def main() -> None:
         f"reference component of the merge joined by straight projected paths), {unsettled} "
         "unsettled"
     )
-
-
-if __name__ == "__main__":
-    main()

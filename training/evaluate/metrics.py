@@ -156,6 +156,36 @@ def path_checks(
     }
 
 
+def coverage_and_precision(
+    answers: list[MethodTarget], truths: list[Truth], periodic: np.ndarray
+) -> dict[str, object]:
+    """Coverage (each exact point to the nearest returned configuration) and precision
+    (each returned configuration to the nearest exact point), in rad over every target."""
+    coverage = [
+        nearest_distance(t.points, a.returned, periodic)
+        for a, t in zip(answers, truths, strict=True)
+    ]
+    precision = [
+        nearest_distance(a.returned, t.points, periodic)
+        for a, t in zip(answers, truths, strict=True)
+    ]
+    every_coverage, every_precision = np.concatenate(coverage), np.concatenate(precision)
+    return {
+        "coverage_rad": {
+            "mean": float(every_coverage.mean()),
+            "p95": float(np.percentile(every_coverage, 95)),
+            f"within_{COVERAGE_RADIUS_RAD}": float(np.mean(every_coverage <= COVERAGE_RADIUS_RAD)),
+        },
+        "precision_rad": (
+            {
+                "mean": float(every_precision.mean()),
+                "p95": float(np.percentile(every_precision, 95)),
+            }
+            if len(every_precision) else None
+        ),
+    }  # fmt: skip
+
+
 def summarise(
     model: ServedModel, answers: list[MethodTarget], truths: list[Truth]
 ) -> dict[str, object]:
@@ -199,24 +229,7 @@ def summarise(
         summary["near_singular_targets"] = float(np.mean(singular))
     if answers[0].labels is None:
         return summary
-    coverage = [
-        nearest_distance(t.points, a.returned, periodic)
-        for a, t in zip(answers, truths, strict=True)
-    ]
-    precision = [
-        nearest_distance(a.returned, t.points, periodic)
-        for a, t in zip(answers, truths, strict=True)
-    ]
-    every_coverage, every_precision = cat(coverage), cat(precision)
-    summary["coverage_rad"] = {
-        "mean": float(every_coverage.mean()),
-        "p95": float(np.percentile(every_coverage, 95)),
-        f"within_{COVERAGE_RADIUS_RAD}": float(np.mean(every_coverage <= COVERAGE_RADIUS_RAD)),
-    }
-    summary["precision_rad"] = (
-        {"mean": float(every_precision.mean()), "p95": float(np.percentile(every_precision, 95))}
-        if len(every_precision) else None
-    )  # fmt: skip
+    summary.update(coverage_and_precision(answers, truths, periodic))
     if truths[0].size is not None:
         summary["recall_by_size"] = recall_by_size(answers, truths)
     agreements = [

@@ -9,7 +9,7 @@
   `metrics.COUNT_RIGHT_DEFINITION`: the count, and no split or merge where the ground
   truth labels its components).
 
-    python -m training.evaluate.plots --targets 100
+    smm-train plots --targets 100
 """
 
 from __future__ import annotations
@@ -162,13 +162,15 @@ def count_accuracy_plot(models: list[ServedModel], num_targets: int, path: Path)
     plt.close(figure)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawTextHelpFormatter
-    )
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options of `smm-train plots`."""
     parser.add_argument("--targets", type=int, default=100)
     parser.add_argument("--out", type=Path, default=PLOTS_DIR)
-    args = parser.parse_args()
+
+
+def run_command(args: argparse.Namespace, parser: argparse.ArgumentParser) -> None:
+    """`smm-train plots`: draw every plot into --out."""
+    del parser
     args.out.mkdir(parents=True, exist_ok=True)
     planar = load_model(REPO_MODELS_DIR / "planar3r-position", threads=0)
     pose = load_model(REPO_MODELS_DIR / "iiwa14-pose", threads=0)
@@ -182,7 +184,3 @@ def main() -> None:
     count_accuracy_plot(
         [planar, pose, position], args.targets, args.out / "count-accuracy-by-distance.png"
     )
-
-
-if __name__ == "__main__":
-    main()

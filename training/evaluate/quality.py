@@ -6,7 +6,7 @@ kept ones, unlike the paper), at the serving default sampler and at the paper's 
 uniform Euler steps; the keep rate is the fraction accepted after the default correction at
 the default tolerances.
 
-    python -m training.evaluate.quality --model-dir models/iiwa14-pose --write
+    smm-train quality --model-dir models/iiwa14-pose --write
 
 re-measures an exported model's quality with its current defaults (after a sweep changed
 them) into its manifest; the paper sampler's row is kept from the manifest (the same
@@ -164,13 +164,15 @@ def remeasure(model_dir: Path, threads: int = 1) -> Quality:
     return measure_quality(served, num_targets, samples, int(config["eval_seed"]), paper_row)  # type: ignore[call-overload]
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawTextHelpFormatter
-    )
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options of `smm-train quality`."""
     parser.add_argument("--model-dir", required=True, type=Path)
     parser.add_argument("--write", action="store_true", help="write it into the manifest")
-    args = parser.parse_args()
+
+
+def run_command(args: argparse.Namespace, parser: argparse.ArgumentParser) -> None:
+    """`smm-train quality`: measure the quality again, print it, and with --write keep it."""
+    del parser
     quality = remeasure(args.model_dir)
     print(json.dumps(quality.model_dump(), indent=1))
     if args.write:
@@ -178,7 +180,3 @@ def main() -> None:
         manifest = Manifest.model_validate_json(path.read_bytes())
         manifest = manifest.model_copy(update={"quality": quality})
         path.write_text(manifest.model_dump_json(indent=2, exclude_unset=True) + "\n")
-
-
-if __name__ == "__main__":
-    main()

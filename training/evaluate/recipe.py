@@ -17,7 +17,7 @@ KEEP_RATE_SLACK; bf16 is a speed option: kept when it trains at least SPEED_GAIN
 float32 run's. A short budget favours what helps early (EMA, a residual net); the report
 says so and the long run confirms or not.
 
-    python -m training.evaluate.recipe --robot iiwa14 --task pose --samples 500000 --epochs 8
+    smm-train recipe --robot iiwa14 --task pose --samples 500000 --epochs 8
     # -> docs/reports/training/recipe-iiwa14-pose.{json,md}; runs under runs/recipe/ (not in git),
     #    a variant whose model is already there is not trained again (the job resumes)
 """
@@ -27,7 +27,6 @@ from __future__ import annotations
 import argparse
 import json
 import subprocess
-import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -36,6 +35,7 @@ import numpy as np
 import torch
 
 from service.manifest import Manifest
+from training.cli import in_subprocess
 from training.flow import cfm_loss
 from training.model import VelocityField
 
@@ -139,7 +139,7 @@ def _run(args: argparse.Namespace, name: str, flags: tuple[str, ...]) -> Measure
     manifest_path = work / "models" / model_id / "manifest.json"
     if not manifest_path.is_file():
         command = [
-            sys.executable, "-m", "training.cli", "--robot", args.robot, "--task", args.task,
+            *in_subprocess("train"), "--robot", args.robot, "--task", args.task,
             "--samples", str(args.samples), "--epochs", str(args.epochs),
             "--sweep-targets", "0", "--eval-targets", str(args.eval_targets),
             "--models-dir", str(work / "models"), "--runs-dir", str(work / "runs"),
@@ -174,7 +174,7 @@ def markdown(report: dict[str, object]) -> str:
         "",
         f"Budget per variant: {report['samples']:,} samples x {report['epochs']} epochs, "
         f"seed 42; quality on {report['eval_targets']} held-out targets x 1000 samples at the "
-        f"serving sampler and correction (`python -m training.evaluate.recipe`). Machine: "
+        f"serving sampler and correction (`smm-train recipe`). Machine: "
         f"{report['machine']}. Each option is tried on top of the best recipe so far and kept "
         "by the rule in training/evaluate/recipe.py.",
         "",
@@ -211,10 +211,8 @@ def _machine() -> str:
     return f"{model or 'unknown CPU'}, torch threads default, no GPU"
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawTextHelpFormatter
-    )
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options of `smm-train recipe`."""
     parser.add_argument("--robot", required=True)
     parser.add_argument("--task", required=True)
     parser.add_argument("--samples", type=int, default=500_000)
@@ -222,7 +220,11 @@ def main() -> None:
     parser.add_argument("--eval-targets", type=int, default=50)
     parser.add_argument("--work-dir", type=Path, default=Path("runs/recipe"))
     parser.add_argument("--out", type=Path, default=REPORTS_DIR)
-    args = parser.parse_args()
+
+
+def run_command(args: argparse.Namespace, parser: argparse.ArgumentParser) -> None:
+    """`smm-train recipe`: each option on top of the best recipe so far; the report."""
+    del parser
     args.work_dir = args.work_dir / f"{args.robot}-{args.task}"
 
     best = _run(args, BASELINE, ())
@@ -261,7 +263,3 @@ def main() -> None:
     (args.out / f"{stem}.json").write_text(json.dumps(report, indent=1) + "\n")
     (args.out / f"{stem}.md").write_text(markdown(report))
     print(markdown(report))
-
-
-if __name__ == "__main__":
-    main()

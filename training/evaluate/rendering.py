@@ -125,7 +125,7 @@ def markdown(model_id: str, report: dict[str, Any]) -> str:
         "",
         f"Model `{report['model']}`; {report['targets']} held-out targets (seed {report['seed']}), "
         f"{report['num_samples']} samples (or restarts) per target. Produced by "
-        f"`python -m training.evaluate.report --model {model_id} --targets {report['targets']}`.",
+        f"`smm-train report --model {model_id} --targets {report['targets']}`.",
         *_machine_lines(report),
         "",
         *_table(

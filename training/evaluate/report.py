@@ -16,8 +16,13 @@ of samples per target:
   it cannot run (another robot, realtime-smm not installed, no trained model) the report
   says so under "skipped".
 
-    python -m training.evaluate.report --model iiwa14-pose --targets 200   # -> docs/reports/
-    python -m training.evaluate.report --table-2   # the paper's Table 2 beside ours
+Every configuration FM + DLS returns is also checked by the robot's reference FK, which
+shares no code with the service (`reference_fk`: the planar closed form, the DH tables);
+the sample accounting of every answer (sampled = accepted + rejected) is the pipeline's
+own, checked by the service's tests.
+
+    smm-train report --model iiwa14-pose --targets 200   # -> docs/reports/
+    smm-train report --table-2   # the paper's Table 2 beside ours
 """
 
 from __future__ import annotations
@@ -25,6 +30,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -53,6 +59,7 @@ from training.evaluate.metrics import (
     summarise,
     wrong_count_targets,
 )
+from training.evaluate.reference_fk import reference_fk_check
 from training.evaluate.rendering import markdown, table_2
 from training.evaluate.targets import near_boundary, uniform_configurations
 from training.evaluate.truth import ground_truth
@@ -126,6 +133,9 @@ def build_report(
     if skipped:
         report["skipped"] = skipped
     answers = methods["FM + DLS"]
+    checked = reference_fk_check(model, q_targets, answers)
+    if checked is not None:
+        report["reference_fk"] = asdict(checked)
     if truths[0].size is not None:
         report["missed_component_targets"] = missed_components(answers, truths)
     if answers[0].labels is not None:
@@ -133,10 +143,8 @@ def build_report(
     return report
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawTextHelpFormatter
-    )
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options of `smm-train report`."""
     parser.add_argument("--model", help="a model id under models/, e.g. iiwa14-pose")
     parser.add_argument("--targets", type=int, default=200)
     parser.add_argument("--seed", type=int, default=7)
@@ -148,7 +156,10 @@ def main() -> None:
     parser.add_argument(
         "--markdown-only", action="store_true", help="rewrite the .md from the model's .json"
     )
-    args = parser.parse_args()
+
+
+def run_command(args: argparse.Namespace, parser: argparse.ArgumentParser) -> None:
+    """`smm-train report`: evaluate the model and write its report (or Table 2, or the .md)."""
     if args.table_2:
         reports = {p.stem: json.loads(p.read_text()) for p in sorted(args.out.glob("*.json"))}
         print(table_2(reports))
@@ -169,7 +180,3 @@ def main() -> None:
     (args.out / f"{args.model}.json").write_text(json.dumps(report, indent=1) + "\n")
     (args.out / f"{args.model}.md").write_text(markdown(args.model, report))
     print(markdown(args.model, report))
-
-
-if __name__ == "__main__":
-    main()

@@ -35,6 +35,7 @@ import pytest
 
 from service.manifest import MANIFEST_FILE, REPO_MODELS_DIR, Manifest
 from service.models.registry import ServedModel
+from training.cli import main as smm_train
 from training.evaluate import judge as judging
 from training.evaluate.references.planar3r import planar3r_position
 from training.evaluate.targets import uniform_configurations
@@ -132,7 +133,7 @@ def test_the_cli_judges_the_paper_configuration_or_a_json_change(
             judging.candidate_defaults(served, bad)
 
     out = tmp_path / "judgement.json"
-    judging.main(["--model", "planar3r-position", "--candidate", '{"num_samples": 1}',
+    smm_train(["judge", "--model", "planar3r-position", "--candidate", '{"num_samples": 1}',
                   "--targets", "6", "--near-singular", "2", "--out", str(out)])  # fmt: skip
     record = json.loads(out.read_text())
     assert record["candidate_argument"] == '{"num_samples": 1}'
@@ -180,16 +181,16 @@ def test_a_candidate_judged_no_worse_serves_marking_what_it_changed(
     small = ["--model", "planar3r-position", "--targets", "4", "--near-singular", "1",
              "--models-dir", str(models), "--write"]  # fmt: skip
     with pytest.raises(SystemExit, match="not written: worse than the incumbent"):
-        judging.main([*small, "--candidate", '{"num_samples": 1}'])
+        smm_train(["judge", *small, "--candidate", '{"num_samples": 1}'])
     assert manifest.read_text() == before
     with pytest.raises(SystemExit):  # the candidate serves as given, at its own N
-        judging.main([*small, "--candidate", '{"num_samples": 1}', "--num-samples", "10"])
+        smm_train(["judge", *small, "--candidate", '{"num_samples": 1}', "--num-samples", "10"])
     same = f'{{"correction_steps": {served.correction_steps}}}'  # what serves: no worse
-    judging.main([*small, "--candidate", same])
+    smm_train(["judge", *small, "--candidate", same])
     written = Manifest.model_validate_json(manifest.read_text()).defaults
     assert written.model_dump(exclude={"reasons"}) == served.model_dump(exclude={"reasons"})
     assert written.reasons[judging.JUDGED].startswith(
-        f"the candidate {same} (python -m training.evaluate.judge --model planar3r-position "
+        f"the candidate {same} (smm-train judge --model planar3r-position "
         f"--candidate '{same}' --write), changing nothing, serves: no worse"
     )
     assert (REPO_MODELS_DIR / "planar3r-position" / MANIFEST_FILE).read_text() != (
@@ -224,18 +225,18 @@ def test_a_candidate_network_is_judged_at_its_own_defaults(
         shutil.copytree(REPO_MODELS_DIR / part, models / part)
     out = tmp_path / "judgement.json"
     small = ["--model", "planar3r-position", "--targets", "3", "--near-singular", "1"]
-    judging.main([*small, "--candidate-model-dir", str(models / "planar3r-position"),
+    smm_train(["judge", *small, "--candidate-model-dir", str(models / "planar3r-position"),
                   "--out", str(out)])  # fmt: skip
     record = json.loads(out.read_text())
     assert record["candidate_model"] == planar3r.reference and record["worse"] == []
     # The candidate network at the served defaults so changed: one sample is worse.
-    judging.main([*small, "--candidate-model-dir", str(models / "planar3r-position"),
+    smm_train(["judge", *small, "--candidate-model-dir", str(models / "planar3r-position"),
                   "--candidate", '{"num_samples": 1}', "--out", str(out)])  # fmt: skip
     record = json.loads(out.read_text())
     assert record["candidate_defaults"]["num_samples"] == 1
     assert any(w.startswith("count right") for w in record["worse"])
     with pytest.raises(SystemExit):  # neither a candidate nor a network
-        judging.main(small)
+        smm_train(["judge", *small])
     with pytest.raises(SystemExit):
-        judging.main([*small, "--candidate-model-dir", str(models / "planar3r-position"),
+        smm_train(["judge", *small, "--candidate-model-dir", str(models / "planar3r-position"),
                       "--write"])  # fmt: skip

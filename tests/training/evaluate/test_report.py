@@ -1,7 +1,8 @@
 """report: a small planar report finds the closed-form component counts, returns exact
-configurations within the limits, covers the closed-form SMM, checks the returned paths,
-times the connect stage (median and p95, the restarts' too) and writes every table; the
-Fourier baseline runs or the report says why not.
+configurations within the limits (by the service's FK and by the closed form's), covers
+the closed-form SMM, checks the returned paths, times the connect stage (median and p95,
+the restarts' too) and writes every table; the Fourier baseline runs or the report says
+why not.
 """
 
 from __future__ import annotations
@@ -34,6 +35,9 @@ def test_small_planar_report_meets_the_closed_form(planar3r: ServedModel) -> Non
     assert methods["FM"]["raw"]["mm"] > 1.0  # the raw flow is millimetres off
     assert methods["ODE"]["raw"]["mm"] < 1e-6  # RK5 drift only
     assert report["wrong_count_targets"] == []
+    checked = report["reference_fk"]
+    assert isinstance(checked, dict) and checked["configurations"] > 0
+    assert checked["max_position_error_m"] <= 1e-6 and checked["within_tolerance"]
     # The Fourier baseline ran (realtime-smm and a trained model here) or says why not.
     skipped = report.get("skipped", {})
     assert isinstance(skipped, dict)

@@ -46,7 +46,7 @@ runs/fourier-planar3r/ and never needs them. Its `numpy>=2.3.3` is met by
 our pin (2.4.6); it calls nothing numpy 1.26 lacks (read from its source). `pip check`
 lists the three declared packages as missing: expected.
 
-    python -m training.evaluate.baselines.fourier --train   # 5.8 min on 2 CPU cores
+    smm-train baseline-fourier --train   # 5.8 min on 2 CPU cores
 
 (measured while other jobs shared the 2 cores: 346 s wall, 3 min of CPU; grid 180 s,
 networks 162 s, on one torch thread) (re)builds runs/fourier-planar3r/: bundle.pt, the
@@ -270,7 +270,7 @@ def load(run_dir: Path = RUN_DIR) -> FourierModel:
     path = run_dir / "bundle.pt"
     if not path.is_file():
         raise FourierUnavailable(
-            f"no trained model in {run_dir} (python -m training.evaluate.baselines.fourier --train)"
+            f"no trained model in {run_dir} (smm-train baseline-fourier --train)"
         )
     info = run_dir / "training.json"
     training = json.loads(info.read_text()) if info.is_file() else {}
@@ -340,18 +340,15 @@ def fourier_targets(
     return raw, corrected
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options of `smm-train baseline-fourier`."""
     parser.add_argument("--train", action="store_true", help=f"(re)build {RUN_DIR}")
     parser.add_argument("--run-dir", type=Path, default=RUN_DIR)
-    args = parser.parse_args()
+
+
+def run_command(args: argparse.Namespace, parser: argparse.ArgumentParser) -> None:
+    """`smm-train baseline-fourier --train`: train the baseline into --run-dir."""
     if not args.train:
         parser.error("nothing to do: pass --train")
     model = train(args.run_dir)
     print(json.dumps(model.training, indent=1))
-
-
-if __name__ == "__main__":
-    main()
