@@ -52,13 +52,6 @@ class JointSpec(_Strict):
     def count(self) -> int:
         return len(self.names)
 
-    def arrays(self) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
-        """(lower_rad (n,), upper_rad (n,), periodic (n,)) as numpy arrays."""
-        return (
-            np.asarray(self.lower_rad, dtype=np.float64),
-            np.asarray(self.upper_rad, dtype=np.float64),
-            np.asarray(self.periodic, dtype=bool),
-        )
 
 
 TaskName = Literal["position", "pose"]
@@ -337,7 +330,7 @@ class ReflowRecord(_Strict):
     export_git_commit: str | None = Field(
         default=None,
         description="the commit that last swept, judged and measured the committed reflow "
-        "again (python -m training.reflow --export-only), when it did",
+        "again (smm-train reflow --export-only), when it did",
     )
     base_sampler: SamplerSpec | None = Field(
         default=None,

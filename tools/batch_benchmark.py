@@ -26,6 +26,7 @@ import numpy as np
 from service.config import Settings
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
+from service.pipeline.joint_space import JointLimits
 from tools.local_server import LocalServer
 from training.evaluate.served import orientation_wxyz
 from training.evaluate.targets import uniform_configurations
@@ -157,8 +158,8 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=7)
     args = parser.parse_args()
     model = load_model(REPO_MODELS_DIR / args.model, threads=1)
-    lower, upper, _ = model.manifest.joints.arrays()
-    q_targets = uniform_configurations(lower, upper, args.targets, args.seed)
+    limits = JointLimits.of(model.manifest.joints)
+    q_targets = uniform_configurations(limits, args.targets, args.seed)
     machine = Machine.now()
     result = batch_against_singles(
         model, q_targets, args.num_samples, args.rounds, progress=lambda s: print(s, flush=True)

@@ -56,6 +56,7 @@ import numpy as np
 from service.config import Settings
 from service.manifest import REPO_MODELS_DIR, Manifest
 from service.models.registry import ServedModel, load_model
+from service.pipeline.joint_space import JointLimits
 from tools.batch_benchmark import batch_against_singles
 from tools.connect_profile import profile_connect
 from tools.connect_profile import summarise as summarise_connect
@@ -220,8 +221,8 @@ def benchmark_model(
     progress: Callable[[str], None],
 ) -> dict[str, object]:
     manifest = model.manifest
-    lower, upper, _ = manifest.joints.arrays()
-    q_targets = uniform_configurations(lower, upper, num_targets, seed)
+    limits = JointLimits.of(manifest.joints)
+    q_targets = uniform_configurations(limits, num_targets, seed)
     truths = [ground_truth(model, q, seed + i) for i, q in enumerate(q_targets)]
     paper = serving(model, paper_defaults(manifest.defaults))
     sampler = manifest.defaults.sampler
@@ -388,7 +389,7 @@ def _goals(report: dict) -> list[str]:
 
 def paper_judgement(manifest: Manifest, records_dir: Path = OUT_DIR) -> dict | None:
     """The committed judgement of the paper's configuration against the served defaults
-    on the judge's targets (`python -m training.evaluate.judge --model <id> --candidate
+    on the judge's targets (`smm-train judge --model <id> --candidate
     paper --num-samples 1000 --out docs/benchmark/judge-paper-<id>-n1000.json`), if there
     is one: both sides' figures, and whether the defaults it judged still serve."""
     path = records_dir / f"judge-paper-{manifest.model_id}-n{GOAL_NUM_SAMPLES}.json"
@@ -651,8 +652,8 @@ def main() -> None:
             server.stop()
     if args.batch_targets > 0 and not args.no_http and args.batch_model in args.models:
         model = load_model(REPO_MODELS_DIR / args.batch_model, threads=threads)
-        lower, upper, _ = model.manifest.joints.arrays()
-        q_targets = uniform_configurations(lower, upper, args.batch_targets, args.seed)
+        limits = JointLimits.of(model.manifest.joints)
+        q_targets = uniform_configurations(limits, args.batch_targets, args.seed)
         print(f"{args.batch_model}: batch of {args.batch_targets} against singles", flush=True)
         report["batch"] = batch_against_singles(model, q_targets, BATCH_NUM_SAMPLES)
         # The same with the batch's next targets sampled ahead on the other core.

@@ -39,6 +39,7 @@ from scipy.spatial.transform import Rotation
 
 from service.manifest import KINEMATICS_FILE, MANIFEST_FILE, REPO_MODELS_DIR, Manifest
 from service.models.sessions import OnnxKinematics, open_session
+from service.pipeline.joint_space import JointLimits
 from tools.local_server import LocalServer
 from training.machine import Machine, cpu_model
 
@@ -60,9 +61,9 @@ def require_loopback(url: str) -> None:
 
 def reachable_targets(manifest: Manifest, count: int, seed: int) -> list[dict[str, Any]]:
     """`count` targets of a model: the FK of configurations uniform within its limits."""
-    lower, upper, _ = manifest.joints.arrays()
+    limits = JointLimits.of(manifest.joints)
     rng = np.random.default_rng(seed)
-    q = rng.uniform(lower, upper, size=(count, manifest.joints.count))
+    q = rng.uniform(limits.lower_rad, limits.upper_rad, size=(count, manifest.joints.count))
     kinematics = OnnxKinematics(
         open_session(REPO_MODELS_DIR / manifest.model_id / KINEMATICS_FILE, threads=1)
     )

@@ -8,6 +8,7 @@ import numpy as np
 import torch
 
 from service.manifest import AffineNormalisation, JointSpec, TaskSpec
+from service.pipeline.joint_space import JointLimits
 from service.pipeline.targets import condition_features
 from training.kinematics import ForwardKinematics
 
@@ -36,9 +37,10 @@ def end_effector_poses(
 
 def joint_normalisation(joints: JointSpec) -> AffineNormalisation:
     """Maps the joint limits onto [-1, 1]."""
-    lower, upper, _ = joints.arrays()
+    limits = JointLimits.of(joints)
     return AffineNormalisation(
-        offset=((upper + lower) / 2).tolist(), scale=((upper - lower) / 2).tolist()
+        offset=((limits.upper_rad + limits.lower_rad) / 2).tolist(),
+        scale=((limits.upper_rad - limits.lower_rad) / 2).tolist(),
     )
 
 

@@ -96,7 +96,7 @@ START_CORRECTION_STEPS = 6
 def starting_defaults(task: TaskSpec, redundancy: int) -> Defaults:
     """Defaults for a model with no measured entry: by r (connectivity) and task (tolerance
     reason); sampler steps, DLS steps and num_samples are a starting point to sweep from."""
-    start = "starting point of the sweep (training/sweep.py), not yet measured on this model"
+    start = "starting point of the sweep (training/sweep/), not yet measured on this model"
     return Defaults(
         num_samples=START_NUM_SAMPLES,
         sampler=SamplerSpec(method="euler", steps=START_SAMPLER_STEPS),

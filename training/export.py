@@ -43,6 +43,7 @@ from service.manifest import (
 from service.models.chain import SerialChainKinematics
 from service.models.registry import load_model, sha256_of
 from service.models.sessions import FLOW_INPUTS, FLOW_OUTPUT, KINEMATICS_INPUT, KINEMATICS_OUTPUTS
+from service.pipeline.joint_space import JointLimits
 from service.pipeline.targets import condition_names
 from training.checkpoint import TrainResult
 from training.config import TrainConfig
@@ -160,8 +161,10 @@ def _check_against_torch(
 ) -> None:
     """Raise ExportParityError unless `evaluate` (q (B, n) -> position, rotation, Jacobian)
     reproduces pytorch-kinematics within `atol` on configurations uniform in the limits."""
-    lower, upper, _ = joints.arrays()
-    q = np.random.default_rng(0).uniform(lower, upper, size=(257, joints.count))
+    limits = JointLimits.of(joints)
+    q = np.random.default_rng(0).uniform(
+        limits.lower_rad, limits.upper_rad, size=(257, joints.count)
+    )
     with torch.no_grad():
         expected = [x.numpy() for x in fk(torch.from_numpy(q))]
     for name, a, e in zip(KINEMATICS_OUTPUTS, evaluate(q), expected, strict=True):

@@ -19,6 +19,7 @@ from scipy.stats import qmc
 
 from service.manifest import ChainJoint, ChainSpec, JointSpec
 from service.models.chain import SerialChainKinematics
+from service.pipeline.joint_space import JointLimits
 from training.urdf import read_serial_chain
 
 # measured_reach_m: 2^17 scrambled Sobol configurations find the basin of the farthest
@@ -173,9 +174,9 @@ def measured_reach_m(chain: pk.SerialChain, joints: JointSpec, seed: int = 0) ->
     ~50x faster on a batch).
     """
     kinematics = SerialChainKinematics(chain_spec(chain))
-    lower, upper, _ = joints.arrays()
+    limits = JointLimits.of(joints)
     sobol = qmc.Sobol(d=joints.count, scramble=True, seed=seed).random_base2(REACH_SOBOL_LOG2)
-    q = lower + (upper - lower) * sobol  # (S, n)
+    q = limits.lower_rad + (limits.upper_rad - limits.lower_rad) * sobol  # (S, n)
     distance_m = np.linalg.norm(kinematics(q).position_m, axis=1)  # (S,)
     best = np.argsort(-distance_m)[:REACH_REFINED]
 
@@ -192,7 +193,7 @@ def measured_reach_m(chain: pk.SerialChain, joints: JointSpec, seed: int = 0) ->
             start,
             jac=True,
             method="L-BFGS-B",
-            bounds=list(zip(lower, upper, strict=True)),
+            bounds=list(zip(limits.lower_rad, limits.upper_rad, strict=True)),
             options={"ftol": 1e-15, "gtol": 1e-12, "maxiter": 1000},
         )
         reach_m = max(reach_m, math.sqrt(-float(result.fun)))

@@ -8,6 +8,7 @@ import copy
 from typing import Any
 
 from service.models.registry import ServedModel
+from service.pipeline.joint_space import JointLimits
 from tools.batch_benchmark import batch_against_singles, mismatched_targets
 from training.evaluate.targets import uniform_configurations
 
@@ -15,8 +16,8 @@ from training.evaluate.targets import uniform_configurations
 def test_batch_against_singles_times_both_and_finds_the_answers_identical(
     planar3r: ServedModel,
 ) -> None:
-    lower, upper, _ = planar3r.manifest.joints.arrays()
-    q_targets = uniform_configurations(lower, upper, 3, seed=7)
+    limits = JointLimits.of(planar3r.manifest.joints)
+    q_targets = uniform_configurations(limits, 3, seed=7)
     result = batch_against_singles(planar3r, q_targets, num_samples=100, rounds=2)
     assert result["identical"] is True and result["mismatched"] == []
     assert result["targets"] == 3 and result["num_samples"] == 100

@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 
 from service.models.registry import ServedModel
+from service.pipeline.joint_space import JointLimits
 from tools.benchmark import (
     BASE,
     FLOAT32,
@@ -97,8 +98,8 @@ def test_thebatch_profile_is_per_target_with_the_floor_of_sampling_and_transport
 
 
 def test_restarts_reach_the_valid_count_asked_for(planar3r: ServedModel) -> None:
-    lower, upper, _ = planar3r.manifest.joints.arrays()
-    q_targets = uniform_configurations(lower, upper, 2, seed=7)
+    limits = JointLimits.of(planar3r.manifest.joints)
+    q_targets = uniform_configurations(limits, 2, seed=7)
     restart = RestartMatch(planar3r, num_samples=40)
     answers = [
         restart(q, wanted, seed=i)

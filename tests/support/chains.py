@@ -19,6 +19,7 @@ import torch
 
 from service.manifest import CHAIN_FILE, KINEMATICS_FILE, MANIFEST_FILE, REPO_MODELS_DIR
 from service.models.sessions import OnnxKinematics, open_session
+from service.pipeline.joint_space import JointLimits
 from service.pipeline.types import Kinematics
 from tests.support.app import PLANAR3R_DIR
 from training.kinematics import ForwardKinematics, joint_spec, load_chain
@@ -105,8 +106,10 @@ def pytorch_kinematics_answer(
 def configurations(urdf: Path, end_effector_link: str, count: int, seed: int) -> np.ndarray:
     """(count, n) uniform in the joint limits ((-pi, pi] for continuous joints)."""
     joints = joint_spec(load_chain(urdf, end_effector_link))
-    lower, upper, _ = joints.arrays()
-    return np.random.default_rng(seed).uniform(lower, upper, (count, joints.count))
+    limits = JointLimits.of(joints)
+    return np.random.default_rng(seed).uniform(
+        limits.lower_rad, limits.upper_rad, (count, joints.count)
+    )
 
 
 def assert_chain_equals_onnx(kinematics: Kinematics, model_dir: Path, q_rad: np.ndarray) -> None:

@@ -24,6 +24,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from service.manifest import Manifest
+from service.pipeline.joint_space import JointLimits
 from tests.support.app import make_client
 from tests.support.not_installed import RUN_SMM_TRAIN, refuse_evaluation_packages
 from tools import lock
@@ -97,8 +98,8 @@ def test_a_seven_joint_arm_trains_and_is_served_without_the_evaluation_packages(
     assert manifest.reflow is None and "dense reference" in manifest.defaults.reasons["sampler"]
 
     chain = read_chain(urdf, "link_eef")
-    lower, upper, _ = manifest.joints.arrays()
-    q_target = np.random.default_rng(5).uniform(lower, upper)
+    limits = JointLimits.of(manifest.joints)
+    q_target = np.random.default_rng(5).uniform(limits.lower_rad, limits.upper_rad)
     pose = chain.pose(q_target[None])[0]
     x, y, z, w = Rotation.from_matrix(pose[:3, :3]).as_quat()
     body = {
@@ -122,7 +123,7 @@ def test_a_seven_joint_arm_trains_and_is_served_without_the_evaluation_packages(
     turn = np.einsum("bji,jk->bik", reached[:, :3, :3], pose[:3, :3])  # R_reached^T R_target
     angle = np.arccos(np.clip((np.trace(turn, axis1=1, axis2=2) - 1) / 2, -1, 1))
     assert np.all(angle <= 1e-6)
-    assert np.all((q >= lower - 1e-12) & (q <= upper + 1e-12))
+    assert np.all((q >= limits.lower_rad - 1e-12) & (q <= limits.upper_rad + 1e-12))
 
 
 def test_a_missing_evaluation_package_is_named_with_the_command_that_installs_it(

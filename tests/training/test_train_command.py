@@ -29,6 +29,7 @@ import torch
 from service.manifest import CHAIN_FILE, REPO_MODELS_DIR, Manifest
 from service.models.chain import SerialChainKinematics
 from service.models.registry import load_model, sha256_of
+from service.pipeline.joint_space import JointLimits
 from tests.support.app import make_client
 from tests.support.chains import model_without_chain
 from tests.support.small_arm import JOINTS, arm_pose, write_arm
@@ -162,13 +163,16 @@ def test_a_urdf_never_seen_trains_exports_and_is_served(tmp_path: Path) -> None:
         assert all(f"; {v}: keep rate" in reason or f": {v}: keep rate" in reason for v in values)
     chosen_step = manifest.defaults.connectivity.trace_step_rad
     assert manifest.defaults.reasons["connectivity"].startswith(f"trace_step_rad = {chosen_step} ")
-    lower, upper, _ = manifest.joints.arrays()
+    limits = JointLimits.of(manifest.joints)
     rng = np.random.default_rng(7)
-    sampled_m = [np.linalg.norm(arm_pose(q)[:3, 3]) for q in rng.uniform(lower, upper, (500, 4))]
+    sampled_m = [
+        np.linalg.norm(arm_pose(q)[:3, 3])
+        for q in rng.uniform(limits.lower_rad, limits.upper_rad, (500, 4))
+    ]
     links_m = sum(float(np.linalg.norm(xyz)) for _, _, _, _, xyz, *_ in JOINTS[1:7])
     assert max(sampled_m) <= manifest.reach_m <= links_m  # measured, between two bounds
 
-    q_target = rng.uniform(lower, upper)
+    q_target = rng.uniform(limits.lower_rad, limits.upper_rad)
     target = arm_pose(q_target)[:3, 3]
     with make_client(models) as client:
         assert [m["robot"] for m in client.get("/robots").json()["models"]] == ["small_arm"]
@@ -180,7 +184,7 @@ def test_a_urdf_never_seen_trains_exports_and_is_served(tmp_path: Path) -> None:
     assert len(q) > 0
     reached = np.array([arm_pose(one)[:3, 3] for one in q])
     assert np.all(np.linalg.norm(reached - target, axis=1) <= 1e-6)
-    assert np.all((q >= lower) & (q <= upper))
+    assert np.all((q >= limits.lower_rad) & (q <= limits.upper_rad))
 
 
 def test_an_arm_that_cannot_be_trained_is_refused_by_name_before_anything_is_written(

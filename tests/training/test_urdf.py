@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 import torch
 
+from service.pipeline.joint_space import JointLimits
 from tests.support.small_arm import arm_pose, write_arm
 from training.kinematics import ForwardKinematics, chain_spec, joint_spec, load_chain
 from training.urdf import read_serial_chain, require_redundancy, task_for_urdf
@@ -36,8 +37,8 @@ def test_the_chain_from_base_to_tool_is_picked_in_order(tmp_path: Path) -> None:
 def test_forward_kinematics_is_the_product_of_the_urdf_transforms(tmp_path: Path) -> None:
     fk = ForwardKinematics(load_chain(write_arm(tmp_path), "tool", "base"))
     joints = joint_spec(fk.chain)
-    lower, upper, _ = joints.arrays()
-    q = np.random.default_rng(0).uniform(lower, upper, (200, 4))
+    limits = JointLimits.of(joints)
+    q = np.random.default_rng(0).uniform(limits.lower_rad, limits.upper_rad, (200, 4))
     with torch.no_grad():
         position, rotation, _ = fk(torch.from_numpy(q))
     expected = np.stack([arm_pose(one) for one in q])  # (200, 4, 4)

@@ -58,6 +58,7 @@ import numpy as np
 from service.manifest import MANIFEST_FILE, REPO_MODELS_DIR, Defaults
 from service.models.registry import ServedModel, load_model
 from service.pipeline.arrays import FloatArray
+from service.pipeline.joint_space import JointLimits
 from training.defaults import write_defaults
 from training.evaluate.methods import MethodTarget, served_target
 from training.evaluate.metrics import (
@@ -113,11 +114,13 @@ def figures(
     model: ServedModel, answers: Sequence[MethodTarget], truths: Sequence[Truth]
 ) -> dict[str, float]:
     """The evaluation's component figures of one configuration over the targets."""
-    _, _, periodic = model.manifest.joints.arrays()
+    limits = JointLimits.of(model.manifest.joints)
     agreements = [component_agreement(a, t) for a, t in zip(answers, truths, strict=True)]
     known = [g for g in agreements if g is not None]
     pairs = list(zip(answers, truths, strict=True))
-    coverage = np.concatenate([nearest_distance(t.points, a.returned, periodic) for a, t in pairs])
+    coverage = np.concatenate(
+        [nearest_distance(t.points, a.returned, limits.periodic) for a, t in pairs]
+    )
     result = {
         "count_right": float(np.mean([g.right for g in known])),
         "coverage_p95_rad": float(np.percentile(coverage, 95)),
@@ -162,8 +165,8 @@ def near_singular_configurations(
     NEAR_SINGULAR_DRAWS x count uniform in the limits: targets near a critical value of
     the task map, where the fibre's components pass closest to each other."""
     manifest = model.manifest
-    lower, upper, _ = manifest.joints.arrays()
-    q = uniform_configurations(lower, upper, NEAR_SINGULAR_DRAWS * count, seed)
+    limits = JointLimits.of(manifest.joints)
+    q = uniform_configurations(limits, NEAR_SINGULAR_DRAWS * count, seed)
     jacobian = model.kinematics(q).jacobian[:, manifest.task.jacobian_rows]  # (D, m, n)
     smallest = np.linalg.svd(jacobian, compute_uv=False)[:, -1]  # (D,)
     return q[np.argsort(smallest)[:count]]
@@ -213,10 +216,10 @@ def judge(
     """
     if candidate_model is not None:
         check_same_problem(candidate_model, model)
-    lower, upper, _ = model.manifest.joints.arrays()
+    limits = JointLimits.of(model.manifest.joints)
     q_targets = np.concatenate(
         [
-            uniform_configurations(lower, upper, targets, seed),
+            uniform_configurations(limits, targets, seed),
             near_singular_configurations(model, near_singular, seed + 1),
         ]
     )

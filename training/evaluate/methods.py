@@ -128,11 +128,11 @@ def _answered(
     (samples and path points), its errors, the path gaps, the near-singular flag."""
     returned = returned_points(components, model.manifest.joints.count)
     p, o = _errors(model, returned.q_rad, target)
-    _, _, periodic = model.manifest.joints.arrays()
+    limits = JointLimits.of(model.manifest.joints)
     return MethodTarget(
         raw_p, raw_o, returned.q_rad, p, o, returned.labels, num_samples, stages["total"],
         stages, returned.on_path, returned.paths,
-        path_max_gap_rad([path for _, path in returned.paths], periodic), near_singular,
+        path_max_gap_rad([path for _, path in returned.paths], limits.periodic), near_singular,
     )  # fmt: skip
 
 

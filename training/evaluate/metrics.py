@@ -12,7 +12,7 @@ from scipy.spatial import cKDTree
 
 from service.models.registry import ServedModel
 from service.pipeline.arrays import BoolArray, FloatArray
-from service.pipeline.joint_space import JointBox
+from service.pipeline.joint_space import JointBox, JointLimits
 from service.pipeline.types import SmmResult
 from training.evaluate.methods import MethodTarget
 from training.evaluate.references.iiwa14 import ReferenceComponent
@@ -196,7 +196,7 @@ def summarise(
     manifest = model.manifest
     reach, pose = manifest.reach_m, manifest.task.orientation
     one_dimensional = manifest.joints.count - manifest.task.dimension == 1
-    lower, upper, periodic = manifest.joints.arrays()
+    limits = JointLimits.of(manifest.joints)
     cat = np.concatenate
     raw = errors_in_units(
         cat([a.raw_position_m for a in answers]),
@@ -210,9 +210,7 @@ def summarise(
         reach,
         pose,
     )
-    outside = [
-        (~(periodic | ((a.returned >= lower) & (a.returned <= upper)))).any(axis=1) for a in answers
-    ]
+    outside = [~limits.contains(a.returned) for a in answers]
     summary: dict[str, object] = {
         "raw": raw,
         "returned": returned,
@@ -229,7 +227,7 @@ def summarise(
         summary["near_singular_targets"] = float(np.mean(singular))
     if answers[0].labels is None:
         return summary
-    summary.update(coverage_and_precision(answers, truths, periodic))
+    summary.update(coverage_and_precision(answers, truths, limits.periodic))
     if truths[0].size is not None:
         summary["recall_by_size"] = recall_by_size(answers, truths)
     agreements = [
@@ -252,7 +250,7 @@ def summarise(
         summary["extra_small_per_target"] = float(np.mean([g.extra_small for g in agreements]))
         summary["regular_targets"] = regular_targets(answers, truths)
     if one_dimensional and any(a.on_path is not None for a in answers):
-        summary.update(path_checks(answers, lower, upper, periodic))
+        summary.update(path_checks(answers, limits.lower_rad, limits.upper_rad, limits.periodic))
     return summary
 
 

@@ -37,6 +37,7 @@ import numpy as np
 
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
+from service.pipeline.joint_space import JointLimits
 from training.evaluate.baselines.fourier import (
     FOURIER,
     FOURIER_DLS,
@@ -77,8 +78,8 @@ def build_report(
     (the Fourier baseline from the model trained in `fourier_dir`, where it runs)."""
     machine = Machine.now()
     manifest = model.manifest
-    lower, upper, _ = manifest.joints.arrays()
-    q_targets = uniform_configurations(lower, upper, num_targets, seed)
+    limits = JointLimits.of(manifest.joints)
+    q_targets = uniform_configurations(limits, num_targets, seed)
     robot = robot_spec(manifest.robot)
     chain = load_chain(REPO_MODELS_DIR / robot.urdf, robot.end_effector_link, robot.base_link)
     one_dimensional = manifest.joints.count - manifest.task.dimension == 1

@@ -15,18 +15,18 @@ from dataclasses import dataclass
 import numpy as np
 
 from service.pipeline.arrays import FloatArray
+from service.pipeline.joint_space import JointLimits
 from service.pipeline.types import SmmModel
 from training.evaluate.references.iiwa14 import LIMITS_RAD, SHOULDER_M, dh_pose
 
+# The paper's DH arm: its limits, no joint periodic.
+IIWA14_LIMITS = JointLimits(-LIMITS_RAD, LIMITS_RAD, np.zeros(len(LIMITS_RAD), dtype=bool))
 
-def uniform_configurations(
-    lower_rad: FloatArray,  # (n,)
-    upper_rad: FloatArray,  # (n,)
-    count: int,
-    seed: int,
-) -> FloatArray:  # (count, n)
+
+def uniform_configurations(limits: JointLimits, count: int, seed: int) -> FloatArray:  # (count, n)
     """Configurations uniform in the box of the limits, from a fresh generator."""
-    return np.random.default_rng(seed).uniform(lower_rad, upper_rad, (count, len(lower_rad)))
+    lower_rad, upper_rad = limits.lower_rad, limits.upper_rad
+    return np.random.default_rng(seed).uniform(lower_rad, upper_rad, (count, limits.count))
 
 
 @dataclass(frozen=True)
@@ -38,8 +38,8 @@ class HeldOutTargets:
 
 def held_out_targets(model: SmmModel, count: int, seed: int) -> HeldOutTargets:
     """`count` targets: the model's own FK of configurations uniform in its limits."""
-    lower_rad, upper_rad, _ = model.manifest.joints.arrays()
-    q_rad = uniform_configurations(lower_rad, upper_rad, count, seed)
+    limits = JointLimits.of(model.manifest.joints)
+    q_rad = uniform_configurations(limits, count, seed)
     fk = model.kinematics(q_rad)
     return HeldOutTargets(q_rad=q_rad, position_m=fk.position_m, rotation=fk.rotation)
 
@@ -52,7 +52,7 @@ class DhTargets:
 
 def dh_targets(count: int, seed: int) -> DhTargets:
     """iiwa14 targets made by the DH FK of the references (independent of URDF and export)."""
-    q_rad = uniform_configurations(-LIMITS_RAD, LIMITS_RAD, count, seed)
+    q_rad = uniform_configurations(IIWA14_LIMITS, count, seed)
     return DhTargets(q_rad=q_rad, pose=dh_pose(q_rad))
 
 

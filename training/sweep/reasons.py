@@ -62,7 +62,7 @@ def time_power_reason(
 ) -> str:
     """Why the grid's power was chosen, with every candidate's raw error."""
     return (
-        f"time power {best.time_power:g} by the rule of training/sweep.py (the uniform grid "
+        f"time power {best.time_power:g} by the rule of training/sweep/rule.py (the uniform grid "
         f"unless another power lowers the flow's mean raw error by at least "
         f"{TIME_POWER_GAIN * 100:g} %); {setting.num_samples} samples on each of the "
         f"sweep's held-out targets (seed {seed}) at {setting.sampler_steps} Euler steps, "
@@ -84,7 +84,7 @@ def axis_reason(
     reference = plan.reference_setting(redundancy)
     joint = f" at {best.setting.correction_steps} DLS steps" if axis in JOINT_DLS_AXES else ""
     return (
-        f"{best.value} {UNIT[axis]}{joint} by the rule of training/sweep.py (the cheapest "
+        f"{best.value} {UNIT[axis]}{joint} by the rule of training/sweep/rule.py (the cheapest "
         f"candidate answering the most targets within {_points(keep_rate_margin(axis))} "
         f"of the best keep rate, {COUNT_RIGHT_MARGIN * 100:g} points of the best "
         f"count right, {RECALL_MARGIN * 100:g} points of the best recall and "

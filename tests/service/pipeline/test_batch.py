@@ -16,6 +16,7 @@ from service.manifest import REPO_MODELS_DIR, Manifest
 from service.models.registry import ServedModel, load_model
 from service.pipeline.batch import run_batch
 from service.pipeline.deadline import Deadline
+from service.pipeline.joint_space import JointLimits
 from service.pipeline.run import run
 from service.pipeline.types import (
     CoaxialSet,
@@ -97,8 +98,10 @@ def iiwa14_pose() -> ServedModel:
 
 def test_iiwa14_pose_answers_are_the_single_answers_bitwise(iiwa14_pose: ServedModel) -> None:
     manifest = iiwa14_pose.manifest
-    lower, upper, _ = manifest.joints.arrays()
-    q_targets = np.random.default_rng(3).uniform(lower, upper, size=(3, len(lower)))
+    limits = JointLimits.of(manifest.joints)
+    q_targets = np.random.default_rng(3).uniform(
+        limits.lower_rad, limits.upper_rad, size=(3, len(limits.lower_rad))
+    )
     queries = []
     for seed, q in enumerate(q_targets):
         fk = iiwa14_pose.kinematics(q[None])

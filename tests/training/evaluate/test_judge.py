@@ -35,6 +35,7 @@ import pytest
 
 from service.manifest import MANIFEST_FILE, REPO_MODELS_DIR, Manifest
 from service.models.registry import ServedModel
+from service.pipeline.joint_space import JointLimits
 from training.cli import main as smm_train
 from training.evaluate import judge as judging
 from training.evaluate.references.planar3r import planar3r_position
@@ -70,8 +71,8 @@ def _critical_gap(q_rad: np.ndarray) -> np.ndarray:  # (T,) distance of rho to {
 def test_near_singular_planar_targets_lie_near_its_critical_values(planar3r: ServedModel) -> None:
     q = judging.near_singular_configurations(planar3r, count=10, seed=3)
     assert q.shape == (10, 3)
-    lower, upper, _ = planar3r.manifest.joints.arrays()
-    uniform = uniform_configurations(lower, upper, 500, seed=4)
+    limits = JointLimits.of(planar3r.manifest.joints)
+    uniform = uniform_configurations(limits, 500, seed=4)
     # Within 0.05 of a critical value: all ten, against ~10 % of uniform targets (the
     # chance that ten uniform ones all are: ~1e-10).
     assert np.all(_critical_gap(q) < 0.05)

@@ -15,7 +15,7 @@ import pytest
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
 from service.pipeline.correction import task_error_norms
-from service.pipeline.joint_space import joint_distance, wrap_periodic
+from service.pipeline.joint_space import JointLimits, joint_distance, wrap_periodic
 from service.pipeline.types import ComponentPath
 from training.evaluate.baselines.restart_dls import random_restart_dls
 from training.evaluate.methods import (
@@ -111,7 +111,7 @@ def test_restart_components_come_from_the_connect_stage(planar3r: ServedModel) -
     robot = robot_spec(planar3r.manifest.robot)
     chain = load_chain(REPO_MODELS_DIR / robot.urdf, robot.end_effector_link)
     restart = restart_target(planar3r, chain, Q_TARGET_RAD, 100, seed=0)
-    _, _, periodic = planar3r.manifest.joints.arrays()
+    limits = JointLimits.of(planar3r.manifest.joints)
     spacing = planar3r.manifest.defaults.connectivity.path_spacing_rad
     assert restart.labels is not None and restart.on_path is not None
     # The two loops traced whole, each with its path; every accepted solution lies on
@@ -120,7 +120,9 @@ def test_restart_components_come_from_the_connect_stage(planar3r: ServedModel) -
     kept, kept_labels = restart.returned[~restart.on_path], restart.labels[~restart.on_path]
     assert len(kept) > 0
     for q, label in zip(kept, kept_labels, strict=True):
-        distance = [joint_distance(path.q_rad, q, periodic).min() for _, path in restart.paths]
+        distance = [
+            joint_distance(path.q_rad, q, limits.periodic).min() for _, path in restart.paths
+        ]
         assert distance[label] <= spacing and int(np.argmin(distance)) == label
     # Its time includes accept and connect.
     stages = restart.stage_ms
@@ -138,22 +140,22 @@ def test_restart_dls_on_a_4d_fibre_is_pulled_into_the_limits_as_the_service_is()
     manifest = model.manifest
     robot = robot_spec(manifest.robot)
     chain = load_chain(REPO_MODELS_DIR / robot.urdf, robot.end_effector_link, robot.base_link)
-    lower, upper, periodic = manifest.joints.arrays()
+    limits = JointLimits.of(manifest.joints)
     q_target = np.array([0.3, 0.8, -0.4, -1.2, 0.5, 1.0, 0.2])
     target, position_m = reference_target(model, q_target)
     solutions = random_restart_dls(
         chain, manifest.joints, manifest.task, position_m, None, 300, seed=3
     )
-    q = wrap_periodic(solutions.q_rad.astype(np.float64), periodic)
+    q = wrap_periodic(solutions.q_rad.astype(np.float64), limits.periodic)
     error_m, _ = task_error_norms(model.kinematics(q), target, manifest.task)
     tolerance_m = manifest.defaults.tolerance_position_m
-    inside = np.all((q >= lower) & (q <= upper), axis=1)
+    inside = np.all((q >= limits.lower_rad) & (q <= limits.upper_rad), axis=1)
     within = error_m <= tolerance_m
     restart = restart_target(model, chain, q_target, 300, seed=3)
     assert (within & ~inside).any()  # the case the pull is for: some past a limit
     assert restart.kept > int((within & inside).sum())
     kept = restart.returned[~restart.on_path] if restart.on_path is not None else restart.returned
-    assert np.all((kept >= lower - 1e-12) & (kept <= upper + 1e-12))
+    assert np.all((kept >= limits.lower_rad - 1e-12) & (kept <= limits.upper_rad + 1e-12))
     stages = restart.stage_ms
     assert stages is not None and stages["correct"] > 0
     assert restart.time_ms == pytest.approx(sum(stages.values()) - stages["total"])

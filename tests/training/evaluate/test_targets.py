@@ -12,6 +12,7 @@ import numpy as np
 
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel
+from service.pipeline.joint_space import JointLimits
 from training.evaluate.references.urdf_chain import read_chain
 from training.evaluate.targets import (
     dh_targets,
@@ -25,7 +26,8 @@ from training.evaluate.targets import (
 
 def test_uniform_configurations_are_the_seeded_generators_draw_within_the_limits() -> None:
     lower_rad, upper_rad = np.array([-1.0, -2.0, 0.0]), np.array([1.0, 0.5, 3.0])
-    q_rad = uniform_configurations(lower_rad, upper_rad, 40, seed=7)
+    limits = JointLimits(lower_rad, upper_rad, np.zeros(3, dtype=bool))
+    q_rad = uniform_configurations(limits, 40, seed=7)
     expected = np.random.default_rng(7).uniform(lower_rad, upper_rad, (40, 3))
     np.testing.assert_array_equal(q_rad, expected)
     assert ((q_rad >= lower_rad) & (q_rad <= upper_rad)).all()
@@ -35,10 +37,8 @@ def test_held_out_targets_are_the_models_fk_of_the_drawn_configurations(
     planar3r: ServedModel,
 ) -> None:
     targets = held_out_targets(planar3r, 5, seed=3)
-    lower_rad, upper_rad, _ = planar3r.manifest.joints.arrays()
-    np.testing.assert_array_equal(
-        targets.q_rad, uniform_configurations(lower_rad, upper_rad, 5, seed=3)
-    )
+    limits = JointLimits.of(planar3r.manifest.joints)
+    np.testing.assert_array_equal(targets.q_rad, uniform_configurations(limits, 5, seed=3))
     fk = planar3r.kinematics(targets.q_rad)
     np.testing.assert_array_equal(targets.position_m, fk.position_m)
     np.testing.assert_array_equal(targets.rotation, fk.rotation)

@@ -17,6 +17,7 @@ import pytorch_kinematics as pk
 import torch
 
 from service.manifest import JointSpec, TaskSpec
+from service.pipeline.joint_space import JointLimits
 
 ITERATIONS = 30  # pytorch-kinematics' README: iiwa, 30 iterations
 
@@ -38,8 +39,10 @@ def random_restart_dls(
     tolerance: float = 1e-6,
 ) -> RestartSolutions:
     """Solve one target from `num_restarts` uniform restarts; returns every final iterate."""
-    lower, upper, _ = joints.arrays()
-    restarts = np.random.default_rng(seed).uniform(lower, upper, (num_restarts, len(lower)))
+    limits = JointLimits.of(joints)
+    restarts = np.random.default_rng(seed).uniform(
+        limits.lower_rad, limits.upper_rad, (num_restarts, len(limits.lower_rad))
+    )
     pose = np.eye(4)
     pose[:3, 3] = position_m
     if rotation is not None:
@@ -47,7 +50,7 @@ def random_restart_dls(
     solver = pk.PseudoInverseIK(
         chain,
         retry_configs=torch.from_numpy(restarts),
-        joint_limits=torch.from_numpy(np.stack([lower, upper], axis=1)),
+        joint_limits=torch.from_numpy(np.stack([limits.lower_rad, limits.upper_rad], axis=1)),
         max_iterations=ITERATIONS,
         pos_tolerance=tolerance,
         rot_tolerance=tolerance if task.orientation else np.inf,
