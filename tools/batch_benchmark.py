@@ -26,7 +26,6 @@ import numpy as np
 from service.config import Settings
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
-from service.pipeline.joint_space import JointLimits
 from tools.local_server import LocalServer
 from training.evaluate.served import orientation_wxyz
 from training.evaluate.targets import uniform_configurations
@@ -158,7 +157,7 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=7)
     args = parser.parse_args()
     model = load_model(REPO_MODELS_DIR / args.model, threads=1)
-    limits = JointLimits.of(model.manifest.joints)
+    limits = model.limits
     q_targets = uniform_configurations(limits, args.targets, args.seed)
     machine = Machine.now()
     result = batch_against_singles(

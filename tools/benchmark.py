@@ -652,7 +652,7 @@ def main() -> None:
             server.stop()
     if args.batch_targets > 0 and not args.no_http and args.batch_model in args.models:
         model = load_model(REPO_MODELS_DIR / args.batch_model, threads=threads)
-        limits = JointLimits.of(model.manifest.joints)
+        limits = model.limits
         q_targets = uniform_configurations(limits, args.batch_targets, args.seed)
         print(f"{args.batch_model}: batch of {args.batch_targets} against singles", flush=True)
         report["batch"] = batch_against_singles(model, q_targets, BATCH_NUM_SAMPLES)

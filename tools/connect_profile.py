@@ -23,7 +23,6 @@ from service.models.registry import ServedModel, load_model
 from service.pipeline.arrays import FloatArray
 from service.pipeline.connect import connect
 from service.pipeline.fibre import Fibre
-from service.pipeline.joint_space import JointLimits
 from service.pipeline.run import correct_samples, encode, sample, space_of
 from service.pipeline.types import Kinematics, KinematicsResult, Query
 from training.evaluate.served import orientation_wxyz
@@ -108,7 +107,7 @@ def main() -> None:
     parser.add_argument("--num-samples", type=int, help="default: the model's num_samples")
     args = parser.parse_args()
     model = load_model(REPO_MODELS_DIR / args.model, threads=1)
-    limits = JointLimits.of(model.manifest.joints)
+    limits = model.limits
     q_targets = uniform_configurations(limits, args.targets, args.seed)
     rows = profile_connect(model, q_targets, args.num_samples)
     for row in rows:

@@ -124,7 +124,7 @@ class RunState:
     best_epoch: int
     best_model: dict[str, torch.Tensor]
     history: list[dict[str, float]]
-    wall_time_s: float  # training time so far, over every session
+    wall_time_s: float  # training time so far, over every start (resumes included)
     ema_model: dict[str, torch.Tensor] | None = None  # the weight average, when ema_decay > 0
     # Mid-epoch: the generator state the epoch's shuffle was drawn from, the batches done
     # and the sum of their losses (next_batch 0: at an epoch boundary).

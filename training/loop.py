@@ -7,7 +7,8 @@ reflow's (training/reflow.py).
 - `Optimiser`: AdamW with a cosine schedule to 0 over the run's steps, one step of it,
   and its state for a checkpoint;
 - `Best`: the best-so-far validation figure, where it was reached and those weights;
-- `RunClock`: the run's wall time over every session, and when a checkpoint is due.
+- `RunClock`: the run's wall time over every start of it (resumes included), and when a
+  checkpoint is due.
 
 Each loop supplies what differs: its data, its loss and batches, what its checkpoint
 holds. None of these pieces draws from a random generator, so the loops draw exactly as
@@ -107,7 +108,7 @@ class Best:
 
 @dataclass
 class RunClock:
-    """Wall time over every session of a run (`before_s`: the earlier sessions'), and the
+    """Wall time over every start of a run (`before_s`: the earlier starts'), and the
     checkpoint schedule: one due `every_minutes` after the last."""
 
     every_minutes: float

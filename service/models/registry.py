@@ -57,6 +57,7 @@ class ServedModel:
     manifest: Manifest
     networks: dict[str, OnnxVelocityField]  # by file: every flow network the manifest lists
     kinematics: Kinematics  # SerialChainKinematics (chain.json) or OnnxKinematics
+    limits: JointLimits  # the manifest's joint limits, as the pipeline's stages take them
     coaxial_sets: tuple[CoaxialSet, ...]  # where twin branches meet (connect/coaxial.py)
     version: str  # first 12 hex digits of the sha256 over the model's file digests
 
@@ -134,6 +135,7 @@ def load_model(model_dir: Path, threads: int) -> ServedModel:
         _verify_file(model_dir / name, expected)
     _verify_file(model_dir.parent / manifest.urdf.path, manifest.urdf.sha256)
     combined = "".join(f"{name}:{sha}\n" for name, sha in sorted(manifest.files.items()))
+    limits = JointLimits.of(manifest.joints)
     onnx_kinematics = OnnxKinematics(open_session(model_dir / KINEMATICS_FILE, threads))
     kinematics: Kinematics = onnx_kinematics
     if CHAIN_FILE in manifest.files:
@@ -146,7 +148,8 @@ def load_model(model_dir: Path, threads: int) -> ServedModel:
             if name in manifest.files
         },
         kinematics=kinematics,
-        coaxial_sets=tuple(find_coaxial_sets(kinematics, JointLimits.of(manifest.joints))),
+        limits=limits,
+        coaxial_sets=tuple(find_coaxial_sets(kinematics, limits)),
         version=hashlib.sha256(combined.encode()).hexdigest()[:12],
     )
 

@@ -24,7 +24,6 @@ from service.pipeline.connect import connect
 from service.pipeline.correction import correct
 from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.fibre import Fibre
-from service.pipeline.joint_space import JointLimits
 from service.pipeline.limits import pull_into_limits
 from service.pipeline.sampling import sample_configurations
 from service.pipeline.space import FibreSpace
@@ -89,7 +88,7 @@ def sample(
         num_samples=query.num_samples,
         sampler=manifest.defaults.sampler,
         joint_normalisation=manifest.joint_normalisation,
-        limits=JointLimits.of(manifest.joints),
+        limits=model.limits,
         rng=np.random.default_rng(query.seed),
         deadline=deadline,
     )
@@ -106,7 +105,7 @@ def space_of(model: SmmModel, target: Target, tolerance: Tolerance) -> FibreSpac
     limits, with the model's coaxial sets and the query's tolerance."""
     return FibreSpace(
         fibre=fibre_of(model, target),
-        limits=JointLimits.of(model.manifest.joints),
+        limits=model.limits,
         coaxial_sets=tuple(model.coaxial_sets),
         tolerance=tolerance,
     )

@@ -23,8 +23,6 @@ from service.pipeline.fibre import Fibre, project
 from service.pipeline.joint_space import JointLimits, wrap_to_pi
 from service.pipeline.types import Acceptance, CoaxialSet, Correction, Tolerance
 
-__all__ = ["FibreSpace", "Tolerance"]
-
 
 @dataclass(frozen=True)
 class FibreSpace:

@@ -17,6 +17,7 @@ import numpy as np
 from service.errors import RequestFieldError
 from service.manifest import Defaults, Manifest
 from service.pipeline.arrays import BoolArray, Float32Array, FloatArray
+from service.pipeline.joint_space import JointLimits
 from service.pipeline.targets import validate_target
 
 # The stages in the order run() calls them; timings, metrics and the response use these.
@@ -73,8 +74,9 @@ class CoaxialSet:
 
 
 class SmmModel(Protocol):
-    """What the pipeline needs of a served model: its manifest, flow and kinematics, and
-    the coaxial sets of its chain (found once, when the model is loaded)."""
+    """What the pipeline needs of a served model: its manifest, flow and kinematics, its
+    joint limits, and the coaxial sets of its chain (both made once, when the model is
+    loaded)."""
 
     @property
     def manifest(self) -> Manifest: ...
@@ -84,6 +86,9 @@ class SmmModel(Protocol):
 
     @property
     def kinematics(self) -> Kinematics: ...
+
+    @property
+    def limits(self) -> JointLimits: ...
 
     @property
     def coaxial_sets(self) -> Sequence[CoaxialSet]: ...

@@ -8,7 +8,6 @@ import copy
 from typing import Any
 
 from service.models.registry import ServedModel
-from service.pipeline.joint_space import JointLimits
 from tools.batch_benchmark import batch_against_singles, mismatched_targets
 from training.evaluate.targets import uniform_configurations
 
@@ -16,7 +15,7 @@ from training.evaluate.targets import uniform_configurations
 def test_batch_against_singles_times_both_and_finds_the_answers_identical(
     planar3r: ServedModel,
 ) -> None:
-    limits = JointLimits.of(planar3r.manifest.joints)
+    limits = planar3r.limits
     q_targets = uniform_configurations(limits, 3, seed=7)
     result = batch_against_singles(planar3r, q_targets, num_samples=100, rounds=2)
     assert result["identical"] is True and result["mismatched"] == []

@@ -20,7 +20,6 @@ import numpy as np
 import pytest
 
 from service.models.registry import ServedModel
-from service.pipeline.joint_space import JointLimits
 from tools.benchmark import (
     BASE,
     FLOAT32,
@@ -98,7 +97,7 @@ def test_thebatch_profile_is_per_target_with_the_floor_of_sampling_and_transport
 
 
 def test_restarts_reach_the_valid_count_asked_for(planar3r: ServedModel) -> None:
-    limits = JointLimits.of(planar3r.manifest.joints)
+    limits = planar3r.limits
     q_targets = uniform_configurations(limits, 2, seed=7)
     restart = RestartMatch(planar3r, num_samples=40)
     answers = [

@@ -7,7 +7,7 @@
   step moves the weights down the loss's gradient.
 - The best-so-far keeps the weights of the lowest figure offered, not the latest.
 - A checkpoint is due once its interval has passed (at once with an interval of 0), and
-  the wall time adds the earlier sessions' to this one's.
+  the wall time adds the earlier starts' to this one's.
 """
 
 from __future__ import annotations
@@ -71,7 +71,7 @@ def test_the_best_so_far_keeps_the_lowest_figures_weights() -> None:
     assert torch.equal(best.state["weight"], torch.ones(1, 2))
 
 
-def test_a_checkpoint_is_due_after_its_interval_and_wall_time_spans_sessions() -> None:
+def test_a_checkpoint_is_due_after_its_interval_and_wall_time_spans_resumes() -> None:
     assert RunClock(every_minutes=0.0).checkpoint_due()
     clock = RunClock(every_minutes=5.0, before_s=100.0)
     assert not clock.checkpoint_due()

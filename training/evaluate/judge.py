@@ -114,7 +114,7 @@ def figures(
     model: ServedModel, answers: Sequence[MethodTarget], truths: Sequence[Truth]
 ) -> dict[str, float]:
     """The evaluation's component figures of one configuration over the targets."""
-    limits = JointLimits.of(model.manifest.joints)
+    limits = model.limits
     agreements = [component_agreement(a, t) for a, t in zip(answers, truths, strict=True)]
     known = [g for g in agreements if g is not None]
     pairs = list(zip(answers, truths, strict=True))
@@ -216,7 +216,7 @@ def judge(
     """
     if candidate_model is not None:
         check_same_problem(candidate_model, model)
-    limits = JointLimits.of(model.manifest.joints)
+    limits = model.limits
     q_targets = np.concatenate(
         [
             uniform_configurations(limits, targets, seed),

@@ -133,7 +133,7 @@ def check_merges(
 
 def report_target(model: ServedModel, index: int, num_samples: int = 1000) -> list[MergeCheck]:
     """The merges of the report's target `index`, checked."""
-    limits = JointLimits.of(model.manifest.joints)
+    limits = model.limits
     q_target = uniform_configurations(limits, REPORT_TARGETS, REPORT_SEED)[index]
     truth = ground_truth(model, q_target, REPORT_SEED + index)
     answer = flow_target(model, q_target, num_samples, seed=index)

@@ -128,7 +128,7 @@ def _answered(
     (samples and path points), its errors, the path gaps, the near-singular flag."""
     returned = returned_points(components, model.manifest.joints.count)
     p, o = _errors(model, returned.q_rad, target)
-    limits = JointLimits.of(model.manifest.joints)
+    limits = model.limits
     return MethodTarget(
         raw_p, raw_o, returned.q_rad, p, o, returned.labels, num_samples, stages["total"],
         stages, returned.on_path, returned.paths,

@@ -27,7 +27,6 @@ import numpy as np
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
 from service.pipeline.arrays import BoolArray, FloatArray
-from service.pipeline.joint_space import JointLimits
 from training.evaluate.methods import MethodTarget, flow_target
 from training.evaluate.metrics import component_agreement
 from training.evaluate.targets import distance_from_base_m, uniform_configurations
@@ -90,7 +89,7 @@ def pairwise_projection(model: ServedModel, q_target: np.ndarray, path: Path) ->
     one colour each (paths as lines for r = 1)."""
     truth = ground_truth(model, q_target, seed=0).points
     answer = flow_target(model, q_target, model.manifest.defaults.num_samples, seed=0)
-    limits = JointLimits.of(model.manifest.joints)
+    limits = model.limits
     n = q_target.shape[0]
     figure, axes = plt.subplots(n - 1, n - 1, figsize=(2.2 * (n - 1), 2.2 * (n - 1)))
     axes = np.atleast_2d(axes)
@@ -141,7 +140,7 @@ def count_accuracy_plot(models: list[ServedModel], num_targets: int, path: Path)
     """Fraction of targets whose count is right (`COUNT_RIGHT_DEFINITION`), by distance."""
     figure, axis = plt.subplots(figsize=(6, 3.2))
     for model in models:
-        limits = JointLimits.of(model.manifest.joints)
+        limits = model.limits
         q_targets = uniform_configurations(limits, num_targets, seed=11)
         right, distance = [], []
         for i, q in enumerate(q_targets):
@@ -179,7 +178,7 @@ def run_command(args: argparse.Namespace, parser: argparse.ArgumentParser) -> No
     pairwise_projection(planar, np.array([0.4, 2.2, 1.1]), args.out / "planar3r-projections.png")
     pairwise_projection(pose, np.array([0.3, 0.6, 0.0, -1.2, 0.0, 0.9, 0.0]),
                         args.out / "iiwa14-pose-projections.png")  # fmt: skip
-    limits = JointLimits.of(position.manifest.joints)
+    limits = position.limits
     q_targets = uniform_configurations(limits, args.targets, seed=12)
     fk_error_histogram(position, q_targets, args.out / "iiwa14-position-fk-error.png")
     count_accuracy_plot(

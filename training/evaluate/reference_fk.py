@@ -19,6 +19,7 @@ from service.models.registry import ServedModel
 from training.evaluate.methods import MethodTarget
 from training.evaluate.references import iiwa14, panda
 from training.evaluate.references.planar3r import planar3r_position
+from training.evaluate.references.rotations import rotation_angle_rad
 
 
 def _planar_pose(q_rad: np.ndarray) -> np.ndarray:
@@ -64,7 +65,7 @@ def reference_fk_check(
         position_errors.append(np.linalg.norm(reached[:, :3, 3] - target[:3, 3], axis=1))
         if orientation and len(reached):
             rotations = np.broadcast_to(target[:3, :3], reached[:, :3, :3].shape)
-            orientation_errors.append(iiwa14.rotation_angle_rad(reached[:, :3, :3], rotations))
+            orientation_errors.append(rotation_angle_rad(reached[:, :3, :3], rotations))
     defaults = model.manifest.defaults
     max_position_m = float(np.concatenate(position_errors).max(initial=0.0))
     max_orientation_rad = float(np.concatenate(orientation_errors).max(initial=0.0))

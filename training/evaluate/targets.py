@@ -38,7 +38,7 @@ class HeldOutTargets:
 
 def held_out_targets(model: SmmModel, count: int, seed: int) -> HeldOutTargets:
     """`count` targets: the model's own FK of configurations uniform in its limits."""
-    limits = JointLimits.of(model.manifest.joints)
+    limits = model.limits
     q_rad = uniform_configurations(limits, count, seed)
     fk = model.kinematics(q_rad)
     return HeldOutTargets(q_rad=q_rad, position_m=fk.position_m, rotation=fk.rotation)

@@ -22,7 +22,6 @@ from service.manifest import CHAIN_FILE, MANIFEST_FILE, REPO_MODELS_DIR
 from service.models.chain import SerialChainKinematics
 from service.models.registry import Registry, load_model
 from service.models.sessions import OnnxKinematics
-from service.pipeline.joint_space import JointLimits
 from tests.support.app import PLANAR3R_DIR, make_client
 from tests.support.chains import assert_chain_equals_onnx, model_without_chain
 
@@ -123,7 +122,7 @@ def test_bundled_models_are_served_by_their_chain_equal_to_kinematics_onnx(model
     model = load_model(REPO_MODELS_DIR / model_id, threads=1)
     assert CHAIN_FILE in model.manifest.files
     assert isinstance(model.kinematics, SerialChainKinematics)
-    limits = JointLimits.of(model.manifest.joints)
+    limits = model.limits
     q = np.random.default_rng(5).uniform(
         limits.lower_rad, limits.upper_rad, (1000, len(limits.lower_rad))
     )

@@ -68,7 +68,7 @@ def null_space_walk(
     With `held`, that joint keeps its value: the step lies in the null space of J's
     other columns and the projection holds it."""
     fibre = pose_fibre(model, q0)
-    limits = JointLimits.of(model.manifest.joints)
+    limits = model.limits
     rng = np.random.default_rng(seed)
     n = len(q0)
     free = np.arange(n) != (-1 if held is None else held)

@@ -162,6 +162,10 @@ class SlowSecondTarget:
         return self.model.kinematics
 
     @property
+    def limits(self) -> JointLimits:
+        return self.model.limits
+
+    @property
     def coaxial_sets(self) -> tuple[CoaxialSet, ...]:
         return self.model.coaxial_sets
 

@@ -38,7 +38,7 @@ def corrected(model: ServedModel, q_target: np.ndarray, q_rad: np.ndarray) -> Co
 def test_a_sample_outside_the_limits_is_pulled_onto_the_fibre_inside_them(
     iiwa14_position: ServedModel,
 ) -> None:
-    limits = JointLimits.of(iiwa14_position.manifest.joints)
+    limits = iiwa14_position.limits
     lower, upper = limits.lower_rad, limits.upper_rad
     q_target = np.array([0.4, 2.3, -0.6, -1.2, 0.5, 1.1, 0.3])  # q2 0.2 rad past 2.094
     assert limits.outside(q_target[None])[0].tolist() == [
@@ -69,7 +69,7 @@ def test_a_sample_outside_the_limits_is_pulled_onto_the_fibre_inside_them(
 def test_rows_inside_the_limits_and_failed_pulls_are_left_as_they_were(
     iiwa14_position: ServedModel,
 ) -> None:
-    limits = JointLimits.of(iiwa14_position.manifest.joints)
+    limits = iiwa14_position.limits
     q_target = np.array([0.4, 2.3, -0.6, -1.2, 0.5, 1.1, 0.3])
     q_inside = np.array([0.2, 1.0, 0.3, -1.0, 0.4, 0.8, 0.1])
     fibre = pose_fibre(iiwa14_position, q_inside)

@@ -35,7 +35,6 @@ import pytest
 
 from service.manifest import MANIFEST_FILE, REPO_MODELS_DIR, Manifest
 from service.models.registry import ServedModel
-from service.pipeline.joint_space import JointLimits
 from training.cli import main as smm_train
 from training.evaluate import judge as judging
 from training.evaluate.references.planar3r import planar3r_position
@@ -71,7 +70,7 @@ def _critical_gap(q_rad: np.ndarray) -> np.ndarray:  # (T,) distance of rho to {
 def test_near_singular_planar_targets_lie_near_its_critical_values(planar3r: ServedModel) -> None:
     q = judging.near_singular_configurations(planar3r, count=10, seed=3)
     assert q.shape == (10, 3)
-    limits = JointLimits.of(planar3r.manifest.joints)
+    limits = planar3r.limits
     uniform = uniform_configurations(limits, 500, seed=4)
     # Within 0.05 of a critical value: all ten, against ~10 % of uniform targets (the
     # chance that ten uniform ones all are: ~1e-10).

@@ -15,7 +15,7 @@ import pytest
 
 from service.manifest import REPO_MODELS_DIR, SamplerSpec
 from service.models.registry import ServedModel, load_model
-from service.pipeline.joint_space import JointLimits, joint_distance
+from service.pipeline.joint_space import joint_distance
 from training.evaluate.merges import (
     MergeCheck,
     joined_on_fibre,
@@ -33,7 +33,7 @@ def iiwa14_pose() -> ServedModel:
 
 
 def test_one_exact_component_is_joined_two_never(iiwa14_pose: ServedModel) -> None:
-    limits = JointLimits.of(iiwa14_pose.manifest.joints)
+    limits = iiwa14_pose.limits
     q_target = np.random.default_rng(3).uniform(0.7 * limits.lower_rad, 0.7 * limits.upper_rad)
     space = space_of(iiwa14_pose, q_target)
     periodic = limits.periodic

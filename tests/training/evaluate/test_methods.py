@@ -111,7 +111,7 @@ def test_restart_components_come_from_the_connect_stage(planar3r: ServedModel) -
     robot = robot_spec(planar3r.manifest.robot)
     chain = load_chain(REPO_MODELS_DIR / robot.urdf, robot.end_effector_link)
     restart = restart_target(planar3r, chain, Q_TARGET_RAD, 100, seed=0)
-    limits = JointLimits.of(planar3r.manifest.joints)
+    limits = planar3r.limits
     spacing = planar3r.manifest.defaults.connectivity.path_spacing_rad
     assert restart.labels is not None and restart.on_path is not None
     # The two loops traced whole, each with its path; every accepted solution lies on

@@ -11,14 +11,13 @@ from dataclasses import replace
 import numpy as np
 
 from service.models.registry import ServedModel
-from service.pipeline.joint_space import JointLimits
 from training.evaluate.methods import served_target
 from training.evaluate.reference_fk import reference_fk_check
 from training.evaluate.targets import uniform_configurations
 
 
 def test_iiwa14_pose_answers_are_exact_by_the_dh_table(iiwa14_pose_model: ServedModel) -> None:
-    limits = JointLimits.of(iiwa14_pose_model.manifest.joints)
+    limits = iiwa14_pose_model.limits
     q_targets = uniform_configurations(limits, 2, seed=3)
     answers = [served_target(iiwa14_pose_model, q, 300, seed=i) for i, q in enumerate(q_targets)]
     checked = reference_fk_check(iiwa14_pose_model, q_targets, answers)

@@ -37,7 +37,7 @@ def test_held_out_targets_are_the_models_fk_of_the_drawn_configurations(
     planar3r: ServedModel,
 ) -> None:
     targets = held_out_targets(planar3r, 5, seed=3)
-    limits = JointLimits.of(planar3r.manifest.joints)
+    limits = planar3r.limits
     np.testing.assert_array_equal(targets.q_rad, uniform_configurations(limits, 5, seed=3))
     fk = planar3r.kinematics(targets.q_rad)
     np.testing.assert_array_equal(targets.position_m, fk.position_m)

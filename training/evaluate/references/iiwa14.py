@@ -30,7 +30,6 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 # training/evaluate/iiwa14.py takes the rotation angle from here, with the DH FK.
-from training.evaluate.references.rotations import rotation_angle_rad as rotation_angle_rad
 
 D_M = np.array([0.360, 0.0, 0.420, 0.0, 0.400, 0.0, 0.081])  # seed Table 1; a = 0
 ALPHA_RAD = np.radians([-90.0, 90.0, 90.0, -90.0, -90.0, 90.0, 0.0])

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from service.pipeline.arrays import BoolArray, FloatArray, IntArray
-from service.pipeline.connect.trace.limits import Run, along, hermite, to_window, window_low
+from service.pipeline.connect.trace.cut import Run, along, hermite, to_window, window_low
 from service.pipeline.connect.trace.points import (
     Evaluated,
     TracedPiece,

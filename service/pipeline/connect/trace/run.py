@@ -32,8 +32,8 @@ from __future__ import annotations
 import numpy as np
 
 from service.pipeline.arrays import FloatArray
+from service.pipeline.connect.trace.cut import cut_by_limits, refine_near_limits
 from service.pipeline.connect.trace.densify import densify
-from service.pipeline.connect.trace.limits import cut_by_limits, refine_near_limits
 from service.pipeline.connect.trace.points import Evaluated, Trace, TraceSettings
 from service.pipeline.connect.trace.seeds import spread_seeds
 from service.pipeline.connect.trace.walk import walk_fronts

@@ -12,7 +12,6 @@ import pytest
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
 from service.pipeline.connect.coaxial import find_coaxial_sets, slide_range
-from service.pipeline.joint_space import JointLimits
 from tests.service.pipeline.fibre_support import fibre_space, null_space_walk, pose_fibre
 from training.evaluate.references.iiwa14 import LIMITS_RAD, inverse_kinematics
 from training.evaluate.references.iiwa14 import dh_pose as iiwa14_pose
@@ -25,7 +24,7 @@ def iiwa14() -> ServedModel:
 
 
 def test_the_iiwa14_has_its_shoulder_elbow_and_wrist_sets(iiwa14: ServedModel) -> None:
-    limits = JointLimits.of(iiwa14.manifest.joints)
+    limits = iiwa14.limits
     sets = find_coaxial_sets(iiwa14.kinematics, limits)
     assert [s.joint for s in sets] == [1, 3, 5]
     assert [s.moving for s in sets] == [(0, 2), (2, 4), (4, 6)]
@@ -48,7 +47,7 @@ def test_the_iiwa14_has_its_shoulder_elbow_and_wrist_sets(iiwa14: ServedModel) -
 
 
 def test_the_planar_arm_folded_back_turns_about_its_base(planar3r: ServedModel) -> None:
-    sets = find_coaxial_sets(planar3r.kinematics, JointLimits.of(planar3r.manifest.joints))
+    sets = find_coaxial_sets(planar3r.kinematics, planar3r.limits)
     assert len(sets) == 1 and sets[0].joint == 1
     assert abs(sets[0].angle_rad) == pytest.approx(np.pi, abs=1e-9)
     q = np.random.default_rng(0).uniform(-np.pi, np.pi, (10, 3))
@@ -63,7 +62,7 @@ def test_a_step_may_cross_a_set_only_where_the_fibre_reaches_it(iiwa14: ServedMo
     """A step between two points of a position fibre that crosses q2 = 0 is refused where
     the link lengths keep the fibre off that set, and kept where a walk along the fibre
     really crosses the wrist set q6 = 0."""
-    limits = JointLimits.of(iiwa14.manifest.joints)
+    limits = iiwa14.limits
     sets = find_coaxial_sets(iiwa14.kinematics, limits)
     shoulder, wrist = sets[0], sets[2]
     # The end effector is 0.555 m from the elbow-up point; q2 = 0 allows at most 0.526.

@@ -45,7 +45,7 @@ def test_a_random_walk_along_one_component_is_one_component(
     assert walk[:, 5].min() < 0.0 < walk[:, 5].max()
     nodes = walk[::6][np.random.default_rng(1).permutation(len(walk[::6]))]  # ~0.3 rad apart
     spec = iiwa14_position.manifest.defaults.connectivity
-    limits = JointLimits.of(iiwa14_position.manifest.joints)
+    limits = iiwa14_position.limits
     space = fibre_space(pose_fibre(iiwa14_position, q0), limits, ())
     labels = roadmap_labels(space, nodes, planner_settings(spec), roadmap_settings(spec))
     assert set(labels.tolist()) == {0}
@@ -89,7 +89,7 @@ def walk_holding(model: ServedModel, q0: np.ndarray, joint: int, to_rad: float) 
 def test_samples_joined_only_through_the_shoulder_set_are_one_component(
     iiwa14_position: ServedModel,
 ) -> None:
-    limits = JointLimits.of(iiwa14_position.manifest.joints)
+    limits = iiwa14_position.limits
     on_set = np.array([-0.3, 0.0, 0.4, 1.0, -0.5, 1.2, 0.0])  # q2 = 0
     slid = on_set + 2.4 * np.array([1.0, 0, -1.0, 0, 0, 0, 0])  # the set's self-motion
     # By the DH table (independent of the service): the slide keeps the position.
@@ -148,7 +148,7 @@ def test_the_links_tried_between_components_are_the_shortest_by_brute_force(
     rng = np.random.default_rng(3)
     q = rng.uniform(-2.0, 2.0, size=(160, 7))
     periodic = np.array([False, False, True, False, False, False, False])
-    manifest_limits = JointLimits.of(iiwa14_position.manifest.joints)
+    manifest_limits = iiwa14_position.limits
     limits = JointLimits(manifest_limits.lower_rad, manifest_limits.upper_rad, periodic)
     settings = roadmap_settings(iiwa14_position.manifest.defaults.connectivity)
     space = fibre_space(pose_fibre(iiwa14_position, q[0]), limits, ())

@@ -67,7 +67,7 @@ def test_planar_components_follow_the_closed_form(
     query = Query.for_model(planar3r.manifest, position_m=target.tolist(), num_samples=600)
     result = run(planar3r, query)
     assert len(result.components) == loops
-    check_paths(result, JointLimits.of(planar3r.manifest.joints))
+    check_paths(result, planar3r.limits)
     for component in result.components:
         assert component.closed  # no limits on the planar arm: every component is a loop
         reached = planar3r_position(component.path.q_rad)  # type: ignore[union-attr]

@@ -70,7 +70,7 @@ def _walk_points(space: FibreSpace, start: np.ndarray, goal: np.ndarray) -> list
 def test_a_walk_reaches_the_far_end_of_a_random_walk_on_one_component(
     iiwa14_position: ServedModel,
 ) -> None:
-    limits = JointLimits.of(iiwa14_position.manifest.joints)
+    limits = iiwa14_position.limits
     q0 = np.array([0.3, 0.5, -0.4, -1.3, 0.6, 0.9, 0.2])
     path = null_space_walk(iiwa14_position, q0, steps=400, seed=0)
     start, goal = path[0], path[-1]
@@ -91,7 +91,7 @@ def test_a_walk_reaches_the_far_end_of_a_random_walk_on_one_component(
 def test_walks_between_elbow_up_and_down_never_arrive(iiwa14_position: ServedModel) -> None:
     # 0.674 m from the shoulder: q4 = 0 would put the end effector 0.82 +- 0.126 m from
     # it, so no path on this fibre changes the sign of q4 (test_roadmap has the same target).
-    limits = JointLimits.of(iiwa14_position.manifest.joints)
+    limits = iiwa14_position.limits
     up = np.array([0.3, 0.5, -0.4, 1.3, 0.6, 0.9, 0.2])
     fibre = pose_fibre(iiwa14_position, up)
     down = null_space_walk(iiwa14_position, up, steps=60, seed=2)
@@ -107,7 +107,7 @@ def test_a_walk_slides_along_a_joint_limit_to_its_goal(iiwa14_position: ServedMo
     # Start and goal joined by a path with q6 held at 0.9 (so they are one component when
     # q6 may not exceed 0.9); the walk with the usual limits overshoots 0.9, so with that
     # limit it must hold q6 on it and slide.
-    limits = JointLimits.of(iiwa14_position.manifest.joints)
+    limits = iiwa14_position.limits
     q0 = np.array([0.3, 0.5, -0.4, -1.3, 0.6, 0.9, 0.2])
     witness = null_space_walk(iiwa14_position, q0, steps=300, seed=1, held=5)
     start, goal = witness[0], witness[-1]

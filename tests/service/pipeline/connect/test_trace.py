@@ -11,7 +11,7 @@ import pytest
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
 from service.pipeline.connect.trace import TraceSettings, closest_strands_rad, trace_fibre
-from service.pipeline.connect.trace.limits import hermite
+from service.pipeline.connect.trace.cut import hermite
 from service.pipeline.connect.trace.seeds import spread_seeds
 from service.pipeline.connect.trace.strands import STRAND_ARC_FACTOR
 from service.pipeline.joint_space import JointLimits, joint_distance
