@@ -25,6 +25,7 @@ REFLOW_FILE = "reflow.onnx"
 REFLOW_INT8_FILE = "reflow_int8.onnx"
 KINEMATICS_FILE = "kinematics.onnx"
 CHAIN_FILE = "chain.json"
+COLLISION_FILE = "collision.json"
 
 
 class _Strict(BaseModel):
@@ -311,6 +312,90 @@ class FileRef(_Strict):
     sha256: str
 
 
+# Why a pair of bodies is never checked against each other (MoveIt's setup assistant's
+# reasons): joined by a joint ("adjacent"), in collision in every sampled configuration
+# ("always"), in none of them ("never"), or named by the robot's SRDF ("srdf").
+DisabledReason = Literal["adjacent", "always", "never", "srdf"]
+
+
+class CollisionBody(_Strict):
+    """Spheres covering one URDF link's collision geometry, in the frame it moves with.
+
+    Every point of the link's `<collision>` geometry (primitives and meshes) lies inside
+    at least one sphere, so a distance between spheres is never more than the distance
+    between the geometry they cover: a check on the spheres is conservative.
+    """
+
+    link: str
+    frame: int = Field(
+        ge=0,
+        description="0: the base frame (the body does not move); k in 1..n: the frame of "
+        "chain joint k as chain.json defines it (origin_1 Rot(axis_1, q_1) ... origin_k "
+        "Rot(axis_k, q_k), the URDF frame of joint k's child link)",
+    )
+    centres_m: list[list[float]] = Field(min_length=1, description="(S, 3) in that frame")
+    radii_m: list[float] = Field(min_length=1, description="(S,)")
+
+    @model_validator(mode="after")
+    def _spheres(self) -> CollisionBody:
+        centres = np.asarray(self.centres_m, dtype=np.float64)
+        radii = np.asarray(self.radii_m, dtype=np.float64)
+        if centres.shape != (len(radii), 3) or not np.all(np.isfinite(centres)):
+            raise ValueError(f"body {self.link!r}: centres_m must be finite (S, 3), S = radii")
+        if not np.all(np.isfinite(radii)) or not np.all(radii > 0):
+            raise ValueError(f"body {self.link!r}: radii_m must be finite and positive")
+        return self
+
+
+class DisabledPair(_Strict):
+    """Two bodies whose collision is never checked, and why."""
+
+    links: tuple[str, str]
+    reason: DisabledReason
+
+
+class CollisionSpec(_Strict):
+    """collision.json: the robot's collision model, built at training time from its URDF
+    (`training.collision`): the bodies on the chain and fixed to it, as spheres, and the
+    pairs never checked. A body pair not listed is checked for self-collision."""
+
+    format_version: Literal[1] = 1
+    bodies: list[CollisionBody] = Field(
+        description="Every link on the chain or fixed to it that has collision geometry."
+    )
+    disabled_pairs: list[DisabledPair]
+
+    @model_validator(mode="after")
+    def _pairs_name_bodies(self) -> CollisionSpec:
+        names = [body.link for body in self.bodies]
+        if len(set(names)) != len(names):
+            raise ValueError("bodies: a link is listed twice")
+        for pair in self.disabled_pairs:
+            unknown = [link for link in pair.links if link not in names]
+            if unknown:
+                raise ValueError(f"disabled pair {pair.links}: no body {unknown}")
+        return self
+
+
+class CollisionRecord(_Strict):
+    """Provenance of collision.json: how the spheres and the disabled pairs were made."""
+
+    command: str
+    urdf_sha256: str = Field(description="the URDF whose <collision> geometry it covers")
+    srdf: FileRef | None = Field(description="the SRDF whose disable_collisions it reads")
+    sphere_count: int
+    configurations_sampled: int = Field(
+        description="random configurations the 'always' and 'never' pairs were decided on "
+        "(with coal, on the URDF's own geometry), and the free space measured on"
+    )
+    free_space_lost_fraction: float = Field(
+        description="of those configurations free of self-collision on the URDF's geometry "
+        "(outside the disabled pairs), the fraction the spheres call in collision"
+    )
+    wall_time_s: float
+    git_commit: str
+
+
 class ReflowRecord(_Strict):
     """Provenance of reflow.onnx and reflow_int8.onnx (training/reflow.py)."""
 
@@ -358,6 +443,11 @@ class Manifest(_Strict):
     defaults: Defaults
     training: TrainingRecord
     reflow: ReflowRecord | None = None
+    collision: CollisionRecord | None = Field(
+        default=None,
+        description="collision.json's provenance; None when the URDF has no collision "
+        "geometry (answers then say that no self-collision was checked)",
+    )
     quality: Quality | None = None
     created_utc: str
 
