@@ -27,6 +27,13 @@ Finite = Annotated[float, Field(allow_inf_nan=False)]
 NumSamples = Annotated[int, Field(ge=1)]
 Seed = Annotated[int, Field(ge=0, le=2**63 - 1)]
 MaxConfigurations = Annotated[int, Field(ge=1)]
+# Obstacles one request may carry: a planning scene's worth of primitives. Each costs a
+# distance kernel over the robot's moving spheres at every checked configuration.
+MAX_OBSTACLES = 64
+# The largest margin a request may ask for, in metres: beyond it nothing near the robot
+# is free anyway.
+MAX_MARGIN_M = 0.5
+ShapeName = Literal["box", "sphere", "cylinder", "capsule"]
 
 
 class _Request(BaseModel):
@@ -71,6 +78,53 @@ class ToleranceIn(_Request):
     )
 
 
+class ObstacleIn(_Request):
+    """A solid primitive of the planning scene (MoveIt's shape_msgs/SolidPrimitive), in the
+    model's base frame."""
+
+    shape: ShapeName
+    dimensions: list[Finite] = Field(
+        min_length=1,
+        max_length=3,
+        description="Metres. box: [x, y, z] full side lengths; sphere: [radius]; cylinder: "
+        "[height, radius] along its z axis; capsule: [height, radius], height the distance "
+        "between the two cap centres along z (total length height + 2 radius). Each "
+        "shape is centred on its position.",
+        examples=[[0.8, 1.2, 0.05]],
+    )
+    position: list[Finite] = Field(
+        min_length=3,
+        max_length=3,
+        description="Centre in metres, base frame.",
+        examples=[[0.5, 0, -0.03]],
+    )
+    orientation: QuaternionIn | None = Field(
+        None,
+        description="Unit quaternion of the shape's frame in the base frame; identity "
+        "when left out (and meaningless for a sphere).",
+    )
+
+
+class CollisionIn(_Request):
+    # "self" on the wire (a Python keyword's neighbour as a field name): read and written
+    # by that name, so the client sends what the server reads.
+    model_config = ConfigDict(
+        extra="forbid", strict=True, validate_by_name=True, serialize_by_alias=True
+    )
+
+    check_self: bool = Field(
+        True,
+        alias="self",
+        description="Check the robot against itself (on models whose URDF has collision "
+        "geometry; the answer's collision.self_checked says whether it was).",
+    )
+    margin_m: Annotated[float, Field(ge=0.0, le=MAX_MARGIN_M, allow_inf_nan=False)] = Field(
+        0.0,
+        description="Least clearance, in metres, a returned configuration keeps from the "
+        "obstacles and between the robot's own bodies.",
+    )
+
+
 class SmmRequest(_Request):
     robot: str = Field(examples=["planar3r"])
     task: str = Field(examples=["position"])
@@ -95,13 +149,26 @@ class SmmRequest(_Request):
         description="For a 1-D self-motion (redundancy 1), return each component's ordered "
         "`path`; false keeps answers small (`arc_length_rad` and `closed` stay).",
     )
+    obstacles: list[ObstacleIn] = Field(
+        default_factory=list,
+        max_length=MAX_OBSTACLES,
+        description=f"The planning scene (at most {MAX_OBSTACLES}): every returned "
+        "configuration and path point is clear of each by at least collision.margin_m.",
+    )
+    collision: CollisionIn = Field(default_factory=lambda: CollisionIn.model_validate({}))
 
 
 class CountsOut(BaseModel):
+    """Where every sample went: sampled = accepted + rejected_tolerance +
+    rejected_joint_limits + rejected_collision."""
+
     sampled: int
     accepted: int
     rejected_tolerance: int
     rejected_joint_limits: int
+    rejected_collision: int = Field(
+        description="Within tolerance and the limits, but in collision (with the margin)."
+    )
 
 
 class ComponentOut(BaseModel):
@@ -123,10 +190,26 @@ class ComponentOut(BaseModel):
         description="Redundancy 1: true when the component is a whole loop inside the limits "
         "(the path's last point joins its first); false when its ends are at joint limits."
     )
+    ends: list[Literal["joint_limit", "collision"]] | None = Field(
+        description="Redundancy 1, an open component: why its first and its last path "
+        "point end it, at a joint limit or where the curve enters collision. Null for a "
+        "closed loop and for redundancy above 1."
+    )
     path: list[list[float]] | None = Field(
         description="Redundancy 1: the whole component, configurations in order along the "
-        "curve, consecutive ones at most 0.05 rad apart, every one within tolerance and "
-        "inside the limits. Null for redundancy above 1 or when include_paths is false."
+        "curve, consecutive ones at most 0.05 rad apart, every one within tolerance, inside "
+        "the limits and free of collision. Null for redundancy above 1 or when "
+        "include_paths is false."
+    )
+    clearance_m: float | None = Field(
+        description="The least distance, in metres, from the robot to the obstacles and to "
+        "itself over the component's configurations and path points (a lower bound of the "
+        "true distance: measured on spheres that cover the robot's collision geometry). "
+        "Null when nothing was checked."
+    )
+    safest_configuration: list[float] | None = Field(
+        description="The component's configuration (member or path point) of greatest "
+        "clearance. Null when nothing was checked."
     )
 
 
@@ -147,6 +230,15 @@ class StructureOut(BaseModel):
     )
 
 
+class CollisionOut(BaseModel):
+    self_checked: bool = Field(
+        description="Self-collision was checked: asked for, and the model has collision "
+        "geometry (false: the model's URDF has none, or collision.self was false)."
+    )
+    obstacles: int = Field(description="Obstacles every answer is clear of.")
+    margin_m: float
+
+
 class SmmResponse(BaseModel):
     robot: str
     task: str
@@ -157,6 +249,7 @@ class SmmResponse(BaseModel):
     counts: CountsOut
     components: list[ComponentOut]
     structure: StructureOut
+    collision: CollisionOut
     timings_ms: dict[TimedSpan, float] = Field(
         description="Wall time in ms of each pipeline stage, in order, and of the whole run."
     )
@@ -221,6 +314,15 @@ class SmmBatchRequest(_Request):
         None, description="As in POST /smm."
     )
     include_paths: bool = Field(True, description="As in POST /smm.")
+    obstacles: list[ObstacleIn] = Field(
+        default_factory=list,
+        max_length=MAX_OBSTACLES,
+        description="As in POST /smm: one scene for every target.",
+    )
+    collision: CollisionIn = Field(
+        default_factory=lambda: CollisionIn.model_validate({}),
+        description="As in POST /smm, for every target.",
+    )
 
     def request_for(self, index: int) -> SmmRequest:
         """The POST /smm body whose answer is this batch's answer for `targets[index]`."""
@@ -229,7 +331,14 @@ class SmmBatchRequest(_Request):
         for name in BATCH_TARGET_OPTIONS:
             own = getattr(item, name)
             options[name] = getattr(self, name) if own is None else own
-        return SmmRequest(robot=self.robot, task=self.task, target=item.target, **options)
+        return SmmRequest(
+            robot=self.robot,
+            task=self.task,
+            target=item.target,
+            obstacles=self.obstacles,
+            collision=self.collision,
+            **options,
+        )
 
 
 class BatchItemOut(BaseModel):
@@ -275,6 +384,10 @@ class RobotOut(BaseModel):
     redundancy: int
     target_position_length: int
     orientation: bool
+    collision_geometry: bool = Field(
+        description="The model has collision geometry: its answers can be checked for "
+        "self-collision and against a request's obstacles."
+    )
     defaults: dict[str, object]
     training: dict[str, object]
     quality: dict[str, object] | None

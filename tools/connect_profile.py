@@ -23,7 +23,7 @@ from service.models.registry import ServedModel, load_model
 from service.pipeline.arrays import FloatArray
 from service.pipeline.connect import connect
 from service.pipeline.fibre import Fibre
-from service.pipeline.run import correct_samples, encode, sample, space_of
+from service.pipeline.run import collision_of, correct_samples, encode, sample, space_of
 from service.pipeline.types import Kinematics, KinematicsResult, Query
 from training.evaluate.served import orientation_wxyz
 from training.evaluate.targets import uniform_configurations
@@ -66,7 +66,7 @@ def profile_connect(
         )
         # Stages 1-4 as the pipeline runs them (service/pipeline/run.py).
         target = encode(model, query)
-        space = space_of(model, target, query.tolerance)
+        space = space_of(model, target, query.tolerance, collision_of(model, query))
         correction = correct_samples(model, space, sample(model, query, target))
         acceptance = space.accept(correction)
         timed = TimedKinematics(model.kinematics)

@@ -11,15 +11,29 @@ from starlette.concurrency import run_in_threadpool
 
 from service.api.deps import AdmissionDep, MetricsDep, RegistryDep, SettingsDep
 from service.api.schemas import error_responses
-from service.errors import DeadlineExceededError, LimitExceededError, OverloadedError
+from service.errors import (
+    DeadlineExceededError,
+    LimitExceededError,
+    OverloadedError,
+    RequestFieldError,
+)
 from service.http.admission import Admission
 from service.http.openapi import operation_id
 from service.models.registry import ServedModel
 from service.observability.metrics import Metrics
+from service.pipeline.collision.scene import Obstacle
 from service.pipeline.deadline import Deadline
-from service.pipeline.run import run
+from service.pipeline.run import collision_of, run
 from service.pipeline.types import ComponentSummary, Query, SmmResult
-from service.wire import ComponentOut, CountsOut, SmmRequest, SmmResponse, StructureOut
+from service.wire import (
+    CollisionOut,
+    ComponentOut,
+    CountsOut,
+    ObstacleIn,
+    SmmRequest,
+    SmmResponse,
+    StructureOut,
+)
 
 Computed = TypeVar("Computed")
 
@@ -42,7 +56,15 @@ def to_query(body: SmmRequest, model: ServedModel, max_num_samples: int) -> Quer
 
 def query_for_model(body: SmmRequest, model: ServedModel) -> Query:
     """The request as the model's Query, defaults filled in; RequestFieldError (422) for a
-    shape the model refuses."""
+    shape the model refuses (obstacles included: a model without collision geometry
+    cannot check them)."""
+    if body.obstacles and model.robot_spheres is None:
+        raise RequestFieldError(
+            ("body", "obstacles"),
+            f"model {model.manifest.model_id} has no collision geometry (its URDF has no "
+            "<collision> elements), so obstacles cannot be checked; send none, or use a "
+            "model whose GET /robots entry has collision_geometry true",
+        )
     orientation = body.target.orientation
     return Query.for_model(
         model.manifest,
@@ -55,6 +77,21 @@ def query_for_model(body: SmmRequest, model: ServedModel) -> Query:
         reference_rad=body.reference_configuration,
         max_configurations_per_component=body.max_configurations_per_component,
         include_paths=body.include_paths,
+        obstacles=[_obstacle(i, o) for i, o in enumerate(body.obstacles)],
+        check_self=body.collision.check_self,
+        margin_m=body.collision.margin_m,
+    )
+
+
+def _obstacle(index: int, obstacle: ObstacleIn) -> Obstacle:
+    """One obstacle of the request, checked (422 naming obstacles[index]'s field)."""
+    orientation = obstacle.orientation
+    return Obstacle.of(
+        index,
+        obstacle.shape,
+        obstacle.dimensions,
+        obstacle.position,
+        None if orientation is None else orientation.wxyz(),
     )
 
 
@@ -73,11 +110,14 @@ def _component_out(index: int, summary: ComponentSummary) -> ComponentOut:
         nearest_to_reference=None if nearest is None else nearest.tolist(),
         arc_length_rad=summary.arc_length_rad,
         closed=summary.closed,
+        ends=None if summary.ends is None else list(summary.ends),
         path=None if summary.path is None else summary.path.q_rad.tolist(),
+        clearance_m=summary.clearance_m,
+        safest_configuration=None if summary.safest_rad is None else summary.safest_rad.tolist(),
     )
 
 
-def to_response(model: ServedModel, result: SmmResult) -> SmmResponse:
+def to_response(model: ServedModel, query: Query, result: SmmResult) -> SmmResponse:
     manifest = model.manifest
     return SmmResponse(
         robot=manifest.robot,
@@ -89,14 +129,24 @@ def to_response(model: ServedModel, result: SmmResult) -> SmmResponse:
         counts=CountsOut(**vars(result.counts)),
         components=[_component_out(i, s) for i, s in enumerate(result.components)],
         structure=StructureOut(**vars(result.structure)),
+        collision=_collision_out(model, query),
         timings_ms=result.timings.as_dict(),
+    )
+
+
+def _collision_out(model: ServedModel, query: Query) -> CollisionOut:
+    check = collision_of(model, query)
+    return CollisionOut(
+        self_checked=check.self_checked,
+        obstacles=len(query.scene.obstacles),
+        margin_m=query.margin_m,
     )
 
 
 def answer(model: ServedModel, query: Query, deadline: Deadline) -> tuple[bytes, SmmResult]:
     """Run the pipeline and encode the JSON answer (in a worker thread: both are CPU work)."""
     result = run(model, query, deadline)
-    return to_response(model, result).model_dump_json().encode(), result
+    return to_response(model, query, result).model_dump_json().encode(), result
 
 
 async def compute_in_slot(

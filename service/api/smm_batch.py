@@ -33,8 +33,8 @@ def _at_target(error: RequestFieldError, body: SmmBatchRequest, index: int) -> R
     """The error of target `index`'s POST /smm body, located in the batch: at
     `targets[index]` when the field is the target's own, else at the batch's field."""
     field = error.location[1]
-    if field != "target" and getattr(body.targets[index], str(field)) is None:
-        return error  # an option the target took from the batch
+    if field != "target" and getattr(body.targets[index], str(field), None) is None:
+        return error  # an option the target took from the batch, or the batch's scene
     return RequestFieldError(
         ("body", "targets", index, *error.location[1:]), f"targets[{index}].{error.message}"
     )
@@ -76,12 +76,14 @@ def to_queries(body: SmmBatchRequest, model: ServedModel, settings: Settings) ->
     return queries
 
 
-def to_batch_response(model: ServedModel, count: int, batch: BatchResult) -> SmmBatchResponse:
+def to_batch_response(
+    model: ServedModel, queries: list[Query], batch: BatchResult
+) -> SmmBatchResponse:
     manifest = model.manifest
     results = []
-    for index in range(count):
+    for index, query in enumerate(queries):
         if index < len(batch.results):
-            answer = to_response(model, batch.results[index])
+            answer = to_response(model, query, batch.results[index])
             results.append(BatchItemOut(index=index, status=answer.status, answer=answer))
         else:
             results.append(BatchItemOut(index=index, status="deadline_exceeded", answer=None))
@@ -109,7 +111,7 @@ def answer_batch(
     batch = run_batch(model, queries, deadline, sampling_threads)
     if batch.deadline_error is not None and not batch.results:
         raise batch.deadline_error
-    response = to_batch_response(model, len(queries), batch)
+    response = to_batch_response(model, queries, batch)
     return response.model_dump_json().encode(), batch
 
 

@@ -24,15 +24,19 @@ from pydantic import ValidationError
 from service.errors import ModelUnavailableError, ModelVerificationError, UnknownModelError
 from service.manifest import (
     CHAIN_FILE,
+    COLLISION_FILE,
     FLOW_FILE,
     FLOW_FILES,
     KINEMATICS_FILE,
     MANIFEST_FILE,
+    ChainSpec,
+    CollisionSpec,
     Manifest,
     SamplerSpec,
 )
 from service.models.chain import SerialChainKinematics
 from service.models.sessions import OnnxKinematics, OnnxVelocityField, open_session
+from service.pipeline.collision.robot import RobotSpheres
 from service.pipeline.connect import find_coaxial_sets
 from service.pipeline.joint_space import JointLimits
 from service.pipeline.types import CoaxialSet, Kinematics
@@ -59,6 +63,7 @@ class ServedModel:
     kinematics: Kinematics  # SerialChainKinematics (chain.json) or OnnxKinematics
     limits: JointLimits  # the manifest's joint limits, as the pipeline's stages take them
     coaxial_sets: tuple[CoaxialSet, ...]  # where twin branches meet (connect/coaxial.py)
+    robot_spheres: RobotSpheres | None  # collision.json's bodies; None without geometry
     version: str  # first 12 hex digits of the sha256 over the model's file digests
 
     def network(self, sampler: SamplerSpec) -> OnnxVelocityField:
@@ -121,6 +126,23 @@ def _load_chain(path: Path, manifest: Manifest, reference: Kinematics) -> Serial
     return chain
 
 
+def _load_spheres(model_dir: Path, manifest: Manifest) -> RobotSpheres | None:
+    """collision.json's bodies on chain.json's frames, when the manifest lists both."""
+    if COLLISION_FILE not in manifest.files:
+        return None
+    if CHAIN_FILE not in manifest.files:
+        raise ModelVerificationError(
+            f"{model_dir / COLLISION_FILE}: needs {CHAIN_FILE} (the frames its bodies move with)"
+        )
+    path = model_dir / COLLISION_FILE
+    try:
+        spec = CollisionSpec.model_validate_json(path.read_bytes())
+        chain = ChainSpec.model_validate_json((model_dir / CHAIN_FILE).read_bytes())
+        return RobotSpheres.of(chain, spec)
+    except (OSError, ValidationError, ValueError) as error:
+        raise ModelVerificationError(f"{path}: unreadable collision model: {error}") from error
+
+
 def load_model(model_dir: Path, threads: int) -> ServedModel:
     """Read, verify and open one model directory."""
     manifest_path = model_dir / MANIFEST_FILE
@@ -150,6 +172,7 @@ def load_model(model_dir: Path, threads: int) -> ServedModel:
         kinematics=kinematics,
         limits=limits,
         coaxial_sets=tuple(find_coaxial_sets(kinematics, limits)),
+        robot_spheres=_load_spheres(model_dir, manifest),
         version=hashlib.sha256(combined.encode()).hexdigest()[:12],
     )
 

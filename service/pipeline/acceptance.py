@@ -1,4 +1,5 @@
-"""Stage 4: keep the samples that reach the target within tolerance and lie within the limits."""
+"""Stage 4: keep the samples that reach the target within tolerance and lie within the limits
+(the space then keeps those free of collision: `FibreSpace.accept`)."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ def accept(correction: Correction, tolerance: Tolerance, limits: JointLimits) ->
     pass; a configuration that is not finite fails)."""
     q = correction.q_rad  # (N, n)
     return Acceptance(
+        collision_free=np.ones(len(q), dtype=bool),
         within_tolerance=tolerance.within(
             correction.position_error_m, correction.orientation_error_rad
         ),

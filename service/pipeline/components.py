@@ -1,4 +1,5 @@
-"""Describe each component for the response: representative, bounds, errors, reference distance.
+"""Describe each component for the response: representative, bounds, errors, reference
+distance, and (when collisions are checked) its clearance and safest configuration.
 
 Every accepted member counts in `size` (a 1-D component found only by tracing has size
 0 and is described by its path); when the client caps the configurations returned per
@@ -11,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from service.pipeline.arrays import FloatArray
+from service.pipeline.collision.check import CollisionCheck
 from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.joint_space import JointLimits
 from service.pipeline.types import Component, ComponentSummary
@@ -42,9 +44,29 @@ def farthest_point_subset(
     return q_rad[np.asarray(chosen)]
 
 
+def clearance_along(
+    component: Component, collision: CollisionCheck
+) -> tuple[float, FloatArray] | None:
+    """(least clearance, configuration (n,) of greatest clearance) over the component's
+    members and path points; None when nothing is checked. Path points carry their
+    clearance from the cut (connect/free_pieces.py); members are measured here."""
+    if not collision.active:
+        return None
+    path = component.path
+    q, clearance = component.q_rad, collision.clearance_m(component.q_rad)  # (k, n), (k,)
+    if path is not None:
+        along = (
+            path.clearance_m if path.clearance_m is not None else collision.clearance_m(path.q_rad)
+        )
+        q, clearance = np.concatenate([q, path.q_rad]), np.concatenate([clearance, along])
+    best = int(np.argmax(clearance))
+    return float(clearance.min()), q[best]
+
+
 def summarise(
     component: Component,
     limits: JointLimits,
+    collision: CollisionCheck,
     reference_rad: FloatArray | None,
     max_configurations: int | None,
     include_path: bool,
@@ -76,6 +98,7 @@ def summarise(
         best = int(np.argmin(distances))
         distance_to_reference = float(distances[best])
         nearest = every[best]
+    clearance = clearance_along(component, collision)
     return ComponentSummary(
         size=len(q),
         representative_rad=pool[representative],
@@ -88,13 +111,17 @@ def summarise(
         nearest_to_reference_rad=nearest,
         arc_length_rad=None if path is None else path.arc_length_rad,
         closed=None if path is None else path.closed,
+        ends=None if path is None or path.closed else path.ends,
         path=path if include_path else None,
+        clearance_m=None if clearance is None else clearance[0],
+        safest_rad=None if clearance is None else clearance[1],
     )
 
 
 def summarise_all(
     components: list[Component],
     limits: JointLimits,
+    collision: CollisionCheck,
     reference_rad: FloatArray | None,
     max_configurations: int | None,
     include_paths: bool,
@@ -105,7 +132,7 @@ def summarise_all(
     if reference_rad is not None:
         reference_rad = limits.wrap(reference_rad)
     summaries = [
-        summarise(c, limits, reference_rad, max_configurations, include_paths, deadline)
+        summarise(c, limits, collision, reference_rad, max_configurations, include_paths, deadline)
         for c in components
     ]
     if reference_rad is not None:

@@ -19,6 +19,7 @@ from typing import Literal
 import numpy as np
 
 from service.pipeline.arrays import FloatArray
+from service.pipeline.collision.check import CollisionCheck
 from service.pipeline.components import summarise_all
 from service.pipeline.connect import connect
 from service.pipeline.correction import correct
@@ -100,14 +101,28 @@ def fibre_of(model: SmmModel, target: Target) -> Fibre:
     return Fibre(target, manifest.task, model.kinematics, manifest.defaults.damping)
 
 
-def space_of(model: SmmModel, target: Target, tolerance: Tolerance) -> FibreSpace:
+def collision_of(model: SmmModel, query: Query) -> CollisionCheck:
+    """What the query checks: its obstacles, and self-collision when it asks for it, on
+    the model's bodies (none when its URDF has no collision geometry), by its margin."""
+    return CollisionCheck(
+        robot=model.robot_spheres,
+        scene=query.scene,
+        check_self=query.check_self,
+        margin_m=query.margin_m,
+    )
+
+
+def space_of(
+    model: SmmModel, target: Target, tolerance: Tolerance, collision: CollisionCheck
+) -> FibreSpace:
     """The space stages 3 to 5 move in: the target's fibre inside the model's joint
-    limits, with the model's coaxial sets and the query's tolerance."""
+    limits, with the model's coaxial sets, the query's tolerance and collision check."""
     return FibreSpace(
         fibre=fibre_of(model, target),
         limits=model.limits,
         coaxial_sets=tuple(model.coaxial_sets),
         tolerance=tolerance,
+        collision=collision,
     )
 
 
@@ -153,7 +168,7 @@ def answer_samples(
 ) -> SmmResult:
     """Stages 3-6 on the query's samples, each timed on `watch`, in the query's space
     (`space_of`): correct (`correct_samples`), accept, connect, summarise."""
-    space = space_of(model, target, query.tolerance)
+    space = space_of(model, target, query.tolerance, collision_of(model, query))
     with watch.stage("correct"):
         correction = correct_samples(model, space, q_sampled_rad, deadline)
     with watch.stage("accept"):
@@ -165,6 +180,7 @@ def answer_samples(
         summaries = summarise_all(
             components=connection.components,
             limits=space.limits,
+            collision=space.collision,
             reference_rad=query.reference_rad,
             max_configurations=query.max_configurations_per_component,
             include_paths=query.include_paths,

@@ -1,24 +1,31 @@
 """The space the pipeline moves in (OMPL's SpaceInformation, for a fibre): the target's
-fibre, the joint limits, the chain's coaxial sets and the query's tolerance, with the one
-question every stage asks of it: is this configuration valid, is this motion valid.
+fibre, the joint limits, the chain's coaxial sets, the query's tolerance and its collision
+check, with the one question every stage asks of it: is this configuration valid, is this
+motion valid.
 
-A configuration is valid when it reaches the target within the tolerance and lies inside
-the limits (`accept`). A motion from a valid configuration to the projection of a step
-is valid (`motion_valid`) when the projection converged, lies inside the limits, moved
-no farther than the step allows (no jump), and does not cross a coaxial set where the
-fibre does not reach it (`crossings_on_fibre`: such a step has jumped onto a nearby twin
-branch). Every stage that keeps configurations or walks between them asks here, so a
-new condition on what is valid is added in this module, not in each stage's signature.
+A configuration is valid when it reaches the target within the tolerance, lies inside
+the limits and is free of collision by the query's margin (`accept`). A motion from a
+valid configuration to the projection of a step is valid (`motion_valid`) when the
+projection converged, lies inside the limits, moved no farther than the step allows (no
+jump), does not cross a coaxial set where the fibre does not reach it
+(`crossings_on_fibre`: such a step has jumped onto a nearby twin branch), and is free of
+collision: a walk's motion is checked at every step it takes, the resolution of the
+walk. Every stage that keeps configurations or walks between them asks here, so a new
+condition on what is valid is added in this module, not in each stage's signature.
+`kinematic()` is the same fibre with collisions aside: the r = 1 trace follows each
+curve whole there, and the curves are then cut where they enter collision
+(connect/free_pieces.py).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from service.pipeline.acceptance import accept
 from service.pipeline.arrays import BoolArray, FloatArray
+from service.pipeline.collision.check import CollisionCheck
 from service.pipeline.fibre import Fibre, project
 from service.pipeline.joint_space import JointLimits, wrap_to_pi
 from service.pipeline.types import Acceptance, CoaxialSet, Correction, Tolerance
@@ -32,11 +39,30 @@ class FibreSpace:
     limits: JointLimits
     coaxial_sets: tuple[CoaxialSet, ...]  # the model's (SmmModel.coaxial_sets)
     tolerance: Tolerance  # the query's: what an answer's configuration must reach
+    collision: CollisionCheck  # the query's: the robot's bodies, the obstacles, the margin
+
+    def kinematic(self) -> FibreSpace:
+        """This space with collisions aside."""
+        return replace(self, collision=CollisionCheck.none())
 
     def accept(self, correction: Correction) -> Acceptance:
         """Which corrected configurations are valid: within the tolerance (NaN and inf
-        errors fail it) and inside the limits."""
-        return accept(correction, self.tolerance, self.limits)
+        errors fail it), inside the limits, and (checked for those only) free."""
+        acceptance = accept(correction, self.tolerance, self.limits)
+        on_fibre = np.flatnonzero(acceptance.on_fibre)
+        if not self.collision.active or not len(on_fibre):
+            return acceptance
+        free = acceptance.collision_free.copy()
+        free[on_fibre] = self.collision.free(correction.q_rad[on_fibre])
+        return replace(acceptance, collision_free=free)
+
+    def valid(self, q_rad: FloatArray) -> BoolArray:  # (A, n) on the fibre -> (A,)
+        """Which configurations already on the fibre are inside the limits and free."""
+        ok = self.limits.contains(q_rad)
+        if self.collision.active and ok.any():
+            inside = np.flatnonzero(ok)
+            ok[inside] = self.collision.free(q_rad[inside])
+        return ok
 
     def motion_valid(
         self,
@@ -48,7 +74,8 @@ class FibreSpace:
         also: BoolArray | None = None,  # (A,) the walker's own conditions
     ) -> BoolArray:  # (A,)
         """Which steps q_from -> q_to are valid motions on the fibre; the coaxial
-        crossings are checked last, only for the steps that pass everything else."""
+        crossings and then collisions are checked last, only for the steps that pass
+        everything else."""
         moved = np.linalg.norm(q_to_rad - q_from_rad, axis=1)
         ok = (error_norm <= tolerance) & self.limits.contains(q_to_rad) & (moved <= max_move_rad)
         if also is not None:
@@ -56,6 +83,9 @@ class FibreSpace:
         if self.coaxial_sets and ok.any():
             crossed = np.flatnonzero(ok)
             ok[crossed] = self.crossings_on_fibre(q_from_rad[crossed], q_to_rad[crossed], tolerance)
+        if self.collision.active and ok.any():
+            moving = np.flatnonzero(ok)
+            ok[moving] = self.collision.free(q_to_rad[moving])
         return ok
 
     def crossings_on_fibre(

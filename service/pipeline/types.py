@@ -17,6 +17,8 @@ import numpy as np
 from service.errors import RequestFieldError
 from service.manifest import Defaults, Manifest
 from service.pipeline.arrays import BoolArray, Float32Array, FloatArray
+from service.pipeline.collision.robot import RobotSpheres
+from service.pipeline.collision.scene import Obstacle, Scene
 from service.pipeline.joint_space import JointLimits
 from service.pipeline.targets import validate_target
 
@@ -75,8 +77,8 @@ class CoaxialSet:
 
 class SmmModel(Protocol):
     """What the pipeline needs of a served model: its manifest, flow and kinematics, its
-    joint limits, and the coaxial sets of its chain (both made once, when the model is
-    loaded)."""
+    joint limits, the coaxial sets of its chain, and its bodies as spheres (None when its
+    URDF has no collision geometry); the last three made once, when the model is loaded."""
 
     @property
     def manifest(self) -> Manifest: ...
@@ -92,6 +94,9 @@ class SmmModel(Protocol):
 
     @property
     def coaxial_sets(self) -> Sequence[CoaxialSet]: ...
+
+    @property
+    def robot_spheres(self) -> RobotSpheres | None: ...
 
 
 # -- in: one query -----------------------------------------------------------------------------
@@ -115,6 +120,9 @@ class Query:
     reference_rad: FloatArray | None  # (n,)
     max_configurations_per_component: int | None
     include_paths: bool  # r = 1: return each component's ordered path
+    scene: Scene  # the request's obstacles, base frame
+    check_self: bool  # self-collision asked for (checked where the model has bodies)
+    margin_m: float  # the least clearance a valid configuration keeps
 
     @property
     def tolerance(self) -> Tolerance:
@@ -134,6 +142,9 @@ class Query:
         reference_rad: Sequence[float] | None = None,
         max_configurations_per_component: int | None = None,
         include_paths: bool = True,
+        obstacles: Sequence[Obstacle] = (),
+        check_self: bool = True,
+        margin_m: float = 0.0,
     ) -> Query:
         """Check the request's shape against the model (RequestFieldError names the field)
         and fill every option left as None from the model's defaults."""
@@ -170,6 +181,9 @@ class Query:
             ),
             max_configurations_per_component=max_configurations_per_component,
             include_paths=include_paths,
+            scene=Scene(tuple(obstacles)),
+            check_self=check_self,
+            margin_m=margin_m,
         )
 
 
@@ -211,10 +225,26 @@ class Acceptance:
 
     within_tolerance: BoolArray  # (N,)
     within_limits: BoolArray  # (N,)
+    collision_free: BoolArray  # (N,) True where nothing was checked (kinematically invalid rows)
+
+    @property
+    def on_fibre(self) -> BoolArray:
+        """Within tolerance and inside the limits: on the fibre, collisions aside."""
+        return self.within_tolerance & self.within_limits
 
     @property
     def accepted(self) -> BoolArray:
-        return self.within_tolerance & self.within_limits
+        return self.within_tolerance & self.within_limits & self.collision_free
+
+    def kinematic(self) -> Acceptance:
+        """The same samples judged without collisions (what the r = 1 trace starts from)."""
+        return Acceptance(
+            self.within_tolerance, self.within_limits, np.ones_like(self.collision_free)
+        )
+
+
+# Why an open 1-D component ends: at a joint limit, or where the curve enters collision.
+EndReason = Literal["joint_limit", "collision"]
 
 
 @dataclass(frozen=True)
@@ -226,6 +256,8 @@ class ComponentPath:
     orientation_error_rad: FloatArray  # (P,)
     closed: bool  # a whole loop inside the limits: the last point joins the first
     arc_length_rad: float  # joint-metric length of the path (with the closing gap if closed)
+    ends: tuple[EndReason, EndReason] = ("joint_limit", "joint_limit")  # first, last; if open
+    clearance_m: FloatArray | None = None  # (P,) when collisions were checked along it
 
 
 @dataclass(frozen=True)
@@ -266,7 +298,10 @@ class ComponentSummary:
     nearest_to_reference_rad: FloatArray | None  # (n,)
     arc_length_rad: float | None  # r = 1: the component's length along the fibre
     closed: bool | None  # r = 1: a whole loop inside the limits
+    ends: tuple[EndReason, EndReason] | None  # r = 1, open: why its first and last points end
     path: ComponentPath | None  # r = 1, when the query asked for paths
+    clearance_m: float | None  # least distance to the robot itself and the obstacles along it
+    safest_rad: FloatArray | None  # (n,) its configuration of greatest clearance
 
 
 # -- out: the result ---------------------------------------------------------------------------
@@ -274,12 +309,14 @@ class ComponentSummary:
 
 @dataclass(frozen=True)
 class SampleCounts:
-    """Where every sample went: sampled = accepted + rejected_tolerance + rejected_joint_limits."""
+    """Where every sample went: sampled = accepted + rejected_tolerance +
+    rejected_joint_limits + rejected_collision."""
 
     sampled: int
     accepted: int
     rejected_tolerance: int  # not within tolerance after correction (or not finite)
     rejected_joint_limits: int  # within tolerance but outside the joint limits
+    rejected_collision: int  # within tolerance and the limits, but in collision
 
     @classmethod
     def of(cls, acceptance: Acceptance) -> SampleCounts:
@@ -289,6 +326,7 @@ class SampleCounts:
             accepted=int(acceptance.accepted.sum()),
             rejected_tolerance=int((~tolerance).sum()),
             rejected_joint_limits=int((tolerance & ~acceptance.within_limits).sum()),
+            rejected_collision=int((acceptance.on_fibre & ~acceptance.collision_free).sum()),
         )
 
 

@@ -34,6 +34,7 @@ from scipy.spatial import cKDTree
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
 from service.pipeline.arrays import FloatArray
+from service.pipeline.collision.check import CollisionCheck
 from service.pipeline.connect import PlannerSettings, edges_on_fibre
 from service.pipeline.fibre import Fibre
 from service.pipeline.joint_space import JointLimits
@@ -73,6 +74,7 @@ def space_of(model: ServedModel, q_target: FloatArray) -> FibreSpace:
         limits=JointLimits.of(manifest.joints),
         coaxial_sets=(),
         tolerance=Tolerance.of(manifest.defaults),
+        collision=CollisionCheck.none(),
     )
 
 

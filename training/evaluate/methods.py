@@ -19,6 +19,7 @@ import pytorch_kinematics as pk
 
 from service.models.registry import ServedModel
 from service.pipeline.arrays import BoolArray, FloatArray
+from service.pipeline.collision.check import CollisionCheck
 from service.pipeline.connect import connect
 from service.pipeline.correction import task_error, task_error_norms
 from service.pipeline.joint_space import JointLimits, joint_distance
@@ -166,8 +167,10 @@ def served_target(
     target = _target_of(model, q_target)
     query = Query.for_model(
         manifest, position_m=target.position, orientation_wxyz=target.wxyz,
-        num_samples=num_samples, seed=seed, include_paths=True,
+        num_samples=num_samples, seed=seed, include_paths=True, check_self=False,
     )  # fmt: skip
+    # The kinematic fibre, as the exact references trace it: collisions aside (the
+    # report's scene section asks with them).
     result = run(model, query)
     none = np.zeros(0)
     components = [(c.configurations_rad, c.path) for c in result.components]
@@ -229,7 +232,7 @@ def restart_target(
     solutions = random_restart_dls(
         chain, manifest.joints, manifest.task, position_m, target.rotation, num_samples, seed
     )
-    space = space_of(model, target, Tolerance.of(defaults))
+    space = space_of(model, target, Tolerance.of(defaults), CollisionCheck.none())
     q = space.limits.wrap(solutions.q_rad.astype(np.float64))
     fk = model.kinematics(q)
     raw_p, raw_o = task_error_norms(fk, target, manifest.task)

@@ -23,6 +23,7 @@ import numpy as np
 
 from service.manifest import MANIFEST_FILE, Manifest, Quality, RawError, SamplerSpec
 from service.models.registry import ServedModel, load_model
+from service.pipeline.collision.check import CollisionCheck
 from service.pipeline.correction import task_error_norms
 from service.pipeline.joint_space import JointLimits
 from service.pipeline.run import correct_samples, space_of
@@ -121,7 +122,7 @@ def measure_quality(
             sampler_errors.append(task_error_norms(served.kinematics(q_raw), target, task))
             if sampler != defaults.sampler:
                 continue
-            space = space_of(served, target, tolerance)
+            space = space_of(served, target, tolerance, CollisionCheck.none())
             accepted = space.accept(correct_samples(served, space, q_raw)).accepted
             kept += int(accepted.sum())
             solved += int(accepted.any())

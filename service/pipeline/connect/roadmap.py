@@ -343,7 +343,7 @@ class Roadmap:
             # A valid motion but for the coaxial crossings: the walk ends on a set.
             ok &= (
                 (walked.error_norm <= self.planner.projection_tolerance)
-                & self.space.limits.contains(walked.q_rad)
+                & self.space.valid(walked.q_rad)
                 & (moved <= self.planner.lambda_ * max(np.abs(gap).max() / steps, step_rad))
             )
             q = np.where(ok[:, None], walked.q_rad, q)

@@ -10,6 +10,11 @@ r > 1, and any r = 1 sample that no traced piece passes through: a roadmap whose
 are checked by the projected local planner (roadmap.py), with nodes added on the chain's
 coaxial sets (coaxial.py), where twin branches meet, when components are left apart.
 
+With collisions checked, r = 1 curves are traced whole with collisions aside and then
+cut where they enter collision (free_pieces.py): each free piece is a component; r > 1
+roadmap nodes are free samples and every step of an edge's walk is checked (the space's
+`motion_valid`), so a component is what the robot can move within.
+
 Either way every accepted sample is in exactly one component, and the result says when
 the target is near a singular value of the kinematics (sigma_min(J) small on the fibre,
 a curve that could not be traced through, or two strands of the traced fibre closer
@@ -26,6 +31,7 @@ import numpy as np
 from service.manifest import ConnectivitySpec
 from service.pipeline.arrays import IntArray
 from service.pipeline.connect.curves import ON_CURVE_FRACTION, owner_path, retraced, traced_paths
+from service.pipeline.connect.free_pieces import free_pieces
 from service.pipeline.connect.roadmap import roadmap_labels
 from service.pipeline.connect.settings import planner_settings, roadmap_settings, splice_settings
 from service.pipeline.connect.splicing import attach_by_walk, open_ends, splice_paths
@@ -69,9 +75,13 @@ def connect(
     leftover = accepted
     complete = True
     if redundancy == 1:
-        curves = _curve_components(space, correction, acceptance, spec, deadline)
+        kinematic = space.kinematic()
+        curves = _curve_components(kinematic, correction, acceptance.kinematic(), spec, deadline)
         components, leftover = curves.components, curves.leftover
         complete, min_sigma = curves.complete, min(min_sigma, curves.min_singular_value)
+        if space.collision.active:
+            components = free_pieces(space, components, spec.path_spacing_rad)
+            leftover = leftover[acceptance.collision_free[leftover]]
     if len(leftover):
         q_leftover = correction.q_rad[leftover]
         planner, roadmap = planner_settings(spec), roadmap_settings(spec)

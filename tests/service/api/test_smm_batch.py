@@ -248,7 +248,7 @@ def test_a_batch_cut_by_the_deadline_marks_the_targets_left(planar3r: ServedMode
     expired = Deadline(budget_s=1.0, expires_at_s=0.0)
     stopped = run_batch(planar3r, queries[1:], expired).deadline_error
     cut = BatchResult(answered.results, stopped, answered.total_ms)
-    response = to_batch_response(planar3r, len(queries), cut)
+    response = to_batch_response(planar3r, queries, cut)
     assert response.status == "partial"
     assert [(r.index, r.status) for r in response.results] == [(0, "ok"), (1, "deadline_exceeded")]
     assert response.results[1].answer is None

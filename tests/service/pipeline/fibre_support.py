@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from service.models.registry import ServedModel
+from service.pipeline.collision.check import CollisionCheck
 from service.pipeline.fibre import Fibre, project
 from service.pipeline.joint_space import JointLimits, joint_distance
 from service.pipeline.space import FibreSpace
@@ -24,7 +25,13 @@ def fibre_space(
 ) -> FibreSpace:
     """The space on `fibre` inside `limits`: a walk in it may cross the given coaxial sets
     only where the fibre reaches them (none: `()`)."""
-    return FibreSpace(fibre=fibre, limits=limits, coaxial_sets=coaxial_sets, tolerance=tolerance)
+    return FibreSpace(
+        fibre=fibre,
+        limits=limits,
+        coaxial_sets=coaxial_sets,
+        tolerance=tolerance,
+        collision=CollisionCheck.none(),
+    )
 
 
 def planar_fibre(model: ServedModel, target_m: np.ndarray) -> Fibre:

@@ -15,6 +15,7 @@ import pytest
 from service.manifest import REPO_MODELS_DIR, Manifest
 from service.models.registry import ServedModel, load_model
 from service.pipeline.batch import run_batch
+from service.pipeline.collision.robot import RobotSpheres
 from service.pipeline.deadline import Deadline
 from service.pipeline.joint_space import JointLimits
 from service.pipeline.run import run
@@ -168,6 +169,10 @@ class SlowSecondTarget:
     @property
     def coaxial_sets(self) -> tuple[CoaxialSet, ...]:
         return self.model.coaxial_sets
+
+    @property
+    def robot_spheres(self) -> RobotSpheres | None:
+        return self.model.robot_spheres
 
 
 def test_a_deadline_mid_batch_returns_the_answers_before_it(planar3r: ServedModel) -> None:

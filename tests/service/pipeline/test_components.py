@@ -2,11 +2,13 @@
 
 import numpy as np
 
+from service.pipeline.collision.check import CollisionCheck
 from service.pipeline.components import farthest_point_subset, joint_mean, summarise_all
 from service.pipeline.joint_space import JointLimits, joint_distance
 from service.pipeline.types import Component
 
 PERIODIC = np.array([True, True])
+NONE = CollisionCheck.none()
 LIMITS = JointLimits(np.full(2, -np.pi), np.full(2, np.pi), PERIODIC)  # only periodic is read
 
 
@@ -23,11 +25,11 @@ def arc(centre: float, count: int) -> np.ndarray:
 
 def test_ordered_by_size_without_reference_and_by_distance_with_one() -> None:
     small, large = component(arc(2.0, 10)), component(arc(-1.0, 30))
-    by_size = summarise_all([small, large], LIMITS, None, None, include_paths=True)
+    by_size = summarise_all([small, large], LIMITS, NONE, None, None, include_paths=True)
     assert [s.size for s in by_size] == [30, 10]
     assert by_size[0].distance_to_reference_rad is None
     reference = np.array([2.2, 0.1])
-    by_reference = summarise_all([large, small], LIMITS, reference, None, include_paths=True)
+    by_reference = summarise_all([large, small], LIMITS, NONE, reference, None, include_paths=True)
     assert [s.size for s in by_reference] == [10, 30]
     nearest = by_reference[0].nearest_to_reference_rad
     brute = small.q_rad[np.argmin(joint_distance(small.q_rad, reference, PERIODIC))]
@@ -37,7 +39,7 @@ def test_ordered_by_size_without_reference_and_by_distance_with_one() -> None:
 def test_reference_is_wrapped_on_periodic_joints() -> None:
     near_seam = component(np.array([[3.1, 0.0], [3.0, 0.0]]))
     (summary,) = summarise_all(
-        [near_seam], LIMITS, np.array([-3.1 + 2 * np.pi * 3, 0.0]), None, include_paths=True
+        [near_seam], LIMITS, NONE, np.array([-3.1 + 2 * np.pi * 3, 0.0]), None, include_paths=True
     )
     assert summary.distance_to_reference_rad is not None
     assert summary.distance_to_reference_rad < 0.1
@@ -45,7 +47,7 @@ def test_reference_is_wrapped_on_periodic_joints() -> None:
 
 def test_capped_configurations_cover_the_component_and_size_counts_all() -> None:
     q = arc(0.0, 200)
-    (summary,) = summarise_all([component(q)], LIMITS, None, 11, include_paths=True)
+    (summary,) = summarise_all([component(q)], LIMITS, NONE, None, 11, include_paths=True)
     assert summary.size == 200 and len(summary.configurations_rad) == 11
     gaps = [joint_distance(summary.configurations_rad, p, PERIODIC).min() for p in q]
     # 11 points on an arc of length 1 cover it within 0.05 at best; farthest-point

@@ -9,6 +9,7 @@ import pytest
 
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
+from service.pipeline.collision.check import CollisionCheck
 from service.pipeline.correction import correct, error_norms
 from service.pipeline.joint_space import JointLimits
 from service.pipeline.limits import pull_into_limits
@@ -97,7 +98,7 @@ def test_the_pipeline_pulls_for_r_above_1_and_accounts_for_every_sample(
         q_sampled, target, manifest.task, iiwa14_position.kinematics, d.correction_steps,
         d.damping, limits,
     )  # fmt: skip
-    space = space_of(iiwa14_position, target, TOLERANCE)
+    space = space_of(iiwa14_position, target, TOLERANCE, CollisionCheck.none())
     stage3 = correct_samples(iiwa14_position, space, q_sampled)
 
     def exact_outside(c: Correction) -> int:
@@ -126,5 +127,5 @@ def test_the_pipeline_pulls_for_r_above_1_and_accounts_for_every_sample(
         q, planar_target, planar.task, planar3r.kinematics, planar.defaults.correction_steps,
         planar.defaults.damping, JointLimits.of(planar.joints),
     )  # fmt: skip
-    planar_space = space_of(planar3r, planar_target, TOLERANCE)
+    planar_space = space_of(planar3r, planar_target, TOLERANCE, CollisionCheck.none())
     np.testing.assert_array_equal(correct_samples(planar3r, planar_space, q).q_rad, alone.q_rad)

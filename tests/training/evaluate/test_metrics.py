@@ -22,6 +22,7 @@ import numpy as np
 import pytest
 
 from service.models.registry import ServedModel
+from service.pipeline.collision.check import CollisionCheck
 from service.pipeline.components import summarise_all
 from service.pipeline.joint_space import JointLimits, joint_distance
 from service.pipeline.types import (
@@ -178,8 +179,9 @@ def _answer(pieces: list[np.ndarray], paths: list[np.ndarray] | None = None) -> 
     accepted = sum(len(q) for q in pieces)
     return SmmResult(
         counts=SampleCounts(sampled=accepted, accepted=accepted, rejected_tolerance=0,
-                            rejected_joint_limits=0),
-        components=summarise_all(components, IIWA_LIMITS, None, None, True),
+                            rejected_joint_limits=0, rejected_collision=0),
+        components=summarise_all(components, IIWA_LIMITS, CollisionCheck.none(), None, None,
+                                 True),
         structure=FibreStructure(near_singular=False, min_singular_value=None, traced=True),
         timings=StageTimings(stage_ms={}, total_ms=0.0),
     )  # fmt: skip

@@ -1,0 +1,71 @@
+"""One request's collision question: is a configuration free of the robot's own bodies and
+of the scene's obstacles, by at least the margin, and how far is it from both.
+
+Clearance is the least signed distance from the robot's spheres to another body's (the
+pairs not disabled) and from its moving bodies' spheres to the obstacles: a lower bound
+of the distance between the URDF's own geometry, since the spheres cover it. A
+configuration is free when its clearance is at least the margin.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from service.pipeline.arrays import BoolArray, FloatArray
+from service.pipeline.collision.robot import RobotSpheres
+from service.pipeline.collision.scene import Scene
+
+# Configurations placed per pass: the spheres' temporaries stay a few MB.
+CHUNK = 2048
+
+
+@dataclass(frozen=True)
+class CollisionCheck:
+    """What a query checks: the model's bodies (None: its URDF has no collision geometry),
+    whether against each other, the request's obstacles, and the margin."""
+
+    robot: RobotSpheres | None
+    scene: Scene
+    check_self: bool
+    margin_m: float
+
+    @classmethod
+    def none(cls) -> CollisionCheck:
+        """Nothing checked: the fibre inside the limits, collisions aside."""
+        return cls(robot=None, scene=Scene(), check_self=False, margin_m=0.0)
+
+    @property
+    def self_checked(self) -> bool:
+        """Self-collision is checked: asked for, and the model has bodies to check."""
+        return self.check_self and self.robot is not None and len(self.robot.pair_a) > 0
+
+    @property
+    def active(self) -> bool:
+        """Anything to check at all: self-collision, or obstacles and bodies that move."""
+        obstacles = bool(self.scene.obstacles) and self.robot is not None
+        return self.self_checked or (obstacles and len(self.robot.moving) > 0)  # type: ignore[union-attr]
+
+    def clearance_m(self, q_rad: FloatArray) -> FloatArray:  # (B, n) -> (B,)
+        """The least distance to the robot itself and to the obstacles; +inf when nothing
+        is checked."""
+        clearance = np.full(len(q_rad), np.inf)
+        if not self.active or self.robot is None:
+            return clearance
+        robot, moving = self.robot, self.robot.moving
+        for start in range(0, len(q_rad), CHUNK):
+            span = slice(start, start + CHUNK)
+            centres = robot.centres_m(q_rad[span])  # (b, S, 3)
+            if self.self_checked:
+                clearance[span] = robot.self_clearance_m(centres)
+            if self.scene.obstacles and len(moving):
+                to_scene = self.scene.clearance_m(centres[:, moving], robot.radius_m[moving])
+                np.minimum(clearance[span], to_scene, out=clearance[span])
+        return clearance
+
+    def free(self, q_rad: FloatArray) -> BoolArray:  # (B, n) -> (B,)
+        """Which configurations are clear by at least the margin (NaN rows are not)."""
+        if not self.active:
+            return np.ones(len(q_rad), dtype=bool)
+        return self.clearance_m(q_rad) >= self.margin_m

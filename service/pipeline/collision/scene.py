@@ -1,0 +1,136 @@
+"""The request's obstacles: solid primitives in the model's base frame, as MoveIt's
+planning scene gives them (shape_msgs/SolidPrimitive), and the signed distance of the
+robot's spheres to them.
+
+    box       dimensions [x, y, z]      full side lengths, centred on its position
+    sphere    dimensions [radius]
+    cylinder  dimensions [height, radius]  along its z axis, centred
+    capsule   dimensions [height, radius]  the segment between the cap centres along z
+              (height), centred, swept by the radius: total length height + 2 radius
+
+The orientation is the same named-field unit quaternion as a pose target's (identity
+when left out). Each kernel gives the signed distance from a point to the solid (negative
+inside) in the obstacle's own frame; a sphere of radius r is clear of it by that minus r.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Literal, get_args
+
+import numpy as np
+
+from service.errors import RequestFieldError
+from service.pipeline.arrays import FloatArray
+from service.pipeline.rotations import quaternion_to_matrix
+from service.pipeline.targets import QUATERNION_NORM_TOLERANCE
+
+ShapeName = Literal["box", "sphere", "cylinder", "capsule"]
+SHAPES: tuple[ShapeName, ...] = get_args(ShapeName)
+DIMENSION_NAMES: dict[ShapeName, tuple[str, ...]] = {
+    "box": ("x", "y", "z"),
+    "sphere": ("radius",),
+    "cylinder": ("height", "radius"),
+    "capsule": ("height", "radius"),
+}
+# Past this size (m) a dimension is a unit mistake (millimetres), not a scene.
+MAX_DIMENSION_M = 100.0
+
+
+@dataclass(frozen=True)
+class Obstacle:
+    shape: ShapeName
+    dimensions_m: tuple[float, ...]  # as DIMENSION_NAMES
+    position_m: FloatArray  # (3,) base frame
+    rotation: FloatArray  # (3, 3) obstacle frame -> base frame
+
+    @classmethod
+    def of(
+        cls,
+        index: int,
+        shape: str,
+        dimensions_m: Sequence[float],
+        position_m: Sequence[float],
+        orientation_wxyz: tuple[float, float, float, float] | None,
+    ) -> Obstacle:
+        """One obstacle of a request, checked; RequestFieldError names obstacles[index]'s
+        field and says what is valid."""
+        where = ("body", "obstacles", index)
+        if shape not in SHAPES:
+            raise RequestFieldError((*where, "shape"), f"shape must be one of {list(SHAPES)}")
+        names = DIMENSION_NAMES[shape]
+        if len(dimensions_m) != len(names) or not all(
+            0.0 < d <= MAX_DIMENSION_M for d in dimensions_m
+        ):
+            raise RequestFieldError(
+                (*where, "dimensions"),
+                f"a {shape} has dimensions [{', '.join(names)}]: {len(names)} values in "
+                f"metres, each above 0 and at most {MAX_DIMENSION_M:g}, got {list(dimensions_m)}",
+            )
+        if len(position_m) != 3:
+            raise RequestFieldError(
+                (*where, "position"),
+                f"position must have 3 values (x, y, z), got {len(position_m)}",
+            )
+        rotation = np.eye(3)
+        if orientation_wxyz is not None:
+            with np.errstate(over="ignore"):
+                norm = float(np.linalg.norm(orientation_wxyz))
+            if not abs(norm - 1.0) <= QUATERNION_NORM_TOLERANCE:
+                raise RequestFieldError(
+                    (*where, "orientation"),
+                    f"orientation must be a unit quaternion (norm within "
+                    f"{QUATERNION_NORM_TOLERANCE} of 1, normalised then), got norm {norm:.6g}",
+                )
+            rotation = quaternion_to_matrix(*orientation_wxyz)
+        return cls(
+            shape=shape,
+            dimensions_m=tuple(float(d) for d in dimensions_m),
+            position_m=np.asarray(position_m, dtype=np.float64),
+            rotation=rotation,
+        )
+
+
+@dataclass(frozen=True)
+class Scene:
+    """The obstacles of one request (one scene for every target of a batch)."""
+
+    obstacles: tuple[Obstacle, ...] = ()
+
+    def clearance_m(self, centres_m: FloatArray, radii_m: FloatArray) -> FloatArray:
+        """(B,) the least signed distance of spheres (B, S, 3), (S,) to any obstacle
+        (negative: penetrating); +inf without obstacles."""
+        clearance = np.full(centres_m.shape[0], np.inf)
+        for obstacle in self.obstacles:
+            local = (centres_m - obstacle.position_m) @ obstacle.rotation  # (B, S, 3)
+            distance = _SIGNED_DISTANCE[obstacle.shape](local, obstacle.dimensions_m)  # (B, S)
+            np.minimum(clearance, (distance - radii_m).min(axis=1), out=clearance)
+        return clearance
+
+
+def _box(p: FloatArray, dimensions: tuple[float, ...]) -> FloatArray:  # (B, S, 3) -> (B, S)
+    excess = np.abs(p) - 0.5 * np.asarray(dimensions)  # (B, S, 3)
+    outside = np.linalg.norm(np.maximum(excess, 0.0), axis=-1)
+    return outside + np.minimum(excess.max(axis=-1), 0.0)
+
+
+def _sphere(p: FloatArray, dimensions: tuple[float, ...]) -> FloatArray:
+    return np.linalg.norm(p, axis=-1) - dimensions[0]
+
+
+def _cylinder(p: FloatArray, dimensions: tuple[float, ...]) -> FloatArray:
+    height, radius = dimensions
+    radial = np.hypot(p[..., 0], p[..., 1]) - radius  # (B, S)
+    axial = np.abs(p[..., 2]) - 0.5 * height
+    outside = np.hypot(np.maximum(radial, 0.0), np.maximum(axial, 0.0))
+    return outside + np.minimum(np.maximum(radial, axial), 0.0)
+
+
+def _capsule(p: FloatArray, dimensions: tuple[float, ...]) -> FloatArray:
+    height, radius = dimensions
+    nearest_z = np.clip(p[..., 2], -0.5 * height, 0.5 * height)
+    return np.sqrt(p[..., 0] ** 2 + p[..., 1] ** 2 + (p[..., 2] - nearest_z) ** 2) - radius
+
+
+_SIGNED_DISTANCE = {"box": _box, "sphere": _sphere, "cylinder": _cylinder, "capsule": _capsule}
