@@ -14,8 +14,12 @@ from service.pipeline.collision.robot import RobotSpheres
 from service.pipeline.collision.scene import Obstacle
 from service.pipeline.run import run
 from service.pipeline.types import ComponentSummary, Query
-from tests.service.pipeline.collision.test_robot import RADIUS_M, link_middles, planar_chain
-from tests.service.pipeline.collision.test_robot import planar_spec
+from tests.service.pipeline.collision.test_robot import (
+    RADIUS_M,
+    link_middles,
+    planar_chain,
+    planar_spec,
+)
 
 TARGET_M = [1.2, 0.9]
 MARGIN_M = 0.02
