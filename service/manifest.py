@@ -54,7 +54,6 @@ class JointSpec(_Strict):
         return len(self.names)
 
 
-
 TaskName = Literal["position", "pose"]
 
 

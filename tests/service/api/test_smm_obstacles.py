@@ -84,7 +84,10 @@ def test_a_batch_shares_one_scene(with_geometry: TestClient) -> None:
             {"obstacles": [OBSTACLE, {**OBSTACLE, "shape": "box"}]},
             ["body", "obstacles", 1, "dimensions"],
         ),
-        ({"obstacles": [{**OBSTACLE, "dimensions": [0.0]}]}, ["body", "obstacles", 0, "dimensions"]),
+        (
+            {"obstacles": [{**OBSTACLE, "dimensions": [0.0]}]},
+            ["body", "obstacles", 0, "dimensions"],
+        ),
         ({"obstacles": [{**OBSTACLE, "position": [0, 0]}]}, ["body", "obstacles", 0, "position"]),
         (
             {"obstacles": [{**OBSTACLE, "orientation": {"w": 0.5, "x": 0, "y": 0, "z": 0}}]},
