@@ -18,7 +18,7 @@ from service.pipeline.collision.robot import RobotSpheres
 from service.pipeline.collision.scene import Scene
 
 # Configurations placed per pass: the spheres' temporaries stay a few MB.
-CHUNK = 2048
+CHUNK = 1024
 
 
 @dataclass(frozen=True)
@@ -44,8 +44,9 @@ class CollisionCheck:
     @property
     def active(self) -> bool:
         """Anything to check at all: self-collision, or obstacles and bodies that move."""
-        obstacles = bool(self.scene.obstacles) and self.robot is not None
-        return self.self_checked or (obstacles and len(self.robot.moving) > 0)  # type: ignore[union-attr]
+        if self.robot is None:
+            return False
+        return self.self_checked or (bool(self.scene.obstacles) and bool(self.robot.moving.any()))
 
     def clearance_m(self, q_rad: FloatArray) -> FloatArray:  # (B, n) -> (B,)
         """The least distance to the robot itself and to the obstacles; +inf when nothing
@@ -53,15 +54,13 @@ class CollisionCheck:
         clearance = np.full(len(q_rad), np.inf)
         if not self.active or self.robot is None:
             return clearance
-        robot, moving = self.robot, self.robot.moving
+        robot = self.robot
         for start in range(0, len(q_rad), CHUNK):
             span = slice(start, start + CHUNK)
-            centres = robot.centres_m(q_rad[span])  # (b, S, 3)
+            placed = robot.place(q_rad[span])
             if self.self_checked:
-                clearance[span] = robot.self_clearance_m(centres)
-            if self.scene.obstacles and len(moving):
-                to_scene = self.scene.clearance_m(centres[:, moving], robot.radius_m[moving])
-                np.minimum(clearance[span], to_scene, out=clearance[span])
+                clearance[span] = robot.self_clearance_m(placed)
+            clearance[span] = self.scene.clearance_m(placed, robot, clearance[span])
         return clearance
 
     def free(self, q_rad: FloatArray) -> BoolArray:  # (B, n) -> (B,)

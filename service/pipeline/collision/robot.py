@@ -1,10 +1,17 @@
 """The robot's own bodies as spheres (collision.json), placed at a configuration, and the
-least distance between the pairs that are checked: self-collision.
+least distance between the body pairs that are checked: self-collision.
 
 Each body's spheres cover its URDF collision geometry (training.collision fits them so
 that every point of the geometry is inside one), so the distance between two bodies'
 spheres, |c_a - c_b| - r_a - r_b minimised over their sphere pairs, is at most the
 distance between the geometry itself: a configuration these spheres call free is free.
+
+The least distance is found in two passes, exactly: each body also has a bounding
+sphere, whose distance to another's bounds their sphere pairs' from below, and one
+sphere pair per body pair bounds it from above; only the body pairs whose lower bound is
+under the least upper bound of the configuration can hold its least distance, and only
+their sphere pairs are measured. Bodies are padded to the same sphere count with copies
+of their first sphere, which changes no minimum.
 """
 
 from __future__ import annotations
@@ -14,79 +21,106 @@ from dataclasses import dataclass
 import numpy as np
 
 from service.manifest import ChainSpec, CollisionSpec
-from service.pipeline.arrays import FloatArray, IntArray
+from service.pipeline.arrays import BoolArray, FloatArray, IntArray
 from service.pipeline.collision.frames import chain_frames
 
 
 @dataclass(frozen=True)
+class PlacedBodies:
+    """The bodies at B configurations: their spheres and bounding spheres, base frame."""
+
+    centres_m: FloatArray  # (B, K, S, 3) padded spheres of each body
+    bound_centres_m: FloatArray  # (B, K, 3)
+
+
+@dataclass(frozen=True)
 class RobotSpheres:
-    """The spheres of every body, in the frames they move with, and the sphere pairs that
-    self-collision checks (those of body pairs not disabled, never a body with itself)."""
+    """Every body's spheres in the frame it moves with, padded to S per body, its bounding
+    sphere, and the body pairs self-collision checks (those not disabled)."""
 
     chain: ChainSpec
     body_names: tuple[str, ...]
-    frame: IntArray  # (S,) chain frame each sphere moves with (0: the base)
-    centre_local_m: FloatArray  # (S, 3) in that frame
-    radius_m: FloatArray  # (S,)
-    body: IntArray  # (S,) index into body_names
-    pair_a: IntArray  # (P,) sphere indices of the checked pairs
+    frame: IntArray  # (K,) chain frame each body moves with (0: the base)
+    centre_local_m: FloatArray  # (K, S, 3) in that frame
+    radius_m: FloatArray  # (K, S)
+    bound_local_m: FloatArray  # (K, 3) bounding sphere's centre, in that frame
+    bound_radius_m: FloatArray  # (K,) it holds every sphere of the body
+    pair_a: IntArray  # (P,) body indices of the checked pairs
     pair_b: IntArray  # (P,)
 
     @classmethod
     def of(cls, chain: ChainSpec, spec: CollisionSpec) -> RobotSpheres:
-        names = tuple(body.link for body in spec.bodies)
-        disabled = {frozenset(pair.links) for pair in spec.disabled_pairs}
-        counts = [len(body.radii_m) for body in spec.bodies]
-        body = np.repeat(np.arange(len(names)), counts)  # (S,)
-        frame = np.repeat([b.frame for b in spec.bodies], counts).astype(np.int64)
-        if frame.size and frame.max() > len(chain.joints):
+        frames = np.array([body.frame for body in spec.bodies], dtype=np.int64)
+        if frames.size and frames.max() > len(chain.joints):
             raise ValueError(
-                f"collision body in frame {int(frame.max())}; the chain has frames 0 to "
+                f"collision body in frame {int(frames.max())}; the chain has frames 0 to "
                 f"{len(chain.joints)}"
             )
-        centres = np.asarray([c for b in spec.bodies for c in b.centres_m], dtype=np.float64)
-        radii = np.asarray([r for b in spec.bodies for r in b.radii_m], dtype=np.float64)
-        pair_a, pair_b = [], []
-        for i in range(len(names)):
-            for j in range(i + 1, len(names)):
-                if frozenset((names[i], names[j])) in disabled:
-                    continue
-                a, b = np.meshgrid(np.flatnonzero(body == i), np.flatnonzero(body == j))
-                pair_a.append(a.ravel())
-                pair_b.append(b.ravel())
+        count = max((len(body.radii_m) for body in spec.bodies), default=1)
+        centres = np.zeros((len(spec.bodies), count, 3))
+        radii = np.zeros((len(spec.bodies), count))
+        for k, body in enumerate(spec.bodies):
+            own = len(body.radii_m)
+            centres[k, :own], radii[k, :own] = body.centres_m, body.radii_m
+            centres[k, own:], radii[k, own:] = body.centres_m[0], body.radii_m[0]
+        bound = centres.mean(axis=1)  # (K, 3)
+        bound_radius = (np.linalg.norm(centres - bound[:, None], axis=2) + radii).max(axis=1)
+        names = tuple(body.link for body in spec.bodies)
+        disabled = {frozenset(pair.links) for pair in spec.disabled_pairs}
+        pairs = [
+            (i, j)
+            for i in range(len(names))
+            for j in range(i + 1, len(names))
+            if frozenset((names[i], names[j])) not in disabled
+        ]
         return cls(
             chain=chain,
             body_names=names,
-            frame=frame,
-            centre_local_m=centres.reshape(-1, 3),
+            frame=frames,
+            centre_local_m=centres,
             radius_m=radii,
-            body=body.astype(np.int64),
-            pair_a=np.concatenate(pair_a).astype(np.int64) if pair_a else np.zeros(0, np.int64),
-            pair_b=np.concatenate(pair_b).astype(np.int64) if pair_b else np.zeros(0, np.int64),
+            bound_local_m=bound,
+            bound_radius_m=bound_radius,
+            pair_a=np.array([a for a, _ in pairs], dtype=np.int64),
+            pair_b=np.array([b for _, b in pairs], dtype=np.int64),
         )
 
     @property
     def sphere_count(self) -> int:
-        return len(self.radius_m)
+        return int(self.radius_m.size)
 
     @property
-    def moving(self) -> IntArray:
-        """(M,) the spheres of bodies that move (frame > 0): what obstacles are checked
-        against. A body fixed to the base is where the robot stands: its scene places it."""
-        return np.flatnonzero(self.frame > 0)
+    def moving(self) -> BoolArray:
+        """(K,) the bodies that move (frame > 0): what obstacles are checked against. A
+        body fixed to the base is where the robot stands: its scene places it."""
+        return self.frame > 0
 
-    def centres_m(self, q_rad: FloatArray) -> FloatArray:  # q (B, n) -> (B, S, 3), base frame
-        frames = chain_frames(self.chain, q_rad)[:, self.frame]  # (B, S, 4, 4)
-        return (
-            np.einsum("bsij,sj->bsi", frames[:, :, :3, :3], self.centre_local_m)
-            + frames[:, :, :3, 3]
-        )
+    def place(self, q_rad: FloatArray) -> PlacedBodies:  # q (B, n)
+        frames = chain_frames(self.chain, q_rad)[:, self.frame]  # (B, K, 4, 4)
+        rotation, origin = frames[:, :, :3, :3], frames[:, :, None, :3, 3]
+        centres = np.einsum("bkij,ksj->bksi", rotation, self.centre_local_m) + origin
+        bounds = np.einsum("bkij,kj->bki", rotation, self.bound_local_m) + origin[:, :, 0]
+        return PlacedBodies(centres_m=centres, bound_centres_m=bounds)
 
-    def self_clearance_m(self, centres_m: FloatArray) -> FloatArray:  # (B, S, 3) -> (B,)
-        """The least |c_a - c_b| - r_a - r_b over the checked pairs (negative: overlapping);
-        +inf when no pair is checked."""
+    def self_clearance_m(self, placed: PlacedBodies) -> FloatArray:  # -> (B,)
+        """The least |c_a - c_b| - r_a - r_b over the sphere pairs of the checked body
+        pairs (negative: overlapping); +inf when no pair is checked."""
+        batch = len(placed.bound_centres_m)
         if not len(self.pair_a):
-            return np.full(len(centres_m), np.inf)
-        gap = np.linalg.norm(centres_m[:, self.pair_a] - centres_m[:, self.pair_b], axis=2)
-        gap -= self.radius_m[self.pair_a] + self.radius_m[self.pair_b]  # (B, P)
-        return gap.min(axis=1)
+            return np.full(batch, np.inf)
+        a, b = self.pair_a, self.pair_b
+        bounds = placed.bound_centres_m
+        lower = np.linalg.norm(bounds[:, a] - bounds[:, b], axis=2)  # (B, P)
+        lower -= self.bound_radius_m[a] + self.bound_radius_m[b]
+        first = placed.centres_m[:, :, 0]  # (B, K, 3): one sphere per body
+        upper = np.linalg.norm(first[:, a] - first[:, b], axis=2)
+        upper -= self.radius_m[a, 0] + self.radius_m[b, 0]  # (B, P)
+        clearance = upper.min(axis=1)  # (B,) attained by a sphere pair
+        rows, pairs = np.nonzero(lower < clearance[:, None])  # (N,), (N,)
+        if len(rows):
+            ca = placed.centres_m[rows, a[pairs]]  # (N, S, 3)
+            cb = placed.centres_m[rows, b[pairs]]
+            gap = np.linalg.norm(ca[:, :, None] - cb[:, None], axis=3)  # (N, S, S)
+            gap -= self.radius_m[a[pairs]][:, :, None] + self.radius_m[b[pairs]][:, None]
+            np.minimum.at(clearance, rows, gap.min(axis=(1, 2)))
+        return clearance

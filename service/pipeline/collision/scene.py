@@ -23,6 +23,7 @@ import numpy as np
 
 from service.errors import RequestFieldError
 from service.pipeline.arrays import FloatArray
+from service.pipeline.collision.robot import PlacedBodies, RobotSpheres
 from service.pipeline.rotations import quaternion_to_matrix
 from service.pipeline.targets import QUATERNION_NORM_TOLERANCE
 
@@ -91,6 +92,11 @@ class Obstacle:
             rotation=rotation,
         )
 
+    def signed_distance_m(self, points_m: FloatArray) -> FloatArray:  # (..., 3) -> (...)
+        """Signed distance of base-frame points to the solid (negative inside)."""
+        local = (points_m - self.position_m) @ self.rotation  # R^T (p - t), row vectors
+        return _SIGNED_DISTANCE[self.shape](local, self.dimensions_m)
+
 
 @dataclass(frozen=True)
 class Scene:
@@ -98,19 +104,45 @@ class Scene:
 
     obstacles: tuple[Obstacle, ...] = ()
 
-    def clearance_m(self, centres_m: FloatArray, radii_m: FloatArray) -> FloatArray:
-        """(B,) the least signed distance of spheres (B, S, 3), (S,) to any obstacle
-        (negative: penetrating); +inf without obstacles."""
-        clearance = np.full(centres_m.shape[0], np.inf)
+    def clearance_m(
+        self,
+        placed: PlacedBodies,  # the bodies at B configurations
+        robot: RobotSpheres,
+        within: FloatArray,  # (B,) the least clearance found so far (+inf: none)
+    ) -> FloatArray:  # (B,)
+        """The least of `within` and the signed distance (negative: penetrating) of the
+        moving bodies' spheres to any obstacle.
+
+        Exact, in two passes as in robot.py: a body's bounding sphere bounds its
+        spheres' distance to an obstacle from below and its first sphere from above;
+        only (configuration, body) pairs whose lower bound is under the configuration's
+        least upper bound are measured sphere by sphere.
+        """
+        clearance = within.copy()
+        moving = np.flatnonzero(robot.moving)  # (M,)
+        if not self.obstacles or not len(moving):
+            return clearance
+        bounds = placed.bound_centres_m[:, moving]  # (B, M, 3)
+        first = placed.centres_m[:, moving, 0]  # (B, M, 3)
+        lowers = []
         for obstacle in self.obstacles:
-            local = (centres_m - obstacle.position_m) @ obstacle.rotation  # (B, S, 3)
-            distance = _SIGNED_DISTANCE[obstacle.shape](local, obstacle.dimensions_m)  # (B, S)
-            np.minimum(clearance, (distance - radii_m).min(axis=1), out=clearance)
+            lower = obstacle.signed_distance_m(bounds) - robot.bound_radius_m[moving]  # (B, M)
+            upper = obstacle.signed_distance_m(first) - robot.radius_m[moving, 0]
+            np.minimum(clearance, upper.min(axis=1), out=clearance)
+            lowers.append(lower)
+        for obstacle, lower in zip(self.obstacles, lowers, strict=True):
+            rows, bodies = np.nonzero(lower < clearance[:, None])  # (N,), (N,)
+            if not len(rows):
+                continue
+            body = moving[bodies]
+            gap = obstacle.signed_distance_m(placed.centres_m[rows, body])  # (N, S)
+            gap -= robot.radius_m[body]
+            np.minimum.at(clearance, rows, gap.min(axis=1))
         return clearance
 
 
-def _box(p: FloatArray, dimensions: tuple[float, ...]) -> FloatArray:  # (B, S, 3) -> (B, S)
-    excess = np.abs(p) - 0.5 * np.asarray(dimensions)  # (B, S, 3)
+def _box(p: FloatArray, dimensions: tuple[float, ...]) -> FloatArray:  # (..., 3) -> (...)
+    excess = np.abs(p) - 0.5 * np.asarray(dimensions)  # (..., 3)
     outside = np.linalg.norm(np.maximum(excess, 0.0), axis=-1)
     return outside + np.minimum(excess.max(axis=-1), 0.0)
 
@@ -121,7 +153,7 @@ def _sphere(p: FloatArray, dimensions: tuple[float, ...]) -> FloatArray:
 
 def _cylinder(p: FloatArray, dimensions: tuple[float, ...]) -> FloatArray:
     height, radius = dimensions
-    radial = np.hypot(p[..., 0], p[..., 1]) - radius  # (B, S)
+    radial = np.hypot(p[..., 0], p[..., 1]) - radius  # (...)
     axial = np.abs(p[..., 2]) - 0.5 * height
     outside = np.hypot(np.maximum(radial, 0.0), np.maximum(axial, 0.0))
     return outside + np.minimum(np.maximum(radial, axial), 0.0)

@@ -55,7 +55,7 @@ def planar_chain() -> ChainSpec:
 def test_spheres_sit_where_the_closed_form_puts_the_links(planar3r: ServedModel) -> None:
     robot = RobotSpheres.of(planar_chain(), planar_spec())
     q = np.random.default_rng(1).uniform(-3, 3, (40, 3))
-    centres = robot.centres_m(q)  # (B, 4, 3)
+    centres = robot.place(q).centres_m[:, :, 0]  # (B, 4, 3)
     np.testing.assert_allclose(centres[:, 1:, :2], link_middles(q), atol=1e-14)
     np.testing.assert_allclose(centres[:, 0], 0.0, atol=0)
 
@@ -73,7 +73,7 @@ def test_self_clearance_is_the_least_gap_over_pairs_not_disabled(planar3r: Serve
     brute = np.min(
         [np.linalg.norm(middles[:, a] - middles[:, b], axis=1) for a, b in checked], axis=0
     )
-    got = robot.self_clearance_m(robot.centres_m(q))
+    got = robot.self_clearance_m(robot.place(q))
     np.testing.assert_allclose(got, brute - 2 * RADIUS_M, atol=1e-12)
 
 
@@ -92,3 +92,55 @@ def test_obstacles_are_checked_against_moving_bodies_and_the_margin_decides(
     assert not tight.free(q)[0]
     assert not CollisionCheck.none().active
     assert np.isinf(CollisionCheck.none().clearance_m(q)).all()
+
+
+def test_the_two_pass_clearance_is_the_brute_force_minimum() -> None:
+    """Bodies of several spheres each, some pairs disabled, a scene of every shape: the
+    pruned least distance equals the minimum over every sphere pair and every obstacle."""
+    rng = np.random.default_rng(7)
+    bodies = []
+    for k in range(4):
+        count = int(rng.integers(1, 6))
+        bodies.append(
+            CollisionBody(
+                link=f"b{k}",
+                frame=k,
+                centres_m=(rng.uniform(-0.2, 1.2, (count, 3)) * [1, 0.3, 0.3]).tolist(),
+                radii_m=rng.uniform(0.02, 0.15, count).tolist(),
+            )
+        )
+    spec = CollisionSpec(
+        bodies=bodies, disabled_pairs=[DisabledPair(links=("b1", "b2"), reason="adjacent")]
+    )
+    robot = RobotSpheres.of(planar_chain(), spec)
+    scene = Scene(
+        (
+            Obstacle.of(0, "box", [0.3, 0.2, 0.5], [1.0, 1.0, 0.0], (0.9, 0.1, 0.3, 0.3)),
+            Obstacle.of(1, "sphere", [0.2], [-1.0, 0.5, 0.1], None),
+            Obstacle.of(2, "cylinder", [0.6, 0.1], [0.5, -1.2, 0.0], (0.7, 0.7, 0.0, 0.14)),
+            Obstacle.of(3, "capsule", [0.4, 0.1], [-0.5, -0.8, 0.0], None),
+        )
+    )
+    q = rng.uniform(-3, 3, (300, 3))
+    check = CollisionCheck(robot=robot, scene=scene, check_self=True, margin_m=0.0)
+    got = check.clearance_m(q)
+
+    frames = chain_frames(planar_chain(), q)  # (B, 4, 4, 4)
+    placed = []
+    for body in bodies:
+        local = np.asarray(body.centres_m)
+        f = frames[:, body.frame]
+        placed.append((np.einsum("bij,sj->bsi", f[:, :3, :3], local) + f[:, None, :3, 3], body))
+    brute = np.full(len(q), np.inf)
+    for i, (ci, bi) in enumerate(placed):
+        for j, (cj, bj) in enumerate(placed):
+            if j <= i or {bi.link, bj.link} == {"b1", "b2"}:
+                continue
+            gap = np.linalg.norm(ci[:, :, None] - cj[:, None], axis=3)
+            gap -= np.add.outer(bi.radii_m, bj.radii_m)
+            brute = np.minimum(brute, gap.min(axis=(1, 2)))
+        if bi.frame > 0:
+            for obstacle in scene.obstacles:
+                gap = obstacle.signed_distance_m(ci) - np.asarray(bi.radii_m)
+                brute = np.minimum(brute, gap.min(axis=1))
+    np.testing.assert_allclose(got, brute, atol=1e-12)

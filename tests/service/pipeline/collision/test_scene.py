@@ -6,15 +6,14 @@ import numpy as np
 import pytest
 
 from service.errors import RequestFieldError
-from service.pipeline.collision.scene import Obstacle, Scene
+from service.pipeline.collision.scene import Obstacle
 from service.pipeline.rotations import quaternion_to_matrix
 
 HALF_TURN_Z = (np.cos(np.pi / 4), 0.0, 0.0, np.sin(np.pi / 4))  # 90 deg about z
 
 
 def clearance(obstacle: Obstacle, point: list[float], radius: float = 0.0) -> float:
-    centres = np.asarray(point, dtype=np.float64)[None, None, :]  # (1, 1, 3)
-    return float(Scene((obstacle,)).clearance_m(centres, np.array([radius]))[0])
+    return float(obstacle.signed_distance_m(np.asarray(point, dtype=np.float64))) - radius
 
 
 def test_box_distance_outside_past_an_edge_and_inside() -> None:
@@ -46,16 +45,6 @@ def test_sphere_cylinder_and_capsule_closed_forms() -> None:
     assert clearance(capsule, [0.5, 0.0, 0.0]) == pytest.approx(0.3)
     assert clearance(capsule, [0.0, 0.0, 1.0]) == pytest.approx(0.3)  # cap centre at z 0.5
     assert clearance(capsule, [0.3, 0.0, 0.9]) == pytest.approx(0.3)  # 0.5 from the cap centre
-
-
-def test_scene_takes_the_least_over_obstacles_and_spheres() -> None:
-    near = Obstacle.of(0, "sphere", [0.1], [1.0, 0.0, 0.0], None)
-    far = Obstacle.of(1, "box", [0.1, 0.1, 0.1], [5.0, 0.0, 0.0], None)
-    centres = np.array([[[0.0, 0.0, 0.0], [0.5, 0.0, 0.0]], [[3.0, 0.0, 0.0], [4.0, 0.0, 0.0]]])
-    radii = np.array([0.05, 0.1])
-    got = Scene((near, far)).clearance_m(centres, radii)
-    np.testing.assert_allclose(got, [0.5 - 0.1 - 0.1, 0.95 - 0.1])
-    assert np.isinf(Scene().clearance_m(centres, radii)).all()
 
 
 def test_orientation_matches_the_target_convention() -> None:
