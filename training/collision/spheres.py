@@ -36,12 +36,14 @@ from service.pipeline.arrays import FloatArray, IntArray
 from training.collision.geometry import Body, Shape, mesh_triangles_m
 
 # Spheres per body. Measured on the Panda (11 bodies; 3,000 configurations uniform in the
-# limits, pairs sampled, free space lost as `build` measures it): 2 spheres: 8.3 %, 3: 5.2 %,
-# 4: 4.2 %, 6: 7.0 %, 8: 4.2 %, 12: 5.0 % (with the SRDF's pairs: 16.6, 13.7, 8.1, 11.5, 9.6,
-# 8.1 %). Past 3 or 4 the loss stops falling: a sphere around a section of a round link is
-# never narrower than the link, so the links' thickness, not the count, sets it, and the
-# rest is k-means' luck. 8 is kept as the margin for bodies less round than the Panda's (a
-# long thin link or box is covered ever closer by more spheres) at 4x the sphere pairs of 4.
+# limits; free space lost as `build` measures it, with the pairs sampled / the SRDF's):
+#   spheres per body   2      3      4     6     8     12    16
+#   free space lost %  8.3    5.2    4.3   3.1   3.1   3.4   4.5   (pairs sampled)
+#                      16.6   13.7   8.1   5.8   4.7   7.6   8.4   (the SRDF's pairs)
+# 8 loses the least; past it the cover, chosen by total sphere volume (a proxy for the
+# space it adds), stops improving, so more spheres would only add sphere pairs to the
+# service's check. A sphere around a section of a round link is never narrower than the
+# link: the links' thickness, not the count, sets most of what is left.
 DEFAULT_SPHERES_PER_BODY = 8
 POLYGON_SIDES = 16  # of the prism circumscribing a cylinder's slice: 1.9 % wider than r
 PIECE_SCALE = 1  # h = extent / (PIECE_SCALE x budget): pieces no larger than a sphere
