@@ -32,6 +32,7 @@ from service.manifest import (
     KINEMATICS_FILE,
     MANIFEST_FILE,
     ChainSpec,
+    CollisionRecord,
     ConditionSpec,
     Defaults,
     FileRef,
@@ -248,11 +249,8 @@ def export_model(
     quantise_flow(staging / FLOW_FILE, staging / FLOW_INT8_FILE)
     export_kinematics(fk, staging / KINEMATICS_FILE, joints)
     export_chain(fk, staging / CHAIN_FILE, joints)
-    srdf = None if robot.srdf is None else models_dir / robot.srdf
-    collision = write_collision(
-        staging, models_dir, models_dir / robot.urdf, chain_spec(fk.chain), joints,
-        CollisionSettings(srdf_path=srdf), command, export_commit or code_commit,
-    )  # fmt: skip
+    commit = export_commit or code_commit
+    collision = _write_collision(staging, models_dir, robot, fk, joints, command, commit)
     files = [FLOW_FILE, FLOW_INT8_FILE, KINEMATICS_FILE, CHAIN_FILE]
     files += [] if collision is None else [COLLISION_FILE]
     model_id = f"{robot.name}-{task.name}"
@@ -295,6 +293,19 @@ def export_model(
     shutil.rmtree(model_dir, ignore_errors=True)
     staging.rename(model_dir)
     return manifest
+
+
+def _write_collision(
+    model_dir: Path, models_dir: Path, robot: RobotSpec, fk: ForwardKinematics,
+    joints: JointSpec, command: str, commit: str,
+) -> CollisionRecord | None:  # fmt: skip
+    """collision.json of the robot's URDF (with its robot file's SRDF) for the exported
+    chain, and its record; None when the URDF has no collision geometry on the chain."""
+    srdf = None if robot.srdf is None else models_dir / robot.srdf
+    return write_collision(
+        model_dir, models_dir, models_dir / robot.urdf, chain_spec(fk.chain), joints,
+        CollisionSettings(srdf_path=srdf), command, commit,
+    )  # fmt: skip
 
 
 def sweep_and_measure(
