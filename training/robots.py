@@ -167,12 +167,14 @@ def register_urdf(
         same_urdf = (models_dir / existing.urdf).is_file() and (
             models_dir / existing.urdf
         ).read_text() == urdf_text
-        same_links = (existing.base_link, existing.end_effector_link, existing.srdf) == (
+        same_links = (existing.base_link, existing.end_effector_link) == (
             spec.base_link,
             spec.end_effector_link,
-            spec.srdf,
         )
-        if not (same_urdf and same_links):
+        same_srdf = existing.srdf == spec.srdf and (
+            srdf_path is None or _same_content(models_dir / str(existing.srdf), srdf_path)
+        )
+        if not (same_urdf and same_links and same_srdf):
             raise ValueError(
                 f"robot {name!r} already exists ({path}) with another URDF, other links or "
                 "another SRDF; "
@@ -187,6 +189,10 @@ def register_urdf(
         shutil.copyfile(srdf_path, models_dir / spec.srdf)
     path.write_text(spec.model_dump_json(indent=2) + "\n")
     return spec
+
+
+def _same_content(path: Path, other: Path) -> bool:
+    return path.is_file() and path.read_bytes() == other.read_bytes()
 
 
 def copy_meshes(urdf_path: Path, directory: Path) -> None:

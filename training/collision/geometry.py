@@ -12,8 +12,9 @@ attached links are those reached from the chain through joints that are not on i
   held value + offset. The service knows only the chain's joints, so a finger is a
   fixed part of the hand: the collision model of the gripper as it is held.
 
-Floating and planar joints off the chain, and movable joints above the base link, are
-not followed: what lies beyond them does not move with the chain.
+Floating and planar joints off the chain are not followed, nor, upwards, any joint but a
+fixed one (the base link's parent through a movable joint, a robot's cart, does not
+stay fixed to the base): what lies beyond them does not move with the chain.
 
 Each body is expressed in chain frame k as `service.pipeline.collision.frames` defines
 it (T_k(q) = origin_1 Rot(axis_1, q_1) ... origin_k Rot(axis_k, q_k), the URDF frame of
