@@ -312,9 +312,11 @@ class FileRef(_Strict):
 
 
 # Why a pair of bodies is never checked against each other (MoveIt's setup assistant's
-# reasons): joined by a joint ("adjacent"), in collision in every sampled configuration
-# ("always"), in none of them ("never"), or named by the robot's SRDF ("srdf").
-DisabledReason = Literal["adjacent", "always", "never", "srdf"]
+# reasons): joined by a joint ("adjacent"), in collision at the default configuration
+# ("default": each joint at 0, or mid-range where 0 is outside its limits), in collision
+# in (almost) every sampled configuration ("always"), in none of them ("never"), or named
+# by the robot's SRDF ("srdf").
+DisabledReason = Literal["adjacent", "default", "always", "never", "srdf"]
 
 
 class CollisionBody(_Strict):

@@ -55,6 +55,7 @@ PIPELINE_FORBIDDEN_PACKAGES = (
     "pydantic_settings",
     "torch",
     "pytorch_kinematics",
+    "coal",  # the training's collision reference; the service checks spheres in numpy
 )
 
 

@@ -34,6 +34,11 @@ SUBCOMMANDS: tuple[Subcommand, ...] = (
     Subcommand(
         "sweep", "training.sweep.command", "choose a model's serving defaults by measurement"
     ),
+    Subcommand(
+        "collision",
+        "training.collision.command",
+        "rebuild a model's collision.json from its URDF",
+    ),
     Subcommand("quantise", "training.quantise", "add the int8 flow network to a model"),
     Subcommand("quality", "training.evaluate.quality", "measure a model's quality block again"),
     Subcommand(

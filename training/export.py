@@ -26,11 +26,13 @@ import torch
 
 from service.manifest import (
     CHAIN_FILE,
+    COLLISION_FILE,
     FLOW_FILE,
     FLOW_INT8_FILE,
     KINEMATICS_FILE,
     MANIFEST_FILE,
     ChainSpec,
+    CollisionRecord,
     ConditionSpec,
     Defaults,
     FileRef,
@@ -46,6 +48,7 @@ from service.models.sessions import FLOW_INPUTS, FLOW_OUTPUT, KINEMATICS_INPUT, 
 from service.pipeline.joint_space import JointLimits
 from service.pipeline.targets import condition_names
 from training.checkpoint import TrainResult
+from training.collision.record import CollisionSettings, write_collision
 from training.config import TrainConfig
 from training.data import FlowData
 from training.defaults import serving_defaults
@@ -227,8 +230,10 @@ def export_model(
     code_commit: str,
     export_commit: str | None = None,
 ) -> Manifest:
-    """Write flow.onnx, flow_int8.onnx, kinematics.onnx, chain.json and manifest.json into
-    `model_dir`; choose the serving defaults (the sweep) and measure.
+    """Write flow.onnx, flow_int8.onnx, kinematics.onnx, chain.json, collision.json (when
+    the URDF has collision geometry on the chain: `training.collision`, with the robot
+    file's SRDF) and manifest.json into `model_dir`; choose the serving defaults (the
+    sweep) and measure.
 
     The manifest's reach L is measured on the chain (`measured_reach_m`: the farthest the
     end effector gets from the base-link origin within the limits), not typed in.
@@ -244,6 +249,10 @@ def export_model(
     quantise_flow(staging / FLOW_FILE, staging / FLOW_INT8_FILE)
     export_kinematics(fk, staging / KINEMATICS_FILE, joints)
     export_chain(fk, staging / CHAIN_FILE, joints)
+    commit = export_commit or code_commit
+    collision = _write_collision(staging, models_dir, robot, fk, joints, command, commit)
+    files = [FLOW_FILE, FLOW_INT8_FILE, KINEMATICS_FILE, CHAIN_FILE]
+    files += [] if collision is None else [COLLISION_FILE]
     model_id = f"{robot.name}-{task.name}"
     manifest = Manifest(
         model_id=model_id,
@@ -257,10 +266,7 @@ def export_model(
         condition=ConditionSpec(
             names=condition_names(task), normalisation=data.condition_normalisation
         ),
-        files={
-            name: sha256_of(staging / name)
-            for name in (FLOW_FILE, FLOW_INT8_FILE, KINEMATICS_FILE, CHAIN_FILE)
-        },
+        files={name: sha256_of(staging / name) for name in files},
         defaults=serving_defaults(model_id, task, joints.count - task.dimension),
         training=TrainingRecord(
             command=command,
@@ -276,6 +282,7 @@ def export_model(
             export_git_commit=None if export_commit == code_commit else export_commit,
             config=config.as_dict(),
         ),
+        collision=collision,
         created_utc=dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
     )
     (staging / MANIFEST_FILE).write_text(manifest.model_dump_json(indent=2) + "\n")
@@ -286,6 +293,19 @@ def export_model(
     shutil.rmtree(model_dir, ignore_errors=True)
     staging.rename(model_dir)
     return manifest
+
+
+def _write_collision(
+    model_dir: Path, models_dir: Path, robot: RobotSpec, fk: ForwardKinematics,
+    joints: JointSpec, command: str, commit: str,
+) -> CollisionRecord | None:  # fmt: skip
+    """collision.json of the robot's URDF (with its robot file's SRDF) for the exported
+    chain, and its record; None when the URDF has no collision geometry on the chain."""
+    srdf = None if robot.srdf is None else models_dir / robot.srdf
+    return write_collision(
+        model_dir, models_dir, models_dir / robot.urdf, chain_spec(fk.chain), joints,
+        CollisionSettings(srdf_path=srdf), command, commit,
+    )  # fmt: skip
 
 
 def sweep_and_measure(

@@ -1,10 +1,12 @@
 """The robots the project trains, as data: one file each, `models/robots/<name>.json`.
 
 A robot file names its URDF (relative to the models directory, like the manifest's
-urdf.path), the base and end-effector links of the chain, the tasks trained on it, the
-flow's architecture and batch size, and where the URDF comes from:
+urdf.path), optionally its SRDF (the same way: the collision model's disabled pairs),
+the base and end-effector links of the chain, the tasks trained on it, the flow's
+architecture and batch size, and where the URDF comes from:
 
-    {"name": "panda", "urdf": "robots/panda.urdf", "base_link": "panda_link0",
+    {"name": "panda", "urdf": "robots/panda.urdf", "srdf": "robots/panda.srdf",
+     "base_link": "panda_link0",
      "end_effector_link": "panda_hand_tcp",
      "tasks": {"pose": {"position_axes": [0, 1, 2], "orientation": true}},
      "architecture": {"batch_size": 1024, "hidden_width": 512, "hidden_layers": 5},
@@ -23,6 +25,7 @@ from pathlib import Path
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from service.manifest import REPO_MODELS_DIR, TaskName, TaskSpec
+from training.collision.geometry import mesh_references
 from training.urdf import (
     ROBOT_NAME_PATTERN,
     SPATIAL_TASKS,
@@ -57,6 +60,11 @@ class TaskAxes(_Strict):
 class RobotSpec(_Strict):
     name: str = Field(pattern=ROBOT_NAME_PATTERN.pattern)
     urdf: str = Field(description="Relative to the models directory.")
+    srdf: str | None = Field(
+        default=None,
+        description="The robot's SRDF, relative to the models directory: its "
+        "disable_collisions are the body pairs the collision model never checks.",
+    )
     base_link: str
     end_effector_link: str
     tasks: dict[TaskName, TaskAxes] = Field(min_length=1)
@@ -115,8 +123,13 @@ def register_urdf(
     models_dir: Path = REPO_MODELS_DIR,
     base_link: str | None = None,
     name: str | None = None,
+    srdf_path: Path | None = None,
 ) -> RobotSpec:
     """Copy a URDF to `models_dir`/robots/<name>.urdf and write its robot file; return it.
+
+    The collision meshes the URDF names by relative filenames are copied beside it, to the
+    same relative paths under `models_dir`/robots (`copy_meshes`), and `srdf_path`, when
+    given, to `models_dir`/robots/<name>.srdf (the robot file's srdf).
 
     The chain is validated first (`training.urdf`: links, joint types, limits, and
     redundancy for `task`), so nothing is written for an arm that cannot be trained.
@@ -140,6 +153,7 @@ def register_urdf(
     spec = RobotSpec(
         name=name,
         urdf=f"{ROBOTS_DIR}/{name}.urdf",
+        srdf=None if srdf_path is None else f"{ROBOTS_DIR}/{name}.srdf",
         base_link=chain.base_link,
         end_effector_link=end_effector_link,
         tasks=tasks,
@@ -157,14 +171,46 @@ def register_urdf(
             spec.base_link,
             spec.end_effector_link,
         )
-        if not (same_urdf and same_links):
+        same_srdf = existing.srdf == spec.srdf and (
+            srdf_path is None or _same_content(models_dir / str(existing.srdf), srdf_path)
+        )
+        if not (same_urdf and same_links and same_srdf):
             raise ValueError(
-                f"robot {name!r} already exists ({path}) with another URDF or other links; "
+                f"robot {name!r} already exists ({path}) with another URDF, other links or "
+                "another SRDF; "
                 f"train it with --robot {name}, or pass --name to register this one apart"
             )
         return existing
     urdf_copy.parent.mkdir(parents=True, exist_ok=True)
+    copy_meshes(urdf_path, urdf_copy.parent)
     if urdf_copy.resolve() != urdf_path.resolve():
         shutil.copyfile(urdf_path, urdf_copy)
+    if srdf_path is not None and spec.srdf is not None:
+        shutil.copyfile(srdf_path, models_dir / spec.srdf)
     path.write_text(spec.model_dump_json(indent=2) + "\n")
     return spec
+
+
+def _same_content(path: Path, other: Path) -> bool:
+    return path.is_file() and path.read_bytes() == other.read_bytes()
+
+
+def copy_meshes(urdf_path: Path, directory: Path) -> None:
+    """Copy the collision meshes `urdf_path` names by relative filenames to the same
+    relative paths under `directory`, where a copy of the URDF finds them. A filename that
+    leaves the URDF's directory ('..'), or a different file already at the copy's place,
+    is refused by name."""
+    for relative in mesh_references(urdf_path):
+        source, copy = urdf_path.parent / relative, directory / relative
+        if ".." in Path(relative).parts:
+            raise ValueError(
+                f"{urdf_path}: mesh {relative!r} lies outside the URDF's directory; give it "
+                "by an absolute path, file:// or package://, or move it below the URDF"
+            )
+        if not source.is_file():
+            raise ValueError(f"{urdf_path}: mesh {relative!r}: no file {source}")
+        if copy.exists() and copy.read_bytes() != source.read_bytes():
+            raise ValueError(f"mesh {relative!r}: {copy} exists with other content")
+        if copy.resolve() != source.resolve():
+            copy.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(source, copy)

@@ -59,6 +59,7 @@ from training.checkpoint import (
     load_best,
     save_best,
 )
+from training.collision.geometry import mesh_references
 from training.config import TrainConfig, preset
 from training.data import FlowData, build_flow_data
 from training.distributed import Processes, from_environment, process_group
@@ -119,6 +120,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--name",
         help="with --urdf: the robot's name (default: the URDF's robot name, "
         "lowercased, characters outside [a-z0-9_-] replaced by '_')",
+    )
+    parser.add_argument(
+        "--srdf",
+        type=Path,
+        help="with --urdf: the robot's SRDF, copied to models/robots/<name>.srdf; its "
+        "disable_collisions are the pairs the collision model never checks (without it "
+        "they are sampled as MoveIt's setup assistant does)",
     )
     parser.add_argument("--task", required=True, help="task name: position or pose")
     _add_config_arguments(parser)
@@ -187,7 +195,9 @@ def check_args(args: argparse.Namespace, parser: argparse.ArgumentParser) -> Non
     if args.urdf is not None and args.end_effector is None:
         parser.error("--urdf needs --end-effector LINK")
     if args.urdf is None:
-        given = [f for f in ("end_effector", "base_link", "name") if getattr(args, f) is not None]
+        given = [
+            f for f in ("end_effector", "base_link", "name", "srdf") if getattr(args, f) is not None
+        ]
         if given:
             flags = ", ".join(f"--{f.replace('_', '-')}" for f in given)
             parser.error(f"{flags}: only with --urdf (--robot takes them from its robot file)")
@@ -222,9 +232,15 @@ def config_from_args(args: argparse.Namespace, robot: str, scale: bool = True) -
 
 def robot_in(models_dir: Path, name: str) -> RobotSpec:
     """The robot file of `name` in `models_dir`; a bundled robot is first copied there, with
-    its URDF, when `models_dir` is outside the repository and lacks them."""
+    its URDF, SRDF and collision meshes, when `models_dir` is outside the repository and
+    lacks them."""
     if models_dir.resolve() != REPO_MODELS_DIR.resolve() and robot_file(name).is_file():
-        for relative in (robot_file(name).relative_to(REPO_MODELS_DIR), robot_spec(name).urdf):
+        bundled = robot_spec(name)
+        files = [robot_file(name).relative_to(REPO_MODELS_DIR), Path(bundled.urdf)]
+        files += [] if bundled.srdf is None else [Path(bundled.srdf)]
+        urdf_dir = Path(bundled.urdf).parent
+        files += [urdf_dir / m for m in mesh_references(REPO_MODELS_DIR / bundled.urdf)]
+        for relative in files:
             if not (models_dir / relative).exists():
                 (models_dir / relative).parent.mkdir(parents=True, exist_ok=True)
                 shutil.copyfile(REPO_MODELS_DIR / relative, models_dir / relative)
@@ -236,8 +252,9 @@ def register(args: argparse.Namespace) -> str:
     if args.urdf is None:
         return str(args.robot)
     robot = register_urdf(
-        args.urdf, args.end_effector, args.task, args.models_dir, args.base_link, args.name
-    )
+        args.urdf, args.end_effector, args.task, args.models_dir, args.base_link, args.name,
+        args.srdf,
+    )  # fmt: skip
     print(
         f"[{robot.name}] robot file {robot_file(robot.name, args.models_dir)}: chain "
         f"{robot.base_link} -> {robot.end_effector_link}, tasks {sorted(robot.tasks)}; "

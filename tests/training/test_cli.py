@@ -24,6 +24,10 @@ TRAINING = Path(__file__).resolve().parents[2] / "training"
 
 OPTIONS = {
     "sweep": ["--axes", "--model-dir", "--out", "--seed", "--targets", "--threads", "--write"],
+    "collision": [
+        "--configurations", "--model", "--models-dir", "--package-dir", "--seed",
+        "--spheres-per-body", "--srdf",
+    ],
     "quantise": ["--model-dir"],
     "quality": ["--model-dir", "--write"],
     "judge": [
@@ -55,8 +59,8 @@ def test_the_help_lists_every_subcommand_on_one_line() -> None:
         in_subprocess("--help"), capture_output=True, text=True, timeout=60, check=True
     )
     names = [
-        "train", "reflow", "sweep", "quantise", "quality", "judge", "report", "plots",
-        "merges", "recipe", "baseline-fourier",
+        "train", "reflow", "sweep", "collision", "quantise", "quality", "judge", "report",
+        "plots", "merges", "recipe", "baseline-fourier",
     ]  # fmt: skip
     assert [s.name for s in SUBCOMMANDS] == names
     for subcommand in SUBCOMMANDS:
@@ -75,7 +79,7 @@ def test_train_and_reflow_take_a_flag_per_setting() -> None:
     flags = [
         "--robot", "--urdf", "--task", "--samples", "--epochs", "--resume",
         "--from-checkpoint", "--refresh-kinematics", "--models-dir", "--runs-dir",
-        "--reflow-steps", "--sweep-targets", "--ema-decay", "--no-fresh-data",
+        "--reflow-steps", "--sweep-targets", "--ema-decay", "--no-fresh-data", "--srdf",
     ]  # fmt: skip
     for flag in flags:
         assert flag in train, flag

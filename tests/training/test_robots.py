@@ -34,9 +34,12 @@ from training.robots import (
 def test_every_bundled_robot_file_loads_its_chain(name: str) -> None:
     robot = robot_spec(name)
     raw = json.loads(robot_file(name).read_text())
+    srdf = ["srdf"] if "srdf" in raw else []  # optional: the collision model's pairs
     assert list(raw) == [
-        "name", "urdf", "base_link", "end_effector_link", "tasks", "architecture", "source",
+        "name", "urdf", *srdf, "base_link", "end_effector_link", "tasks", "architecture",
+        "source",
     ]  # fmt: skip
+    assert robot.srdf is None or (REPO_MODELS_DIR / robot.srdf).is_file()
     chain = load_chain(REPO_MODELS_DIR / robot.urdf, robot.end_effector_link, robot.base_link)
     assert chain.idx_to_frame[0] == robot.base_link
     assert all(robot.task(task).dimension < joint_spec(chain).count for task in robot.tasks)

@@ -10,4 +10,6 @@ panda:      modified-DH FK of the Franka Panda; the exact 1-D pose SMM (eaik's a
 urdf_chain: a float64 FK and Jacobian of any URDF chain (xml.etree, Rodrigues): what the
             tests check the DH tables against, and the container test the Panda with.
 rotations:  the angle between two rotations, and the rotation about an axis.
+collision:  coal on a URDF's own collision geometry placed by the chain frames: self and
+            obstacle distances and collisions, what the sphere model is checked against.
 """

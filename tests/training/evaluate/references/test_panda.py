@@ -16,6 +16,7 @@ configuration, and a feasible walk along the fibre stays in one component.
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -40,7 +41,11 @@ def chain() -> UrdfChain:
 def test_the_bundled_panda_urdf_is_the_source_chain(chain: UrdfChain) -> None:
     text = PANDA_URDF.read_text()
     assert "63792d2679f22c4e41cda2c4d9d903644e628970ad0656b9eec8485113941555" in text
-    assert "mesh" not in text.split("-->", 1)[1]  # kinematics only
+    body = text.split("-->", 1)[1]  # kinematics and collision geometry, no visuals
+    assert "<visual" not in body and "package://" not in body
+    meshes = re.findall(r'<mesh filename="([^"]+)"', body)
+    assert len(meshes) == 9 and all(m.startswith("panda/collision/") for m in meshes)
+    assert all((PANDA_URDF.parent / m).is_file() for m in meshes)
     assert [j.name for j in chain.movable] == [f"panda_joint{i}" for i in range(1, 8)]
     np.testing.assert_array_equal(chain.lower, LOWER)
     np.testing.assert_array_equal(chain.upper, UPPER)
