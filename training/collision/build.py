@@ -87,7 +87,7 @@ def build_collision_model(
     checked = _checked_columns(robot.names, candidates, disabled)
     coal_free = ~touching[:, checked].any(axis=1)
     spheres = RobotSpheres.of(chain, spec)
-    spheres_collide = spheres.self_clearance_m(spheres.centres_m(q)) < 0
+    spheres_collide = spheres.self_clearance_m(spheres.place(q)) < 0
     free = int(coal_free.sum())
     lost = float((spheres_collide & coal_free).sum() / free) if free else 0.0
     return BuiltCollision(

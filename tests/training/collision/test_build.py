@@ -40,7 +40,7 @@ def test_free_space_lost_is_the_spheres_false_alarms_among_coal_free_configurati
         q, disabled
     )
     spheres = RobotSpheres.of(arm_chain, built.spec)
-    false_alarm = (spheres.self_clearance_m(spheres.centres_m(q)) < 0) & coal_free
+    false_alarm = (spheres.self_clearance_m(spheres.place(q)) < 0) & coal_free
     assert coal_free.sum() > 0
     assert built.free_space_lost_fraction == false_alarm.sum() / coal_free.sum()
 

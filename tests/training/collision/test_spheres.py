@@ -157,7 +157,7 @@ def test_the_panda_spheres_never_report_more_clearance_than_coal(
     for p, (a, b) in enumerate(pairs):
         both = CollisionSpec(bodies=[spec.bodies[a], spec.bodies[b]], disabled_pairs=[])
         spheres = RobotSpheres.of(chain, both)
-        sphere_m = spheres.self_clearance_m(spheres.centres_m(q))
+        sphere_m = spheres.self_clearance_m(spheres.place(q))
         apart = ~touching[:, p]
         assert np.all(sphere_m[apart] <= coal_m[apart, p] + 1e-9), (bodies[a].link, bodies[b].link)
         assert np.all(sphere_m[~apart] < 0), (bodies[a].link, bodies[b].link)
