@@ -27,10 +27,21 @@ from service.pipeline.collision.frames import chain_frames
 
 @dataclass(frozen=True)
 class PlacedBodies:
-    """The bodies at B configurations: their spheres and bounding spheres, base frame."""
+    """The bodies at B configurations, base frame: each body's frame, its bounding
+    sphere's and first sphere's centres; the other spheres placed on demand (`spheres`),
+    only for the (configuration, body) pairs a distance needs."""
 
-    centres_m: FloatArray  # (B, K, S, 3) padded spheres of each body
+    rotation: FloatArray  # (B, K, 3, 3) each body's frame
+    origin_m: FloatArray  # (B, K, 3)
     bound_centres_m: FloatArray  # (B, K, 3)
+    first_centres_m: FloatArray  # (B, K, 3) each body's first sphere
+    centre_local_m: FloatArray  # (K, S, 3) the robot's, in each body's frame
+
+    def spheres(self, rows: IntArray, bodies: IntArray) -> FloatArray:  # (N,), (N,) -> (N, S, 3)
+        """The padded sphere centres of body bodies[i] at configuration rows[i]."""
+        local = self.centre_local_m[bodies]  # (N, S, 3)
+        turned = np.matmul(local, self.rotation[rows, bodies].transpose(0, 2, 1))
+        return turned + self.origin_m[rows, bodies][:, None, :]
 
 
 @dataclass(frozen=True)
@@ -97,10 +108,16 @@ class RobotSpheres:
 
     def place(self, q_rad: FloatArray) -> PlacedBodies:  # q (B, n)
         frames = chain_frames(self.chain, q_rad)[:, self.frame]  # (B, K, 4, 4)
-        rotation, origin = frames[:, :, :3, :3], frames[:, :, None, :3, 3]
-        centres = np.einsum("bkij,ksj->bksi", rotation, self.centre_local_m) + origin
-        bounds = np.einsum("bkij,kj->bki", rotation, self.bound_local_m) + origin[:, :, 0]
-        return PlacedBodies(centres_m=centres, bound_centres_m=bounds)
+        rotation, origin = frames[:, :, :3, :3], frames[:, :, :3, 3]
+        points = np.stack([self.bound_local_m, self.centre_local_m[:, 0]], axis=2)  # (K, 3, 2)
+        placed = np.matmul(rotation, points) + origin[..., None]  # (B, K, 3, 2)
+        return PlacedBodies(
+            rotation=rotation,
+            origin_m=origin,
+            bound_centres_m=placed[..., 0],
+            first_centres_m=placed[..., 1],
+            centre_local_m=self.centre_local_m,
+        )
 
     def self_clearance_m(self, placed: PlacedBodies) -> FloatArray:  # -> (B,)
         """The least |c_a - c_b| - r_a - r_b over the sphere pairs of the checked body
@@ -112,14 +129,14 @@ class RobotSpheres:
         bounds = placed.bound_centres_m
         lower = np.linalg.norm(bounds[:, a] - bounds[:, b], axis=2)  # (B, P)
         lower -= self.bound_radius_m[a] + self.bound_radius_m[b]
-        first = placed.centres_m[:, :, 0]  # (B, K, 3): one sphere per body
+        first = placed.first_centres_m  # (B, K, 3): one sphere per body
         upper = np.linalg.norm(first[:, a] - first[:, b], axis=2)
         upper -= self.radius_m[a, 0] + self.radius_m[b, 0]  # (B, P)
         clearance = upper.min(axis=1)  # (B,) attained by a sphere pair
         rows, pairs = np.nonzero(lower < clearance[:, None])  # (N,), (N,)
         if len(rows):
-            ca = placed.centres_m[rows, a[pairs]]  # (N, S, 3)
-            cb = placed.centres_m[rows, b[pairs]]
+            ca = placed.spheres(rows, a[pairs])  # (N, S, 3)
+            cb = placed.spheres(rows, b[pairs])
             gap = np.linalg.norm(ca[:, :, None] - cb[:, None], axis=3)  # (N, S, S)
             gap -= self.radius_m[a[pairs]][:, :, None] + self.radius_m[b[pairs]][:, None]
             np.minimum.at(clearance, rows, gap.min(axis=(1, 2)))

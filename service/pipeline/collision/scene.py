@@ -123,7 +123,7 @@ class Scene:
         if not self.obstacles or not len(moving):
             return clearance
         bounds = placed.bound_centres_m[:, moving]  # (B, M, 3)
-        first = placed.centres_m[:, moving, 0]  # (B, M, 3)
+        first = placed.first_centres_m[:, moving]  # (B, M, 3)
         lowers = []
         for obstacle in self.obstacles:
             lower = obstacle.signed_distance_m(bounds) - robot.bound_radius_m[moving]  # (B, M)
@@ -135,7 +135,7 @@ class Scene:
             if not len(rows):
                 continue
             body = moving[bodies]
-            gap = obstacle.signed_distance_m(placed.centres_m[rows, body])  # (N, S)
+            gap = obstacle.signed_distance_m(placed.spheres(rows, body))  # (N, S)
             gap -= robot.radius_m[body]
             np.minimum.at(clearance, rows, gap.min(axis=1))
         return clearance

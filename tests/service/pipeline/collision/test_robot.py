@@ -55,7 +55,7 @@ def planar_chain() -> ChainSpec:
 def test_spheres_sit_where_the_closed_form_puts_the_links(planar3r: ServedModel) -> None:
     robot = RobotSpheres.of(planar_chain(), planar_spec())
     q = np.random.default_rng(1).uniform(-3, 3, (40, 3))
-    centres = robot.place(q).centres_m[:, :, 0]  # (B, 4, 3)
+    centres = robot.place(q).first_centres_m  # (B, 4, 3)
     np.testing.assert_allclose(centres[:, 1:, :2], link_middles(q), atol=1e-14)
     np.testing.assert_allclose(centres[:, 0], 0.0, atol=0)
 
