@@ -9,6 +9,8 @@ still cover the whole component.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from service.pipeline.arrays import FloatArray
@@ -44,21 +46,42 @@ def farthest_point_subset(
     return q_rad[np.asarray(chosen)]
 
 
-def clearance_along(
-    component: Component, collision: CollisionCheck
-) -> tuple[float, FloatArray] | None:
-    """(least clearance, configuration (n,) of greatest clearance) over the component's
-    members and path points; None when nothing is checked. Path points carry their
-    clearance from the cut (connect/free_pieces.py); members are measured here."""
+def measured(components: list[Component], collision: CollisionCheck) -> list[Component]:
+    """The components with every member's and path point's clearance, the ones not yet
+    measured measured in one call; unchanged when nothing is checked."""
     if not collision.active:
+        return components
+    parts = [c.q_rad for c in components if c.clearance_m is None]
+    parts += [c.path.q_rad for c in components if c.path and c.path.clearance_m is None]
+    if not parts:
+        return components
+    clearance = iter(
+        np.split(collision.clearance_m(np.concatenate(parts)), np.cumsum([len(p) for p in parts]))
+    )
+    members = [
+        c if c.clearance_m is not None else replace(c, clearance_m=next(clearance))
+        for c in components
+    ]
+    return [
+        c
+        if c.path is None or c.path.clearance_m is not None
+        else replace(c, path=replace(c.path, clearance_m=next(clearance)))
+        for c in members
+    ]
+
+
+def clearance_along(component: Component) -> tuple[float, FloatArray] | None:
+    """(least clearance, configuration (n,) of greatest clearance) over the component's
+    members and path points, as measured (`measured`); None when nothing was."""
+    if component.clearance_m is None:
         return None
+    q, clearance = component.q_rad, component.clearance_m  # (k, n), (k,)
     path = component.path
-    q, clearance = component.q_rad, collision.clearance_m(component.q_rad)  # (k, n), (k,)
-    if path is not None:
-        along = (
-            path.clearance_m if path.clearance_m is not None else collision.clearance_m(path.q_rad)
-        )
-        q, clearance = np.concatenate([q, path.q_rad]), np.concatenate([clearance, along])
+    if path is not None and path.clearance_m is not None:
+        q = np.concatenate([q, path.q_rad])
+        clearance = np.concatenate([clearance, path.clearance_m])
+    if not len(clearance):
+        return None
     best = int(np.argmax(clearance))
     return float(clearance.min()), q[best]
 
@@ -66,7 +89,6 @@ def clearance_along(
 def summarise(
     component: Component,
     limits: JointLimits,
-    collision: CollisionCheck,
     reference_rad: FloatArray | None,
     max_configurations: int | None,
     include_path: bool,
@@ -98,7 +120,7 @@ def summarise(
         best = int(np.argmin(distances))
         distance_to_reference = float(distances[best])
         nearest = every[best]
-    clearance = clearance_along(component, collision)
+    clearance = clearance_along(component)
     return ComponentSummary(
         size=len(q),
         representative_rad=pool[representative],
@@ -132,8 +154,8 @@ def summarise_all(
     if reference_rad is not None:
         reference_rad = limits.wrap(reference_rad)
     summaries = [
-        summarise(c, limits, collision, reference_rad, max_configurations, include_paths, deadline)
-        for c in components
+        summarise(c, limits, reference_rad, max_configurations, include_paths, deadline)
+        for c in measured(components, collision)
     ]
     if reference_rad is not None:
         return sorted(summaries, key=lambda s: (s.distance_to_reference_rad, -s.size))

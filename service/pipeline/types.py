@@ -272,6 +272,7 @@ class Component:
     position_error_m: FloatArray  # (k,)
     orientation_error_rad: FloatArray  # (k,)
     path: ComponentPath | None = None
+    clearance_m: FloatArray | None = None  # (k,) the members', when already measured
 
 
 @dataclass(frozen=True)
