@@ -1,20 +1,25 @@
 """A planner's use of the service: from where the arm is, where to go for a new pose.
 
 The arm (KUKA iiwa14, the bundled `iiwa14-pose` model) holds configuration q and must
-reach a new target pose. This script asks the service for every way of reaching it, then
+reach a new target pose in a scene: a table it stands on and a shelf (a board above the
+target and a panel beside it), sent as the request's `obstacles` with a 1 cm margin. The
+service answers every way of reaching the target that is free of the scene and of the
+arm itself; this script then
 
 1. takes the component nearest to q (`reference_configuration = q`: the service reports
    each component's `distance_to_reference` and the member nearest to q), because the
    arm can reach that component with the least joint motion;
-2. within it, picks the configuration with the largest joint-limit margin (the smallest
-   distance of any joint to its limit, limits from GET /robots), because that leaves the
-   most room to move on. Where members tie on it (on this pose q4 is the same on the
-   whole component, the elbow angle being fixed by the shoulder-wrist distance, so its
-   margin is every member's smallest), the next-smallest margin decides, and so on
-   (margins compared to 1e-6 rad);
+2. within it, picks the safest configuration: the one of greatest clearance from the
+   scene and from the arm itself (`safest_configuration`, with `clearance_m` the least
+   along the component), because that leaves the most room for the motion that brings
+   the arm there. With `--objective limit-margin` it picks instead the configuration
+   with the largest joint-limit margin (the smallest distance of any joint to its limit,
+   limits from GET /robots; ties, as on this pose where q4 is the same on the whole
+   component, broken by the next-smallest margin, compared to 1e-6 rad);
 3. for a 1-D component (r = 1), walks the component's ordered `path` from the point
    nearest to q to that configuration and reports the walk's length in the joint metric:
-   the self-motion that keeps the end effector on the target while the arm moves there.
+   the self-motion that keeps the end effector on the target while the arm moves there,
+   every point of it clear of the scene.
 
 Runs with the client's dependencies only (httpx, pydantic; no numpy):
 
@@ -36,7 +41,9 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from service.client import (
+    CollisionIn,
     ComponentOut,
+    ObstacleIn,
     QuaternionIn,
     RobotOut,
     SmmClient,
@@ -52,6 +59,13 @@ Configuration = list[float]
 DEFAULT_Q = [0.0, 0.5, 0.0, -1.4, 0.0, 1.0, 0.0]
 DEFAULT_POSITION = [0.6501, 0.2011, 0.5018]
 DEFAULT_ORIENTATION = [0.2165, -0.1458, 0.9648, 0.0327]  # w, x, y, z
+# The scene, in the arm's base frame (m): a table whose top is the base's floor, and a
+# shelf around the target, a board 0.3 m above it and a panel 0.4 m to its side.
+TABLE = ObstacleIn(shape="box", dimensions=[1.2, 1.2, 0.04], position=[0.4, 0.0, -0.02])
+SHELF_BOARD = ObstacleIn(shape="box", dimensions=[0.4, 0.8, 0.03], position=[0.65, 0.2, 0.8])
+SHELF_PANEL = ObstacleIn(shape="box", dimensions=[0.4, 0.03, 0.8], position=[0.65, -0.2, 0.4])
+SCENE = [TABLE, SHELF_BOARD, SHELF_PANEL]
+MARGIN_M = 0.01
 
 
 def joint_distance(a: Sequence[float], b: Sequence[float], periodic: Sequence[bool]) -> float:
@@ -116,8 +130,12 @@ class Choice:
     component_id: int
     distance_to_reference_rad: float  # from q to the component's nearest member
     components: int
+    objective: str  # "clearance" or "limit-margin": what chose the configuration
     configuration: Configuration
-    source: str  # "configurations" or "path": where in the component it was found
+    source: str  # "safest_configuration", "configurations" or "path": where it was found
+    clearance_m: float | None  # the component's least clearance along it
+    safest_clearance_m: float | None  # the clearance of its safest configuration
+    ends: list[str] | None  # why an open component ends (joint_limit or collision)
     margin_rad: float  # the smallest joint-limit margin of the choice
     limiting_joint: str
     margins_rad: dict[str, float]  # every limited joint's margin, smallest first
@@ -131,12 +149,17 @@ class Choice:
     closed: bool | None
 
 
-def choose(component: ComponentOut, components: int, robot: RobotOut) -> Choice:
-    """The largest-margin member of `component`, and the walk to it along its path."""
+def choose(component: ComponentOut, components: int, robot: RobotOut, objective: str) -> Choice:
+    """The safest (or largest-margin) configuration of `component`, and the walk to it
+    along its path."""
     periodic = robot.periodic_joints
-    candidates = [(q, "configurations") for q in component.configurations]
-    candidates += [(q, "path") for q in component.path or []]
-    best_q, source = max(candidates, key=lambda c: margin_key(c[0], robot))
+    if objective == "clearance" and component.safest_configuration is not None:
+        best_q, source = component.safest_configuration, "safest_configuration"
+    else:
+        objective = "limit-margin"
+        candidates = [(q, "configurations") for q in component.configurations]
+        candidates += [(q, "path") for q in component.path or []]
+        best_q, source = max(candidates, key=lambda c: margin_key(c[0], robot))
     assert component.nearest_to_reference is not None  # the request gives a reference
 
     def named(q: Sequence[float]) -> dict[str, float]:
@@ -152,8 +175,12 @@ def choose(component: ComponentOut, components: int, robot: RobotOut) -> Choice:
         component_id=component.id,
         distance_to_reference_rad=component.distance_to_reference or 0.0,
         components=components,
+        objective=objective,
         configuration=best_q,
         source=source,
+        clearance_m=component.clearance_m,
+        safest_clearance_m=component.safest_clearance_m,
+        ends=component.ends,
         margin_rad=next(iter(chosen.values())),
         limiting_joint=next(iter(chosen)),
         margins_rad=chosen,
@@ -191,6 +218,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     parser.add_argument("--num-samples", type=int, default=None, help="default: the model's")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--objective",
+        choices=("clearance", "limit-margin"),
+        default="clearance",
+        help="what picks the configuration within the nearest component",
+    )
+    parser.add_argument("--no-scene", action="store_true", help="send no obstacles")
     parser.add_argument("--json", type=Path, default=None, help="also write the choice here")
     args = parser.parse_args(argv)
 
@@ -202,6 +236,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         num_samples=args.num_samples,
         seed=args.seed,
         reference_configuration=args.q,
+        obstacles=[] if args.no_scene else SCENE,
+        collision=CollisionIn(check_self=True, margin_m=MARGIN_M),
     )
     try:
         with SmmClient(args.url, api_key=args.api_key) as client:
@@ -217,7 +253,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
 
     nearest = min(answer.components, key=lambda c: c.distance_to_reference or 0.0)
-    choice = choose(nearest, len(answer.components), robot)
+    choice = choose(nearest, len(answer.components), robot, args.objective)
     others = sorted(c.distance_to_reference or 0.0 for c in answer.components if c is not nearest)
     runner_up = f"the next {others[0]:.4f} rad" if others else "the only one"
     print(
@@ -225,7 +261,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         f"component {choice.component_id}, {choice.distance_to_reference_rad:.4f} rad away "
         f"({runner_up})"
     )
-    print(f"choice:  {rounded(choice.configuration)} (from the component's {choice.source})")
+    print(
+        f"scene:   {answer.collision.obstacles} obstacles, self-collision "
+        f"{'checked' if answer.collision.self_checked else 'not checked'}, margin "
+        f"{answer.collision.margin_m} m; {answer.counts.rejected_collision} samples in collision"
+    )
+    print(f"choice:  {rounded(choice.configuration)} (the component's {choice.source})")
+    if choice.clearance_m is not None:
+        print(
+            f"clear:   {choice.safest_clearance_m:.4f} m here, at least "
+            f"{choice.clearance_m:.4f} m anywhere along the component"
+        )
     print(f"margins: {listed(choice.margins_rad)} rad to the nearer limit, smallest first")
     print(f"         (the member nearest to q: {listed(choice.nearest_margins_rad)})")
     print(
@@ -233,16 +279,20 @@ def main(argv: Sequence[str] | None = None) -> int:
         f"{choice.max_orientation_error_rad:.1e} rad (the component's largest errors)"
     )
     if choice.path_length_rad is not None:
-        shape = "a closed loop" if choice.closed else "ends at joint limits"
+        shape = "a closed loop" if choice.closed else f"its ends: {', '.join(choice.ends or [])}"
         print(
             f"walk:    along the component's path ({shape}) from point {choice.path_from_index} "
             f"(nearest to q) to point {choice.path_to_index}: {choice.path_length_rad:.4f} rad "
             f"in {choice.path_steps} steps, the end effector on the target throughout"
         )
+    within = (
+        "the greatest clearance leaves the most room from the scene and the arm itself"
+        if choice.objective == "clearance"
+        else "the largest smallest margin (ties broken by the next) leaves the most room "
+        "before a joint limit"
+    )
     print(
-        "why:     the nearest component needs the least joint motion to enter; within it, the "
-        "largest smallest margin (ties broken by the next) leaves the most room before a "
-        "joint limit"
+        f"why:     the nearest component needs the least joint motion to enter; within it, {within}"
     )
     if args.json is not None:
         record = {"request": request.model_dump(mode="json"), "choice": asdict(choice)}

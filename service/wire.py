@@ -211,6 +211,9 @@ class ComponentOut(BaseModel):
         description="The component's configuration (member or path point) of greatest "
         "clearance. Null when nothing was checked."
     )
+    safest_clearance_m: float | None = Field(
+        description="That configuration's clearance, in metres. Null when nothing was checked."
+    )
 
 
 class StructureOut(BaseModel):

@@ -114,6 +114,7 @@ def _component_out(index: int, summary: ComponentSummary) -> ComponentOut:
         path=None if summary.path is None else summary.path.q_rad.tolist(),
         clearance_m=summary.clearance_m,
         safest_configuration=None if summary.safest_rad is None else summary.safest_rad.tolist(),
+        safest_clearance_m=summary.safest_clearance_m,
     )
 
 

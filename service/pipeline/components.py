@@ -70,9 +70,9 @@ def measured(components: list[Component], collision: CollisionCheck) -> list[Com
     ]
 
 
-def clearance_along(component: Component) -> tuple[float, FloatArray] | None:
-    """(least clearance, configuration (n,) of greatest clearance) over the component's
-    members and path points, as measured (`measured`); None when nothing was."""
+def clearance_along(component: Component) -> tuple[float, FloatArray, float] | None:
+    """(least clearance, configuration (n,) of greatest clearance, its clearance) over the
+    component's members and path points, as measured (`measured`); None when nothing was."""
     if component.clearance_m is None:
         return None
     q, clearance = component.q_rad, component.clearance_m  # (k, n), (k,)
@@ -83,7 +83,7 @@ def clearance_along(component: Component) -> tuple[float, FloatArray] | None:
     if not len(clearance):
         return None
     best = int(np.argmax(clearance))
-    return float(clearance.min()), q[best]
+    return float(clearance.min()), q[best], float(clearance[best])
 
 
 def summarise(
@@ -137,6 +137,7 @@ def summarise(
         path=path if include_path else None,
         clearance_m=None if clearance is None else clearance[0],
         safest_rad=None if clearance is None else clearance[1],
+        safest_clearance_m=None if clearance is None else clearance[2],
     )
 
 

@@ -303,6 +303,7 @@ class ComponentSummary:
     path: ComponentPath | None  # r = 1, when the query asked for paths
     clearance_m: float | None  # least distance to the robot itself and the obstacles along it
     safest_rad: FloatArray | None  # (n,) its configuration of greatest clearance
+    safest_clearance_m: float | None  # that configuration's clearance
 
 
 # -- out: the result ---------------------------------------------------------------------------

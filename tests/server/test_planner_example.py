@@ -3,10 +3,14 @@
 The example runs as a user runs it (`python examples/planner.py --url ...`, the client's
 dependencies only) and writes its request and choice with `--json`. The test then sends
 the same request itself (raw httpx) and checks, with numpy and the limits of GET /robots:
-the chosen component is the one nearest to q; the chosen configuration has the largest
+the chosen component is the one nearest to q. With the scene and the clearance objective
+(the default): the choice is the component's safest configuration, and it and every
+point of the component's path are clear of the table, the shelf and the arm itself by
+the margin by coal on the URDF's own meshes (training/evaluate/references/collision.py).
+With `--objective limit-margin`: the chosen configuration has the largest
 joint-limit margin over that component's configurations and path points (the smallest
 margin first, ties to 1e-6 rad broken by the next: on this pose q4 is constant on the
-component), and the margins and limiting joint are what the example says; it reaches
+component), and the margins and limiting joint are what the example says. Either way it reaches
 the target by the independent DH forward kinematics of
 training/evaluate/references/iiwa14.py
 (1e-6 m, 1e-6 rad) and lies inside the limits; the walk starts at the path point
@@ -29,6 +33,7 @@ import numpy as np
 import pytest
 
 from tools.local_server import LocalServer
+from training.evaluate.references.collision import ModelCollision, Obstacle
 from training.evaluate.references.iiwa14 import dh_pose as iiwa14_pose
 from training.evaluate.references.rotations import rotation_angle_rad
 
@@ -54,12 +59,12 @@ def rotation(w: float, x: float, y: float, z: float) -> np.ndarray:
     )
 
 
-def test_the_planner_picks_the_nearest_component_and_its_largest_margin(
-    server: LocalServer, tmp_path: Path
-) -> None:
+def run_planner(server: LocalServer, tmp_path: Path, *options: str) -> dict[str, Any]:
+    """The example as a user runs it; its --json record."""
     record_path = tmp_path / "choice.json"
+    command = [sys.executable, "examples/planner.py", "--url", server.url]
     run = subprocess.run(
-        [sys.executable, "examples/planner.py", "--url", server.url, "--json", str(record_path)],
+        [*command, "--json", str(record_path), *options],
         capture_output=True,
         text=True,
         cwd=ROOT,
@@ -67,9 +72,48 @@ def test_the_planner_picks_the_nearest_component_and_its_largest_margin(
     )
     assert run.returncode == 0, run.stdout + run.stderr
     print(run.stdout)
-    for line in ("q now:", "service:", "choice:", "walk:", "why:"):
+    for line in ("q now:", "service:", "scene:", "choice:", "walk:", "why:"):
         assert line in run.stdout
-    record = json.loads(record_path.read_text())
+    record: dict[str, Any] = json.loads(record_path.read_text())
+    return record
+
+
+def test_the_planner_picks_the_nearest_component_and_its_safest_configuration(
+    server: LocalServer, tmp_path: Path
+) -> None:
+    record = run_planner(server, tmp_path)
+    request: dict[str, Any] = record["request"]
+    choice: dict[str, Any] = record["choice"]
+    answer = httpx.post(f"{server.url}/smm", json=request, timeout=60).json()
+    assert answer["collision"]["obstacles"] == 3 and answer["collision"]["self_checked"]
+    distances = [c["distance_to_reference"] for c in answer["components"]]
+    nearest = answer["components"][int(np.argmin(distances))]
+    assert choice["component_id"] == nearest["id"] and choice["objective"] == "clearance"
+    assert choice["configuration"] == nearest["safest_configuration"]
+    assert choice["clearance_m"] == nearest["clearance_m"]
+
+    # Clear of the scene and of the arm itself by the margin, on the URDF's own meshes.
+    obstacles = [
+        Obstacle(o["shape"], tuple(o["dimensions"]), np.array(o["position"]), np.eye(3))
+        for o in request["obstacles"]
+    ]
+    margin_m = request["collision"]["margin_m"]
+    coal = ModelCollision.of(ROOT / "models" / "iiwa14-pose")
+    chosen = np.array(choice["configuration"])
+    path = np.array(nearest["path"])
+    exact = coal.clearance_m(np.vstack([chosen, path]), obstacles)
+    assert exact.min() >= margin_m
+    # The spheres' clearance is a lower bound of coal's.
+    assert nearest["safest_clearance_m"] <= exact[0] + 1e-9
+    assert nearest["clearance_m"] <= exact.min() + 1e-9
+    pose = iiwa14_pose(chosen[None])[0]
+    assert np.linalg.norm(pose[:3, 3] - np.array(request["target"]["position"])) < 1e-6
+
+
+def test_the_planner_picks_the_nearest_component_and_its_largest_margin(
+    server: LocalServer, tmp_path: Path
+) -> None:
+    record = run_planner(server, tmp_path, "--objective", "limit-margin")
     request: dict[str, Any] = record["request"]
     choice: dict[str, Any] = record["choice"]
 
@@ -118,7 +162,7 @@ def test_the_planner_picks_the_nearest_component_and_its_largest_margin(
     gaps = np.linalg.norm(path - np.array(nearest["nearest_to_reference"]), axis=1)
     assert start == int(np.argmin(gaps))
     assert end == int(np.argmin(np.linalg.norm(path - chosen, axis=1)))
-    assert not nearest["closed"]  # this pose's components end at limits: one way to walk
+    assert not nearest["closed"]  # this pose's components are open: one way to walk
     lo, hi = sorted((start, end))
     steps = np.linalg.norm(np.diff(path[lo : hi + 1], axis=0), axis=1)
     assert choice["path_steps"] == hi - lo

@@ -7,8 +7,7 @@ pairs:    the body pairs never checked (adjacent, default, always, never; or the
 build:    collision.json and the free space the spheres lose, measured with coal.
 record:   collision.json written into a model directory, and the manifest's record of it.
 command:  `smm-train collision`, the rebuild in an existing model.
+The package imports none of its modules: build uses the coal reference
+(training.evaluate.references.collision), which uses geometry, so importing either
+first must not start the other.
 """
-
-from training.collision.build import BuiltCollision, build_collision_model
-
-__all__ = ["BuiltCollision", "build_collision_model"]
