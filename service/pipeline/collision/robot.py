@@ -58,6 +58,7 @@ class RobotSpheres:
     bound_radius_m: FloatArray  # (K,) it holds every sphere of the body
     pair_a: IntArray  # (P,) body indices of the checked pairs
     pair_b: IntArray  # (P,)
+    sphere_count: int  # the spheres of collision.json, padding aside
 
     @classmethod
     def of(cls, chain: ChainSpec, spec: CollisionSpec) -> RobotSpheres:
@@ -94,11 +95,8 @@ class RobotSpheres:
             bound_radius_m=bound_radius,
             pair_a=np.array([a for a, _ in pairs], dtype=np.int64),
             pair_b=np.array([b for _, b in pairs], dtype=np.int64),
+            sphere_count=sum(len(body.radii_m) for body in spec.bodies),
         )
-
-    @property
-    def sphere_count(self) -> int:
-        return int(self.radius_m.size)
 
     @property
     def moving(self) -> BoolArray:

@@ -29,6 +29,8 @@ def free_pieces(
     """The free pieces of the traced components (members not free are dropped: the
     acceptance counted them as rejected_collision); components with no path keep their
     free members."""
+    if not components:
+        return []
     # Every member and path point of every component measured in one call (the check's
     # per-call cost is a few hundred microseconds), then split back.
     parts = [c.q_rad for c in components] + [c.path.q_rad for c in components if c.path]

@@ -95,3 +95,13 @@ def test_a_far_obstacle_changes_nothing_but_clearance(with_spheres: ServedModel)
         assert before.path is not None and after.path is not None
         np.testing.assert_array_equal(before.path.q_rad, after.path.q_rad)
         assert after.clearance_m is not None and after.clearance_m > 1.0
+
+
+def test_no_curve_means_no_piece(with_spheres: ServedModel) -> None:
+    """A target out of reach with the collision check on answers no component (no error)."""
+    far = Query.for_model(
+        with_spheres.manifest, position_m=[5.0, 0.0], num_samples=50, seed=0,
+        obstacles=[Obstacle.of(0, "sphere", [0.1], [3.0, 3.0, 0.0], None)],
+    )  # fmt: skip
+    result = run(with_spheres, far)
+    assert result.components == [] and result.counts.accepted == 0
