@@ -13,6 +13,7 @@ is refused with the models present.
 
 from __future__ import annotations
 
+import shutil
 import subprocess
 from pathlib import Path
 
@@ -21,8 +22,10 @@ import pytest
 
 from service.manifest import COLLISION_FILE, CollisionSpec, Manifest
 from service.models.registry import load_model, sha256_of
+from tests.support.app import make_client
 from tests.support.collision_arm import write_collision_arm, write_srdf
 from training.cli import in_subprocess, main
+from training.evaluate.references.collision import ModelCollision
 
 
 def _manifest(model_dir: Path) -> Manifest:
@@ -66,6 +69,47 @@ def test_training_writes_the_collision_model_with_the_srdf(trained: Path) -> Non
     reasons = {pair.links: pair.reason for pair in spec.disabled_pairs}
     assert reasons[("l1", "world")] == reasons[("base", "l3")] == "srdf"
     load_model(model_dir, threads=1)
+
+
+def test_the_trained_model_serves_answers_free_of_self_collision(
+    trained: Path, tmp_path: Path
+) -> None:
+    """Served over HTTP (the real app on a copy of that models directory, its collision
+    model rebuilt with an SRDF that leaves the world fixture to the scene, as a planner's
+    SRDF does), its answers to targets reached by self-collision-free configurations say
+    self-collision was checked, and every returned configuration and path point is free
+    of self-collision by coal on the URDF's own geometry, outside the SRDF's pairs."""
+    models = tmp_path / "models"
+    shutil.copytree(trained, models)
+    others = ("base", "l1", "l2", "l3", "l4", "tool", "finger_a", "finger_b")
+    srdf = write_srdf(tmp_path, [("world", link) for link in others] + [("base", "l3")])
+    main(["collision", "--model", "collision_arm-position", "--srdf", str(srdf),
+          "--configurations", "300", "--models-dir", str(models)])  # fmt: skip
+    model_dir = models / "collision_arm-position"
+    coal = ModelCollision.of(model_dir)
+    served = load_model(model_dir, threads=1)
+    limits = served.limits
+    q = np.random.default_rng(3).uniform(limits.lower_rad, limits.upper_rad, (60, 4))
+    q_targets = q[~coal.robot.in_self_collision(q, coal.disabled)][:6]
+    checked = 0
+    with make_client(models, max_num_samples=5000) as client:
+        for q_target in q_targets:
+            position = served.kinematics(q_target[None]).position_m[0].tolist()
+            body = {"robot": "collision_arm", "task": "position", "target": {"position": position},
+                    "num_samples": 400}  # fmt: skip
+            answer = client.post("/smm", json=body).json()
+            assert answer["collision"]["self_checked"] is True
+            counts = answer["counts"]
+            assert counts["sampled"] == counts["accepted"] + counts["rejected_tolerance"] + (
+                counts["rejected_joint_limits"] + counts["rejected_collision"]
+            )
+            points = [
+                p for c in answer["components"] for p in c["configurations"] + (c["path"] or [])
+            ]
+            if points:
+                assert not coal.robot.in_self_collision(np.array(points), coal.disabled).any()
+                checked += len(points)
+    assert checked > 0
 
 
 def test_the_command_rebuilds_after_a_geometry_change_and_refuses_a_kinematic_one(
