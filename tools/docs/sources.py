@@ -45,6 +45,11 @@ def manifest(model_id: str) -> dict[str, Any]:
     return _existing(MODELS / model_id / "manifest.json", model_ids())
 
 
+def collision(model_id: str) -> dict[str, Any]:
+    """models/<model_id>/collision.json: the model's bodies as spheres, the pairs not checked."""
+    return _existing(MODELS / model_id / "collision.json", model_ids())
+
+
 def container() -> dict[str, Any]:
     """docs/container.json: the container test's figures."""
     return _read(ROOT / "docs" / "container.json")

@@ -6,6 +6,7 @@ Tables (no arguments), one row per bundled model (or per model and method):
 
     models-table       the headline figures of each model's report (README and models.md)
     models-training    network, training budget and wall time, reflow (manifests)
+    models-collision   collision model: bodies, spheres, pairs checked, free space lost
     models-sampler     served sampler, DLS steps, raw errors, keep rate (manifests)
     models-components  components against ground truth, service beside the baselines
     models-recall      exact components found, by size
@@ -306,6 +307,34 @@ def models_training() -> str:
         ])  # fmt: skip
     header = ["model", "network", "training data x epochs", "wall time", "best val. loss",
               "reflow (trained, wall time)"]  # fmt: skip
+    return _table(header, rows)
+
+
+@block("models-collision")
+def models_collision() -> str:
+    """Every bundled model's collision model, from collision.json and its manifest record."""
+    rows = []
+    for model_id in bundled_models():
+        manifest = sources.manifest(model_id)
+        record = manifest.get("collision")
+        if record is None:
+            rows.append([f"`{model_id}`", "none (its URDF has no collision geometry)"]
+                        + ["-"] * 4)  # fmt: skip
+            continue
+        spec = sources.collision(model_id)
+        bodies = len(spec["bodies"])
+        pairs = bodies * (bodies - 1) // 2
+        checked = pairs - len(spec["disabled_pairs"])
+        source = "its SRDF" if record["srdf"] is not None else "sampled, as MoveIt's setup assistant"
+        rows.append([
+            f"`{model_id}`", f"{bodies} bodies, {record['sphere_count']} spheres",
+            f"{checked} of {pairs}", source,
+            f"{100 * record['free_space_lost_fraction']:.1f} % of "
+            f"{record['configurations_sampled']:,}",
+            f"{record['wall_time_s']:.1f} s",
+        ])  # fmt: skip
+    header = ["model", "collision model", "body pairs checked", "pairs never checked from",
+              "free space lost (random configurations)", "build time"]  # fmt: skip
     return _table(header, rows)
 
 
