@@ -325,7 +325,7 @@ def models_collision() -> str:
         bodies = len(spec["bodies"])
         pairs = bodies * (bodies - 1) // 2
         checked = pairs - len(spec["disabled_pairs"])
-        source = "its SRDF" if record["srdf"] is not None else "sampled, as MoveIt's setup assistant"
+        source = "its SRDF" if record["srdf"] else "sampled, as MoveIt's setup assistant"
         rows.append([
             f"`{model_id}`", f"{bodies} bodies, {record['sphere_count']} spheres",
             f"{checked} of {pairs}", source,
