@@ -61,8 +61,8 @@ def query_for_model(body: SmmRequest, model: ServedModel) -> Query:
     if body.obstacles and model.robot_spheres is None:
         raise RequestFieldError(
             ("body", "obstacles"),
-            f"model {model.manifest.model_id} has no collision geometry (its URDF has no "
-            "<collision> elements), so obstacles cannot be checked; send none, or use a "
+            f"obstacles cannot be checked on model {model.manifest.model_id}: it has no "
+            "collision geometry (its URDF has no <collision> elements); send none, or use a "
             "model whose GET /robots entry has collision_geometry true",
         )
     orientation = body.target.orientation

@@ -17,6 +17,7 @@ from tests.support.bundled import served_robots_message
 PLANAR = bodies.PLANAR
 POSE: dict[str, Any] = {**bodies.POSE, "num_samples": 50}
 JSON = {"content-type": "application/json"}
+BOX: dict[str, Any] = {"shape": "box", "dimensions": [0.2, 0.2, 0.2], "position": [0.5, 0.5, 0.5]}
 
 
 @dataclass(frozen=True)
@@ -332,6 +333,70 @@ def catalogue(max_num_samples: int, max_body_bytes: int) -> list[BadInput]:
             "target",
             "an object with fields position, orientation",
             planar(target=[0.5, 0.0]),
+        ),
+        # The scene.
+        BadInput(
+            "obstacle-unknown-shape",
+            422,
+            "obstacles[0].shape",
+            "one of 'box', 'sphere', 'cylinder', 'capsule'",
+            pose(obstacles=[{**BOX, "shape": "cone"}]),
+        ),
+        BadInput(
+            "obstacle-wrong-dimensions",
+            422,
+            "obstacles[1].dimensions",
+            "[x, y, z]: 3 values in metres, each above 0 and at most 100",
+            pose(obstacles=[BOX, {**BOX, "dimensions": [0.2, 0.2]}]),
+        ),
+        BadInput(
+            "obstacle-negative-dimension",
+            422,
+            "obstacles[0].dimensions",
+            "each above 0",
+            pose(obstacles=[{**BOX, "dimensions": [0.2, -0.2, 0.2]}]),
+        ),
+        BadInput(
+            "obstacle-non-unit-quaternion",
+            422,
+            "obstacles[0].orientation",
+            "norm within 0.01 of 1",
+            pose(obstacles=[{**BOX, "orientation": {"w": 2.0, "x": 0.0, "y": 0.0, "z": 0.0}}]),
+        ),
+        BadInput(
+            "obstacle-short-position",
+            422,
+            "obstacles[0].position",
+            "a list of 3 to 3 values",
+            pose(obstacles=[{**BOX, "position": [0.5, 0.5]}]),
+        ),
+        BadInput(
+            "too-many-obstacles",
+            422,
+            "obstacles",
+            "at most 64 items",
+            pose(obstacles=[BOX] * 65),
+        ),
+        BadInput(
+            "obstacles-without-geometry",
+            422,
+            "obstacles",
+            "collision_geometry true",
+            planar(obstacles=[BOX]),
+        ),
+        BadInput(
+            "margin-too-large",
+            422,
+            "collision.margin_m",
+            "a finite number >= 0 and <= 0.5",
+            pose(collision={"margin_m": 0.6}),
+        ),
+        BadInput(
+            "collision-unknown-field",
+            422,
+            "collision.margin",
+            "only the fields self, margin_m",
+            pose(collision={"margin": 0.1}),
         ),
         # Unknown model (a path-like name is just an unknown name: no field becomes a path).
         BadInput("unknown-robot", 404, "robot", served_robots_message(), planar(robot="ur5")),

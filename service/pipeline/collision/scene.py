@@ -57,22 +57,25 @@ class Obstacle:
     ) -> Obstacle:
         """One obstacle of a request, checked; RequestFieldError names obstacles[index]'s
         field and says what is valid."""
-        where = ("body", "obstacles", index)
+        where, field = ("body", "obstacles", index), f"obstacles[{index}]"
         if shape not in SHAPES:
-            raise RequestFieldError((*where, "shape"), f"shape must be one of {list(SHAPES)}")
+            raise RequestFieldError(
+                (*where, "shape"), f"{field}.shape must be one of {list(SHAPES)}, got {shape!r}"
+            )
         names = DIMENSION_NAMES[shape]
         if len(dimensions_m) != len(names) or not all(
             0.0 < d <= MAX_DIMENSION_M for d in dimensions_m
         ):
             raise RequestFieldError(
                 (*where, "dimensions"),
-                f"a {shape} has dimensions [{', '.join(names)}]: {len(names)} values in "
-                f"metres, each above 0 and at most {MAX_DIMENSION_M:g}, got {list(dimensions_m)}",
+                f"{field}.dimensions of a {shape} are [{', '.join(names)}]: {len(names)} values "
+                f"in metres, each above 0 and at most {MAX_DIMENSION_M:g}, got "
+                f"{list(dimensions_m)}",
             )
         if len(position_m) != 3:
             raise RequestFieldError(
                 (*where, "position"),
-                f"position must have 3 values (x, y, z), got {len(position_m)}",
+                f"{field}.position must have 3 values (x, y, z), got {len(position_m)}",
             )
         rotation = np.eye(3)
         if orientation_wxyz is not None:
@@ -81,7 +84,7 @@ class Obstacle:
             if not abs(norm - 1.0) <= QUATERNION_NORM_TOLERANCE:
                 raise RequestFieldError(
                     (*where, "orientation"),
-                    f"orientation must be a unit quaternion (norm within "
+                    f"{field}.orientation must be a unit quaternion (norm within "
                     f"{QUATERNION_NORM_TOLERANCE} of 1, normalised then), got norm {norm:.6g}",
                 )
             rotation = quaternion_to_matrix(*orientation_wxyz)

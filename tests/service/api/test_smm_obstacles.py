@@ -112,6 +112,7 @@ def test_obstacles_need_a_model_with_collision_geometry(client: TestClient) -> N
     assert response.status_code == 422
     (error,) = response.json()["detail"]
     assert error["loc"] == ["body", "obstacles"]
+    assert error["msg"].startswith("obstacles cannot be checked")
     assert "no collision geometry" in error["msg"]
     plain = client.post("/smm", json=BODY).json()
     assert plain["collision"]["self_checked"] is False
