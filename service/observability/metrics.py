@@ -25,7 +25,12 @@ from service.pipeline.types import SampleCounts, StageTimings
 LATENCY_BUCKETS_S = (0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0, 30.0, 60.0)
 RATIO_BUCKETS = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 0.95, 0.99, 1.0)
 REJECTION_REASONS = ("queue_full", "queue_timeout", "open_requests", "deadline")
-SAMPLE_OUTCOMES = ("accepted", "rejected_tolerance", "rejected_joint_limits")
+SAMPLE_OUTCOMES = (
+    "accepted",
+    "rejected_tolerance",
+    "rejected_joint_limits",
+    "rejected_collision",
+)
 
 
 # The `*_created` timestamp series only double the exposition; Prometheus does not need them.
