@@ -74,3 +74,22 @@ def test_bad_obstacles_are_refused_naming_the_field(
     with pytest.raises(RequestFieldError) as refused:
         Obstacle.of(3, shape, dimensions, position, orientation)
     assert refused.value.location == ("body", "obstacles", 3, field)
+
+
+@pytest.mark.parametrize(
+    ("shape", "dimensions", "farthest"),
+    [
+        ("box", [0.2, 0.4, 0.6], [0.1, 0.2, 0.3]),  # a corner
+        ("sphere", [0.3], [0.0, 0.3, 0.0]),
+        ("cylinder", [1.0, 0.2], [0.2, 0.0, 0.5]),  # on the rim
+        ("capsule", [1.0, 0.2], [0.0, 0.0, 0.7]),  # the tip of a cap
+    ],
+)
+def test_reach_is_the_distance_to_the_farthest_point(
+    shape: str, dimensions: list[float], farthest: list[float]
+) -> None:
+    """The sphere about the position that the two-pass bound relies on holds the solid:
+    its radius is the distance to the solid's farthest point, which lies on its surface."""
+    obstacle = Obstacle.of(0, shape, dimensions, [0.0, 0.0, 0.0], None)
+    assert obstacle.reach_m == pytest.approx(np.linalg.norm(farthest))
+    assert clearance(obstacle, farthest) == pytest.approx(0.0, abs=1e-12)
