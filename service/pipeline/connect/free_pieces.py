@@ -125,6 +125,7 @@ def _assign(
     components = [
         replace(_members(members, owner == index), path=piece) for index, piece in enumerate(pieces)
     ]
-    for island in np.flatnonzero(owner < 0):
-        components.append(_members(members, np.arange(len(owner)) == island))
+    for island in np.flatnonzero(owner < 0):  # no checked motion joins it to a piece
+        only = _members(members, np.arange(len(owner)) == island)
+        components.append(replace(only, path=None))
     return components

@@ -10,10 +10,12 @@ import numpy as np
 import pytest
 
 from service.models.registry import ServedModel
+from service.pipeline.collision.check import CollisionCheck
 from service.pipeline.collision.robot import RobotSpheres
-from service.pipeline.collision.scene import Obstacle
-from service.pipeline.run import run
-from service.pipeline.types import ComponentSummary, Query
+from service.pipeline.collision.scene import Obstacle, Scene
+from service.pipeline.connect.free_pieces import free_pieces
+from service.pipeline.run import encode, run, space_of
+from service.pipeline.types import Component, ComponentSummary, Query
 from tests.service.pipeline.collision.test_robot import (
     RADIUS_M,
     link_middles,
@@ -105,3 +107,32 @@ def test_no_curve_means_no_piece(with_spheres: ServedModel) -> None:
     )  # fmt: skip
     result = run(with_spheres, far)
     assert result.components == [] and result.counts.accepted == 0
+
+
+def test_a_free_sample_off_every_free_path_point_is_a_component_of_its_own(
+    with_spheres: ServedModel,
+) -> None:
+    """A free member farther than the path spacing from every free point of its curve
+    (between two checked points that collide) joins no piece, and takes none of the
+    uncut curve with it: a component of its own, no path."""
+    free = run(with_spheres, query(with_spheres, []))
+    path = max(free.components, key=lambda c: c.arc_length_rad or 0.0).path
+    assert path is not None
+    q_hit = path.q_rad[len(path.q_rad) // 2]
+    centre = link_middles(q_hit[None])[0, 1]
+    obstacle = Obstacle.of(0, "sphere", [0.15], [*centre, 0.0], None)
+    asked = query(with_spheres, [obstacle])
+    check = CollisionCheck(with_spheres.robot_spheres, Scene((obstacle,)), False, MARGIN_M)
+    space = space_of(with_spheres, encode(with_spheres, asked), asked.tolerance, check)
+    # The member: the colliding path point, turned at joint 1 until it is clear (off the
+    # fibre, so farther than the spacing from every path point).
+    member = q_hit + np.array([0.6, 0.0, 0.0])
+    assert check.free(member[None])[0]
+    alone = Component(q_rad=member[None], position_error_m=np.zeros(1),
+                      orientation_error_rad=np.zeros(1), path=path)  # fmt: skip
+    pieces = free_pieces(space, [alone], 0.05)
+    islands = [p for p in pieces if p.path is None]
+    assert len(islands) == 1 and np.array_equal(islands[0].q_rad, member[None])
+    for piece in pieces:
+        if piece.path is not None:
+            assert check.free(piece.path.q_rad).all()
