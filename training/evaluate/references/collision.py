@@ -152,7 +152,6 @@ class CoalRobot:
                 least[i] = min(least[i], d)
         return least
 
-
     def within_m(
         self,
         q_rad: FloatArray,

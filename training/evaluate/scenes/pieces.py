@@ -11,7 +11,11 @@ A returned configuration (member or path point) lies on the piece of its nearest
 reference point (joint metric) when that point is within `MATCH_RAD` (the report's
 coverage radius) and free; a piece of at least `MIN_PIECE_SHARE` of the fibre's length
 is found when some returned configuration lies on it, and a returned component whose
-configurations lie on two or more pieces is a merge across a collision cut.
+configurations lie on two or more pieces of one exact curve is a merge across a
+collision cut; one on pieces of two exact curves merges exact components (a kinematic
+merge, as the kinematic report counts them). A missed piece is also looked for in the
+answer with nothing checked: found there, the scene's answer lost it; not found, the
+kinematic answer misses it too.
 """
 
 from __future__ import annotations
@@ -81,6 +85,7 @@ class FreePieces:
     q_rad: FloatArray  # (P, n) every reference point at resolution
     label: IntArray  # (P,) piece over the whole fibre, -1 where in collision
     length_rad: FloatArray  # (L,) each piece's length
+    curve: IntArray  # (L,) the exact curve each piece lies on
     fibre_length_rad: float  # every curve's length, free or not
 
     @classmethod
@@ -94,6 +99,10 @@ class FreePieces:
             q_rad=np.concatenate([c.q_rad for c in curves]) if curves else np.zeros((0, width)),
             label=np.concatenate(labels) if labels else np.zeros(0, int),
             length_rad=np.concatenate([c.piece_length_rad for c in curves] + [np.zeros(0)]),
+            curve=np.concatenate(
+                [np.full(len(c.piece_length_rad), i) for i, c in enumerate(curves)]
+                + [np.zeros(0, int)]
+            ),
             fibre_length_rad=fibre_length_rad,
         )
 
@@ -121,36 +130,56 @@ class Recall:
     # are lost to the spheres' conservativeness: the service cannot return them), found.
     sphere_free: int
     sphere_free_found: int
-    merges: int  # returned components lying on 2+ pieces
+    merges: int  # returned components on 2+ pieces of one exact curve: across a cut
+    merges_of_curves: int  # returned components on pieces of 2+ exact curves
     missed_length_rad: list[float]  # the asked pieces not found
     missed_sphere_free_share: list[float]  # of each, the share of points the spheres free
+    missed_kinematically: list[bool]  # of each, missed by the answer with nothing checked
+
+
+def _merges(pieces: FreePieces, on: IntArray, labels: IntArray) -> tuple[int, int]:
+    """Returned components on 2+ pieces of one curve, and on pieces of 2+ curves."""
+    across_cut = across_curves = 0
+    for component in np.unique(labels):
+        held = np.unique(on[(labels == component) & (on >= 0)])
+        curves = pieces.curve[held]
+        across_curves += int(len(np.unique(curves)) > 1)
+        across_cut += int(len(held) > len(np.unique(curves)))
+    return across_cut, across_curves
 
 
 def recall(
     pieces: FreePieces,
     sphere_free: BoolArray,  # (P,) the service's check on every reference point
-    returned: FloatArray,
-    labels: IntArray,
+    returned: FloatArray,  # (K, n)
+    labels: IntArray,  # (K,) returned component of each
     periodic: BoolArray,
+    kinematic: FloatArray | None = None,  # (J, n) returned with nothing checked
 ) -> Recall:
-    """Found pieces and merges of the returned configurations (K, n) labelled (K,) by
-    returned component."""
-    on = pieces.pieces_of(returned, periodic)
+    """Found pieces and merges of the returned configurations (module docstring)."""
     count = len(pieces.length_rad)
-    hit = np.zeros(count, dtype=bool)
-    hit[on[on >= 0]] = True
-    asked = pieces.asked
-    inside = pieces.label >= 0
+
+    def hits(q_rad: FloatArray) -> tuple[IntArray, BoolArray]:
+        on = pieces.pieces_of(q_rad, periodic)
+        hit = np.zeros(count, dtype=bool)
+        hit[on[on >= 0]] = True
+        return on, hit
+
+    on, hit = hits(returned)
+    asked, inside = pieces.asked, pieces.label >= 0
     points = np.bincount(pieces.label[inside], minlength=count)
     freed = np.bincount(pieces.label[inside & sphere_free], minlength=count)
-    merges = sum(int(len(np.unique(on[(labels == c) & (on >= 0)])) > 1) for c in np.unique(labels))
     missed = asked & ~hit
+    kinematic_hit = hits(kinematic)[1] if kinematic is not None else np.zeros(count, bool)
+    across_cut, across_curves = _merges(pieces, on, labels)
     return Recall(
         asked=int(asked.sum()),
         found=int((hit & asked).sum()),
         sphere_free=int((asked & (freed > 0)).sum()),
         sphere_free_found=int((asked & (freed > 0) & hit).sum()),
-        merges=merges,
+        merges=across_cut,
+        merges_of_curves=across_curves,
         missed_length_rad=[float(x) for x in pieces.length_rad[missed]],
         missed_sphere_free_share=[float(x) for x in freed[missed] / np.maximum(points[missed], 1)],
+        missed_kinematically=[bool(x) for x in ~kinematic_hit[missed]],
     )

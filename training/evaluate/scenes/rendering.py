@@ -51,33 +51,52 @@ def _exactness(report: dict[str, Any]) -> list[str]:
     return rows
 
 
+def _missed(rec: dict[str, Any]) -> list[str]:
+    """The missed pieces: where the spheres lose them, where the kinematic answer misses
+    them too, and those the scene's answer alone lost."""
+    missed = rec["missed"]
+    if not missed:
+        return []
+    spheres = sum(m["sphere_free_share"] == 0 for m in missed)
+    kinematic = sum(m["sphere_free_share"] > 0 and m["missed_kinematically"] for m in missed)
+    alone = rec["missed_in_the_scene"]
+    listed = ", ".join(
+        f"{m['index']} ({m['length_rad']:.2f} rad, {_pct(m['sphere_free_share'])} free by "
+        "the spheres)"
+        for m in alone
+    )
+    return [
+        f"- Missed: {len(missed)} pieces. {spheres} lie wholly where the spheres call "
+        f"collision; {kinematic} more are missed by the answer with nothing checked too (a "
+        f"kinematic miss); {len(alone)} the scene's answer alone lost"
+        + (f": target {listed}." if alone else "."),
+    ]
+
+
 def _recall(report: dict[str, Any]) -> list[str]:
     rec = report["summary"]["recall"]
     if rec is None:
         return [
-            "Not measured for a 4-D fibre: see docs/models.md, Scenes, for what a sound "
-            "reference of its free components needs."
+            "Not measured for a 4-D fibre: see [Models, Scenes](../../models.md#scenes) for "
+            "what a sound reference of its free components needs."
         ]
-    rows = [
+    singular = rec["near_singular_targets"]
+    return [
         f"- Free pieces of at least {100 * report['settings']['min_piece_share']:g} % of the "
         f"fibre: {rec['pieces_asked']}, found {rec['pieces_found']} "
         f"(**{_pct(rec['found_fraction'])}**, goal {100 * FOUND_GOAL:g} %).",
         f"- Of those, pieces with a point the service's spheres call free (the others lie "
         f"wholly in the free space the spheres lose): {rec['pieces_sphere_free']}, found "
         f"{rec['pieces_sphere_free_found']} (**{_pct(rec['sphere_free_found_fraction'])}**).",
-        f"- Merges across a collision cut: **{rec['merges']}** (goal 0)"
+        *_missed(rec),
+        f"- Merges across a collision cut (a returned component on two pieces of one exact "
+        f"curve): **{rec['merges']}** (goal 0)"
         + (f", targets {rec['targets_with_merges']}." if rec["merges"] else "."),
+        f"- Returned components on two exact curves (kinematic merges, as the kinematic "
+        f"report counts them): {rec['merges_of_curves']}"
+        + (f", targets {rec['targets_with_merges_of_curves']}" if rec["merges_of_curves"] else "")
+        + f"; targets the answer flags near-singular: {singular or 'none'}.",
     ]
-    if rec["missed"]:
-        missed = ", ".join(
-            f"{m['index']} ({m['length_rad']:.2f} rad, {_pct(m['sphere_free_share'])})"
-            for m in rec["missed"][:20]
-        )
-        rows.append(
-            f"- Missed pieces (target, length, share of its points the spheres call free): "
-            f"{missed}{' ...' if len(rec['missed']) > 20 else ''}."
-        )
-    return rows
 
 
 def _times(report: dict[str, Any]) -> list[str]:

@@ -45,11 +45,16 @@ def recall_summary(targets: Sequence[dict[str, Any]]) -> dict[str, object] | Non
     asked, found = total("asked"), total("found")
     sphere_free, sphere_free_found = total("sphere_free"), total("sphere_free_found")
     missed = [
-        {"index": t["index"], "length_rad": length, "sphere_free_share": share}
+        {"index": t["index"], "length_rad": length, "sphere_free_share": share,
+         "missed_kinematically": kinematic}
         for t in with_recall
-        for length, share in zip(
-            t["recall"]["missed_length_rad"], t["recall"]["missed_sphere_free_share"], strict=True
+        for length, share, kinematic in zip(
+            t["recall"]["missed_length_rad"], t["recall"]["missed_sphere_free_share"],
+            t["recall"]["missed_kinematically"], strict=True,
         )
+    ]  # fmt: skip
+    lost_to_scene = [
+        m for m in missed if m["sphere_free_share"] > 0 and not m["missed_kinematically"]
     ]
     return {
         "pieces_asked": asked,
@@ -60,6 +65,13 @@ def recall_summary(targets: Sequence[dict[str, Any]]) -> dict[str, object] | Non
         "sphere_free_found_fraction": sphere_free_found / sphere_free if sphere_free else None,
         "merges": total("merges"),
         "targets_with_merges": [t["index"] for t in with_recall if t["recall"]["merges"]],
+        "merges_of_curves": total("merges_of_curves"),
+        "targets_with_merges_of_curves": [
+            t["index"] for t in with_recall if t["recall"]["merges_of_curves"]
+        ],
+        "near_singular_targets": [t["index"] for t in with_recall if t["near_singular"]],
+        # missed pieces the spheres free somewhere and the kinematic answer found
+        "missed_in_the_scene": lost_to_scene,
         "missed": missed,
     }
 

@@ -78,28 +78,30 @@ def evaluate_target(
     result, check = recorded_answer(model, query)
     returned, labels = _returned(result, n)
     recorded = recorded_sample(check.recorded(n), scene.index)
+    times, answers = time_ways_ms(
+        model, position, wxyz, obstacles, timing_scene, margin_m, scene.index
+    )
     entry: dict[str, object] = {
         "index": scene.index,
         "q_target_rad": scene.q_target_rad.tolist(),
         "boxes_asked": scene.boxes_asked,
         "request": request_body(model, scene.q_target_rad, obstacles, margin_m),
         "components": len(result.components),
+        "near_singular": result.structure.near_singular,
         "counts": asdict(result.counts),
         "returned": asdict(Exactness.of(coal, returned, obstacles, margin_m)),
         "recorded_total": len(check.recorded(n)),
         "recorded": asdict(Exactness.of(coal, recorded, obstacles, margin_m)),
-        "time_ms": time_ways_ms(
-            model, position, wxyz, obstacles, timing_scene, margin_m, scene.index
-        ),
+        "time_ms": times,
+        "timing_obstacles": len(timing_scene),
+        "same_as_run": same_answer(model, query, result),
     }
-    entry["timing_obstacles"] = len(timing_scene)
-    entry["same_as_run"] = same_answer(model, query, result)
     if manifest.task.orientation and manifest.redundancy == 1:
         pieces = free_pieces_of_pose(model, coal, scene.q_target_rad, obstacles, margin_m)
         sphere_free = sphere_check(model, obstacles, margin_m).free(pieces.q_rad)
-        entry["recall"] = asdict(
-            recall(pieces, sphere_free, returned, labels, model.limits.periodic)
-        )
+        kinematic = _returned(answers["nothing_checked"], n)[0]
+        found = recall(pieces, sphere_free, returned, labels, model.limits.periodic, kinematic)
+        entry["recall"] = asdict(found)
         coal_free = pieces.q_rad[pieces.label >= 0]
     else:
         points = fibre_points(model, scene.q_target_rad, scene.index)

@@ -12,7 +12,7 @@ import numpy as np
 from service.models.registry import ServedModel
 from service.pipeline.collision.scene import Obstacle
 from service.pipeline.run import run
-from service.pipeline.types import Query
+from service.pipeline.types import Query, SmmResult
 
 TIMING_OBSTACLES = 10
 WAYS = ("scene", "self_only", "nothing_checked", f"{TIMING_OBSTACLES}_boxes")
@@ -42,21 +42,22 @@ def time_ways_ms(
     timing_scene: Sequence[Obstacle],
     margin_m: float,
     seed: int,
-) -> dict[str, float]:
-    """The pipeline's total time (ms) of each way in WAYS, in that order."""
+) -> tuple[dict[str, float], dict[str, SmmResult]]:
+    """The pipeline's total time (ms) of each way in WAYS, in that order, and the answers."""
     asked = {
         WAYS[0]: (scene, True),
         WAYS[1]: ((), True),
         WAYS[2]: ((), False),
         WAYS[3]: (timing_scene, True),
     }
-    times = {}
+    times, answers = {}, {}
     for way, (obstacles, check_self) in asked.items():
         query = query_for(
             model, position_m, orientation_wxyz, obstacles, check_self, margin_m, seed
         )
-        times[way] = run(model, query).timings.total_ms
-    return times
+        answers[way] = run(model, query)
+        times[way] = answers[way].timings.total_ms
+    return times, answers
 
 
 def median_p95(values: Sequence[float]) -> dict[str, float]:

@@ -1,5 +1,5 @@
 """Fixtures of the scene section's tests: the bundled panda-pose model and its coal robot,
-loaded once per session, and the small collision arm's chain."""
+loaded once per test run, and the small collision arm's chain."""
 
 from __future__ import annotations
 

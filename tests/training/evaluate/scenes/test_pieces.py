@@ -10,7 +10,7 @@ end. The loop is j1 = 1 + cos t, j2 = sin t (a unit circle in joint space; j2 do
 move the ball) with the obstacle at j1 = 0 (t = pi): touched while cos t < -1 + delta,
 so its free piece is t outside pi -+ arccos(1 - delta), of length 2 pi - 2 arccos(1 -
 delta). Returned configurations are matched to the piece they lie on; a component on both
-is a merge.
+is a merge across the cut; one on two exact curves is a merge of curves.
 """
 
 from __future__ import annotations
@@ -100,3 +100,21 @@ def test_found_pieces_and_a_merge_across_the_cut(arm_chain: ChainSpec) -> None:
     assert far.found == 0  # 0.5 rad off the curve: beyond the matching distance
     blocked = recall(pieces, np.zeros(len(pieces.q_rad), bool), before, np.zeros(1, int), periodic)
     assert (blocked.sphere_free, blocked.sphere_free_found) == (0, 0)
+
+
+def test_a_component_on_two_exact_curves_is_no_cut_merge(arm_chain: ChainSpec) -> None:
+    """Two curves, j2 = 0 and j2 = 1 (1 rad apart, beyond the matching distance; j2 does
+    not move the ball, so the obstacle cuts both alike): a component on the first piece of
+    each merges curves, not across a cut."""
+    coal, obstacles = _setup(arm_chain, 1.2)
+    first = _sweep(0.0, 2.8, closed=False)
+    second = first + np.array([0.0, 1.0, 0.0, 0.0])
+    curves = [cut_curve(q, False, coal.free(q, obstacles, MARGIN_M)) for q in (first, second)]
+    pieces = FreePieces.of(curves, 5.6)
+    assert pieces.curve.tolist() == [0, 0, 1, 1]
+    periodic = np.zeros(4, dtype=bool)
+    everywhere = np.ones(len(pieces.q_rad), dtype=bool)
+    both = np.array([[0.3, 0.0, 0, 0], [0.3, 1.0, 0, 0]])
+    found = recall(pieces, everywhere, both, np.zeros(2, int), periodic, kinematic=both)
+    assert (found.merges, found.merges_of_curves) == (0, 1)
+    assert found.missed_kinematically == [True, True]  # past the cut: neither answer has it
