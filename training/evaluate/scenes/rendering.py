@@ -66,9 +66,9 @@ def _missed(rec: dict[str, Any]) -> list[str]:
         for m in alone
     )
     return [
-        f"- Missed: {len(missed)} pieces. {spheres} lie wholly where the spheres call "
-        f"collision; {kinematic} more are missed by the answer with nothing checked too (a "
-        f"kinematic miss); {len(alone)} the scene's answer alone lost"
+        f"- Missed pieces: {len(missed)}; lying wholly where the spheres call collision: "
+        f"{spheres}; missed by the answer with nothing checked too (kinematic misses): "
+        f"{kinematic}; lost by the scene's answer alone: {len(alone)}"
         + (f": target {listed}." if alone else "."),
     ]
 

@@ -83,6 +83,14 @@ def _warm_up(
     run(model, query_for(model, position, wxyz, scene.obstacles, True, margin_m, 0))
 
 
+def report_json(report: dict[str, Any]) -> str:
+    """The report as JSON: its figures indented, then one line per target (each target's
+    replayable request whole on its line)."""
+    head = json.dumps({k: v for k, v in report.items() if k != "per_target"}, indent=1)
+    rows = ",\n  ".join(json.dumps(t, separators=(",", ":")) for t in report["per_target"])
+    return head[: -len("\n}")] + ',\n "per_target": [\n  ' + rows + "\n ]\n}\n"
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The options of `smm-train scenes`."""
     parser.add_argument("--model", required=True, help="a model id under models/ with geometry")
@@ -107,6 +115,6 @@ def run_command(args: argparse.Namespace, parser: argparse.ArgumentParser) -> No
     model = load_model(REPO_MODELS_DIR / args.model, threads=0)
     report = build_scenes_report(model, args.targets, args.seed, args.max_obstacles, args.margin_m)
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / f"{args.model}.json").write_text(json.dumps(report, indent=1) + "\n")
+    (args.out / f"{args.model}.json").write_text(report_json(report))
     (args.out / f"{args.model}.md").write_text(markdown(args.model, report))
     print(markdown(args.model, report))

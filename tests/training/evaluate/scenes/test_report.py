@@ -3,8 +3,8 @@
 Every configuration the service returned or called free is free by coal (0 violations,
 by coal's own distances too: the least clearance of the returned ones is above 0), the
 answers are `run`'s, each target's request replays as a POST /smm body the API accepts,
-the figures over the targets are the sums of the per-target ones, and the page renders
-from the JSON as it would be read back.
+the figures over the targets are the sums of the per-target ones, the JSON as written
+(one line per target) reads back as the report, and the page renders from it.
 """
 
 from __future__ import annotations
@@ -18,14 +18,17 @@ from service.pipeline.collision.scene import Obstacle
 from service.wire import SmmRequest
 from training.evaluate.scenes.coal_model import CoalModel
 from training.evaluate.scenes.rendering import markdown
-from training.evaluate.scenes.report import build_scenes_report
+from training.evaluate.scenes.report import build_scenes_report, report_json
 
 
 def test_two_panda_targets_have_no_violation(
     panda_pose_model: ServedModel, panda_coal: CoalModel
 ) -> None:
-    report = build_scenes_report(panda_pose_model, 2, seed=11, max_obstacles=4, margin_m=0.0)
-    report = json.loads(json.dumps(report))
+    built = build_scenes_report(panda_pose_model, 2, seed=11, max_obstacles=4, margin_m=0.0)
+    written = report_json(built)
+    report = json.loads(written)
+    assert report == json.loads(json.dumps(built))
+    assert len(written.splitlines()[-4]) > 1000  # the last target on one line
     summary, targets = report["summary"], report["per_target"]
     exactness = summary["exactness"]
     assert exactness["returned"]["violations"] == exactness["recorded"]["violations"] == 0
