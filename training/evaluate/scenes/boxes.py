@@ -37,6 +37,7 @@ class SceneTarget:
     q_target_rad: FloatArray  # (n,) free of self-collision by coal
     obstacles: tuple[Obstacle, ...]  # boxes clear of q_target by coal
     boxes_asked: int  # how many boxes the scene drew for (some may not have fitted)
+    bodies: tuple[dict[str, object], ...]  # each obstacle as a POST /smm body lists it
 
 
 def free_target(
@@ -51,8 +52,11 @@ def free_target(
     raise RuntimeError(f"no self-collision-free configuration in {MAX_TARGET_DRAWS} draws")
 
 
-def random_box(index: int, reach_m: float, rng: np.random.Generator) -> Obstacle:
-    """A box (module docstring): sides, orientation and a centre in the upper half ball."""
+def random_box(
+    index: int, reach_m: float, rng: np.random.Generator
+) -> tuple[Obstacle, dict[str, object]]:
+    """A box (module docstring): sides, orientation and a centre in the upper half ball,
+    and its POST /smm body (the very numbers it was made from, so a replay is exact)."""
     sides = rng.uniform(MIN_SIDE_M, MAX_SIDE_M, 3)
     quaternion = rng.normal(size=4)
     quaternion /= np.linalg.norm(quaternion)
@@ -61,7 +65,13 @@ def random_box(index: int, reach_m: float, rng: np.random.Generator) -> Obstacle
         if np.linalg.norm(centre) <= reach_m and centre[2] > 0.0:
             break
     w, x, y, z = (float(c) for c in quaternion)
-    return Obstacle.of(index, "box", sides.tolist(), centre.tolist(), (w, x, y, z))
+    body: dict[str, object] = {
+        "shape": "box",
+        "dimensions": sides.tolist(),
+        "position": centre.tolist(),
+        "orientation": {"w": w, "x": x, "y": y, "z": z},
+    }
+    return Obstacle.of(index, "box", sides.tolist(), centre.tolist(), (w, x, y, z)), body
 
 
 def box_scene(
@@ -71,16 +81,17 @@ def box_scene(
     count: int,
     margin_m: float,
     rng: np.random.Generator,
-) -> tuple[Obstacle, ...]:
-    """Up to `count` random boxes, each clear of q_target by the margin by coal."""
-    kept: list[Obstacle] = []
+) -> tuple[tuple[Obstacle, ...], tuple[dict[str, object], ...]]:
+    """Up to `count` random boxes, each clear of q_target by the margin by coal, and
+    their POST bodies."""
+    kept: list[tuple[Obstacle, dict[str, object]]] = []
     for _ in range(DRAWS_PER_BOX * count):
         if len(kept) == count:
             break
-        box = random_box(len(kept), model.manifest.reach_m, rng)
+        box, body = random_box(len(kept), model.manifest.reach_m, rng)
         if coal.free(q_target_rad[None], [box], margin_m)[0]:
-            kept.append(box)
-    return tuple(kept)
+            kept.append((box, body))
+    return tuple(box for box, _ in kept), tuple(body for _, body in kept)
 
 
 def scene_target(
@@ -100,26 +111,15 @@ def scene_target(
         count = int(rng.integers(1, max_obstacles + 1))
     else:
         count, rng = exact_count, np.random.default_rng([seed, index, exact_count])
-    return SceneTarget(
-        index, q_target, box_scene(model, coal, q_target, count, margin_m, rng), count
-    )
+    obstacles, bodies = box_scene(model, coal, q_target, count, margin_m, rng)
+    return SceneTarget(index, q_target, obstacles, count, bodies)
 
 
-def obstacle_json(obstacle: Obstacle) -> dict[str, object]:
-    """An obstacle as a POST /smm body lists it."""
-    w, x, y, z = orientation_wxyz(obstacle.rotation)
-    return {
-        "shape": obstacle.shape,
-        "dimensions": list(obstacle.dimensions_m),
-        "position": [float(c) for c in obstacle.position_m],
-        "orientation": {"w": w, "x": x, "y": y, "z": z},
-    }
-
-
-def request_body(
-    model: ServedModel, q_target_rad: FloatArray, obstacles: tuple[Obstacle, ...], margin_m: float
-) -> dict[str, object]:
-    """The POST /smm body that asks the service this target in this scene."""
+def request_body(model: ServedModel, scene: SceneTarget, margin_m: float) -> dict[str, object]:
+    """The POST /smm body that asks the service this target in this scene, with the seed
+    and number of samples the evaluation asked with (the target's index, the model's
+    default), so that it replays the evaluated answer."""
+    q_target_rad = scene.q_target_rad
     manifest = model.manifest
     fk = model.kinematics(q_target_rad[None])
     target: dict[str, object] = {"position": fk.position_m[0, manifest.task.position_axes].tolist()}
@@ -130,6 +130,8 @@ def request_body(
         "robot": manifest.robot,
         "task": manifest.task.name,
         "target": target,
-        "obstacles": [obstacle_json(o) for o in obstacles],
+        "num_samples": manifest.defaults.num_samples,
+        "seed": scene.index,
+        "obstacles": list(scene.bodies),
         "collision": {"self": True, "margin_m": margin_m},
     }

@@ -85,7 +85,7 @@ def evaluate_target(
         "index": scene.index,
         "q_target_rad": scene.q_target_rad.tolist(),
         "boxes_asked": scene.boxes_asked,
-        "request": request_body(model, scene.q_target_rad, obstacles, margin_m),
+        "request": request_body(model, scene, margin_m),
         "components": len(result.components),
         "near_singular": result.structure.near_singular,
         "counts": asdict(result.counts),

@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from service.models.registry import ServedModel
+from service.pipeline.collision.scene import Obstacle
 from training.evaluate.scenes.boxes import request_body, scene_target
 from training.evaluate.scenes.coal_model import CoalModel
 
@@ -49,12 +50,17 @@ def test_an_exact_count_and_the_post_body(
     assert scene.boxes_asked == 10 and len(scene.obstacles) == 10
     loose = scene_target(panda_pose_model, panda_coal, 5, 2, 3, 0.0)
     np.testing.assert_array_equal(scene.q_target_rad, loose.q_target_rad)
-    body = request_body(panda_pose_model, scene.q_target_rad, scene.obstacles, 0.0)
-    assert body["robot"] == "panda" and body["task"] == "pose"
+    body = request_body(panda_pose_model, scene, 0.0)
+    assert body["robot"] == "panda" and body["task"] == "pose" and body["seed"] == 2
+    assert body["num_samples"] == panda_pose_model.manifest.defaults.num_samples
     assert body["collision"] == {"self": True, "margin_m": 0.0}
     obstacles = body["obstacles"]
     assert isinstance(obstacles, list) and len(obstacles) == 10
-    assert obstacles[0]["shape"] == "box" and set(obstacles[0]["orientation"]) == set("wxyz")
+    for index, (sent, box) in enumerate(zip(obstacles, scene.obstacles, strict=True)):
+        wxyz = tuple(sent["orientation"][k] for k in "wxyz")
+        again = Obstacle.of(index, sent["shape"], sent["dimensions"], sent["position"], wxyz)
+        np.testing.assert_array_equal(again.rotation, box.rotation)  # a replay is exact
+        np.testing.assert_array_equal(again.position_m, box.position_m)
     fk = panda_pose_model.kinematics(scene.q_target_rad[None])
     target = body["target"]
     assert isinstance(target, dict)

@@ -10,11 +10,14 @@ the figures over the targets are the sums of the per-target ones, the JSON as wr
 from __future__ import annotations
 
 import json
+from dataclasses import asdict
 
 import numpy as np
 
 from service.models.registry import ServedModel
 from service.pipeline.collision.scene import Obstacle
+from service.pipeline.run import run
+from service.pipeline.types import Query
 from service.wire import SmmRequest
 from training.evaluate.scenes.coal_model import CoalModel
 from training.evaluate.scenes.rendering import markdown
@@ -43,6 +46,17 @@ def test_two_panda_targets_have_no_violation(
         ]  # fmt: skip
         q = np.asarray(target["q_target_rad"])[None]
         assert panda_coal.clearance_m(q, boxes)[0] > 0
+        sent = target["request"]
+        replayed = run(
+            panda_pose_model,
+            Query.for_model(
+                panda_pose_model.manifest, position_m=sent["target"]["position"],
+                orientation_wxyz=tuple(sent["target"]["orientation"][k] for k in "wxyz"),
+                num_samples=sent["num_samples"], seed=sent["seed"], obstacles=boxes,
+            ),
+        )  # fmt: skip
+        assert len(replayed.components) == target["components"]
+        assert asdict(replayed.counts) == target["counts"]
         assert set(target["time_ms"]) == {"scene", "self_only", "nothing_checked", "10_boxes"}
     recall = summary["recall"]
     assert recall["pieces_asked"] == sum(t["recall"]["asked"] for t in targets) > 0
