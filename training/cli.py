@@ -51,6 +51,11 @@ SUBCOMMANDS: tuple[Subcommand, ...] = (
         "training.evaluate.report",
         "write a bundled model's evaluation report (docs/reports)",
     ),
+    Subcommand(
+        "scenes",
+        "training.evaluate.scenes.report",
+        "write a model's scene report: random boxes, checked by coal (docs/reports/scenes)",
+    ),
     Subcommand("plots", "training.evaluate.plots", "draw the docs' plots from fresh answers"),
     Subcommand(
         "merges",
