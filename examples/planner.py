@@ -203,6 +203,38 @@ def listed(margins_rad: dict[str, float]) -> str:
     return ", ".join(f"{name} {m:.4f}" for name, m in margins_rad.items())
 
 
+def print_choice(choice: Choice) -> None:
+    """The choice, its clearance and margins, the walk to it, and why."""
+    print(f"choice:  {rounded(choice.configuration)} (the component's {choice.source})")
+    if choice.clearance_m is not None:
+        print(
+            f"clear:   {choice.safest_clearance_m:.4f} m here, at least "
+            f"{choice.clearance_m:.4f} m anywhere along the component"
+        )
+    print(f"margins: {listed(choice.margins_rad)} rad to the nearer limit, smallest first")
+    print(f"         (the member nearest to q: {listed(choice.nearest_margins_rad)})")
+    print(
+        f"         reaches the target within {choice.max_position_error_m:.1e} m and "
+        f"{choice.max_orientation_error_rad:.1e} rad (the component's largest errors)"
+    )
+    if choice.path_length_rad is not None:
+        shape = "a closed loop" if choice.closed else f"its ends: {', '.join(choice.ends or [])}"
+        print(
+            f"walk:    along the component's path ({shape}) from point {choice.path_from_index} "
+            f"(nearest to q) to point {choice.path_to_index}: {choice.path_length_rad:.4f} rad "
+            f"in {choice.path_steps} steps, the end effector on the target throughout"
+        )
+    within = (
+        "the greatest clearance leaves the most room from the scene and the arm itself"
+        if choice.objective == "clearance"
+        else "the largest smallest margin (ties broken by the next) leaves the most room "
+        "before a joint limit"
+    )
+    print(
+        f"why:     the nearest component needs the least joint motion to enter; within it, {within}"
+    )
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--url", default="http://127.0.0.1:8000")
@@ -266,34 +298,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         f"{'checked' if answer.collision.self_checked else 'not checked'}, margin "
         f"{answer.collision.margin_m} m; {answer.counts.rejected_collision} samples in collision"
     )
-    print(f"choice:  {rounded(choice.configuration)} (the component's {choice.source})")
-    if choice.clearance_m is not None:
-        print(
-            f"clear:   {choice.safest_clearance_m:.4f} m here, at least "
-            f"{choice.clearance_m:.4f} m anywhere along the component"
-        )
-    print(f"margins: {listed(choice.margins_rad)} rad to the nearer limit, smallest first")
-    print(f"         (the member nearest to q: {listed(choice.nearest_margins_rad)})")
-    print(
-        f"         reaches the target within {choice.max_position_error_m:.1e} m and "
-        f"{choice.max_orientation_error_rad:.1e} rad (the component's largest errors)"
-    )
-    if choice.path_length_rad is not None:
-        shape = "a closed loop" if choice.closed else f"its ends: {', '.join(choice.ends or [])}"
-        print(
-            f"walk:    along the component's path ({shape}) from point {choice.path_from_index} "
-            f"(nearest to q) to point {choice.path_to_index}: {choice.path_length_rad:.4f} rad "
-            f"in {choice.path_steps} steps, the end effector on the target throughout"
-        )
-    within = (
-        "the greatest clearance leaves the most room from the scene and the arm itself"
-        if choice.objective == "clearance"
-        else "the largest smallest margin (ties broken by the next) leaves the most room "
-        "before a joint limit"
-    )
-    print(
-        f"why:     the nearest component needs the least joint motion to enter; within it, {within}"
-    )
+    print_choice(choice)
     if args.json is not None:
         record = {"request": request.model_dump(mode="json"), "choice": asdict(choice)}
         args.json.write_text(json.dumps(record, indent=1))
