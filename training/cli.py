@@ -54,7 +54,7 @@ SUBCOMMANDS: tuple[Subcommand, ...] = (
     Subcommand(
         "scenes",
         "training.evaluate.scenes.report",
-        "write a model's scene report: random boxes, checked by coal (docs/reports/scenes)",
+        "write a model's random-scene report (docs/reports/scenes)",
     ),
     Subcommand("plots", "training.evaluate.plots", "draw the docs' plots from fresh answers"),
     Subcommand(

@@ -38,6 +38,10 @@ OPTIONS = {
         "--markdown-only", "--model", "--num-samples", "--out", "--seed", "--table-2",
         "--targets",
     ],
+    "scenes": [
+        "--margin-m", "--markdown-only", "--max-obstacles", "--model", "--out", "--seed",
+        "--targets",
+    ],
     "plots": ["--out", "--targets"],
     "merges": ["--model", "--targets"],
     "recipe": [
@@ -60,7 +64,7 @@ def test_the_help_lists_every_subcommand_on_one_line() -> None:
     )
     names = [
         "train", "reflow", "sweep", "collision", "quantise", "quality", "judge", "report",
-        "plots", "merges", "recipe", "baseline-fourier",
+        "scenes", "plots", "merges", "recipe", "baseline-fourier",
     ]  # fmt: skip
     assert [s.name for s in SUBCOMMANDS] == names
     for subcommand in SUBCOMMANDS:

@@ -1,6 +1,6 @@
 """The modules that register figure blocks, one per topic of the docs."""
 
 from tools.docs import commands
-from tools.docs.topics import api, deployment, models, speed
+from tools.docs.topics import api, deployment, models, scenes, speed
 
-__all__ = ["api", "commands", "deployment", "models", "speed"]
+__all__ = ["api", "commands", "deployment", "models", "scenes", "speed"]
