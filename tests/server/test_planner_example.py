@@ -32,10 +32,11 @@ import httpx
 import numpy as np
 import pytest
 
+from service.pipeline.collision.scene import Obstacle
 from tools.local_server import LocalServer
-from training.evaluate.references.collision import ModelCollision, Obstacle
 from training.evaluate.references.iiwa14 import dh_pose as iiwa14_pose
 from training.evaluate.references.rotations import rotation_angle_rad
+from training.evaluate.scenes.coal_model import CoalModel
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -94,11 +95,11 @@ def test_the_planner_picks_the_nearest_component_and_its_safest_configuration(
 
     # Clear of the scene and of the arm itself by the margin, on the URDF's own meshes.
     obstacles = [
-        Obstacle(o["shape"], tuple(o["dimensions"]), np.array(o["position"]), np.eye(3))
-        for o in request["obstacles"]
+        Obstacle.of(i, o["shape"], o["dimensions"], o["position"], None)
+        for i, o in enumerate(request["obstacles"])
     ]
     margin_m = request["collision"]["margin_m"]
-    coal = ModelCollision.of(ROOT / "models" / "iiwa14-pose")
+    coal = CoalModel.of_directory(ROOT / "models" / "iiwa14-pose")
     chosen = np.array(choice["configuration"])
     path = np.array(nearest["path"])
     exact = coal.clearance_m(np.vstack([chosen, path]), obstacles)

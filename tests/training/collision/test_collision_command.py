@@ -25,7 +25,7 @@ from service.models.registry import load_model, sha256_of
 from tests.support.app import make_client
 from tests.support.collision_arm import write_collision_arm, write_srdf
 from training.cli import in_subprocess, main
-from training.evaluate.references.collision import ModelCollision
+from training.evaluate.scenes.coal_model import CoalModel
 
 
 def _manifest(model_dir: Path) -> Manifest:
@@ -86,7 +86,7 @@ def test_the_trained_model_serves_answers_free_of_self_collision(
     main(["collision", "--model", "collision_arm-position", "--srdf", str(srdf),
           "--configurations", "300", "--models-dir", str(models)])  # fmt: skip
     model_dir = models / "collision_arm-position"
-    coal = ModelCollision.of(model_dir)
+    coal = CoalModel.of_directory(model_dir)
     served = load_model(model_dir, threads=1)
     limits = served.limits
     q = np.random.default_rng(3).uniform(limits.lower_rad, limits.upper_rad, (60, 4))

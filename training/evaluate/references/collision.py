@@ -23,23 +23,15 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import coal
 import numpy as np
 
-from service.manifest import (
-    CHAIN_FILE,
-    COLLISION_FILE,
-    MANIFEST_FILE,
-    ChainSpec,
-    CollisionSpec,
-    Manifest,
-)
+from service.manifest import ChainSpec
 from service.pipeline.arrays import FloatArray
 from service.pipeline.collision.frames import chain_frames
-from training.collision.geometry import Body, Shape, read_bodies
+from training.collision.geometry import Body, Shape
 
 OBSTACLE_SHAPES = ("box", "sphere", "cylinder", "capsule")
 
@@ -216,27 +208,3 @@ def _least_distance(first: list[tuple[Any, Any]], second: list[tuple[Any, Any]])
                 distance = min(distance, 0.0)
             least = min(least, distance)
     return float(least)
-
-
-@dataclass(frozen=True)
-class ModelCollision:
-    """A served model's robot on its URDF's own geometry, and the pairs its collision.json
-    leaves unchecked: what the service's answers are checked against."""
-
-    robot: CoalRobot
-    disabled: tuple[tuple[str, str], ...]
-
-    @classmethod
-    def of(cls, model_dir: Path) -> ModelCollision:
-        """From models/<id>/: the manifest's URDF, chain.json and collision.json."""
-        manifest = Manifest.model_validate_json((model_dir / MANIFEST_FILE).read_bytes())
-        chain = ChainSpec.model_validate_json((model_dir / CHAIN_FILE).read_bytes())
-        spec = CollisionSpec.model_validate_json((model_dir / COLLISION_FILE).read_bytes())
-        bodies = read_bodies(model_dir.parent / manifest.urdf.path, chain)
-        return cls(CoalRobot(chain, bodies), tuple(pair.links for pair in spec.disabled_pairs))
-
-    def clearance_m(self, q_rad: FloatArray, obstacles: Sequence[Obstacle]) -> FloatArray:
-        """(B,) the least distance to the robot itself (pairs not disabled) and to the
-        obstacles (moving bodies); <= 0 where touching (module docstring)."""
-        self_m = self.robot.self_distance_m(q_rad, self.disabled)
-        return np.minimum(self_m, self.robot.obstacle_distance_m(q_rad, obstacles))

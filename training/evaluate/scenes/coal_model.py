@@ -12,10 +12,19 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
-from service.manifest import CHAIN_FILE, COLLISION_FILE, REPO_MODELS_DIR, ChainSpec, CollisionSpec
+from service.manifest import (
+    CHAIN_FILE,
+    COLLISION_FILE,
+    MANIFEST_FILE,
+    REPO_MODELS_DIR,
+    ChainSpec,
+    CollisionSpec,
+    Manifest,
+)
 from service.models.registry import ServedModel
 from service.pipeline.arrays import BoolArray, FloatArray
 from service.pipeline.collision.scene import Obstacle as ServiceObstacle
@@ -32,14 +41,20 @@ class CoalModel:
 
     @classmethod
     def of(cls, model: ServedModel) -> CoalModel:
-        """From the model's URDF (as the manifest names it), chain.json and collision.json;
-        ValueError for a model without collision geometry."""
-        model_dir = REPO_MODELS_DIR / model.manifest.model_id
+        """A bundled model's (`of_directory` of models/<model-id>/)."""
+        return cls.of_directory(REPO_MODELS_DIR / model.manifest.model_id)
+
+    @classmethod
+    def of_directory(cls, model_dir: Path) -> CoalModel:
+        """From a model directory: the URDF its manifest names (relative to the models
+        directory), chain.json and collision.json; ValueError for a model without
+        collision geometry."""
         if not (model_dir / COLLISION_FILE).is_file():
-            raise ValueError(f"{model.manifest.model_id} has no {COLLISION_FILE}")
+            raise ValueError(f"{model_dir.name} has no {COLLISION_FILE}")
+        manifest = Manifest.model_validate_json((model_dir / MANIFEST_FILE).read_bytes())
         chain = ChainSpec.model_validate_json((model_dir / CHAIN_FILE).read_bytes())
         spec = CollisionSpec.model_validate_json((model_dir / COLLISION_FILE).read_bytes())
-        bodies = read_bodies(REPO_MODELS_DIR / model.manifest.urdf.path, chain)
+        bodies = read_bodies(model_dir.parent / manifest.urdf.path, chain)
         disabled = tuple(tuple(pair.links) for pair in spec.disabled_pairs)
         return cls(CoalRobot(chain, bodies), disabled)  # type: ignore[arg-type]
 
