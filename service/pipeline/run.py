@@ -169,6 +169,19 @@ def answer_samples(
     """Stages 3-6 on the query's samples, each timed on `watch`, in the query's space
     (`space_of`): correct (`correct_samples`), accept, connect, summarise."""
     space = space_of(model, target, query.tolerance, collision_of(model, query))
+    return answer_in(model, query, space, q_sampled_rad, watch, deadline)
+
+
+def answer_in(
+    model: SmmModel,
+    query: Query,
+    space: FibreSpace,
+    q_sampled_rad: FloatArray,  # (N, n) from `sample`
+    watch: Stopwatch,
+    deadline: Deadline = NO_DEADLINE,
+) -> SmmResult:
+    """Stages 3-6 of `answer_samples` in a given space (the evaluation passes one whose
+    collision check records what it is asked)."""
     with watch.stage("correct"):
         correction = correct_samples(model, space, q_sampled_rad, deadline)
     with watch.stage("accept"):

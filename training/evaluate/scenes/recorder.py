@@ -19,18 +19,16 @@ import numpy as np
 from service.models.registry import ServedModel
 from service.pipeline.arrays import BoolArray, FloatArray
 from service.pipeline.collision.check import CollisionCheck
-from service.pipeline.components import summarise_all
-from service.pipeline.connect import connect
 from service.pipeline.run import (
     Stopwatch,
+    answer_in,
     collision_of,
-    correct_samples,
     encode,
     run,
     sample,
     space_of,
 )
-from service.pipeline.types import Query, SampleCounts, SmmResult
+from service.pipeline.types import Query, SmmResult
 
 
 @dataclass(frozen=True)
@@ -62,28 +60,11 @@ class RecordingCheck(CollisionCheck):
 def recorded_answer(model: ServedModel, query: Query) -> tuple[SmmResult, RecordingCheck]:
     """The service's answer to `query`, stage by stage as `run` gives it, with the check
     that recorded what it called free."""
-    watch = Stopwatch()
     target = encode(model, query)
     q_sampled_rad = sample(model, query, target)
     check = RecordingCheck.like(collision_of(model, query))
     space = space_of(model, target, query.tolerance, check)
-    correction = correct_samples(model, space, q_sampled_rad)
-    acceptance = space.accept(correction)
-    connection = connect(space, correction, acceptance, model.manifest.defaults.connectivity)
-    summaries = summarise_all(
-        components=connection.components,
-        limits=space.limits,
-        collision=space.collision,
-        reference_rad=query.reference_rad,
-        max_configurations=query.max_configurations_per_component,
-        include_paths=query.include_paths,
-    )
-    result = SmmResult(
-        counts=SampleCounts.of(acceptance),
-        components=summaries,
-        structure=connection.structure,
-        timings=watch.timings(),
-    )
+    result = answer_in(model, query, space, q_sampled_rad, Stopwatch())
     return result, check
 
 
