@@ -53,11 +53,7 @@ def measured(components: list[Component], collision: CollisionCheck) -> list[Com
         return components
     parts = [c.q_rad for c in components if c.clearance_m is None]
     parts += [c.path.q_rad for c in components if c.path and c.path.clearance_m is None]
-    if not parts:
-        return components
-    clearance = iter(
-        np.split(collision.clearance_m(np.concatenate(parts)), np.cumsum([len(p) for p in parts]))
-    )
+    clearance = iter(collision.clearances_m(parts))
     members = [
         c if c.clearance_m is not None else replace(c, clearance_m=next(clearance))
         for c in components

@@ -63,6 +63,14 @@ class CollisionCheck:
             clearance[span] = self.scene.clearance_m(placed, robot, clearance[span])
         return clearance
 
+    def clearances_m(self, parts: list[FloatArray]) -> list[FloatArray]:
+        """`clearance_m` of several arrays (k_i, n) in one call (each call costs a few
+        hundred microseconds however few its rows), split back: (k_i,) each."""
+        if not parts:
+            return []
+        measured = self.clearance_m(np.concatenate(parts))
+        return np.split(measured, np.cumsum([len(p) for p in parts[:-1]]))
+
     def free(self, q_rad: FloatArray) -> BoolArray:  # (B, n) -> (B,)
         """Which configurations are clear by at least the margin (NaN rows are not)."""
         if not self.active:

@@ -29,14 +29,8 @@ def free_pieces(
     """The free pieces of the traced components (members not free are dropped: the
     acceptance counted them as rejected_collision); components with no path keep their
     free members."""
-    if not components:
-        return []
-    # Every member and path point of every component measured in one call (the check's
-    # per-call cost is a few hundred microseconds), then split back.
     parts = [c.q_rad for c in components] + [c.path.q_rad for c in components if c.path]
-    clearances = np.split(
-        space.collision.clearance_m(np.concatenate(parts)), np.cumsum([len(p) for p in parts])
-    )
+    clearances = space.collision.clearances_m(parts)
     of_members, of_paths = clearances[: len(components)], iter(clearances[len(components) :])
     margin_m = space.collision.margin_m
     pieces: list[Component] = []
