@@ -9,6 +9,7 @@ the numpy kinematics kernel (`service.models.chain`).
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Literal
 
@@ -320,11 +321,16 @@ DisabledReason = Literal["adjacent", "default", "always", "never", "srdf"]
 
 
 class CollisionBody(_Strict):
-    """Spheres covering one URDF link's collision geometry, in the frame it moves with.
+    """Spheres covering one URDF link's collision geometry, in the frame it moves with,
+    and inside each sphere the convex hull of the geometry it holds.
 
     Every point of the link's `<collision>` geometry (primitives and meshes) lies inside
     at least one sphere, so a distance between spheres is never more than the distance
-    between the geometry they cover: a check on the spheres is conservative.
+    between the geometry they cover: a check on the spheres is conservative. Each sphere
+    also holds the convex hull (grown by a pad) of the part of the geometry assigned to
+    it, and those parts together are the whole geometry: the hulls are a tighter cover,
+    and the check measures them where the spheres alone would call a configuration not
+    free (`service.pipeline.collision.convex`). Without hulls, each sphere is its own.
     """
 
     link: str
@@ -336,6 +342,16 @@ class CollisionBody(_Strict):
     )
     centres_m: list[list[float]] = Field(min_length=1, description="(S, 3) in that frame")
     radii_m: list[float] = Field(min_length=1, description="(S,)")
+    hulls_m: list[list[list[float]]] = Field(
+        default_factory=list,
+        description="S lists of (V_s, 3) vertices in that frame, or none: the convex hull "
+        "of the geometry sphere s holds",
+    )
+    hull_pads_m: list[float] = Field(
+        default_factory=list,
+        description="(S,) or none: the radius each hull is grown by (0 for meshes, boxes "
+        "and cylinders; a capsule's or sphere's radius)",
+    )
 
     @model_validator(mode="after")
     def _spheres(self) -> CollisionBody:
@@ -345,6 +361,22 @@ class CollisionBody(_Strict):
             raise ValueError(f"body {self.link!r}: centres_m must be finite (S, 3), S = radii")
         if not np.all(np.isfinite(radii)) or not np.all(radii > 0):
             raise ValueError(f"body {self.link!r}: radii_m must be finite and positive")
+        if not self.hulls_m and not self.hull_pads_m:
+            return self
+        if len(self.hulls_m) != len(radii) or len(self.hull_pads_m) != len(radii):
+            raise ValueError(f"body {self.link!r}: hulls_m and hull_pads_m need one per sphere")
+        for s, (hull, pad) in enumerate(zip(self.hulls_m, self.hull_pads_m, strict=True)):
+            vertices = np.asarray(hull, dtype=np.float64)
+            if vertices.ndim != 2 or vertices.shape[1:] != (3,) or not len(vertices):
+                raise ValueError(f"body {self.link!r}: hull {s} must be (V, 3) vertices, V > 0")
+            if not np.all(np.isfinite(vertices)) or not (math.isfinite(pad) and pad >= 0):
+                raise ValueError(f"body {self.link!r}: hull {s} must be finite, its pad >= 0")
+            reach = np.linalg.norm(vertices - centres[s], axis=1).max() + pad
+            if reach > radii[s] * (1 + 1e-9) + 1e-12:
+                raise ValueError(
+                    f"body {self.link!r}: hull {s} reaches {reach:.6g} m from its sphere's "
+                    f"centre, past its radius {radii[s]:.6g} m"
+                )
         return self
 
 
@@ -391,7 +423,8 @@ class CollisionRecord(_Strict):
     )
     free_space_lost_fraction: float = Field(
         description="of those configurations free of self-collision on the URDF's geometry "
-        "(outside the disabled pairs), the fraction the spheres call in collision"
+        "(outside the disabled pairs), the fraction the service's check (the spheres, then "
+        "the hulls) calls in collision"
     )
     wall_time_s: float
     git_commit: str

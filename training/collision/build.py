@@ -6,9 +6,10 @@ the spheres cost in free space.
 from the sampled configurations, or the SRDF's), and measures on the same configurations, uniform
 in the joint limits, the free space the spheres lose: of the configurations coal finds
 free of self-collision on the URDF's geometry (over the pairs not disabled), the
-fraction the spheres call in collision (`RobotSpheres.self_clearance_m` < 0). The spheres
-are conservative, so they never call free what coal calls in collision; this is the
-price of that, which the service pays as configurations it refuses.
+fraction the service's check calls in collision (`CollisionCheck`: the spheres, and the
+hulls inside them where the spheres touch). Both are conservative, so the check never
+calls free what coal calls in collision; this is the price of that, which the service
+pays as configurations it refuses.
 """
 
 from __future__ import annotations
@@ -20,7 +21,9 @@ from pathlib import Path
 import numpy as np
 
 from service.manifest import ChainSpec, CollisionSpec, DisabledPair, JointSpec
+from service.pipeline.collision.check import CollisionCheck
 from service.pipeline.collision.robot import RobotSpheres
+from service.pipeline.collision.scene import Scene
 from service.pipeline.joint_space import JointLimits
 from training.collision.geometry import read_bodies
 from training.collision.pairs import (
@@ -87,7 +90,7 @@ def build_collision_model(
     checked = _checked_columns(robot.names, candidates, disabled)
     coal_free = ~touching[:, checked].any(axis=1)
     spheres = RobotSpheres.of(chain, spec)
-    spheres_collide = spheres.self_clearance_m(spheres.place(q)) < 0
+    spheres_collide = ~CollisionCheck(spheres, Scene(), True, 0.0).free(q)
     free = int(coal_free.sum())
     lost = float((spheres_collide & coal_free).sum() / free) if free else 0.0
     return BuiltCollision(

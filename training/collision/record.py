@@ -9,11 +9,19 @@ rebuild in an existing model) write through it, so the two agree.
 
 from __future__ import annotations
 
+import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from service.manifest import COLLISION_FILE, ChainSpec, CollisionRecord, FileRef, JointSpec
+from service.manifest import (
+    COLLISION_FILE,
+    ChainSpec,
+    CollisionRecord,
+    CollisionSpec,
+    FileRef,
+    JointSpec,
+)
 from service.models.registry import sha256_of
 from training.collision.build import build_collision_model
 from training.collision.pairs import DEFAULT_CONFIGURATIONS
@@ -53,7 +61,7 @@ def write_collision(
     if built is None:
         target.unlink(missing_ok=True)
         return None
-    target.write_text(built.spec.model_dump_json(indent=2) + "\n")
+    target.write_text(compact_json(built.spec))
     srdf = settings.srdf_path
     return CollisionRecord(
         command=command,
@@ -67,3 +75,17 @@ def write_collision(
         wall_time_s=round(built.wall_time_s, 1),
         git_commit=git_commit,
     )
+
+
+def compact_json(spec: CollisionSpec) -> str:
+    """collision.json with a line per body and per disabled pair: its hulls hold tens of
+    thousands of numbers, a line each when indented."""
+    data = spec.model_dump(mode="json")
+    lines = ["{", f'"format_version": {data["format_version"]},', '"bodies": [']
+    lines += [json.dumps(body) + "," for body in data["bodies"]]
+    lines[-1] = lines[-1].rstrip(",")
+    lines += ["],", '"disabled_pairs": [']
+    lines += [json.dumps(pair) + "," for pair in data["disabled_pairs"]]
+    lines[-1] = lines[-1].rstrip(",")
+    lines += ["]", "}"]
+    return "\n".join(lines) + "\n"

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.cluster.vq import kmeans2
+from scipy.spatial import ConvexHull, QhullError
 
 from service.manifest import CollisionBody
 from service.pipeline.arrays import FloatArray, IntArray
@@ -50,8 +51,13 @@ PIECE_SCALE = 1  # h = extent / (PIECE_SCALE x budget): pieces no larger than a 
 KMEANS_SEEDS = 3
 REFINE_ROUNDS = 4
 CENTRE_ITERATIONS = 100
-# Added to every radius: the test points of a piece are computed with rounding too.
-RADIUS_MARGIN_M = 1e-9
+# Added to every radius: the test points of a piece are computed with rounding too, and
+# its hull is stored rounded (it holds the hull grown by HULL_DECIMALS' rounding).
+RADIUS_MARGIN_M = 1e-6
+# Hull vertices are stored to 0.1 um and their pads grown by that: the rounded hull so
+# grown holds the exact one (a vertex moves at most 0.087 um).
+HULL_DECIMALS = 7
+HULL_ROUNDING_PAD_M = 1e-7
 
 
 @dataclass(frozen=True)
@@ -266,9 +272,55 @@ def cover_body(body: Body, budget: int = DEFAULT_SPHERES_PER_BODY, seed: int = 0
         ]
     covers = [_refined(pieces, label) for label in labels]
     centres, radii = min(covers, key=lambda cover: float(np.sum(cover[1] ** 3)))
+    hulls, pads = sphere_hulls(pieces, centres, radii)
     return CollisionBody(
         link=body.link,
         frame=body.frame,
         centres_m=centres.tolist(),
         radii_m=(radii + RADIUS_MARGIN_M).tolist(),
+        hulls_m=[np.round(hull, HULL_DECIMALS).tolist() for hull in hulls],
+        hull_pads_m=[pad + HULL_ROUNDING_PAD_M for pad in pads],
     )
+
+
+def sphere_hulls(
+    pieces: Pieces, centres_m: FloatArray, radii_m: FloatArray
+) -> tuple[list[FloatArray], list[float]]:
+    """Each sphere's hull: every piece goes to the sphere holding it whose centre is
+    nearest its centroid (some sphere holds each: the radii came from the pieces), and a
+    sphere's hull is the convex hull of its pieces' points grown by their largest pad. A
+    piece is the hull of its points grown by its pad, so it lies in its sphere's hull; a
+    ball holding every point and pad holds the hull. A sphere no piece went to, or
+    whose pieces' pads differ so that the hull grown by the largest leaves it, keeps its
+    centre grown by its radius (the sphere itself)."""
+    needed = piece_radii_m(pieces, centres_m)  # (E, K)
+    holds = needed <= radii_m[None] + RADIUS_MARGIN_M
+    apart = np.linalg.norm(pieces.centroids_m()[:, None] - centres_m[None], axis=2)  # (E, K)
+    owner = np.argmin(np.where(holds, apart, np.inf), axis=1)  # (E,)
+    if not holds[np.arange(pieces.count), owner].all():
+        raise AssertionError("a piece lies in no sphere: the cover is not conservative")
+    hulls, pads = [], []
+    for k in range(len(centres_m)):
+        points = np.isin(pieces.point_piece, np.flatnonzero(owner == k))
+        if not points.any():
+            hulls.append(centres_m[k][None])
+            pads.append(float(radii_m[k]))
+            continue
+        hull, pad = _hull_vertices(pieces.points_m[points]), float(pieces.pad_m[points].max())
+        if np.linalg.norm(hull - centres_m[k], axis=1).max() + pad > radii_m[k]:
+            hull, pad = centres_m[k][None], float(radii_m[k])  # mixed pads: the sphere
+        hulls.append(hull)
+        pads.append(pad)
+    return hulls, pads
+
+
+def _hull_vertices(points_m: FloatArray) -> FloatArray:  # (P, 3) -> (V, 3)
+    """The vertices of the points' convex hull; the points themselves (deduplicated) when
+    they span less than 3-D (a flat piece, a segment, a point), whose hull they are too."""
+    unique = np.unique(points_m, axis=0)
+    if len(unique) < 5:
+        return unique
+    try:
+        return np.asarray(unique[ConvexHull(unique).vertices])
+    except QhullError:
+        return unique

@@ -61,6 +61,19 @@ class CollisionCheck:
             if self.self_checked:
                 clearance[span] = robot.self_clearance_m(placed)
             clearance[span] = self.scene.clearance_m(placed, robot, clearance[span])
+            near = np.flatnonzero(clearance[span] < self.margin_m)  # the hulls decide
+            if len(near):
+                refined = np.full(len(near), np.inf)
+                if self.self_checked:
+                    refined = robot.refined_self_clearance_m(placed, near, self.margin_m)
+                alive = refined >= self.margin_m  # not free on itself: no obstacle asked
+                refined[alive] = np.minimum(
+                    refined[alive],
+                    self.scene.refined_clearance_m(placed, robot, near[alive], self.margin_m),
+                )
+                # Free by the hulls: their bound; not free: the spheres' (a lower bound of
+                # the least distance over everything, where the refined passes stop early).
+                clearance[span][near[refined >= self.margin_m]] = refined[refined >= self.margin_m]
         return clearance
 
     def clearances_m(self, parts: list[FloatArray]) -> list[FloatArray]:

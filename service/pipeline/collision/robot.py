@@ -12,6 +12,11 @@ sphere pair per body pair bounds it from above; only the body pairs whose lower 
 under the least upper bound of the configuration can hold its least distance, and only
 their sphere pairs are measured. Bodies are padded to the same sphere count with copies
 of their first sphere, which changes no minimum.
+
+Where the spheres leave a configuration less clear than the margin, the refined pass
+measures the hulls inside the spheres instead (`refined_self_clearance_m`): every sphere
+pair under the margin is replaced by a lower bound of its hulls' distance (convex.py),
+which is never less than the spheres' and is the hulls' distance itself when certified.
 """
 
 from __future__ import annotations
@@ -22,6 +27,11 @@ import numpy as np
 
 from service.manifest import ChainSpec, CollisionSpec
 from service.pipeline.arrays import BoolArray, FloatArray, IntArray
+from service.pipeline.collision.convex import (
+    Support,
+    hull_support,
+    separation_deepest_first_m,
+)
 from service.pipeline.collision.frames import chain_frames
 
 
@@ -36,6 +46,25 @@ class PlacedBodies:
     bound_centres_m: FloatArray  # (B, K, 3)
     first_centres_m: FloatArray  # (B, K, 3) each body's first sphere
     centre_local_m: FloatArray  # (K, S, 3) the robot's, in each body's frame
+    hull_local_m: FloatArray  # (K, S, V, 3) the robot's
+    hull_count: IntArray  # (K, S)
+
+    def hulls(self, rows: IntArray, bodies: IntArray, spheres: IntArray) -> Support:
+        """The support of hull spheres[i] of body bodies[i] at configuration rows[i]."""
+        return hull_support(
+            self.hull_local_m,
+            self.hull_count,
+            bodies,
+            spheres,
+            self.rotation[rows, bodies],
+            self.origin_m[rows, bodies],
+        )
+
+    def hull_points(self, rows: IntArray, bodies: IntArray, spheres: IntArray) -> FloatArray:
+        """(N, 3) a point of each hull (its first vertex), placed: to start GJK from."""
+        local = self.hull_local_m[bodies, spheres, 0]  # (N, 3)
+        turned = np.einsum("nij,nj->ni", self.rotation[rows, bodies], local)
+        return turned + self.origin_m[rows, bodies]
 
     def spheres(self, rows: IntArray, bodies: IntArray) -> FloatArray:  # (N,), (N,) -> (N, S, 3)
         """The padded sphere centres of body bodies[i] at configuration rows[i]."""
@@ -59,6 +88,10 @@ class RobotSpheres:
     pair_a: IntArray  # (P,) body indices of the checked pairs
     pair_b: IntArray  # (P,)
     sphere_count: int  # the spheres of collision.json, padding aside
+    own_spheres: IntArray  # (K,) each body's, padding aside
+    hull_local_m: FloatArray  # (K, S, V, 3) each sphere's hull, padded with its first vertex
+    hull_pad_m: FloatArray  # (K, S)
+    hull_count: IntArray  # (K, S) each hull's own vertices, padding aside
 
     @classmethod
     def of(cls, chain: ChainSpec, spec: CollisionSpec) -> RobotSpheres:
@@ -75,6 +108,17 @@ class RobotSpheres:
             own = len(body.radii_m)
             centres[k, :own], radii[k, :own] = body.centres_m, body.radii_m
             centres[k, own:], radii[k, own:] = body.centres_m[0], body.radii_m[0]
+        vertices = max((len(hull) for body in spec.bodies for hull in body.hulls_m), default=1)
+        hulls = np.repeat(centres[:, :, None, :], vertices, axis=2)  # (K, S, V, 3)
+        pads = radii.copy()  # without hulls, each sphere is its own: its centre, padded
+        vertex_count = np.ones(radii.shape, dtype=np.int64)
+        for k, body in enumerate(spec.bodies):
+            for s, (hull, pad) in enumerate(zip(body.hulls_m, body.hull_pads_m, strict=True)):
+                hulls[k, s, : len(hull)], hulls[k, s, len(hull) :] = hull, hull[0]
+                pads[k, s], vertex_count[k, s] = pad, len(hull)
+            own = len(body.radii_m)
+            hulls[k, own:], pads[k, own:] = hulls[k, 0], pads[k, 0]
+            vertex_count[k, own:] = vertex_count[k, 0]
         bound = centres.mean(axis=1)  # (K, 3)
         bound_radius = (np.linalg.norm(centres - bound[:, None], axis=2) + radii).max(axis=1)
         names = tuple(body.link for body in spec.bodies)
@@ -96,6 +140,10 @@ class RobotSpheres:
             pair_a=np.array([a for a, _ in pairs], dtype=np.int64),
             pair_b=np.array([b for _, b in pairs], dtype=np.int64),
             sphere_count=sum(len(body.radii_m) for body in spec.bodies),
+            own_spheres=np.array([len(body.radii_m) for body in spec.bodies], dtype=np.int64),
+            hull_local_m=hulls,
+            hull_pad_m=pads,
+            hull_count=vertex_count,
         )
 
     @property
@@ -115,6 +163,8 @@ class RobotSpheres:
             bound_centres_m=placed[..., 0],
             first_centres_m=placed[..., 1],
             centre_local_m=self.centre_local_m,
+            hull_local_m=self.hull_local_m,
+            hull_count=self.hull_count,
         )
 
     def self_clearance_m(self, placed: PlacedBodies) -> FloatArray:  # -> (B,)
@@ -138,4 +188,46 @@ class RobotSpheres:
             gap = np.linalg.norm(ca[:, :, None] - cb[:, None], axis=3)  # (N, S, S)
             gap -= self.radius_m[a[pairs]][:, :, None] + self.radius_m[b[pairs]][:, None]
             np.minimum.at(clearance, rows, gap.min(axis=(1, 2)))
+        return clearance
+
+    def refined_self_clearance_m(
+        self, placed: PlacedBodies, rows: IntArray, margin_m: float
+    ) -> FloatArray:  # rows (R,) -> (R,)
+        """A lower bound of the least distance over the checked body pairs at configurations
+        `rows`, at least `self_clearance_m`'s: a body pair whose bounding spheres are
+        clear by the margin counts with that bound, a sphere pair clear by it with its
+        distance, and every other sphere pair with its hulls' separation (module
+        docstring)."""
+        if not len(self.pair_a):
+            return np.full(len(rows), np.inf)
+        a, b = self.pair_a, self.pair_b
+        bounds = placed.bound_centres_m[rows]  # (R, K, 3)
+        lower = np.linalg.norm(bounds[:, a] - bounds[:, b], axis=2)  # (R, P)
+        lower -= self.bound_radius_m[a] + self.bound_radius_m[b]
+        clearance = np.where(lower >= margin_m, lower, np.inf).min(axis=1)  # (R,)
+        near, pairs = np.nonzero(lower < margin_m)  # (N,), (N,)
+        if not len(near):
+            return clearance
+        body_a, body_b, row = a[pairs], b[pairs], rows[near]
+        ca = placed.spheres(row, body_a)  # (N, S, 3)
+        cb = placed.spheres(row, body_b)
+        gap = np.linalg.norm(ca[:, :, None] - cb[:, None], axis=3)  # (N, S, S)
+        gap -= self.radius_m[body_a][:, :, None] + self.radius_m[body_b][:, None]
+        spheres = np.arange(gap.shape[1])
+        own = (spheres[None, :, None] < self.own_spheres[body_a][:, None, None]) & (
+            spheres[None, None, :] < self.own_spheres[body_b][:, None, None]
+        )
+        gap = np.where(own, gap, np.inf)
+        n, sa, sb = np.nonzero(gap < margin_m)  # the sphere pairs the hulls decide
+        if len(n):
+            hull_a = placed.hulls(row[n], body_a[n], sa)
+            hull_b = placed.hulls(row[n], body_b[n], sb)
+            x0 = placed.hull_points(row[n], body_a[n], sa) - placed.hull_points(
+                row[n], body_b[n], sb
+            )
+            pad = self.hull_pad_m[body_a[n], sa] + self.hull_pad_m[body_b[n], sb]
+            gap[n, sa, sb] = separation_deepest_first_m(
+                hull_a, hull_b, x0, pad, margin_m, near[n], gap[n, sa, sb]
+            )
+        np.minimum.at(clearance, near, gap.min(axis=(1, 2)))
         return clearance

@@ -23,7 +23,8 @@ from typing import Literal, get_args
 import numpy as np
 
 from service.errors import RequestFieldError
-from service.pipeline.arrays import FloatArray
+from service.pipeline.arrays import FloatArray, IntArray
+from service.pipeline.collision.convex import separation_deepest_first_m
 from service.pipeline.collision.robot import PlacedBodies, RobotSpheres
 from service.pipeline.rotations import quaternion_to_matrix
 from service.pipeline.targets import QUATERNION_NORM_TOLERANCE
@@ -108,6 +109,27 @@ class Obstacle:
             return math.hypot(0.5 * d[0], d[1])
         return 0.5 * d[0] + d[1]  # capsule
 
+    @property
+    def pad_m(self) -> float:
+        """The radius its core (`support_m`) is grown by: a sphere's and a capsule's."""
+        radius = {"sphere": 0, "capsule": 1}.get(self.shape)
+        return 0.0 if radius is None else self.dimensions_m[radius]
+
+    def support_m(self, u: FloatArray, rows: IntArray | None = None) -> FloatArray:  # (M, 3)
+        """The point of its core farthest along each direction, base frame: a box's corner,
+        a cylinder's rim point, a capsule's cap centre, a sphere's centre (convex.py)."""
+        local = u @ self.rotation  # R^T u, (M, 3)
+        half = 0.5 * np.asarray(self.dimensions_m)
+        point = np.zeros_like(local)
+        if self.shape == "box":
+            point = np.sign(local) * half
+        elif self.shape in ("cylinder", "capsule"):
+            point[:, 2] = np.sign(local[:, 2]) * half[0]
+        if self.shape == "cylinder":
+            radial = np.linalg.norm(local[:, :2], axis=1, keepdims=True)  # (M, 1)
+            point[:, :2] = local[:, :2] * (self.dimensions_m[1] / np.where(radial > 0, radial, 1))
+        return point @ self.rotation.T + self.position_m
+
     def signed_distance_m(self, points_m: FloatArray) -> FloatArray:  # (..., 3) -> (...)
         """Signed distance of base-frame points to the solid (negative inside)."""
         local = (points_m - self.position_m) @ self.rotation  # R^T (p - t), row vectors
@@ -168,6 +190,44 @@ class Scene:
             gap = obstacle.signed_distance_m(placed.spheres(rows, body))  # (N, S)
             gap -= robot.radius_m[body]
             np.minimum.at(clearance, rows, gap.min(axis=1))
+        return clearance
+
+    def refined_clearance_m(
+        self, placed: PlacedBodies, robot: RobotSpheres, rows: IntArray, margin_m: float
+    ) -> FloatArray:  # rows (R,) -> (R,)
+        """A lower bound of the moving bodies' least distance to the obstacles at
+        configurations `rows`, at least `clearance_m`'s: a (body, obstacle) pair clear by
+        the margin on the bounds counts with that bound, a sphere clear by it with its
+        distance, and every other sphere with its hull's separation from the obstacle
+        (robot.py, convex.py)."""
+        clearance = np.full(len(rows), np.inf)
+        moving = np.flatnonzero(robot.moving)  # (M,)
+        if not self.obstacles or not len(moving):
+            return clearance
+        bounds = placed.bound_centres_m[rows][:, moving]  # (R, M, 3)
+        body_radius = robot.bound_radius_m[moving]  # (M,)
+        for obstacle in self.obstacles:
+            lower = obstacle.signed_distance_m(bounds) - body_radius  # (R, M)
+            np.minimum.at(clearance, np.arange(len(rows)), np.where(
+                lower >= margin_m, lower, np.inf).min(axis=1))  # fmt: skip
+            # A configuration already not free is not measured again.
+            near, bodies = np.nonzero((lower < margin_m) & (clearance >= margin_m)[:, None])
+            if not len(near):
+                continue
+            row, body = rows[near], moving[bodies]
+            centres = placed.spheres(row, body)  # (N, S, 3)
+            gap = obstacle.signed_distance_m(centres) - robot.radius_m[body]  # (N, S)
+            own = np.arange(gap.shape[1])[None] < robot.own_spheres[body][:, None]
+            gap = np.where(own, gap, np.inf)
+            n, s = np.nonzero(gap < margin_m)  # the spheres whose hulls decide
+            if len(n):
+                hull = placed.hulls(row[n], body[n], s)
+                x0 = placed.hull_points(row[n], body[n], s) - obstacle.position_m
+                pad = robot.hull_pad_m[body[n], s] + obstacle.pad_m
+                gap[n, s] = separation_deepest_first_m(
+                    hull, obstacle.support_m, x0, pad, margin_m, near[n], gap[n, s]
+                )
+            np.minimum.at(clearance, near, gap.min(axis=1))
         return clearance
 
 

@@ -4,8 +4,9 @@ Conservativeness, checked against points the test samples itself: dense points o
 surface of every primitive of the small arm (box faces, cylinder side and caps, capsule
 side and caps, sphere) and of its mesh (the STL's box, scaled and placed), and on every
 triangle of the Panda's collision meshes (read from the STL files with numpy), all lie in
-the union of the body's spheres, for several budgets; a sphere alone is covered by
-itself. And on the Panda at random configurations, for every body pair, the spheres'
+the union of the body's spheres, for several budgets, and in the union of the hulls
+inside them (grown by their pads), each hull inside its sphere; a sphere alone is covered
+by itself. And on the Panda at random configurations, for every body pair, the spheres'
 distance (RobotSpheres, what the service computes) is at most coal's distance on the
 meshes where coal finds them apart, and negative where coal finds them touching.
 """
@@ -16,13 +17,21 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.spatial import ConvexHull, QhullError
 
-from service.manifest import REPO_MODELS_DIR, ChainSpec, CollisionSpec, JointSpec, Manifest
+from service.manifest import (
+    REPO_MODELS_DIR,
+    ChainSpec,
+    CollisionBody,
+    CollisionSpec,
+    JointSpec,
+    Manifest,
+)
 from service.pipeline.collision.robot import RobotSpheres
 from service.pipeline.joint_space import JointLimits
 from tests.support.collision_arm import MESH_BOX_M, MESH_SCALE
 from training.collision.geometry import Body, Shape, read_bodies
-from training.collision.spheres import cover_body
+from training.collision.spheres import RADIUS_MARGIN_M, cover_body
 from training.evaluate.references.collision import CoalRobot
 
 PANDA = REPO_MODELS_DIR / "panda-pose"
@@ -96,6 +105,40 @@ def uncovered_m(body: Body, points: np.ndarray, budget: int) -> float:
     return float(gaps.min(axis=1).max())
 
 
+def outside_hulls_m(cover: CollisionBody, points: np.ndarray) -> float:
+    """How far the farthest point lies outside every hull of the cover (<= 0: all inside),
+    by qhull's facet planes (joggled for a flat hull) less the hull's pad: a point is
+    inside a hull grown by r when no facet plane has it more than r above."""
+    above = np.full(len(points), np.inf)
+    for hull, pad in zip(cover.hulls_m, cover.hull_pads_m, strict=True):
+        vertices = np.asarray(hull)
+        if len(vertices) < 4:  # a point, a segment, a triangle: made a sliver 1e-10 thick
+            vertices = np.vstack([vertices + 1e-10 * step for step in np.eye(3)] + [vertices])
+        try:
+            planes = ConvexHull(vertices).equations
+        except QhullError:
+            planes = ConvexHull(vertices, qhull_options="QJ").equations
+        height = (points @ planes[:, :3].T + planes[:, 3]).max(axis=1)
+        above = np.minimum(above, height - pad)
+    return float(above.max())
+
+
+def test_each_hull_lies_in_its_sphere_and_the_hulls_cover_the_arm(
+    arm_urdf: Path, arm_chain: ChainSpec
+) -> None:
+    """Every body of the small arm (box, sphere, cylinder, capsule, mesh): its hulls are
+    within their spheres (the schema checks it too) and hold every surface sample."""
+    for body in read_bodies(arm_urdf, arm_chain):
+        cover = cover_body(body, 4)
+        for centre, radius, hull, pad in zip(
+            cover.centres_m, cover.radii_m, cover.hulls_m, cover.hull_pads_m, strict=True
+        ):
+            reach = np.linalg.norm(np.asarray(hull) - centre, axis=1).max() + pad
+            assert reach <= radius, body.link
+        points = np.vstack([surface_points(shape) for shape in body.shapes])
+        assert outside_hulls_m(cover, points) <= 1e-9, body.link
+
+
 @pytest.mark.parametrize("budget", [1, 3, 8])
 def test_every_surface_point_of_the_arm_lies_in_a_sphere(
     arm_urdf: Path, arm_chain: ChainSpec, budget: int
@@ -113,7 +156,9 @@ def test_a_sphere_alone_is_covered_by_itself() -> None:
     body = Body(link="ball", frame=2, shapes=(Shape("sphere", pose, (0.07,)),))
     cover = cover_body(body, 8)
     np.testing.assert_allclose(cover.centres_m, [[0.1, -0.2, 0.3]], atol=1e-15)
-    np.testing.assert_allclose(cover.radii_m, [0.07], atol=1e-8)
+    np.testing.assert_allclose(cover.radii_m, [0.07], atol=RADIUS_MARGIN_M)
+    assert cover.hulls_m == [[[0.1, -0.2, 0.3]]]  # its hull is its centre, padded
+    assert cover.hull_pads_m[0] == pytest.approx(0.07, abs=1e-6)
     assert cover.frame == 2
 
 
@@ -130,7 +175,7 @@ def test_every_point_of_the_panda_meshes_lies_in_a_sphere(
     panda: tuple[ChainSpec, JointSpec, list[Body], CollisionSpec],
 ) -> None:
     """Samples on every triangle of each Panda STL, placed in the body's frame, are inside
-    the spheres that ship (the default budget)."""
+    the spheres of the default budget and inside their hulls."""
     _, _, bodies, spec = panda
     for body, cover in zip(bodies, spec.bodies, strict=True):
         points = np.vstack([
@@ -140,6 +185,7 @@ def test_every_point_of_the_panda_meshes_lies_in_a_sphere(
         ])  # fmt: skip
         gaps = np.linalg.norm(points[:, None] - np.asarray(cover.centres_m)[None], axis=2)
         assert (gaps - np.asarray(cover.radii_m)).min(axis=1).max() <= 0, body.link
+        assert outside_hulls_m(cover, points) <= 1e-9, body.link
 
 
 def test_the_panda_spheres_never_report_more_clearance_than_coal(

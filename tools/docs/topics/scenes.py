@@ -60,7 +60,7 @@ def scenes_table() -> str:
     """The scene section's headline figures, one row per model with a scene report."""
     reports = scene_reports()
     header = ["model", "targets", "boxes (mean)", "configurations checked by coal",
-              "violations", "free pieces found (of those the spheres free)", "merges",
+              "violations", "free pieces found (of those the check frees)", "merges",
               "free space lost", "ms: nothing checked", "ms: self only", "ms: scene",
               "ms: 10 boxes", "10 boxes / self only"]  # fmt: skip
     rows = [_row(model_id, report) for model_id, report in reports.items()]
@@ -69,10 +69,10 @@ def scenes_table() -> str:
         "configurations the service returned or called free that coal finds in collision on "
         "the URDF's own geometry. Free pieces: those of the exact SMM (r = 1) of at least "
         "1 % of its length, found when a returned configuration lies on them; in brackets, "
-        "of the pieces with a point the service's spheres call free. Merges: returned "
+        "of the pieces with a point the service's check calls free. Merges: returned "
         "components on two pieces of one exact curve (across a collision cut). Free space "
         "lost: exact points free by coal that "
-        "the spheres call in collision. Times: per answer, median, in process, on "
+        "the service's check calls in collision. Times: per answer, median, in process, on "
         f"{machine_words(list(reports.values()))}"
         + ("; * other work shared the cores." if any(map(shared_cores, reports.values())) else ".")
     )
