@@ -67,12 +67,13 @@ def scenes_table() -> str:
     legend = (
         "From each model's scene report (`docs/reports/scenes/<model>.md`). Violations: "
         "configurations the service returned or called free that coal finds in collision on "
-        "the URDF's own geometry. Free pieces: those of the exact SMM (r = 1) of at least "
-        "1 % of its length, found when a returned configuration lies on them; in brackets, "
+        "the URDF's own geometry. Free pieces: those of the exact SMM (r = 1; for the "
+        "iiwa14 position, r = 4, of the kinematic reference's grid cut by coal) of at least "
+        "1 % of the fibre, found when a returned configuration lies on them; in brackets, "
         "of the pieces with a point the service's check calls free. Merges: returned "
-        "components on two pieces of one exact curve (across a collision cut). Free space "
-        "lost: exact points free by coal that "
-        "the service's check calls in collision. Times: per answer, median, in process, on "
+        "components on two pieces of one exact component (across a collision cut). Free "
+        "space lost: exact points free by coal that the service's check calls in "
+        "collision. Times: per answer, median, in process, on "
         f"{machine_words(list(reports.values()))}"
         + ("; * other work shared the cores." if any(map(shared_cores, reports.values())) else ".")
     )

@@ -333,21 +333,58 @@ def position_smm(
     `num_points` nodes are drawn with the sphere's area weight and given q7 uniform in
     its range.
     """
+    graph = position_graph(position_m, grid_steps, max_jump_rad, contact_rad)
+    nodes = graph.grid.index[graph.grid.feasible]
+    _, component = np.unique(graph.components()[nodes], return_inverse=True)  # 0..C-1
+    return _drawn_fibre(graph.grid, graph.q6_rad[nodes], component, num_points, seed)
+
+
+@dataclass(frozen=True)
+class PositionGraph:
+    """The reference's graph of a position's 4-D fibre (q1..q6; q7 is free): every grid
+    node (feasible or not, row-major over the grid) then each singular set's exact
+    points, and the links between them (`position_smm` says which)."""
+
+    grid: _PositionGrid
+    q6_rad: np.ndarray  # (N, 6) every node's q1..q6 (NaN at grid nodes out of reach)
+    weight: np.ndarray  # (N,) a feasible grid node's sphere-area weight; 0 elsewhere
+    link_from: np.ndarray  # (E,) node numbers
+    link_to: np.ndarray  # (E,)
+
+    def components(self, kept: np.ndarray | None = None) -> np.ndarray:  # (N,)
+        """Connected components of the links between `kept` nodes (N,) (all: None)."""
+        keep = np.ones(len(self.q6_rad), dtype=bool) if kept is None else kept
+        both = keep[self.link_from] & keep[self.link_to]
+        graph = coo_matrix(
+            (np.ones(int(both.sum())), (self.link_from[both], self.link_to[both])),
+            shape=(len(self.q6_rad), len(self.q6_rad)),
+        )
+        return np.asarray(connected_components(graph, directed=False)[1])
+
+
+def position_graph(
+    position_m: np.ndarray,
+    grid_steps: int = 48,
+    max_jump_rad: float = 1.0,
+    contact_rad: float = 0.25,
+) -> PositionGraph:
+    """The nodes and links `position_smm` finds the components of (its docstring)."""
     grid = _position_grid(position_m, grid_steps)
     edges = _grid_links(grid, max_jump_rad)
     points6 = grid.q6[grid.feasible]  # (F, 6)
-    contact, num_nodes = _contact_links(
+    contact, set_q6 = _contact_links(
         grid.index[grid.feasible], points6, grid.feasible.size, contact_rad, position_m
     )
     rows, cols = zip(*edges, *contact, strict=True)
-    graph = coo_matrix(
-        (np.ones(sum(map(len, rows))), (np.concatenate(rows), np.concatenate(cols))),
-        shape=(num_nodes, num_nodes),
+    area = np.broadcast_to(np.sin(grid.polar_rad)[None, None, :, None], grid.feasible.shape)
+    weight = np.concatenate([np.where(grid.feasible, area, 0.0).ravel(), np.zeros(len(set_q6))])
+    return PositionGraph(
+        grid=grid,
+        q6_rad=np.concatenate([grid.q6.reshape(-1, 6), set_q6]),
+        weight=weight,
+        link_from=np.concatenate(rows).astype(np.int64),
+        link_to=np.concatenate(cols).astype(np.int64),
     )
-    _, labels = connected_components(graph, directed=False)
-    nodes = grid.index[grid.feasible]
-    _, component = np.unique(labels[nodes], return_inverse=True)  # renumber 0..C-1
-    return _drawn_fibre(grid, points6, component, num_points, seed)
 
 
 @dataclass(frozen=True)
@@ -410,11 +447,15 @@ def _contact_links(
     num_nodes: int,
     contact_rad: float,
     position_m: np.ndarray,
-) -> tuple[list[tuple[np.ndarray, np.ndarray]], int]:
+) -> tuple[list[tuple[np.ndarray, np.ndarray]], np.ndarray]:
     """(from, to) node pairs closer than `contact_rad` in each of `_contact_coordinates`,
-    and the node count with the singular sets' exact points added as extra nodes."""
+    and the q1..q6 (S, 6) of the singular sets' exact points, added as extra nodes
+    numbered from `num_nodes` on."""
     edges = []
-    for coordinates, near, on_set in _contact_coordinates(points6, contact_rad, position_m):
+    extra = [np.zeros((0, 6))]
+    for coordinates, near, on_set, exact in _contact_coordinates(
+        points6, contact_rad, position_m
+    ):
         # Nodes within contact_rad of each other, near the set, are one component only
         # where the fibre really reaches the set: each is linked to the exact points of
         # the set within contact_rad (set points are extra graph nodes, joined along
@@ -425,13 +466,14 @@ def _contact_links(
             continue
         set_index = num_nodes + np.arange(len(on_set))
         num_nodes += len(on_set)
+        extra.append(exact)
         tree = cKDTree(on_set)
         for node, hits in zip(nodes[near], tree.query_ball_point(coordinates, contact_rad),
                               strict=True):  # fmt: skip
             edges.append((np.full(len(hits), node), set_index[np.asarray(hits, dtype=np.int64)]))
         pairs = tree.query_pairs(contact_rad, output_type="ndarray")  # along the set
         edges.append((set_index[pairs[:, 0]], set_index[pairs[:, 1]]))
-    return edges, num_nodes
+    return edges, np.concatenate(extra)
 
 
 def _drawn_fibre(
@@ -463,9 +505,10 @@ def _drawn_fibre(
 
 def _contact_coordinates(
     q6_rad: np.ndarray, contact_rad: float, position_m: np.ndarray
-) -> list[tuple[np.ndarray, np.ndarray, np.ndarray | None]]:
+) -> list[tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]]:
     """Coordinates (and the rows they cover) in which nearby nodes are one component, with
-    the exact points of the singular set in the same coordinates (None: no set).
+    the exact points of the singular set in the same coordinates (None: no set) and as
+    they are, q1..q6.
 
     First q1..q6 themselves. Then each singular set: at q2 = 0 only q1 + q3 moves the
     arm, at q4 = 0 only q3 + q5, and at q6 = 0 joint 5 no longer moves the end-effector
@@ -476,13 +519,13 @@ def _contact_coordinates(
     0.42 m above the shoulder, out of reach of some targets) does not join its twins.
     """
     q = q6_rad
-    sets: list[tuple[np.ndarray, np.ndarray, np.ndarray | None]] = [
-        (q, np.ones(len(q), dtype=bool), None)
+    sets: list[tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]] = [
+        (q, np.ones(len(q), dtype=bool), None, np.zeros((0, 6)))
     ]
     set_points = singular_set_points(position_m)
     for joint, exact in set_points.items():
         near = np.abs(q[:, joint]) < contact_rad
-        sets.append((_reduced(q[near], joint), near, _reduced(exact, joint)))
+        sets.append((_reduced(q[near], joint), near, _reduced(exact, joint), exact))
     return sets
 
 

@@ -1,6 +1,6 @@
 """A model's robot as coal sees it: the URDF's original geometry (meshes and primitives)
 placed by the model's chain, the self pairs its collision.json does not disable, and the
-request's obstacles; its clearance is the reference the service's spheres are judged by.
+request's obstacles; its clearance is the reference the service's check is judged by.
 
 Clearance at a configuration: the least coal distance over the body pairs checked and
 from the moving bodies to every obstacle (`references.collision.CoalRobot`: exact when

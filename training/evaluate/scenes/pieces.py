@@ -126,8 +126,8 @@ class Recall:
 
     asked: int  # pieces of at least MIN_PIECE_SHARE of the fibre
     found: int  # of those, pieces some returned configuration lies on
-    # Of the asked pieces, those with a point the service's spheres call free (the others
-    # are lost to the spheres' conservativeness: the service cannot return them), found.
+    # Of the asked pieces, those with a point the service's check calls free (the others
+    # are lost to the check's conservativeness: the service cannot return them), found.
     sphere_free: int
     sphere_free_found: int
     merges: int  # returned components on 2+ pieces of one exact curve: across a cut

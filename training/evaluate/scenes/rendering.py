@@ -52,22 +52,22 @@ def _exactness(report: dict[str, Any]) -> list[str]:
 
 
 def _missed(rec: dict[str, Any]) -> list[str]:
-    """The missed pieces: where the spheres lose them, where the kinematic answer misses
+    """The missed pieces: where the check loses them, where the kinematic answer misses
     them too, and those the scene's answer alone lost."""
     missed = rec["missed"]
     if not missed:
         return []
-    spheres = sum(m["sphere_free_share"] == 0 for m in missed)
+    lost = sum(m["sphere_free_share"] == 0 for m in missed)
     kinematic = sum(m["sphere_free_share"] > 0 and m["missed_kinematically"] for m in missed)
     alone = rec["missed_in_the_scene"]
     listed = ", ".join(
         f"{m['index']} ({m['length_rad']:.2f} rad, {_pct(m['sphere_free_share'])} free by "
-        "the spheres)"
+        "the check)"
         for m in alone
     )
     return [
-        f"- Missed pieces: {len(missed)}; lying wholly where the spheres call collision: "
-        f"{spheres}; missed by the answer with nothing checked too (kinematic misses): "
+        f"- Missed pieces: {len(missed)}; lying wholly where the check calls collision: "
+        f"{lost}; missed by the answer with nothing checked too (kinematic misses): "
         f"{kinematic}; lost by the scene's answer alone: {len(alone)}"
         + (f": target {listed}." if alone else "."),
     ]
@@ -77,23 +77,42 @@ def _recall(report: dict[str, Any]) -> list[str]:
     rec = report["summary"]["recall"]
     if rec is None:
         return [
-            "Not measured for a 4-D fibre: see [Models, Scenes](../../models.md#scenes) for "
-            "what a sound reference of its free components needs."
+            "Not measured for this 4-D fibre: its robot's position reference has no graph to "
+            "cut; see [Models, Scenes](../../models.md#scenes)."
         ]
     singular = rec["near_singular_targets"]
+    settings = report["settings"]
+    four_d = report.get("redundancy", 1) > 1
+    unit = "component" if four_d else "curve"
+    counted = (
+        "on this coarser grid, which can split what the kinematic report's joins"
+        if four_d
+        else "as the kinematic report counts them"
+    )
+    grid = (
+        [
+            f"- The reference: the kinematic reference's grid at {settings['position_grid_steps']} "
+            f"steps times {settings['position_q7_layers']} values of q7, each node checked by "
+            f"coal; a configuration lies on the piece of the nearest free node of its nearest "
+            f"q7 value within {settings['position_match_rad']:g} rad."
+        ]
+        if four_d and "position_grid_steps" in settings
+        else []
+    )
     return [
+        *grid,
         f"- Free pieces of at least {100 * report['settings']['min_piece_share']:g} % of the "
         f"fibre: {rec['pieces_asked']}, found {rec['pieces_found']} "
         f"(**{_pct(rec['found_fraction'])}**, goal {100 * FOUND_GOAL:g} %).",
-        f"- Of those, pieces with a point the service's spheres call free (the others lie "
-        f"wholly in the free space the spheres lose): {rec['pieces_sphere_free']}, found "
+        f"- Of those, pieces with a point the service's check calls free (the others lie "
+        f"wholly in the free space the check loses): {rec['pieces_sphere_free']}, found "
         f"{rec['pieces_sphere_free_found']} (**{_pct(rec['sphere_free_found_fraction'])}**).",
         *_missed(rec),
         f"- Merges across a collision cut (a returned component on two pieces of one exact "
-        f"curve): **{rec['merges']}** (goal 0)"
+        f"{unit}): **{rec['merges']}** (goal 0)"
         + (f", targets {rec['targets_with_merges']}." if rec["merges"] else "."),
-        f"- Returned components on two exact curves (kinematic merges, as the kinematic "
-        f"report counts them): {rec['merges_of_curves']}"
+        f"- Returned components on two exact {unit}s (kinematic merges, {counted}): "
+        f"{rec['merges_of_curves']}"
         + (f", targets {rec['targets_with_merges_of_curves']}" if rec["merges_of_curves"] else "")
         + f"; targets the answer flags near-singular: {singular or 'none'}.",
     ]
@@ -139,7 +158,7 @@ def markdown(model_id: str, report: dict[str, Any]) -> str:
         "",
         "## Free space lost",
         "",
-        f"Of {free['coal_free_points']:,} exact points free by coal, the spheres call "
+        f"Of {free['coal_free_points']:,} exact points free by coal, the service's check calls "
         f"{free['lost_points']:,} in collision: **{_pct(free['lost_fraction'])}**.",
         "",
         "## Time",

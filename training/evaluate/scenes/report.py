@@ -7,8 +7,8 @@ Per target (the FK of a configuration uniform in the limits and free of self-col
 by coal): a random box scene around the arm (boxes.py), the service's answer in it with
 self-collision checked (recorder.py), every configuration it returned or called free
 checked by coal on the URDF's own geometry (exactness.py), for a pose model the exact
-SMM's free pieces found and merged (reference.py, pieces.py), the free space the spheres
-lose, and the pipeline's time four ways (timing.py). The figures over every target are
+SMM's free pieces found and merged (reference.py, pieces.py), the free space the check
+loses, and the pipeline's time four ways (timing.py). The figures over every target are
 summary.py's; the Markdown is rendering.py's.
 """
 
@@ -27,6 +27,8 @@ from training.evaluate.scenes.boxes import DRAWS_PER_BOX, MAX_SIDE_M, MIN_SIDE_M
 from training.evaluate.scenes.coal_model import CoalModel
 from training.evaluate.scenes.exactness import RECORDED_PER_TARGET
 from training.evaluate.scenes.pieces import MATCH_RAD, MIN_PIECE_SHARE, RESOLUTION_RAD
+from training.evaluate.scenes.position import GRID_STEPS, Q7_LAYERS
+from training.evaluate.scenes.position import MATCH_RAD as POSITION_MATCH_RAD
 from training.evaluate.scenes.rendering import markdown
 from training.evaluate.scenes.summary import summary
 from training.evaluate.scenes.target import FIBRE_POINTS, evaluate_target
@@ -51,6 +53,7 @@ def build_scenes_report(
         targets.append(evaluate_target(model, coal, scene, timing.obstacles, margin_m))
     return {
         "model": model.reference,
+        "redundancy": model.manifest.redundancy,
         "machine": machine.ended().as_json(),
         "targets": num_targets,
         "seed": seed,
@@ -66,6 +69,9 @@ def build_scenes_report(
             "match_rad": MATCH_RAD,
             "min_piece_share": MIN_PIECE_SHARE,
             "fibre_points_per_target": FIBRE_POINTS,
+            "position_grid_steps": GRID_STEPS,
+            "position_q7_layers": Q7_LAYERS,
+            "position_match_rad": POSITION_MATCH_RAD,
         },
         "summary": summary(targets),
         "per_target": targets,

@@ -70,7 +70,7 @@ def recall_summary(targets: Sequence[dict[str, Any]]) -> dict[str, object] | Non
             t["index"] for t in with_recall if t["recall"]["merges_of_curves"]
         ],
         "near_singular_targets": [t["index"] for t in with_recall if t["near_singular"]],
-        # missed pieces the spheres free somewhere and the kinematic answer found
+        # missed pieces the check frees somewhere and the kinematic answer found
         "missed_in_the_scene": lost_to_scene,
         "missed": missed,
     }

@@ -1,6 +1,7 @@
 """One target of the scene section: its scene, the service's answer in it, that answer
-checked by coal, its free pieces found (pose), the free space the spheres lose, and its
-four timings. Everything is a JSON-ready dict, with the POST /smm body that replays it."""
+checked by coal, its free pieces found (pose; a position where its robot's reference has
+a graph to cut, position.py), the free space the check loses, and its four timings.
+Everything is a JSON-ready dict, with the POST /smm body that replays it."""
 
 from __future__ import annotations
 
@@ -18,6 +19,7 @@ from training.evaluate.scenes.boxes import SceneTarget, request_body
 from training.evaluate.scenes.coal_model import CoalModel
 from training.evaluate.scenes.exactness import Exactness, recorded_sample
 from training.evaluate.scenes.pieces import recall
+from training.evaluate.scenes.position import POSITION_REFERENCES, free_regions_of_position
 from training.evaluate.scenes.recorder import recorded_answer, same_answer
 from training.evaluate.scenes.reference import free_pieces_of_pose
 from training.evaluate.scenes.timing import query_for, time_ways_ms
@@ -39,7 +41,7 @@ def _returned(result: SmmResult, num_joints: int) -> tuple[FloatArray, np.ndarra
 def free_space_lost(
     model: ServedModel, coal_free: FloatArray, obstacles: tuple[Obstacle, ...], margin_m: float
 ) -> dict[str, int]:
-    """Reference points free by coal, and those of them the service's spheres call not free."""
+    """Reference points free by coal, and those of them the service's check calls not free."""
     lost = ~sphere_check(model, obstacles, margin_m).free(coal_free)
     return {"coal_free": len(coal_free), "lost": int(lost.sum())}
 
@@ -104,6 +106,14 @@ def evaluate_target(
         entry["recall"] = asdict(found)
         coal_free = pieces.q_rad[pieces.label >= 0]
     else:
+        if manifest.robot in POSITION_REFERENCES:
+            service_check = sphere_check(model, obstacles, margin_m)
+            regions, check_free = free_regions_of_position(
+                model, coal, service_check.free, scene.q_target_rad, obstacles, margin_m
+            )
+            kinematic = _returned(answers["nothing_checked"], n)[0]
+            found = recall(regions, check_free, returned, labels, model.limits.periodic, kinematic)
+            entry["recall"] = asdict(found)
         points = fibre_points(model, scene.q_target_rad, scene.index)
         coal_free = points[coal.free(points, obstacles, margin_m)]
     entry["free_space"] = free_space_lost(model, coal_free, obstacles, margin_m)
