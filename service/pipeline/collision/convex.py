@@ -15,9 +15,11 @@ duality), with one support point of each set per step:
     bound = x.z / |x| - pad_A - pad_B       the separation along x, sets grown by pads
     W <- the face of conv(W + {z}) holding its point nearest the origin; x <- that point
 
-(`nearest_in_hull`: every face of the at most 4 points, each one's affine projection of
-the origin kept when it lies in the face; the nearest of those). For polytopes it ends
-in a few steps, where Frank-Wolfe steps alone zigzag between parallel faces. x stays in
+(`nearest_in_hull`: every face of the at most 4 points that holds z, each one's affine
+projection of the origin kept when it lies in the face; the nearest of those). For
+polytopes it ends in a few steps, where Frank-Wolfe steps alone zigzag between parallel
+faces. GJK starts from any point of D (a hull's first vertex less the other's, or the
+obstacle's centre). x stays in
 D, so |x| - pads is an upper bound of the distance: once it is under the margin plus
 `RESOLUTION_M` (or W is a tetrahedron holding the origin: the sets meet), the pair is
 given up. Every pair stops when certified, given up, when z adds nothing or after
