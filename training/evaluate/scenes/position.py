@@ -18,6 +18,13 @@ is the reference's component of its nodes.
 A returned configuration lies on the piece of the nearest free grid node of its nearest
 layer, in q1..q6, when that node is within MATCH_RAD (about the grid's node spacing at
 GRID_STEPS, where the IK's gain is ordinary).
+
+The grid bounds the measure: two free nodes linked are taken as joined, and a free
+passage between two nodes' neighbourhoods narrower than a grid step is not seen, so the
+grid can split one free piece in two. A returned component on both (joined by the
+service's roadmap, whose every walk step is checked) then reads as a merge across a
+cut. `position_recall` measures such a target again on finer grids (FINER_GRID_STEPS),
+while a merge remains, and keeps the finest measure.
 """
 
 from __future__ import annotations
@@ -35,11 +42,14 @@ from service.pipeline.arrays import BoolArray, FloatArray, IntArray
 from service.pipeline.collision.scene import Obstacle
 from training.evaluate.references.iiwa14 import position_graph
 from training.evaluate.scenes.coal_model import CoalModel
-from training.evaluate.scenes.pieces import FreePieces
+from training.evaluate.scenes.pieces import FreePieces, Recall, recall
 
 # The robots whose position reference has a graph to cut (references.iiwa14).
 POSITION_REFERENCES = ("iiwa14",)
 GRID_STEPS = 32
+# Where the grid at GRID_STEPS finds a merge, it is measured again at these, in turn,
+# while a merge remains: a passage narrower than a grid step is one the grid cannot see.
+FINER_GRID_STEPS = (48, 64)
 Q7_LAYERS = 3
 MATCH_RAD = 0.5
 
@@ -137,3 +147,26 @@ def _components(kept: BoolArray, link_from: IntArray, link_to: IntArray) -> IntA
     )
     label = np.asarray(connected_components(graph, directed=False)[1])
     return np.where(kept, label, -1)
+
+
+def position_recall(
+    model: ServedModel,
+    coal: CoalModel,
+    check_free: Callable[[FloatArray], BoolArray],
+    q_target_rad: FloatArray,
+    obstacles: Sequence[Obstacle],
+    margin_m: float,
+    returned: FloatArray,  # (K, 7) every returned configuration
+    labels: IntArray,  # (K,) its component
+    kinematic: FloatArray,  # (J, 7) returned with nothing checked
+) -> tuple[Recall, int]:
+    """The pieces found and the merges at GRID_STEPS, or at the first of FINER_GRID_STEPS
+    where no merge remains (the last when one does), and that grid's steps."""
+    for steps in (GRID_STEPS, *FINER_GRID_STEPS):
+        regions, checked = free_regions_of_position(
+            model, coal, check_free, q_target_rad, obstacles, margin_m, steps
+        )
+        found = recall(regions, checked, returned, labels, model.limits.periodic, kinematic)
+        if not found.merges:
+            break
+    return found, steps

@@ -89,12 +89,21 @@ def _recall(report: dict[str, Any]) -> list[str]:
         if four_d
         else "as the kinematic report counts them"
     )
+    finer = rec.get("finer_grid_targets", {})
     grid = (
         [
             f"- The reference: the kinematic reference's grid at {settings['position_grid_steps']} "
             f"steps times {settings['position_q7_layers']} values of q7, each node checked by "
             f"coal; a configuration lies on the piece of the nearest free node of its nearest "
-            f"q7 value within {settings['position_match_rad']:g} rad."
+            f"q7 value within {settings['position_match_rad']:g} rad. Where that grid finds a "
+            f"merge, the target is measured again on finer grids "
+            f"({', '.join(map(str, settings.get('position_finer_grid_steps', [])))} steps) "
+            f"while one remains: {len(finer)} targets"
+            + (
+                ", " + ", ".join(f"{index} at {steps}" for index, steps in finer.items()) + "."
+                if finer
+                else "."
+            )
         ]
         if four_d and "position_grid_steps" in settings
         else []

@@ -27,7 +27,7 @@ from training.evaluate.scenes.boxes import DRAWS_PER_BOX, MAX_SIDE_M, MIN_SIDE_M
 from training.evaluate.scenes.coal_model import CoalModel
 from training.evaluate.scenes.exactness import RECORDED_PER_TARGET
 from training.evaluate.scenes.pieces import MATCH_RAD, MIN_PIECE_SHARE, RESOLUTION_RAD
-from training.evaluate.scenes.position import GRID_STEPS, Q7_LAYERS
+from training.evaluate.scenes.position import FINER_GRID_STEPS, GRID_STEPS, Q7_LAYERS
 from training.evaluate.scenes.position import MATCH_RAD as POSITION_MATCH_RAD
 from training.evaluate.scenes.rendering import markdown
 from training.evaluate.scenes.summary import summary
@@ -70,6 +70,7 @@ def build_scenes_report(
             "min_piece_share": MIN_PIECE_SHARE,
             "fibre_points_per_target": FIBRE_POINTS,
             "position_grid_steps": GRID_STEPS,
+            "position_finer_grid_steps": list(FINER_GRID_STEPS),
             "position_q7_layers": Q7_LAYERS,
             "position_match_rad": POSITION_MATCH_RAD,
         },

@@ -70,6 +70,13 @@ def recall_summary(targets: Sequence[dict[str, Any]]) -> dict[str, object] | Non
             t["index"] for t in with_recall if t["recall"]["merges_of_curves"]
         ],
         "near_singular_targets": [t["index"] for t in with_recall if t["near_singular"]],
+        # 4-D: the targets measured on a finer grid than the first, and its steps
+        "finer_grid_targets": {
+            str(t["index"]): t["recall"]["grid_steps"]
+            for t in with_recall
+            if t["recall"].get("grid_steps", 0)
+            > min(u["recall"].get("grid_steps", 0) for u in with_recall)
+        },
         # missed pieces the check frees somewhere and the kinematic answer found
         "missed_in_the_scene": lost_to_scene,
         "missed": missed,

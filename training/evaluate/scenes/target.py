@@ -19,7 +19,7 @@ from training.evaluate.scenes.boxes import SceneTarget, request_body
 from training.evaluate.scenes.coal_model import CoalModel
 from training.evaluate.scenes.exactness import Exactness, recorded_sample
 from training.evaluate.scenes.pieces import recall
-from training.evaluate.scenes.position import POSITION_REFERENCES, free_regions_of_position
+from training.evaluate.scenes.position import POSITION_REFERENCES, position_recall
 from training.evaluate.scenes.recorder import recorded_answer, same_answer
 from training.evaluate.scenes.reference import free_pieces_of_pose
 from training.evaluate.scenes.timing import query_for, time_ways_ms
@@ -107,13 +107,12 @@ def evaluate_target(
         coal_free = pieces.q_rad[pieces.label >= 0]
     else:
         if manifest.robot in POSITION_REFERENCES:
-            service_check = sphere_check(model, obstacles, margin_m)
-            regions, check_free = free_regions_of_position(
-                model, coal, service_check.free, scene.q_target_rad, obstacles, margin_m
-            )
-            kinematic = _returned(answers["nothing_checked"], n)[0]
-            found = recall(regions, check_free, returned, labels, model.limits.periodic, kinematic)
-            entry["recall"] = asdict(found)
+            found, steps = position_recall(
+                model, coal, sphere_check(model, obstacles, margin_m).free,
+                scene.q_target_rad, obstacles, margin_m, returned, labels,
+                _returned(answers["nothing_checked"], n)[0],
+            )  # fmt: skip
+            entry["recall"] = {**asdict(found), "grid_steps": steps}
         points = fibre_points(model, scene.q_target_rad, scene.index)
         coal_free = points[coal.free(points, obstacles, margin_m)]
     entry["free_space"] = free_space_lost(model, coal_free, obstacles, margin_m)
