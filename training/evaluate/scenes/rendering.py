@@ -153,7 +153,9 @@ def markdown(model_id: str, report: dict[str, Any]) -> str:
         f"`{report['model']}`, {report['targets']} targets (seed {report['seed']}), 1 to "
         f"{report['max_obstacles']} random boxes each (mean {s['obstacles_mean']:.1f}), margin "
         f"{report['margin_m']:g} m, {report['num_samples']} samples. Written by `smm-train "
-        f"scenes --model {model_id} --targets {report['targets']}`; each target's `request` in "
+        f"scenes --model {model_id} --targets {report['targets']}"
+        + (f" --margin-m {report['margin_m']:g}" if report["margin_m"] > 0 else "")
+        + "`; each target's `request` in "
         "the JSON replays it as a POST /smm body. What is measured: "
         "[Models, Scenes](../../models.md#scenes).",
         "",
