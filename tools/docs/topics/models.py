@@ -326,10 +326,12 @@ def models_collision() -> str:
         pairs = bodies * (bodies - 1) // 2
         checked = pairs - len(spec["disabled_pairs"])
         source = "its SRDF" if record["srdf"] else "sampled, as MoveIt's setup assistant"
+        vertices = sum(len(hull) for body in spec["bodies"] for hull in body.get("hulls_m", []))
+        hulls = f", their hulls {vertices:,} vertices" if vertices else ""
         rows.append([
-            f"`{model_id}`", f"{bodies} bodies, {record['sphere_count']} spheres",
+            f"`{model_id}`", f"{bodies} bodies, {record['sphere_count']} spheres{hulls}",
             f"{checked} of {pairs}", source,
-            f"{100 * record['free_space_lost_fraction']:.1f} % of "
+            f"{100 * record['free_space_lost_fraction']:.2g} % of "
             f"{record['configurations_sampled']:,}",
             f"{record['wall_time_s']:.1f} s",
         ])  # fmt: skip
