@@ -49,7 +49,7 @@ POSITION_REFERENCES = ("iiwa14",)
 GRID_STEPS = 32
 # Where the grid at GRID_STEPS finds a merge, it is measured again at these, in turn,
 # while a merge remains: a passage narrower than a grid step is one the grid cannot see.
-FINER_GRID_STEPS = (48, 64)
+FINER_GRID_STEPS = (48, 64, 80)
 Q7_LAYERS = 3
 MATCH_RAD = 0.5
 
