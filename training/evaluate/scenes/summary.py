@@ -43,6 +43,7 @@ def recall_summary(targets: Sequence[dict[str, Any]]) -> dict[str, object] | Non
         return sum(t["recall"][key] for t in with_recall)
 
     asked, found = total("asked"), total("found")
+    first_grid = min(t["recall"].get("grid_steps", 0) for t in with_recall)
     sphere_free, sphere_free_found = total("sphere_free"), total("sphere_free_found")
     missed = [
         {"index": t["index"], "length_rad": length, "sphere_free_share": share,
@@ -74,8 +75,7 @@ def recall_summary(targets: Sequence[dict[str, Any]]) -> dict[str, object] | Non
         "finer_grid_targets": {
             str(t["index"]): t["recall"]["grid_steps"]
             for t in with_recall
-            if t["recall"].get("grid_steps", 0)
-            > min(u["recall"].get("grid_steps", 0) for u in with_recall)
+            if t["recall"].get("grid_steps", 0) > first_grid
         },
         # missed pieces the check frees somewhere and the kinematic answer found
         "missed_in_the_scene": lost_to_scene,
