@@ -8,14 +8,22 @@
 # runs it).
 
 # Build stage: the service and its run-time dependencies, at the versions of
-# constraints.txt (the README's install uses the same file), into a venv; then pip and
+# constraints.txt (the README's install uses the same file), into a venv, with the
+# compiled kernels (service/pipeline/native.c) built by the C compiler this stage alone
+# installs (the final image has no compiler; the extension needs none to run); then pip and
 # setuptools leave the venv, and so do the dependencies' own test suites (65 MB). The
 # bytecode is compiled again, checked by the source's hash instead of its mtime: a copy
 # that rounds mtimes to the second (buildah's COPY --from does) would otherwise leave half
 # the modules to be compiled at every start, since a read-only image cannot cache them.
 FROM python:3.11-slim AS build
+# The compiler's version is the base image's Debian release's: it builds one C file and
+# stays in this stage.
+# hadolint ignore=DL3008
+RUN apt-get update \
+    && apt-get install --yes --no-install-recommends gcc libc6-dev \
+    && rm -rf /var/lib/apt/lists/*
 WORKDIR /src
-COPY constraints.txt pyproject.toml README.md ./
+COPY constraints.txt pyproject.toml setup.py README.md ./
 COPY service ./service
 RUN python -m venv /opt/venv \
     && /opt/venv/bin/pip install --no-cache-dir --disable-pip-version-check \

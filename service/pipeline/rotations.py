@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from service.pipeline import native
 from service.pipeline.arrays import FloatArray
 
 _COS_150_DEG = float(np.cos(np.radians(150.0)))
@@ -31,13 +32,11 @@ def rotation_log(rotation: FloatArray) -> FloatArray:
 def rotation_error(rotation_target: FloatArray, rotation: FloatArray) -> FloatArray:
     """Base-frame rotation vector e (B, 3) with exp([e]) R = R*: log(R* R^T).
 
-    rotation_target is one target (3, 3) for the whole batch or one per row (B, 3, 3); one
-    target takes a single (3B, 3) x (3, 3) product, R R*^T = (R* R^T)^T, instead of B
-    small ones, and the logarithm reads R* R^T off its transpose.
+    rotation_target is one target (3, 3) for the whole batch (the compiled kernel,
+    `native.rotation_error`: every correction and connect step) or one per row (B, 3, 3).
     """
     if rotation_target.ndim == 2:
-        transposed = rotation.reshape(-1, 3) @ rotation_target.T  # (3B, 3): rows of R R*^T
-        return _log(transposed.reshape(len(rotation), 9), transposed=True)
+        return native.rotation_error(rotation_target, rotation)
     return rotation_log(rotation_target @ np.swapaxes(rotation, -1, -2))
 
 

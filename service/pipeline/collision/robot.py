@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from service.manifest import ChainSpec, CollisionSpec
+from service.pipeline import native
 from service.pipeline.arrays import BoolArray, FloatArray, IntArray
 from service.pipeline.collision.convex import (
     Support,
@@ -169,26 +170,12 @@ class RobotSpheres:
 
     def self_clearance_m(self, placed: PlacedBodies) -> FloatArray:  # -> (B,)
         """The least |c_a - c_b| - r_a - r_b over the sphere pairs of the checked body
-        pairs (negative: overlapping); +inf when no pair is checked."""
-        batch = len(placed.bound_centres_m)
-        if not len(self.pair_a):
-            return np.full(batch, np.inf)
-        a, b = self.pair_a, self.pair_b
-        bounds = placed.bound_centres_m
-        lower = np.linalg.norm(bounds[:, a] - bounds[:, b], axis=2)  # (B, P)
-        lower -= self.bound_radius_m[a] + self.bound_radius_m[b]
-        first = placed.first_centres_m  # (B, K, 3): one sphere per body
-        upper = np.linalg.norm(first[:, a] - first[:, b], axis=2)
-        upper -= self.radius_m[a, 0] + self.radius_m[b, 0]  # (B, P)
-        clearance = upper.min(axis=1)  # (B,) attained by a sphere pair
-        rows, pairs = np.nonzero(lower < clearance[:, None])  # (N,), (N,)
-        if len(rows):
-            ca = placed.spheres(rows, a[pairs])  # (N, S, 3)
-            cb = placed.spheres(rows, b[pairs])
-            gap = np.linalg.norm(ca[:, :, None] - cb[:, None], axis=3)  # (N, S, S)
-            gap -= self.radius_m[a[pairs]][:, :, None] + self.radius_m[b[pairs]][:, None]
-            np.minimum.at(clearance, rows, gap.min(axis=(1, 2)))
-        return clearance
+        pairs (negative: overlapping); +inf when no pair is checked. Compiled
+        (`native.self_clearance_m`), with the module docstring's bounds row by row."""
+        return native.self_clearance_m(
+            placed.rotation, placed.origin_m, self.centre_local_m, self.radius_m,
+            self.own_spheres, self.bound_local_m, self.bound_radius_m, self.pair_a, self.pair_b,
+        )  # fmt: skip
 
     def refined_self_clearance_m(
         self, placed: PlacedBodies, rows: IntArray, margin_m: float

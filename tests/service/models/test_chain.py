@@ -1,4 +1,4 @@
-"""chain: the numpy kernel on chain.json gives pytorch-kinematics' FK and geometric Jacobian.
+"""chain: the compiled kernel on chain.json gives pytorch-kinematics' FK and geometric Jacobian.
 
 For the iiwa14 and planar 3R URDFs and for a URDF with fixed joints between movable ones,
 oblique and negative axes, arbitrary origin rpy and a continuous joint
@@ -6,8 +6,8 @@ oblique and negative axes, arbitrary origin rpy and a continuous joint
 pytorch-kinematics (`load_chain` + `ForwardKinematics`, what kinematics.onnx is exported
 from) to 1e-12 in position, rotation and Jacobian. Its Jacobian equals central finite
 differences of its own FK (linear rows against the position, angular rows against the
-rotation increment). A non-finite joint value spoils only its own row; a batch split
-into several passes, and calls from several threads at once, give the one-pass answer;
+rotation increment). A non-finite joint value spoils only its own row; a batch's rows
+answered in parts, and calls from several threads at once, give the one-call answer;
 any batch size, zero included, has the right shapes; chain.json that is not a rigid
 chain with unit axes is refused, naming the file.
 """
@@ -22,7 +22,6 @@ import pytest
 from pydantic import ValidationError
 from scipy.spatial.transform import Rotation
 
-import service.models.chain as chain_module
 from service.errors import ModelVerificationError
 from service.manifest import REPO_MODELS_DIR, ChainSpec
 from service.models.chain import SerialChainKinematics
@@ -80,7 +79,7 @@ def test_the_twisted_chain_folds_its_fixed_joints(twisted_urdf: Path) -> None:
 def test_angles_beyond_pi_and_near_the_half_turn(
     twisted: SerialChainKinematics, twisted_urdf: Path
 ) -> None:
-    """cos and sin come from tan(q / 2): exact also where q / 2 is near pi / 2 or beyond."""
+    """Exact also at the half turn, beyond it and several turns away."""
     special = np.array([np.pi, -np.pi, np.nextafter(np.pi, 0), 3 * np.pi, 7.0, -12.5, 0.0, 1e-9])
     q = np.tile(special[:, None], (1, 5))  # every joint at each special angle
     q[:, 2] = special[::-1]
@@ -125,20 +124,13 @@ def test_a_non_finite_joint_value_spoils_only_its_row(twisted: SerialChainKinema
     np.testing.assert_array_equal(answer.jacobian[~bad], clean.jacobian)
 
 
-def test_passes_and_threads_give_the_one_pass_answer(
-    twisted: SerialChainKinematics, monkeypatch: pytest.MonkeyPatch
-) -> None:
+def test_rows_and_threads_give_the_one_call_answer(twisted: SerialChainKinematics) -> None:
     q = np.random.default_rng(3).uniform(-3, 3, (50, 5))
     whole = twisted(q)
-    monkeypatch.setattr(chain_module, "CHUNK", 7)  # 8 passes, the last one of 1
-    passes = twisted(q)
-    for a, b in zip(
-        (whole.position_m, whole.rotation, whole.jacobian),
-        (passes.position_m, passes.rotation, passes.jacobian),
-        strict=True,
-    ):
-        np.testing.assert_allclose(a, b, rtol=0, atol=1e-15)
-    monkeypatch.undo()
+    for start in range(0, 50, 7):
+        part = twisted(q[start : start + 7])
+        np.testing.assert_array_equal(part.jacobian, whole.jacobian[start : start + 7])
+        np.testing.assert_array_equal(part.rotation, whole.rotation[start : start + 7])
     batches = [np.random.default_rng(seed).uniform(-3, 3, (300 + seed, 5)) for seed in range(16)]
     alone = [twisted(b).jacobian for b in batches]
     with ThreadPoolExecutor(max_workers=4) as pool:

@@ -1,0 +1,393 @@
+/* Compiled kernels of the pipeline's innermost loops: per-row serial-chain kinematics,
+ * the rotation error and the damped-least-squares step (see native.py for the
+ * typed wrappers and why they are compiled).
+ *
+ * Plain C99 and the CPython API only (no numpy headers: arrays arrive through the buffer
+ * protocol, already checked by the wrappers for dtype, shape and contiguity), so the
+ * extension builds with the C compiler every CPython build has and needs nothing at run
+ * time. Each kernel loops over the batch's rows with the GIL released; a row's result
+ * depends on that row alone.
+ */
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+#include <math.h>
+#include <string.h>
+
+/* ---------------------------------------------------------------- chain kinematics */
+
+/* fixed (n, 4, 4): joint i's fixed transform from the previous joint's frame, its axis
+ * turned onto z; tip (4, 4); q (B, n) -> position (B, 3), rotation (B, 3, 3), jacobian
+ * (B, 6, n): linear rows z_i x (p_ee - p_i), then angular rows z_i. */
+static void chain_rows(const double *fixed, const double *tip, Py_ssize_t n,
+                       const double *q, Py_ssize_t batch, double *position,
+                       double *rotation, double *jacobian) {
+    double z[64][3], p[64][3];
+    for (Py_ssize_t b = 0; b < batch; ++b) {
+        double R[3][3] = {{1, 0, 0}, {0, 1, 0}, {0, 0, 1}}, t[3] = {0, 0, 0};
+        const double *qb = q + b * n;
+        for (Py_ssize_t i = 0; i < n; ++i) {
+            const double *F = fixed + 16 * i;
+            double next[3][3];
+            for (int r = 0; r < 3; ++r) {
+                double moved = t[r];
+                for (int k = 0; k < 3; ++k) moved += R[r][k] * F[4 * k + 3];
+                for (int c = 0; c < 3; ++c)
+                    next[r][c] = R[r][0] * F[c] + R[r][1] * F[4 + c] + R[r][2] * F[8 + c];
+                p[i][r] = moved;
+            }
+            /* R Rz(q): x <- c x + s y, y <- c y - s x on the frame's columns. */
+            double c = cos(qb[i]), s = sin(qb[i]);
+            for (int r = 0; r < 3; ++r) {
+                double x = next[r][0], y = next[r][1];
+                R[r][0] = c * x + s * y;
+                R[r][1] = c * y - s * x;
+                R[r][2] = next[r][2];
+                t[r] = p[i][r];
+                z[i][r] = R[r][2];
+            }
+        }
+        double *pos = position + 3 * b, *rot = rotation + 9 * b, *jac = jacobian + 6 * n * b;
+        for (int r = 0; r < 3; ++r) {
+            double moved = t[r];
+            for (int k = 0; k < 3; ++k) moved += R[r][k] * tip[4 * k + 3];
+            pos[r] = moved;
+            for (int c = 0; c < 3; ++c)
+                rot[3 * r + c] = R[r][0] * tip[c] + R[r][1] * tip[4 + c] + R[r][2] * tip[8 + c];
+        }
+        for (Py_ssize_t i = 0; i < n; ++i) {
+            double lx = pos[0] - p[i][0], ly = pos[1] - p[i][1], lz = pos[2] - p[i][2];
+            jac[0 * n + i] = z[i][1] * lz - z[i][2] * ly;
+            jac[1 * n + i] = z[i][2] * lx - z[i][0] * lz;
+            jac[2 * n + i] = z[i][0] * ly - z[i][1] * lx;
+            jac[3 * n + i] = z[i][0];
+            jac[4 * n + i] = z[i][1];
+            jac[5 * n + i] = z[i][2];
+        }
+    }
+}
+
+/* ---------------------------------------------------------------- rotation error */
+
+#define COS_150_DEG (-0.86602540378443860)
+
+/* Rotation vector of M (row-major 3 x 3), NaN unless M is finite with det M > 0. Below
+ * 150 degrees from the skew part, (theta / sin theta) vee((M - M^T) / 2); beyond, from the
+ * quaternion of the largest of the trace and the diagonal (Markley's choice, as scipy's
+ * Rotation.from_matrix makes it), scalar part made non-negative, 2 atan2(|v|, w) v / |v|. */
+static void rotation_log_row(const double *M, double *out) {
+    int finite = 1;
+    for (int k = 0; k < 9; ++k) finite &= isfinite(M[k]) != 0;
+    double det = M[0] * (M[4] * M[8] - M[5] * M[7]) - M[1] * (M[3] * M[8] - M[5] * M[6]) +
+                 M[2] * (M[3] * M[7] - M[4] * M[6]);
+    if (!finite || !(det > 0.0)) {
+        out[0] = out[1] = out[2] = NAN;
+        return;
+    }
+    double sx = 0.5 * (M[7] - M[5]), sy = 0.5 * (M[2] - M[6]), sz = 0.5 * (M[3] - M[1]);
+    double trace = M[0] + M[4] + M[8];
+    double cosine = 0.5 * (trace - 1.0);
+    if (cosine >= COS_150_DEG) {
+        double sine = sqrt(sx * sx + sy * sy + sz * sz);
+        double scale = sine > 1e-8 ? atan2(sine, cosine) / sine : 1.0;
+        out[0] = sx * scale;
+        out[1] = sy * scale;
+        out[2] = sz * scale;
+        return;
+    }
+    double quat[4]; /* x, y, z, w */
+    int choice = 3;
+    double best = trace;
+    for (int i = 0; i < 3; ++i)
+        if (M[4 * i] > best) best = M[4 * i], choice = i;
+    if (choice == 3) {
+        quat[0] = M[7] - M[5];
+        quat[1] = M[2] - M[6];
+        quat[2] = M[3] - M[1];
+        quat[3] = 1.0 + trace;
+    } else {
+        int i = choice, j = (i + 1) % 3, k = (j + 1) % 3;
+        quat[i] = 1.0 - trace + 2.0 * M[4 * i];
+        quat[j] = M[3 * j + i] + M[3 * i + j];
+        quat[k] = M[3 * k + i] + M[3 * i + k];
+        quat[3] = M[3 * k + j] - M[3 * j + k];
+    }
+    double norm = sqrt(quat[0] * quat[0] + quat[1] * quat[1] + quat[2] * quat[2] + quat[3] * quat[3]);
+    double sign = quat[3] < 0.0 ? -1.0 : 1.0;
+    for (int k = 0; k < 4; ++k) quat[k] *= sign / norm;
+    double vector_norm = sqrt(quat[0] * quat[0] + quat[1] * quat[1] + quat[2] * quat[2]);
+    double angle = 2.0 * atan2(vector_norm, quat[3]);
+    double scale = angle / sin(0.5 * angle);
+    for (int k = 0; k < 3; ++k) out[k] = quat[k] * scale;
+}
+
+/* target (3, 3), rotation (B, 3, 3) -> error (B, 3) = log(R* R^T). */
+static void rotation_error_rows(const double *target, const double *rotation, Py_ssize_t batch,
+                                double *error) {
+    for (Py_ssize_t b = 0; b < batch; ++b) {
+        const double *R = rotation + 9 * b;
+        double M[9];
+        for (int r = 0; r < 3; ++r)
+            for (int c = 0; c < 3; ++c)
+                M[3 * r + c] = target[3 * r] * R[3 * c] + target[3 * r + 1] * R[3 * c + 1] +
+                               target[3 * r + 2] * R[3 * c + 2];
+        rotation_log_row(M, error + 3 * b);
+    }
+}
+
+/* ---------------------------------------------------------------- DLS step */
+
+/* jacobian (B, m, n), error (B, m), damping -> step (B, n) = J^T (J J^T + damping^2 I)^-1 e
+ * by Gaussian elimination with partial pivoting (LAPACK gesv's choice of pivots). A row
+ * with a non-finite entry gets NaN; a row whose system is exactly singular gets NaN and
+ * is flagged in `singular` (1) for the caller's pseudo-inverse. */
+static void dls_rows(const double *jacobian, const double *error, Py_ssize_t batch, Py_ssize_t m,
+                     Py_ssize_t n, double damping, double *step, unsigned char *singular) {
+    double A[6][6], y[6];
+    for (Py_ssize_t b = 0; b < batch; ++b) {
+        const double *J = jacobian + b * m * n, *e = error + b * m;
+        double *dq = step + b * n;
+        singular[b] = 0;
+        int finite = 1;
+        for (Py_ssize_t k = 0; k < m * n; ++k) finite &= isfinite(J[k]) != 0;
+        for (Py_ssize_t k = 0; k < m; ++k) finite &= isfinite(e[k]) != 0;
+        if (!finite) {
+            for (Py_ssize_t k = 0; k < n; ++k) dq[k] = NAN;
+            continue;
+        }
+        for (Py_ssize_t r = 0; r < m; ++r) {
+            for (Py_ssize_t c = r; c < m; ++c) {
+                double sum = 0.0;
+                for (Py_ssize_t k = 0; k < n; ++k) sum += J[r * n + k] * J[c * n + k];
+                A[r][c] = A[c][r] = sum;
+            }
+            A[r][r] += damping * damping;
+            y[r] = e[r];
+        }
+        int failed = 0;
+        for (Py_ssize_t col = 0; col < m && !failed; ++col) {
+            Py_ssize_t pivot = col;
+            for (Py_ssize_t r = col + 1; r < m; ++r)
+                if (fabs(A[r][col]) > fabs(A[pivot][col])) pivot = r;
+            if (A[pivot][col] == 0.0) {
+                failed = 1;
+                break;
+            }
+            if (pivot != col) {
+                for (Py_ssize_t c = 0; c < m; ++c) {
+                    double swap = A[col][c];
+                    A[col][c] = A[pivot][c];
+                    A[pivot][c] = swap;
+                }
+                double swap = y[col];
+                y[col] = y[pivot];
+                y[pivot] = swap;
+            }
+            for (Py_ssize_t r = col + 1; r < m; ++r) {
+                double factor = A[r][col] / A[col][col];
+                for (Py_ssize_t c = col; c < m; ++c) A[r][c] -= factor * A[col][c];
+                y[r] -= factor * y[col];
+            }
+        }
+        if (failed) {
+            singular[b] = 1;
+            for (Py_ssize_t k = 0; k < n; ++k) dq[k] = NAN;
+            continue;
+        }
+        for (Py_ssize_t r = m - 1; r >= 0; --r) {
+            double sum = y[r];
+            for (Py_ssize_t c = r + 1; c < m; ++c) sum -= A[r][c] * y[c];
+            y[r] = sum / A[r][r];
+        }
+        for (Py_ssize_t k = 0; k < n; ++k) {
+            double sum = 0.0;
+            for (Py_ssize_t r = 0; r < m; ++r) sum += J[r * n + k] * y[r];
+            dq[k] = sum;
+        }
+    }
+}
+
+/* ---------------------------------------------------------------- URDF joint frames */
+
+/* origin (n, 4, 4) joint k's fixed transform, axis (n, 3) unit; q (B, n) -> frames
+ * (B, n + 1, 4, 4): T_0 = I, T_k = T_{k-1} origin_k Rot(axis_k, q_k), Rot by Rodrigues'
+ * formula cos I + sin [a]x + (1 - cos) a a^T. */
+static void frame_rows(const double *origin, const double *axis, Py_ssize_t n, const double *q,
+                       Py_ssize_t batch, double *frames) {
+    for (Py_ssize_t b = 0; b < batch; ++b) {
+        double *T = frames + b * (n + 1) * 16;
+        memset(T, 0, 16 * sizeof(double));
+        T[0] = T[5] = T[10] = T[15] = 1.0;
+        for (Py_ssize_t k = 0; k < n; ++k) {
+            const double *P = T + 16 * k, *O = origin + 16 * k, *a = axis + 3 * k;
+            double *N = T + 16 * (k + 1), fixed[12];
+            for (int r = 0; r < 3; ++r)
+                for (int c = 0; c < 4; ++c)
+                    fixed[4 * r + c] = P[4 * r] * O[c] + P[4 * r + 1] * O[4 + c] +
+                                       P[4 * r + 2] * O[8 + c] + P[4 * r + 3] * O[12 + c];
+            double cq = cos(q[b * n + k]), sq = sin(q[b * n + k]), vq = 1.0 - cq;
+            double rot[9] = {
+                cq + vq * a[0] * a[0],        vq * a[0] * a[1] - sq * a[2], vq * a[0] * a[2] + sq * a[1],
+                vq * a[1] * a[0] + sq * a[2], cq + vq * a[1] * a[1],        vq * a[1] * a[2] - sq * a[0],
+                vq * a[2] * a[0] - sq * a[1], vq * a[2] * a[1] + sq * a[0], cq + vq * a[2] * a[2],
+            };
+            for (int r = 0; r < 3; ++r) {
+                for (int c = 0; c < 3; ++c)
+                    N[4 * r + c] = fixed[4 * r] * rot[c] + fixed[4 * r + 1] * rot[3 + c] +
+                                   fixed[4 * r + 2] * rot[6 + c];
+                N[4 * r + 3] = fixed[4 * r + 3];
+            }
+            N[12] = N[13] = N[14] = 0.0;
+            N[15] = 1.0;
+        }
+    }
+}
+
+/* ---------------------------------------------------------------- self-clearance */
+
+/* rotation (B, K, 3, 3), origin (B, K, 3): each body's frame; centre (K, S, 3), radius
+ * (K, S) its spheres (the first own[k] are its own), bound (K, 3), bound_radius (K,) its
+ * bounding sphere; pair_a, pair_b (P,) the checked body pairs -> clearance (B,): the
+ * least |c_a - c_b| - r_a - r_b over the checked pairs' spheres, +inf with no pair. A
+ * body pair whose bounding spheres are already no nearer than the least found so far
+ * cannot lower it and is skipped: the first spheres' pairs start it. `placed` is scratch
+ * (K * S * 3 + K * 3). */
+static void self_clearance_rows(const double *rotation, const double *origin, Py_ssize_t batch,
+                                Py_ssize_t K, Py_ssize_t S, const double *centre,
+                                const double *radius, const long long *own, const double *bound,
+                                const double *bound_radius, const long long *pair_a,
+                                const long long *pair_b, Py_ssize_t P, double *clearance,
+                                double *placed) {
+    double *bounds = placed + K * S * 3;
+    for (Py_ssize_t b = 0; b < batch; ++b) {
+        const double *R = rotation + b * K * 9, *t = origin + b * K * 3;
+        for (Py_ssize_t k = 0; k < K; ++k) {
+            const double *Rk = R + 9 * k, *tk = t + 3 * k;
+            for (Py_ssize_t s = 0; s < (Py_ssize_t)own[k]; ++s) {
+                const double *c = centre + (k * S + s) * 3;
+                double *out = placed + (k * S + s) * 3;
+                for (int r = 0; r < 3; ++r)
+                    out[r] = Rk[3 * r] * c[0] + Rk[3 * r + 1] * c[1] + Rk[3 * r + 2] * c[2] + tk[r];
+            }
+            const double *c = bound + 3 * k;
+            for (int r = 0; r < 3; ++r)
+                bounds[3 * k + r] = Rk[3 * r] * c[0] + Rk[3 * r + 1] * c[1] + Rk[3 * r + 2] * c[2] + tk[r];
+        }
+        double best = INFINITY;
+        for (Py_ssize_t p = 0; p < P; ++p) {
+            Py_ssize_t ka = pair_a[p], kb = pair_b[p];
+            const double *ca = placed + ka * S * 3, *cb = placed + kb * S * 3;
+            double dx = ca[0] - cb[0], dy = ca[1] - cb[1], dz = ca[2] - cb[2];
+            double gap = sqrt(dx * dx + dy * dy + dz * dz) - (radius[ka * S] + radius[kb * S]);
+            if (gap < best || isnan(gap)) best = gap;
+        }
+        for (Py_ssize_t p = 0; p < P && !isnan(best); ++p) {
+            Py_ssize_t ka = pair_a[p], kb = pair_b[p];
+            const double *ba = bounds + 3 * ka, *bb = bounds + 3 * kb;
+            double dx = ba[0] - bb[0], dy = ba[1] - bb[1], dz = ba[2] - bb[2];
+            double lower = sqrt(dx * dx + dy * dy + dz * dz) - (bound_radius[ka] + bound_radius[kb]);
+            if (!(lower < best)) continue;
+            for (Py_ssize_t i = 0; i < (Py_ssize_t)own[ka]; ++i) {
+                const double *ci = placed + (ka * S + i) * 3;
+                double ri = radius[ka * S + i];
+                for (Py_ssize_t j = 0; j < (Py_ssize_t)own[kb]; ++j) {
+                    const double *cj = placed + (kb * S + j) * 3;
+                    double ex = ci[0] - cj[0], ey = ci[1] - cj[1], ez = ci[2] - cj[2];
+                    double gap = sqrt(ex * ex + ey * ey + ez * ez) - (ri + radius[kb * S + j]);
+                    if (gap < best) best = gap;
+                }
+            }
+        }
+        clearance[b] = best;
+    }
+}
+
+/* ---------------------------------------------------------------- Python entry points */
+
+static PyObject *py_chain(PyObject *self, PyObject *args) {
+    Py_buffer fixed, tip, q, position, rotation, jacobian;
+    Py_ssize_t n, batch;
+    if (!PyArg_ParseTuple(args, "y*y*y*nnw*w*w*", &fixed, &tip, &q, &n, &batch, &position,
+                          &rotation, &jacobian))
+        return NULL;
+    Py_BEGIN_ALLOW_THREADS
+    chain_rows(fixed.buf, tip.buf, n, q.buf, batch, position.buf, rotation.buf, jacobian.buf);
+    Py_END_ALLOW_THREADS
+    PyBuffer_Release(&fixed), PyBuffer_Release(&tip), PyBuffer_Release(&q);
+    PyBuffer_Release(&position), PyBuffer_Release(&rotation), PyBuffer_Release(&jacobian);
+    Py_RETURN_NONE;
+}
+
+static PyObject *py_rotation_error(PyObject *self, PyObject *args) {
+    Py_buffer target, rotation, error;
+    Py_ssize_t batch;
+    if (!PyArg_ParseTuple(args, "y*y*nw*", &target, &rotation, &batch, &error)) return NULL;
+    Py_BEGIN_ALLOW_THREADS
+    rotation_error_rows(target.buf, rotation.buf, batch, error.buf);
+    Py_END_ALLOW_THREADS
+    PyBuffer_Release(&target), PyBuffer_Release(&rotation), PyBuffer_Release(&error);
+    Py_RETURN_NONE;
+}
+
+static PyObject *py_dls_step(PyObject *self, PyObject *args) {
+    Py_buffer jacobian, error, step, singular;
+    Py_ssize_t batch, m, n;
+    double damping;
+    if (!PyArg_ParseTuple(args, "y*y*nnndw*w*", &jacobian, &error, &batch, &m, &n, &damping,
+                          &step, &singular))
+        return NULL;
+    Py_BEGIN_ALLOW_THREADS
+    dls_rows(jacobian.buf, error.buf, batch, m, n, damping, step.buf, singular.buf);
+    Py_END_ALLOW_THREADS
+    PyBuffer_Release(&jacobian), PyBuffer_Release(&error);
+    PyBuffer_Release(&step), PyBuffer_Release(&singular);
+    Py_RETURN_NONE;
+}
+
+static PyObject *py_frames(PyObject *self, PyObject *args) {
+    Py_buffer origin, axis, q, frames;
+    Py_ssize_t n, batch;
+    if (!PyArg_ParseTuple(args, "y*y*y*nnw*", &origin, &axis, &q, &n, &batch, &frames)) return NULL;
+    Py_BEGIN_ALLOW_THREADS
+    frame_rows(origin.buf, axis.buf, n, q.buf, batch, frames.buf);
+    Py_END_ALLOW_THREADS
+    PyBuffer_Release(&origin), PyBuffer_Release(&axis), PyBuffer_Release(&q), PyBuffer_Release(&frames);
+    Py_RETURN_NONE;
+}
+
+static PyObject *py_self_clearance(PyObject *self, PyObject *args) {
+    Py_buffer rotation, origin, centre, radius, own, bound, bound_radius, pair_a, pair_b;
+    Py_buffer clearance, scratch;
+    Py_ssize_t batch, K, S, P;
+    if (!PyArg_ParseTuple(args, "y*y*nnny*y*y*y*y*y*y*nw*w*", &rotation, &origin, &batch, &K, &S,
+                          &centre, &radius, &own, &bound, &bound_radius, &pair_a, &pair_b, &P,
+                          &clearance, &scratch))
+        return NULL;
+    Py_BEGIN_ALLOW_THREADS
+    self_clearance_rows(rotation.buf, origin.buf, batch, K, S, centre.buf, radius.buf, own.buf,
+                        bound.buf, bound_radius.buf, pair_a.buf, pair_b.buf, P, clearance.buf,
+                        scratch.buf);
+    Py_END_ALLOW_THREADS
+    Py_buffer *all[] = {&rotation, &origin, &centre, &radius, &own, &bound, &bound_radius,
+                        &pair_a, &pair_b, &clearance, &scratch};
+    for (size_t i = 0; i < sizeof all / sizeof *all; ++i) PyBuffer_Release(all[i]);
+    Py_RETURN_NONE;
+}
+
+static PyMethodDef methods[] = {
+    {"chain", py_chain, METH_VARARGS,
+     "chain(fixed, tip, q, n, batch, position, rotation, jacobian): serial-chain FK and Jacobian."},
+    {"rotation_error", py_rotation_error, METH_VARARGS,
+     "rotation_error(target, rotation, batch, error): log(R* R^T) per row."},
+    {"dls_step", py_dls_step, METH_VARARGS,
+     "dls_step(jacobian, error, batch, m, n, damping, step, singular): one DLS step per row."},
+    {"frames", py_frames, METH_VARARGS,
+     "frames(origin, axis, q, n, batch, frames): every URDF joint frame of a serial chain."},
+    {"self_clearance", py_self_clearance, METH_VARARGS,
+     "self_clearance(rotation, origin, batch, K, S, centre, radius, own, bound, bound_radius, "
+     "pair_a, pair_b, P, clearance, scratch): least sphere gap over the checked body pairs."},
+    {NULL, NULL, 0, NULL},
+};
+
+static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_native", NULL, -1, methods};
+
+PyMODINIT_FUNC PyInit__native(void) { return PyModule_Create(&module); }

@@ -1,0 +1,184 @@
+"""Compiled kernels for the pipeline's innermost loops: chain kinematics, rotation error, DLS step.
+
+Why compiled: every stage after sampling calls these on a few dozen rows at a time (the
+trace's fronts, the Newton projections), hundreds of times per answer, where numpy
+spends its time in the overhead of tens of small array calls, not in arithmetic. Per
+row they are a few hundred floating-point operations, which compiled code does in well
+under a microsecond.
+
+Why C: the kernels are small, fixed-size linear algebra over one row at a time, which
+C99 says plainly; the extension (native.c) builds with the C compiler and the headers
+that every CPython build comes with, at install time (`pip install .`, the README's
+commands, the Dockerfile's build stage), with no numpy headers (arrays arrive through the
+buffer protocol) and no run-time dependency. It writes nothing at run time, so the
+service keeps running on a read-only root file system, and it starts with the process:
+no JIT. numba was weighed: its LLVM (llvmlite, 173 MB installed) would have taken the
+image from about 500 to 700 MB, compiles at start-up unless its cache is written
+beforehand, and its cache locator requires a writable directory.
+
+Each wrapper checks what the C code relies on (float64, C-contiguous, shapes) and
+allocates the outputs; the C code loops over rows with the GIL released. Each kernel is
+pinned by tests/service/pipeline/test_native.py to the numpy implementation it replaces
+(1e-12) and to pytorch-kinematics.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from service.pipeline import _native  # type: ignore[attr-defined]
+from service.pipeline.arrays import FloatArray, IntArray
+
+# The C code keeps a chain's joint frames on the stack.
+MAX_JOINTS = 64
+# The DLS step's system is m x m on the stack: at most a full pose.
+MAX_TASK_DIMENSION = 6
+
+
+def _float64(array: FloatArray, name: str, shape: tuple[int, ...]) -> FloatArray:
+    """`array` as C-contiguous float64 of `shape` (a copy only where it is not already)."""
+    out = np.ascontiguousarray(array, dtype=np.float64)
+    if out.shape != shape:
+        raise ValueError(f"{name} has shape {out.shape}; expected {shape}")
+    return out
+
+
+def chain_kinematics(
+    fixed: FloatArray,  # (n, 4, 4) joint i's fixed transform, its axis turned onto z
+    tip: FloatArray,  # (4, 4) from the last joint's frame to the end effector
+    q_rad: FloatArray,  # (B, n)
+) -> tuple[FloatArray, FloatArray, FloatArray]:  # position (B, 3), rotation (B, 3, 3), J (B, 6, n)
+    """Forward kinematics and geometric Jacobian of a serial chain of revolute joints.
+
+    Joint i's frame is the previous one times fixed[i] times Rz(q_i); the end effector is
+    the last frame times `tip`. The Jacobian is in the base frame, linear rows first:
+    z_i x (p_ee - p_i), then z_i. A non-finite joint value gives non-finite outputs in
+    its own row only.
+    """
+    n = len(fixed)
+    if not 0 < n <= MAX_JOINTS:
+        raise ValueError(f"a chain of {n} joints; the kernel takes 1 to {MAX_JOINTS}")
+    fixed = _float64(fixed, "fixed", (n, 4, 4))
+    tip = _float64(tip, "tip", (4, 4))
+    batch = len(q_rad)
+    q = _float64(q_rad, "q_rad", (batch, n))
+    position = np.empty((batch, 3))
+    rotation = np.empty((batch, 3, 3))
+    jacobian = np.empty((batch, 6, n))
+    if batch:
+        _native.chain(fixed, tip, q, n, batch, position, rotation, jacobian)
+    return position, rotation, jacobian
+
+
+def rotation_error(
+    rotation_target: FloatArray,  # (3, 3)
+    rotation: FloatArray,  # (B, 3, 3)
+) -> FloatArray:  # (B, 3)
+    """Base-frame rotation vector e with exp([e]) R = R*, that is log(R* R^T), per row.
+
+    Below 150 degrees it is read off the skew part of R* R^T; beyond, off its quaternion
+    (the largest of trace and diagonal chooses the formula, as scipy's does). A row that
+    is no rotation (non-finite, or R* R^T with a non-positive determinant) gets NaN.
+    """
+    target = _float64(rotation_target, "rotation_target", (3, 3))
+    batch = len(rotation)
+    rotations = _float64(rotation, "rotation", (batch, 3, 3))
+    error = np.empty((batch, 3))
+    if batch:
+        _native.rotation_error(target, rotations, batch, error)
+    return error
+
+
+def dls_step(
+    jacobian: FloatArray,  # (B, m, n)
+    error: FloatArray,  # (B, m)
+    damping: float,
+) -> FloatArray:  # (B, n)
+    """dq = J^T (J J^T + damping^2 I)^-1 e per row, by LU with partial pivoting.
+
+    A row whose Jacobian or error is not finite gets a NaN step. A row whose system is
+    exactly singular (zero damping at a kinematic singularity) takes the pseudo-inverse's
+    step instead.
+    """
+    batch, m, n = np.shape(jacobian)
+    if not 0 < m <= MAX_TASK_DIMENSION:
+        raise ValueError(f"a task of dimension {m}; the kernel takes 1 to {MAX_TASK_DIMENSION}")
+    j = _float64(jacobian, "jacobian", (batch, m, n))
+    e = _float64(error, "error", (batch, m))
+    step = np.empty((batch, n))
+    singular = np.zeros(batch, dtype=np.uint8)
+    if batch:
+        _native.dls_step(j, e, batch, m, n, float(damping), step, singular)
+    if singular.any():
+        rows = singular.astype(bool)
+        gram = j[rows] @ np.swapaxes(j[rows], 1, 2)
+        gram.reshape(len(gram), m * m)[:, :: m + 1] += damping * damping
+        step[rows] = (np.swapaxes(j[rows], 1, 2) @ (np.linalg.pinv(gram) @ e[rows][..., None]))[
+            ..., 0
+        ]
+    return step
+
+
+def chain_frames(
+    origin: FloatArray,  # (n, 4, 4) each joint's fixed transform from the previous frame
+    axis: FloatArray,  # (n, 3) each joint's unit axis
+    q_rad: FloatArray,  # (B, n)
+) -> FloatArray:  # (B, n + 1, 4, 4)
+    """T_0 = I and T_k = T_{k-1} origin_k Rot(axis_k, q_k), Rot by Rodrigues' formula: the
+    URDF frame of every joint's child link, base frame, metres."""
+    n = len(origin)
+    origin = _float64(origin, "origin", (n, 4, 4))
+    axis = _float64(axis, "axis", (n, 3))
+    batch = len(q_rad)
+    q = _float64(q_rad, "q_rad", (batch, n))
+    frames = np.empty((batch, n + 1, 4, 4))
+    if batch:
+        _native.frames(origin, axis, q, n, batch, frames)
+    return frames
+
+
+def _int64(array: IntArray, name: str, shape: tuple[int, ...]) -> IntArray:
+    out = np.ascontiguousarray(array, dtype=np.int64)
+    if out.shape != shape:
+        raise ValueError(f"{name} has shape {out.shape}; expected {shape}")
+    return out
+
+
+def self_clearance_m(
+    rotation: FloatArray,  # (B, K, 3, 3) each body's frame
+    origin_m: FloatArray,  # (B, K, 3)
+    centre_local_m: FloatArray,  # (K, S, 3) each body's spheres in its frame
+    radius_m: FloatArray,  # (K, S)
+    own_spheres: IntArray,  # (K,) the first own_spheres[k] spheres of body k are its own
+    bound_local_m: FloatArray,  # (K, 3) each body's bounding sphere
+    bound_radius_m: FloatArray,  # (K,)
+    pair_a: IntArray,  # (P,) the checked body pairs
+    pair_b: IntArray,  # (P,)
+) -> FloatArray:  # (B,)
+    """The least |c_a - c_b| - r_a - r_b over the sphere pairs of the checked body pairs
+    (negative: overlapping), +inf with no pair; NaN where a frame is not finite. Body
+    pairs whose bounding spheres are no nearer than the least gap found so far are
+    skipped: they cannot lower it."""
+    batch, count = len(rotation), len(centre_local_m)
+    spheres = centre_local_m.shape[1]
+    pairs = len(pair_a)
+    if count and (own_spheres.min() < 1 or own_spheres.max() > spheres):
+        raise ValueError(f"own_spheres must lie in 1 to {spheres}")
+    rotation = _float64(rotation, "rotation", (batch, count, 3, 3))
+    origin = _float64(origin_m, "origin_m", (batch, count, 3))
+    centre = _float64(centre_local_m, "centre_local_m", (count, spheres, 3))
+    radius = _float64(radius_m, "radius_m", (count, spheres))
+    own = _int64(own_spheres, "own_spheres", (count,))
+    bound = _float64(bound_local_m, "bound_local_m", (count, 3))
+    bound_radius = _float64(bound_radius_m, "bound_radius_m", (count,))
+    a, b = _int64(pair_a, "pair_a", (pairs,)), _int64(pair_b, "pair_b", (pairs,))
+    if pairs and (min(a.min(), b.min()) < 0 or max(a.max(), b.max()) >= count):
+        raise ValueError(f"body pairs must index 0 to {count - 1}")
+    clearance = np.empty(batch)
+    scratch = np.empty(count * spheres * 3 + count * 3 + 1)
+    if batch:
+        _native.self_clearance(
+            rotation, origin, batch, count, spheres, centre, radius, own, bound, bound_radius,
+            a, b, pairs, clearance, scratch,
+        )  # fmt: skip
+    return clearance

@@ -1,0 +1,228 @@
+"""native: the compiled kernels answer as the numpy kernels, pytorch-kinematics and scipy do.
+
+Chain kinematics: for every bundled arm's chain.json, at configurations uniform over
+several turns, the compiled kernel equals the numpy kernel it replaced
+(tests/support/numpy_kernels.py) and pytorch-kinematics (FK and Jacobian of the URDF, what
+kinematics.onnx is exported from) to 1e-12. Rotation error: log(R* R^T) equals scipy's
+rotation vector at every angle up to pi (both sides of the 150-degree switch) to 1e-12,
+and a non-rotation is NaN in its own row. DLS step: on the arms' own Jacobians (pose and
+position rows) it equals the numpy step (LAPACK's solve) to 1e-12 relative to the step,
+and the closed form J^T (J J^T + d^2 I)^-1 e; a singular system with zero damping takes
+the pseudo-inverse's step and a non-finite row is NaN in its own row. Wrong shapes and
+sizes beyond the kernels' fixed bounds are refused with the valid range named. URDF joint
+frames equal the numpy frames (Rodrigues on whole columns) and end, times the tip, at the
+chain kinematics' end effector. Self-clearance of the iiwa14's and Panda's spheres equals
+the numpy two-pass minimum and a brute force over every sphere pair.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from service.manifest import CHAIN_FILE, COLLISION_FILE, REPO_MODELS_DIR, ChainSpec, CollisionSpec
+from service.models.chain import SerialChainKinematics
+from service.pipeline import native
+from service.pipeline.collision.frames import chain_frames
+from service.pipeline.collision.robot import RobotSpheres
+from service.pipeline.rotations import rotation_log
+from tests.support.chains import pytorch_kinematics_answer
+from tests.support.numpy_kernels import NumpyChainKinematics
+from tests.support.numpy_kernels import chain_frames as numpy_chain_frames
+from tests.support.numpy_kernels import dls_step as numpy_dls_step
+from tests.support.numpy_kernels import self_clearance_m as numpy_self_clearance_m
+
+MODELS = ["iiwa14-pose", "panda-pose", "planar3r-position"]
+URDF = {"iiwa14-pose": "iiwa14", "panda-pose": "panda", "planar3r-position": "planar3r"}
+
+
+def chain(model: str) -> SerialChainKinematics:
+    return SerialChainKinematics.from_file(REPO_MODELS_DIR / model / CHAIN_FILE)
+
+
+def turns(n: int, count: int, seed: int) -> np.ndarray:
+    return np.random.default_rng(seed).uniform(-3 * np.pi, 3 * np.pi, (count, n))
+
+
+@pytest.mark.parametrize("model", MODELS)
+def test_chain_equals_the_numpy_kernel(model: str) -> None:
+    kinematics = chain(model)
+    q = turns(kinematics.joint_count, 3000, seed=0)
+    compiled = kinematics(q)
+    reference = NumpyChainKinematics(kinematics.spec)(q)
+    for a, b in (
+        (compiled.position_m, reference.position_m),
+        (compiled.rotation, reference.rotation),
+        (compiled.jacobian, reference.jacobian),
+    ):
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("model", MODELS)
+def test_chain_equals_pytorch_kinematics(model: str) -> None:
+    kinematics = chain(model)
+    q = turns(kinematics.joint_count, 500, seed=1)
+    answer = kinematics(q)
+    urdf = REPO_MODELS_DIR / "robots" / f"{URDF[model]}.urdf"
+    expected = pytorch_kinematics_answer(urdf, kinematics.spec.end_effector_link, q)
+    for a, e in zip((answer.position_m, answer.rotation, answer.jacobian), expected, strict=True):
+        np.testing.assert_allclose(a, e, rtol=0, atol=1e-12)
+
+
+def test_rotation_error_equals_scipy_at_every_angle() -> None:
+    rng = np.random.default_rng(2)
+    target = Rotation.random(random_state=3).as_matrix()
+    # Errors of every size up to just below pi, on random axes: both sides of 150 degrees.
+    angle = np.concatenate([np.linspace(0.0, np.pi - 1e-6, 2000), [1e-12, 2.61799, 2.61800]])
+    axis = rng.normal(size=(len(angle), 3))
+    axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+    expected = axis * angle[:, None]
+    # R = exp(-[e]) R*, so that log(R* R^T) = e.
+    rotation = Rotation.from_rotvec(-expected).as_matrix() @ target
+    error = native.rotation_error(target, rotation)
+    np.testing.assert_allclose(error, expected, rtol=0, atol=1e-12)
+    # And the numpy logarithm (per-row targets) agrees.
+    per_row = rotation_log(target[None] @ np.swapaxes(rotation, 1, 2))
+    np.testing.assert_allclose(error, per_row, rtol=0, atol=1e-12)
+
+
+def test_rotation_error_of_a_non_rotation_is_nan_in_its_row_only() -> None:
+    target = np.eye(3)
+    rotation = Rotation.random(5, random_state=4).as_matrix()
+    rotation[1, 0, 0] = np.nan
+    rotation[3] *= -1.0  # determinant -1
+    error = native.rotation_error(target, rotation)
+    bad = np.array([False, True, False, True, False])
+    assert np.all(np.isnan(error[bad])) and np.all(np.isfinite(error[~bad]))
+    np.testing.assert_allclose(
+        error[~bad], Rotation.from_matrix(rotation[~bad].transpose(0, 2, 1)).as_rotvec(), atol=1e-12
+    )
+
+
+@pytest.mark.parametrize(
+    ("model", "rows"),
+    [
+        ("iiwa14-pose", slice(None)),
+        ("iiwa14-pose", slice(0, 3)),
+        ("planar3r-position", slice(0, 2)),
+    ],
+)
+def test_dls_step_equals_the_numpy_step_on_real_jacobians(model: str, rows: slice) -> None:
+    kinematics = chain(model)
+    q = turns(kinematics.joint_count, 2000, seed=5)
+    jacobian = np.ascontiguousarray(kinematics(q).jacobian[:, rows])  # (B, m, n)
+    error = np.random.default_rng(6).normal(scale=0.05, size=jacobian.shape[:2])  # (B, m)
+    damping = 1e-3
+    step = native.dls_step(jacobian, error, damping)
+    reference = numpy_dls_step(jacobian, error, damping)
+    # Both solvers are backward stable: they differ by at most a few eps * cond(G) * |dq|,
+    # G = J J^T + d^2 I; where G is well conditioned, by 1e-12 at most.
+    gram = jacobian @ np.swapaxes(jacobian, 1, 2) + damping**2 * np.eye(jacobian.shape[1])
+    condition = np.linalg.cond(gram)  # (B,)
+    scale = np.maximum(np.linalg.norm(reference, axis=1), 1.0)  # (B,)
+    difference = np.linalg.norm(step - reference, axis=1)  # (B,)
+    assert np.all(difference <= 64 * np.finfo(float).eps * condition * scale)
+    well = condition < 1e3
+    assert well.mean() > 0.5
+    assert np.all(difference[well] <= 1e-12 * scale[well])
+    # The closed form, row by row.
+    for b in range(0, len(q), 199):
+        j, e = jacobian[b], error[b]
+        closed = j.T @ np.linalg.solve(j @ j.T + damping**2 * np.eye(len(e)), e)
+        np.testing.assert_allclose(step[b], closed, rtol=1e-10, atol=1e-14)
+
+
+def test_dls_step_singular_and_non_finite_rows() -> None:
+    rng = np.random.default_rng(7)
+    jacobian = rng.normal(size=(4, 6, 7))
+    error = rng.normal(size=(4, 6))
+    jacobian[1, :2] = 0.0  # rank 4: J J^T singular without damping
+    jacobian[2, 0, 0] = np.inf
+    error[3, 5] = np.nan
+    step = native.dls_step(jacobian, error, 0.0)
+    assert np.all(np.isnan(step[2])) and np.all(np.isnan(step[3]))
+    np.testing.assert_allclose(step[1], np.linalg.pinv(jacobian[1]) @ error[1], atol=1e-12)
+    np.testing.assert_allclose(
+        step[0], np.linalg.solve(jacobian[0] @ jacobian[0].T, error[0]) @ jacobian[0], rtol=1e-10
+    )
+
+
+def test_shapes_beyond_the_kernels_bounds_are_refused() -> None:
+    with pytest.raises(ValueError, match="the kernel takes 1 to 64"):
+        native.chain_kinematics(np.zeros((65, 4, 4)), np.eye(4), np.zeros((1, 65)))
+    with pytest.raises(ValueError, match=r"q_rad has shape \(2, 3\); expected \(2, 7\)"):
+        native.chain_kinematics(np.tile(np.eye(4), (7, 1, 1)), np.eye(4), np.zeros((2, 3)))
+    with pytest.raises(ValueError, match="the kernel takes 1 to 6"):
+        native.dls_step(np.zeros((1, 7, 7)), np.zeros((1, 7)), 1e-3)
+    for batch in (0, 1):
+        position, rotation, jacobian = native.chain_kinematics(
+            np.tile(np.eye(4), (3, 1, 1)), np.eye(4), np.zeros((batch, 3))
+        )
+        assert (position.shape, rotation.shape, jacobian.shape) == (
+            (batch, 3),
+            (batch, 3, 3),
+            (batch, 6, 3),
+        )
+        assert native.dls_step(np.zeros((batch, 2, 3)), np.zeros((batch, 2)), 1e-3).shape == (
+            batch,
+            3,
+        )
+
+
+COLLISION_MODELS = ["iiwa14-pose", "panda-pose"]
+
+
+def robot_spheres(model: str) -> RobotSpheres:
+    chain_spec = ChainSpec.model_validate_json((REPO_MODELS_DIR / model / CHAIN_FILE).read_bytes())
+    spec = CollisionSpec.model_validate_json(
+        (REPO_MODELS_DIR / model / COLLISION_FILE).read_bytes()
+    )
+    return RobotSpheres.of(chain_spec, spec)
+
+
+@pytest.mark.parametrize("model", [*COLLISION_MODELS, "planar3r-position"])
+def test_frames_equal_the_numpy_frames_and_the_chain_kinematics(model: str) -> None:
+    kinematics = chain(model)
+    q = turns(kinematics.joint_count, 2000, seed=8)
+    frames = chain_frames(kinematics.spec, q)
+    np.testing.assert_allclose(frames, numpy_chain_frames(kinematics.spec, q), rtol=0, atol=1e-12)
+    # The last frame times the tip is the end effector of the chain kinematics.
+    tip = frames[:, -1] @ np.asarray(kinematics.spec.tip)
+    answer = kinematics(q)
+    np.testing.assert_allclose(tip[:, :3, 3], answer.position_m, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(tip[:, :3, :3], answer.rotation, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("model", COLLISION_MODELS)
+def test_self_clearance_equals_the_numpy_two_passes_and_brute_force(model: str) -> None:
+    robot = robot_spheres(model)
+    q = turns(len(robot.chain.joints), 3000, seed=9)
+    placed = robot.place(q)
+    clearance = robot.self_clearance_m(placed)
+    np.testing.assert_allclose(clearance, numpy_self_clearance_m(robot, placed), rtol=0, atol=1e-12)
+    assert (clearance < 0).any() and (clearance > 0).any()  # both sides of contact occur
+    # Brute force over every own sphere pair of every checked body pair, on 50 rows.
+    for row in range(50):
+        least = np.inf
+        for a, b in zip(robot.pair_a, robot.pair_b, strict=True):
+            ca = placed.spheres(np.array([row]), np.array([a]))[0, : robot.own_spheres[a]]
+            cb = placed.spheres(np.array([row]), np.array([b]))[0, : robot.own_spheres[b]]
+            gap = np.linalg.norm(ca[:, None] - cb[None], axis=2)
+            gap -= robot.radius_m[a, : len(ca), None] + robot.radius_m[b, None, : len(cb)]
+            least = min(least, float(gap.min()))
+        assert abs(clearance[row] - least) <= 1e-12
+
+
+def test_self_clearance_without_pairs_is_infinite_and_nan_rows_stay_nan() -> None:
+    robot = robot_spheres("iiwa14-pose")
+    q = turns(len(robot.chain.joints), 4, seed=10)
+    q[2, 3] = np.nan
+    clearance = robot.self_clearance_m(robot.place(q))
+    assert np.isnan(clearance[2]) and np.all(np.isfinite(clearance[[0, 1, 3]]))
+    none = native.self_clearance_m(
+        *(np.zeros((4, 2, 3, 3)), np.zeros((4, 2, 3))), np.zeros((2, 1, 3)), np.ones((2, 1)),
+        np.ones(2, dtype=np.int64), np.zeros((2, 3)), np.ones(2),
+        np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64),
+    )  # fmt: skip
+    assert np.all(np.isinf(none))
