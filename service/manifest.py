@@ -142,6 +142,13 @@ class SamplerSpec(_Strict):
         description="1: uniform steps (the paper's); above 1 the steps shorten towards t = 1, "
         "where the learned field turns fastest (EDM's rho schedule, in flow time)",
     )
+    round_samples: int | None = Field(
+        default=None,
+        ge=1,
+        description="r = 1 only: draw this many samples at a time and stop after a round "
+        "whose accepted samples all lie on curves already traced (service/pipeline/"
+        "rounds.py), num_samples at most; None: all num_samples at once",
+    )
 
     @property
     def file(self) -> str:

@@ -36,7 +36,7 @@ from dataclasses import dataclass
 from service.errors import DeadlineExceededError
 from service.pipeline.arrays import FloatArray
 from service.pipeline.deadline import NO_DEADLINE, Deadline
-from service.pipeline.run import Stopwatch, answer_samples, encode, sample
+from service.pipeline.run import Stopwatch, answer, answer_samples, encode, in_rounds, sample
 from service.pipeline.targets import Target
 from service.pipeline.types import Query, SmmModel, SmmResult
 
@@ -84,17 +84,19 @@ def run_batch(
     pool = ThreadPoolExecutor(sampling_threads) if sampling_threads > 0 else None
     futures: list[Future[FloatArray]] = []
     try:
-        if pool is not None:
+        if pool is not None:  # a query drawn in rounds samples as it goes
             futures = [
                 pool.submit(_sample_timed, model, query, target, watch, deadline)
                 for query, target, watch in zip(queries, targets, watches, strict=True)
+                if not in_rounds(model, query)
             ]
-        for i, (query, target, watch) in enumerate(zip(queries, targets, watches, strict=True)):
-            if pool is None:
-                q_sampled_rad = _sample_timed(model, query, target, watch, deadline)
+        ahead = iter(futures)
+        for query, target, watch in zip(queries, targets, watches, strict=True):
+            if pool is None or in_rounds(model, query):
+                results.append(answer(model, query, target, watch, deadline))
             else:
-                q_sampled_rad = futures[i].result()
-            results.append(answer_samples(model, query, target, q_sampled_rad, watch, deadline))
+                q_sampled_rad = next(ahead).result()
+                results.append(answer_samples(model, query, target, q_sampled_rad, watch, deadline))
     except DeadlineExceededError as error:
         return BatchResult(results, error, (time.perf_counter() - start_s) * 1e3)
     finally:

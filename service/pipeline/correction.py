@@ -19,7 +19,7 @@ from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.joint_space import JointLimits
 from service.pipeline.rotations import rotation_error
 from service.pipeline.targets import Target
-from service.pipeline.types import Correction, Kinematics, KinematicsResult
+from service.pipeline.types import ChainKinematics, Correction, Kinematics, KinematicsResult
 
 
 def dls_step(
@@ -76,6 +76,25 @@ def error_norms(error: FloatArray, task: TaskSpec) -> tuple[FloatArray, FloatArr
 
 # q (B, n) -> task error e (B, m) and Jacobian J (B, m, n).
 Residual = Callable[[FloatArray], tuple[FloatArray, FloatArray]]
+
+
+def residual_of(kinematics: Kinematics, target: Target, task: TaskSpec) -> Residual:
+    """q -> (e, J) of `task_error`: in one compiled pass (`native.task_residual`) where the
+    kinematics is a serial chain the kernels evaluate, else through the kinematics."""
+    if isinstance(kinematics, ChainKinematics):
+        fixed, tip = kinematics.fixed, kinematics.tip
+        axes, position = task.position_axes, target.position_m
+        rotation = target.rotation if task.orientation else None
+
+        def compiled(q_rad: FloatArray) -> tuple[FloatArray, FloatArray]:
+            return native.task_residual(fixed, tip, q_rad, axes, position, rotation)
+
+        return compiled
+
+    def through(q_rad: FloatArray) -> tuple[FloatArray, FloatArray]:
+        return task_error(kinematics(q_rad), target, task)
+
+    return through
 # J (A, m, n), e (A, m) of the rows still moving, and which rows they are (an index (A,),
 # or slice(None) for every row, so per-row data is a view, not a copy) -> dq (A, n); a NaN
 # row where there is no step.
@@ -160,8 +179,7 @@ def correct(
     if not finite.any():  # nothing to correct (and the kinematics needs a non-empty batch)
         return Correction(q_out, position_error_m, orientation_error_rad, jacobian_out)
 
-    def residual(q: FloatArray) -> tuple[FloatArray, FloatArray]:
-        return task_error(kinematics(q), target, task)
+    residual = residual_of(kinematics, target, task)
 
     def step(jacobian: FloatArray, error: FloatArray, rows: IntArray | slice) -> FloatArray:
         return dls_step(jacobian, error, damping)

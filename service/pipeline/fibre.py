@@ -11,15 +11,15 @@ near the fibre is to a singular point (where components can touch).
 
 from __future__ import annotations
 
-import contextlib
 from dataclasses import dataclass
-from typing import cast
+from functools import cached_property
 
 import numpy as np
 
 from service.manifest import TaskSpec
+from service.pipeline import native
 from service.pipeline.arrays import BoolArray, FloatArray, IntArray
-from service.pipeline.correction import dls_step, iterate, task_error
+from service.pipeline.correction import Residual, dls_step, iterate, residual_of
 from service.pipeline.targets import Target
 from service.pipeline.types import Kinematics
 
@@ -35,7 +35,11 @@ class Fibre:
 
     def residual(self, q_rad: FloatArray) -> tuple[FloatArray, FloatArray]:
         """Task error e (B, m) and task Jacobian J (B, m, n) at q_rad (B, n)."""
-        return task_error(self.kinematics(q_rad), self.target, self.task)
+        return self._residual(q_rad)
+
+    @cached_property
+    def _residual(self) -> Residual:
+        return residual_of(self.kinematics, self.target, self.task)
 
 
 @dataclass(frozen=True)
@@ -124,13 +128,12 @@ def corrector_step(
     error: FloatArray,  # (B, n - 1)
     tangent: FloatArray,  # (B, n)
 ) -> FloatArray:  # (B, n)
-    """dq with J dq = e and t . dq = 0; NaN rows where the system is singular."""
+    """dq with J dq = e and t . dq = 0; NaN rows where the system is singular (compiled:
+    `native.bordered_solve`)."""
     batch, m, n = jacobian.shape
-    system = np.empty((batch, n, n))
-    system[:, :m], system[:, m] = jacobian, tangent
-    rhs = np.zeros((batch, n, 1))
-    rhs[:, :m, 0] = error
-    return _solve_rows(system, rhs)[..., 0]
+    rhs = np.zeros((batch, n))
+    rhs[:, :m] = error
+    return native.bordered_solve(jacobian, tangent, rhs)
 
 
 def unit_tangent(
@@ -152,11 +155,9 @@ def unit_tangent(
             q = np.linalg.qr(np.swapaxes(jacobian[finite], 1, 2), mode="complete")[0]
             tangent[finite] = q[:, :, -1]  # orthogonal to the rows of J
         return tangent
-    system = np.empty((batch, n, n))
-    system[:, :m], system[:, m] = jacobian, previous
-    rhs = np.zeros((batch, n, 1))
-    rhs[:, m, 0] = 1.0
-    direction = _solve_rows(system, rhs)[..., 0]  # (B, n)
+    rhs = np.zeros((batch, n))
+    rhs[:, m] = 1.0
+    direction = native.bordered_solve(jacobian, previous, rhs)  # (B, n)
     return direction / np.linalg.norm(direction, axis=1, keepdims=True)
 
 
@@ -186,21 +187,3 @@ def min_singular_value(jacobian: FloatArray) -> float:  # (B, m, n), m <= n
     slack = 1e-6 * (1.0 + np.sqrt(max(float(eigenvalues[:, -1].max()), 0.0)))
     close = estimate <= estimate.min() + slack
     return float(smallest_singular_value(j[close]).min())
-
-
-def _solve_rows(system: FloatArray, rhs: FloatArray) -> FloatArray:
-    """Batched solve that leaves a NaN row for each singular or non-finite system."""
-    if np.isfinite(system).all() and np.isfinite(rhs).all():  # the usual case: one solve
-        with contextlib.suppress(np.linalg.LinAlgError):
-            return cast(FloatArray, np.linalg.solve(system, rhs))
-    out = np.full(rhs.shape, np.nan)
-    finite = np.all(np.isfinite(system), axis=(1, 2)) & np.all(np.isfinite(rhs), axis=(1, 2))
-    if not finite.any():
-        return out
-    try:
-        out[finite] = np.linalg.solve(system[finite], rhs[finite])
-    except np.linalg.LinAlgError:
-        for row in np.flatnonzero(finite):
-            with contextlib.suppress(np.linalg.LinAlgError):
-                out[row] = np.linalg.solve(system[row], rhs[row])
-    return out

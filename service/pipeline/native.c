@@ -134,6 +134,26 @@ static void rotation_error_rows(const double *target, const double *rotation, Py
     }
 }
 
+/* ---------------------------------------------------------------- task residual */
+
+/* The chain kinematics (chain_rows) and the task error in one pass per row: error (B, m) =
+ * the constrained position axes of target - p, then (pose task) log(R* R^T); jacobian
+ * (B, m, n) = the geometric Jacobian's rows `rows` (m of them, the position axes first). */
+static void residual_rows(const double *fixed, const double *tip, Py_ssize_t n, const double *q,
+                          Py_ssize_t batch, const long long *rows, Py_ssize_t m,
+                          Py_ssize_t m_position, const double *target_position,
+                          const double *target_rotation, double *error, double *jacobian) {
+    double position[3], rotation[9], full[6 * 64];
+    for (Py_ssize_t b = 0; b < batch; ++b) {
+        chain_rows(fixed, tip, n, q + b * n, 1, position, rotation, full);
+        double *e = error + b * m, *J = jacobian + b * m * n;
+        for (Py_ssize_t i = 0; i < m_position; ++i)
+            e[i] = target_position[i] - position[rows[i]];
+        if (target_rotation != NULL) rotation_error_rows(target_rotation, rotation, 1, e + m_position);
+        for (Py_ssize_t r = 0; r < m; ++r) memcpy(J + r * n, full + rows[r] * n, n * sizeof(double));
+    }
+}
+
 /* ---------------------------------------------------------------- DLS step */
 
 /* jacobian (B, m, n), error (B, m), damping -> step (B, n) = J^T (J J^T + damping^2 I)^-1 e
@@ -202,6 +222,60 @@ static void dls_rows(const double *jacobian, const double *error, Py_ssize_t bat
             double sum = 0.0;
             for (Py_ssize_t r = 0; r < m; ++r) sum += J[r * n + k] * y[r];
             dq[k] = sum;
+        }
+    }
+}
+
+/* ---------------------------------------------------------------- bordered solve */
+
+/* jacobian (B, n - 1, n), border (B, n), rhs (B, n) -> x (B, n) with [J; border^T] x = rhs,
+ * by Gaussian elimination with partial pivoting; NaN rows where the system is not finite
+ * or exactly singular. `scratch` holds one n x n system. */
+static void bordered_rows(const double *jacobian, const double *border, const double *rhs,
+                          Py_ssize_t batch, Py_ssize_t n, double *x, double *scratch) {
+    Py_ssize_t m = n - 1;
+    for (Py_ssize_t b = 0; b < batch; ++b) {
+        double *A = scratch, *y = x + b * n;
+        const double *J = jacobian + b * m * n, *t = border + b * n, *e = rhs + b * n;
+        int finite = 1;
+        for (Py_ssize_t k = 0; k < m * n; ++k) finite &= isfinite(A[k] = J[k]) != 0;
+        for (Py_ssize_t k = 0; k < n; ++k) {
+            finite &= isfinite(A[m * n + k] = t[k]) != 0;
+            finite &= isfinite(y[k] = e[k]) != 0;
+        }
+        int failed = !finite;
+        for (Py_ssize_t col = 0; col < n && !failed; ++col) {
+            Py_ssize_t pivot = col;
+            for (Py_ssize_t r = col + 1; r < n; ++r)
+                if (fabs(A[r * n + col]) > fabs(A[pivot * n + col])) pivot = r;
+            if (A[pivot * n + col] == 0.0) {
+                failed = 1;
+                break;
+            }
+            if (pivot != col) {
+                for (Py_ssize_t c = 0; c < n; ++c) {
+                    double swap = A[col * n + c];
+                    A[col * n + c] = A[pivot * n + c];
+                    A[pivot * n + c] = swap;
+                }
+                double swap = y[col];
+                y[col] = y[pivot];
+                y[pivot] = swap;
+            }
+            for (Py_ssize_t r = col + 1; r < n; ++r) {
+                double factor = A[r * n + col] / A[col * n + col];
+                for (Py_ssize_t c = col; c < n; ++c) A[r * n + c] -= factor * A[col * n + c];
+                y[r] -= factor * y[col];
+            }
+        }
+        if (failed) {
+            for (Py_ssize_t k = 0; k < n; ++k) y[k] = NAN;
+            continue;
+        }
+        for (Py_ssize_t r = n - 1; r >= 0; --r) {
+            double sum = y[r];
+            for (Py_ssize_t c = r + 1; c < n; ++c) sum -= A[r * n + c] * y[c];
+            y[r] = sum / A[r * n + r];
         }
     }
 }
@@ -373,6 +447,38 @@ static PyObject *py_self_clearance(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
+static PyObject *py_bordered_solve(PyObject *self, PyObject *args) {
+    Py_buffer jacobian, border, rhs, x, scratch;
+    Py_ssize_t batch, n;
+    if (!PyArg_ParseTuple(args, "y*y*y*nnw*w*", &jacobian, &border, &rhs, &batch, &n, &x, &scratch))
+        return NULL;
+    Py_BEGIN_ALLOW_THREADS
+    bordered_rows(jacobian.buf, border.buf, rhs.buf, batch, n, x.buf, scratch.buf);
+    Py_END_ALLOW_THREADS
+    PyBuffer_Release(&jacobian), PyBuffer_Release(&border), PyBuffer_Release(&rhs);
+    PyBuffer_Release(&x), PyBuffer_Release(&scratch);
+    Py_RETURN_NONE;
+}
+
+static PyObject *py_task_residual(PyObject *self, PyObject *args) {
+    Py_buffer fixed, tip, q, rows, target_position, target_rotation, error, jacobian;
+    Py_ssize_t n, batch, m, m_position;
+    int orientation;
+    if (!PyArg_ParseTuple(args, "y*y*y*nny*nny*y*pw*w*", &fixed, &tip, &q, &n, &batch, &rows, &m,
+                          &m_position, &target_position, &target_rotation, &orientation, &error,
+                          &jacobian))
+        return NULL;
+    Py_BEGIN_ALLOW_THREADS
+    residual_rows(fixed.buf, tip.buf, n, q.buf, batch, rows.buf, m, m_position,
+                  target_position.buf, orientation ? target_rotation.buf : NULL, error.buf,
+                  jacobian.buf);
+    Py_END_ALLOW_THREADS
+    Py_buffer *all[] = {&fixed, &tip, &q, &rows, &target_position, &target_rotation, &error,
+                        &jacobian};
+    for (size_t i = 0; i < sizeof all / sizeof *all; ++i) PyBuffer_Release(all[i]);
+    Py_RETURN_NONE;
+}
+
 static PyMethodDef methods[] = {
     {"chain", py_chain, METH_VARARGS,
      "chain(fixed, tip, q, n, batch, position, rotation, jacobian): serial-chain FK and Jacobian."},
@@ -385,6 +491,11 @@ static PyMethodDef methods[] = {
     {"self_clearance", py_self_clearance, METH_VARARGS,
      "self_clearance(rotation, origin, batch, K, S, centre, radius, own, bound, bound_radius, "
      "pair_a, pair_b, P, clearance, scratch): least sphere gap over the checked body pairs."},
+    {"bordered_solve", py_bordered_solve, METH_VARARGS,
+     "bordered_solve(jacobian, border, rhs, batch, n, x, scratch): [J; t^T] x = rhs per row."},
+    {"task_residual", py_task_residual, METH_VARARGS,
+     "task_residual(fixed, tip, q, n, batch, rows, m, m_position, target_position, "
+     "target_rotation, orientation, error, jacobian): task error and Jacobian per row."},
     {NULL, NULL, 0, NULL},
 };
 

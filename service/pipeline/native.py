@@ -182,3 +182,60 @@ def self_clearance_m(
             a, b, pairs, clearance, scratch,
         )  # fmt: skip
     return clearance
+
+
+def bordered_solve(
+    jacobian: FloatArray,  # (B, n - 1, n)
+    border: FloatArray,  # (B, n)
+    rhs: FloatArray,  # (B, n)
+) -> FloatArray:  # (B, n)
+    """x with [J; border^T] x = rhs per row, by LU with partial pivoting (LAPACK gesv's
+    pivots): the corrector and tangent systems of a 1-D fibre. NaN rows where the system
+    is not finite or exactly singular."""
+    batch, m, n = np.shape(jacobian)
+    if m != n - 1 or not 0 < n <= MAX_JOINTS:
+        raise ValueError(f"a ({m}, {n}) Jacobian; the kernel takes (n - 1, n), n 1 to {MAX_JOINTS}")
+    j = _float64(jacobian, "jacobian", (batch, m, n))
+    t = _float64(border, "border", (batch, n))
+    b = _float64(rhs, "rhs", (batch, n))
+    x = np.empty((batch, n))
+    if batch:
+        _native.bordered_solve(j, t, b, batch, n, x, np.empty(n * n))
+    return x
+
+
+def task_residual(
+    fixed: FloatArray,  # (n, 4, 4) as `chain_kinematics`
+    tip: FloatArray,  # (4, 4)
+    q_rad: FloatArray,  # (B, n)
+    position_axes: list[int],  # the constrained base-frame axes of the position
+    target_position_m: FloatArray,  # (len(position_axes),)
+    target_rotation: FloatArray | None,  # (3, 3) for a pose task, None for a position task
+) -> tuple[FloatArray, FloatArray]:  # error (B, m), jacobian (B, m, n)
+    """The task error e = target - current (the position axes, then log(R* R^T) for a
+    pose) and the task Jacobian (those rows of the geometric one) in one pass: what
+    `correction.task_error` makes of `chain_kinematics`, without the intermediate arrays."""
+    n = len(fixed)
+    if not 0 < n <= MAX_JOINTS:
+        raise ValueError(f"a chain of {n} joints; the kernel takes 1 to {MAX_JOINTS}")
+    rows = [*position_axes, *([3, 4, 5] if target_rotation is not None else [])]
+    m, m_position = len(rows), len(position_axes)
+    if not 0 < m <= MAX_TASK_DIMENSION or not set(position_axes) <= {0, 1, 2}:
+        raise ValueError(f"position axes {position_axes}: a subset of 0, 1, 2")
+    batch = len(q_rad)
+    q = _float64(q_rad, "q_rad", (batch, n))
+    target_position = _float64(target_position_m, "target_position_m", (m_position,))
+    rotation = (
+        np.eye(3)
+        if target_rotation is None
+        else _float64(target_rotation, "target_rotation", (3, 3))
+    )
+    error = np.empty((batch, m))
+    jacobian = np.empty((batch, m, n))
+    if batch:
+        _native.task_residual(
+            _float64(fixed, "fixed", (n, 4, 4)), _float64(tip, "tip", (4, 4)), q, n, batch,
+            np.array(rows, dtype=np.int64), m, m_position, target_position, rotation,
+            target_rotation is not None, error, jacobian,
+        )  # fmt: skip
+    return error, jacobian

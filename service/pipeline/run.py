@@ -4,9 +4,11 @@ Stages 3 to 5 move in the query's `FibreSpace` (space.py): the target's fibre in
 joint limits, which says what configuration and what motion is valid.
 
 Each stage is timed under its name in `STAGES`; the result accounts for every sample
-(see `SampleCounts`). The pieces `encode`, `sample` and `answer_samples` are what `run`
-calls in order; `batch.run_batch` calls the same pieces for many queries of one model,
-so a target's answer in a batch is the one `run` gives it.
+(see `SampleCounts`). `run` calls `encode`, then `answer`: `sample` and `answer_samples`
+(correct, accept, `answer_accepted`: connect, summarise), or for an r = 1 model that
+samples in rounds, stages 2-4 round by round (rounds.py) and then `answer_accepted`.
+`batch.run_batch` calls the same pieces for many queries of one model, so a target's
+answer in a batch is the one `run` gives it.
 """
 
 from __future__ import annotations
@@ -14,22 +16,24 @@ from __future__ import annotations
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
-from typing import Literal
+from typing import Literal, cast
 
 import numpy as np
 
 from service.pipeline.arrays import FloatArray
 from service.pipeline.collision.check import CollisionCheck
 from service.pipeline.components import summarise_all
-from service.pipeline.connect import connect
+from service.pipeline.connect import TracedCurves, connect
 from service.pipeline.correction import correct
 from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.fibre import Fibre
 from service.pipeline.limits import pull_into_limits
+from service.pipeline.rounds import draw_in_rounds
 from service.pipeline.sampling import sample_configurations
 from service.pipeline.space import FibreSpace
 from service.pipeline.targets import Target, encode_target
 from service.pipeline.types import (
+    Acceptance,
     Correction,
     Query,
     SampleCounts,
@@ -58,7 +62,8 @@ class Stopwatch:
     def stage(self, name: Stage) -> Iterator[None]:
         start_s = time.perf_counter()
         yield
-        self._stage_ms[name] = (time.perf_counter() - start_s) * 1e3
+        # A stage run more than once (each round of rounds.py) counts each time.
+        self._stage_ms[name] = self._stage_ms.get(name, 0.0) + (time.perf_counter() - start_s) * 1e3
 
     def timings(self) -> StageTimings:
         if self._total == "stages":
@@ -186,9 +191,24 @@ def answer_in(
         correction = correct_samples(model, space, q_sampled_rad, deadline)
     with watch.stage("accept"):
         acceptance = space.accept(correction)
+    return answer_accepted(model, query, space, correction, acceptance, watch, deadline)
+
+
+def answer_accepted(
+    model: SmmModel,
+    query: Query,
+    space: FibreSpace,
+    correction: Correction,
+    acceptance: Acceptance,
+    watch: Stopwatch,
+    deadline: Deadline = NO_DEADLINE,
+    curves: TracedCurves | None = None,
+) -> SmmResult:
+    """Stages 5-6 on corrected and accepted samples: connect (from `curves`, when the
+    rounds traced them), summarise."""
     with watch.stage("connect"):
         spec = model.manifest.defaults.connectivity
-        connection = connect(space, correction, acceptance, spec, deadline)
+        connection = connect(space, correction, acceptance, spec, deadline, curves)
     with watch.stage("summarise"):
         summaries = summarise_all(
             components=connection.components,
@@ -208,11 +228,62 @@ def answer_in(
     )
 
 
+def in_rounds(model: SmmModel, query: Query) -> bool:
+    """Whether the query is drawn in rounds (rounds.py): an r = 1 model with a round size
+    below the query's num_samples."""
+    size = model.manifest.defaults.sampler.round_samples
+    return model.manifest.redundancy == 1 and size is not None and size < query.num_samples
+
+
+def answer(
+    model: SmmModel,
+    query: Query,
+    target: Target,
+    watch: Stopwatch,
+    deadline: Deadline = NO_DEADLINE,
+    space: FibreSpace | None = None,
+) -> SmmResult:
+    """Stages 2-6 for one encoded query, in `space` (default `space_of` the query): drawn
+    in rounds where the model samples so (`in_rounds`), else all at once."""
+    if space is None:
+        space = space_of(model, target, query.tolerance, collision_of(model, query))
+    if not in_rounds(model, query):
+        with watch.stage("sample"):
+            q_sampled_rad = sample(model, query, target, deadline)
+        return answer_in(model, query, space, q_sampled_rad, watch, deadline)
+    manifest = model.manifest
+    rng = np.random.default_rng(query.seed)
+
+    def draw(count: int) -> FloatArray:  # (count, n) the next draws of the query's stream
+        return sample_configurations(
+            velocity=model.velocity,
+            condition=target.condition,
+            num_samples=count,
+            sampler=manifest.defaults.sampler,
+            joint_normalisation=manifest.joint_normalisation,
+            limits=model.limits,
+            rng=rng,
+            deadline=deadline,
+        )
+
+    drawn = draw_in_rounds(
+        space,
+        num_samples=query.num_samples,
+        round_samples=cast(int, manifest.defaults.sampler.round_samples),
+        draw=draw,
+        correct=lambda q: correct_samples(model, space, q, deadline),
+        spec=manifest.defaults.connectivity,
+        stage=watch.stage,
+        deadline=deadline,
+    )
+    return answer_accepted(
+        model, query, space, drawn.correction, drawn.acceptance, watch, deadline, drawn.curves
+    )
+
+
 def run(model: SmmModel, query: Query, deadline: Deadline = NO_DEADLINE) -> SmmResult:
-    """Stages 1-5 for one query; past `deadline`, DeadlineExceededError names the stage."""
+    """Stages 1-6 for one query; past `deadline`, DeadlineExceededError names the stage."""
     watch = Stopwatch()
     with watch.stage("encode"):
         target = encode(model, query)
-    with watch.stage("sample"):
-        q_sampled_rad = sample(model, query, target, deadline)
-    return answer_samples(model, query, target, q_sampled_rad, watch, deadline)
+    return answer(model, query, target, watch, deadline)

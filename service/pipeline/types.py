@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Literal, Protocol, get_args
+from typing import Literal, Protocol, get_args, runtime_checkable
 
 import numpy as np
 
@@ -57,6 +57,16 @@ class KinematicsResult:
 class Kinematics(Protocol):
     def __call__(self, q_rad: FloatArray) -> KinematicsResult:  # q_rad (B, n), float64
         ...
+
+
+@runtime_checkable
+class ChainKinematics(Kinematics, Protocol):
+    """Kinematics of a serial chain the compiled kernels can evaluate themselves
+    (`native.task_residual`): joint i's fixed transform with its axis turned onto z, and
+    the tip (service/models/chain.py)."""
+
+    fixed: FloatArray  # (n, 4, 4)
+    tip: FloatArray  # (4, 4)
 
 
 @dataclass(frozen=True)

@@ -37,7 +37,8 @@ SHOWN_HOSTS = ("localhost:8000", "127.0.0.1:8000")
 
 @pytest.fixture(scope="module")
 def working_copy(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The working tree's files (tracked, and untracked ones git does not ignore), copied."""
+    """The working tree's files (tracked, and untracked ones git does not ignore), copied,
+    with the compiled kernels the README's install builds in place (`pip install -e .`)."""
     names = subprocess.run(
         ["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"],
         cwd=ROOT,
@@ -50,6 +51,8 @@ def working_copy(tmp_path_factory: pytest.TempPathFactory) -> Path:
         if source.is_file():  # not a file deleted from the working tree
             (copy / name.decode()).parent.mkdir(parents=True, exist_ok=True)
             shutil.copy2(source, copy / name.decode())
+    for built in (ROOT / "service" / "pipeline").glob("_native*.so"):
+        shutil.copy2(built, copy / "service" / "pipeline" / built.name)
     return copy
 
 

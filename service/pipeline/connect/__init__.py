@@ -9,6 +9,7 @@ Code outside this package imports only the names below.
 """
 
 from service.pipeline.connect.coaxial import find_coaxial_sets
+from service.pipeline.connect.curves import TracedCurves, extend_curves, trace_curves
 from service.pipeline.connect.local_planner import PlannerSettings, edges_on_fibre, walk_on_fibre
 from service.pipeline.connect.roadmap import RoadmapSettings, roadmap_labels
 from service.pipeline.connect.settings import (
@@ -29,14 +30,17 @@ __all__ = [
     "SpliceSettings",
     "SteerSettings",
     "TraceSettings",
+    "TracedCurves",
     "connect",
     "edges_on_fibre",
+    "extend_curves",
     "find_coaxial_sets",
     "planner_settings",
     "roadmap_labels",
     "roadmap_settings",
     "splice_settings",
     "steer",
+    "trace_curves",
     "trace_fibre",
     "trace_settings",
     "walk_on_fibre",

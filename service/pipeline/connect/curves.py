@@ -6,6 +6,8 @@ pass within a fraction of the path spacing of it."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from service.manifest import ConnectivitySpec
@@ -23,6 +25,58 @@ from service.pipeline.types import ComponentPath
 # curvature x 0.05^2 / 8 (3e-4 rad at a curvature of 1), while a twin curve near a
 # singular value may pass 0.02 rad from it.
 ON_CURVE_FRACTION = 0.2
+
+
+@dataclass(frozen=True)
+class TracedCurves:
+    """r = 1: the exact paths of every curve traced so far, whether all came whole, and
+    the least sigma_min met on them."""
+
+    paths: list[ComponentPath]
+    complete: bool
+    min_singular_value: float
+
+
+def trace_curves(
+    space: FibreSpace,
+    q_within_rad: FloatArray,  # (M, n) samples within tolerance, inside the limits or not
+    q_accepted_rad: FloatArray,  # (K, n) those inside the limits (and free)
+    spec: ConnectivitySpec,
+    deadline: Deadline,
+) -> TracedCurves:
+    """Every curve through the samples within tolerance, then through any accepted sample
+    that none of them passes (`extend_curves`)."""
+    paths, complete, sigma = traced_paths(space, q_within_rad, spec, deadline)
+    return extend_curves(
+        TracedCurves(paths, complete, sigma), space, q_accepted_rad, spec, deadline
+    )[0]
+
+
+def extend_curves(
+    curves: TracedCurves,
+    space: FibreSpace,
+    q_accepted_rad: FloatArray,  # (K, n)
+    spec: ConnectivitySpec,
+    deadline: Deadline,
+) -> tuple[TracedCurves, int]:
+    """The curves and those through the accepted samples on none of them (curves the first
+    seeds missed, such as a twin a few hundredths of a radian from a traced one near a
+    singular value), a path traced again kept once; and how many samples were on none."""
+    limits = space.limits
+    on_curve_rad = ON_CURVE_FRACTION * spec.path_spacing_rad
+    stray = owner_path(q_accepted_rad, curves.paths, limits, on_curve_rad) < 0  # (K,)
+    if not stray.any():
+        return curves, 0
+    more, more_complete, more_sigma = traced_paths(space, q_accepted_rad[stray], spec, deadline)
+    new = [p for p in more if not retraced(p, curves.paths, limits, on_curve_rad)]
+    return (
+        TracedCurves(
+            curves.paths + new,
+            curves.complete and more_complete,
+            min(curves.min_singular_value, more_sigma),
+        ),
+        int(stray.sum()),
+    )
 
 
 def traced_paths(

@@ -30,7 +30,13 @@ import numpy as np
 
 from service.manifest import ConnectivitySpec
 from service.pipeline.arrays import IntArray
-from service.pipeline.connect.curves import ON_CURVE_FRACTION, owner_path, retraced, traced_paths
+from service.pipeline.connect.curves import (
+    ON_CURVE_FRACTION,
+    TracedCurves,
+    extend_curves,
+    owner_path,
+    trace_curves,
+)
 from service.pipeline.connect.free_pieces import free_pieces
 from service.pipeline.connect.roadmap import roadmap_labels
 from service.pipeline.connect.settings import planner_settings, roadmap_settings, splice_settings
@@ -60,10 +66,12 @@ def connect(
     acceptance: Acceptance,
     spec: ConnectivitySpec,
     deadline: Deadline = NO_DEADLINE,
+    curves: TracedCurves | None = None,
 ) -> Connection:
     """The accepted samples grouped into components decided on the fibre, walking only
     where `space` says a motion is valid (inside its limits, never across its coaxial
-    sets off the fibre)."""
+    sets off the fibre). For r = 1, `curves` are curves already traced on the kinematic
+    space (while sampling in rounds); None: traced here from the samples."""
     deadline.check("connect")
     accepted = np.flatnonzero(acceptance.accepted)  # (K,)
     redundancy = correction.q_rad.shape[1] - correction.jacobian.shape[1]
@@ -76,9 +84,11 @@ def connect(
     complete = True
     if redundancy == 1:
         kinematic = space.kinematic()
-        curves = _curve_components(kinematic, correction, acceptance.kinematic(), spec, deadline)
-        components, leftover = curves.components, curves.leftover
-        complete, min_sigma = curves.complete, min(min_sigma, curves.min_singular_value)
+        found = _curve_components(
+            kinematic, correction, acceptance.kinematic(), spec, deadline, curves
+        )
+        components, leftover = found.components, found.leftover
+        complete, min_sigma = found.complete, min(min_sigma, found.min_singular_value)
         if space.collision.active:
             components = free_pieces(space, components, spec.path_spacing_rad)
             leftover = leftover[acceptance.collision_free[leftover]]
@@ -113,26 +123,23 @@ def _curve_components(
     acceptance: Acceptance,
     spec: ConnectivitySpec,
     deadline: Deadline,
+    curves: TracedCurves | None,
 ) -> _Curves:
     """Every curve through the samples within tolerance traced whole and cut by the
-    limits, pieces the fibre joins spliced, and each accepted sample on the path it lies
+    limits (or `curves`, traced already, and those through accepted samples on none of
+    them), pieces the fibre joins spliced, and each accepted sample on the path it lies
     on (or walks to)."""
     accepted = np.flatnonzero(acceptance.accepted)  # (K,)
     q_accepted = correction.q_rad[accepted]
     limits = space.limits
-    q_within = correction.q_rad[acceptance.within_tolerance]
-    paths, complete, sigma = traced_paths(space, q_within, spec, deadline)
+    if curves is None:
+        q_within = correction.q_rad[acceptance.within_tolerance]
+        curves = trace_curves(space, q_within, q_accepted, spec, deadline)
+    else:  # traced while sampling (rounds.py): only samples on none of them are traced
+        curves = extend_curves(curves, space, q_accepted, spec, deadline)[0]
+    paths, complete, sigma = curves.paths, curves.complete, curves.min_singular_value
     on_curve_rad = ON_CURVE_FRACTION * spec.path_spacing_rad
     owner = owner_path(q_accepted, paths, limits, on_curve_rad)
-    if (owner < 0).any():
-        # Samples on no traced curve: curves the first seeds missed, such as a twin
-        # a few hundredths of a radian from a traced one near a singular value.
-        q_stray = correction.q_rad[accepted[owner < 0]]
-        more, more_complete, more_sigma = traced_paths(space, q_stray, spec, deadline)
-        paths += [p for p in more if not retraced(p, paths, limits, on_curve_rad)]
-        complete &= more_complete
-        sigma = min(sigma, more_sigma)
-        owner = owner_path(q_accepted, paths, limits, on_curve_rad)
     # A piece that ends off the limits is where a front stopped or a cut went wrong:
     # splice the pieces the fibre joins (splicing.py); an end left open means the
     # curve is not whole.

@@ -12,7 +12,10 @@ the pseudo-inverse's step and a non-finite row is NaN in its own row. Wrong shap
 sizes beyond the kernels' fixed bounds are refused with the valid range named. URDF joint
 frames equal the numpy frames (Rodrigues on whole columns) and end, times the tip, at the
 chain kinematics' end effector. Self-clearance of the iiwa14's and Panda's spheres equals
-the numpy two-pass minimum and a brute force over every sphere pair.
+the numpy two-pass minimum and a brute force over every sphere pair. The bordered solve
+[J; t^T] x = b of the trace's corrector and tangent equals LAPACK's, NaN where singular.
+The task residual (FK and task error in one pass) equals `task_error` of the chain kernel
+bitwise and of kinematics.onnx to 1e-12, for pose and position tasks.
 """
 
 from __future__ import annotations
@@ -21,12 +24,23 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from service.manifest import CHAIN_FILE, COLLISION_FILE, REPO_MODELS_DIR, ChainSpec, CollisionSpec
+from service.manifest import (
+    CHAIN_FILE,
+    COLLISION_FILE,
+    KINEMATICS_FILE,
+    REPO_MODELS_DIR,
+    ChainSpec,
+    CollisionSpec,
+    TaskSpec,
+)
 from service.models.chain import SerialChainKinematics
+from service.models.sessions import OnnxKinematics, open_session
 from service.pipeline import native
 from service.pipeline.collision.frames import chain_frames
 from service.pipeline.collision.robot import RobotSpheres
+from service.pipeline.correction import residual_of, task_error
 from service.pipeline.rotations import rotation_log
+from service.pipeline.targets import Target
 from tests.support.chains import pytorch_kinematics_answer
 from tests.support.numpy_kernels import NumpyChainKinematics
 from tests.support.numpy_kernels import chain_frames as numpy_chain_frames
@@ -226,3 +240,85 @@ def test_self_clearance_without_pairs_is_infinite_and_nan_rows_stay_nan() -> Non
         np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64),
     )  # fmt: skip
     assert np.all(np.isinf(none))
+
+
+@pytest.mark.parametrize(
+    ("model", "rows"), [("iiwa14-pose", slice(0, 6)), ("planar3r-position", slice(0, 2))]
+)
+def test_bordered_solve_equals_lapack_on_corrector_systems(model: str, rows: slice) -> None:
+    """[J; t^T] x = [e; 0] with t the fibre's tangent (the corrector's system), and
+    [J; t^T] x = [0; 1] (the tangent's): LAPACK's solve to 1e-12 relative to |x|."""
+    kinematics = chain(model)
+    q = turns(kinematics.joint_count, 2000, seed=11)
+    jacobian = np.ascontiguousarray(kinematics(q).jacobian[:, rows])  # (B, n - 1, n)
+    batch, m, _ = jacobian.shape
+    tangent = np.linalg.qr(np.swapaxes(jacobian, 1, 2), mode="complete")[0][:, :, -1]  # (B, n)
+    for top, last in (
+        (np.random.default_rng(12).normal(size=(batch, m)), 0.0),
+        (np.zeros((batch, m)), 1.0),
+    ):
+        rhs = np.concatenate([top, np.full((batch, 1), last)], axis=1)
+        x = native.bordered_solve(jacobian, tangent, rhs)
+        system = np.concatenate([jacobian, tangent[:, None]], axis=1)
+        expected = np.linalg.solve(system, rhs[..., None])[..., 0]
+        condition = np.linalg.cond(system)
+        scale = np.maximum(np.linalg.norm(expected, axis=1), 1.0)
+        difference = np.linalg.norm(x - expected, axis=1)
+        assert np.all(difference <= 64 * np.finfo(float).eps * condition * scale)
+        well = condition < 1e3
+        assert well.mean() > 0.5 and np.all(difference[well] <= 1e-12 * scale[well])
+
+
+def test_bordered_solve_leaves_nan_rows_where_singular_or_not_finite() -> None:
+    rng = np.random.default_rng(13)
+    jacobian = rng.normal(size=(4, 2, 3))
+    border = rng.normal(size=(4, 3))
+    rhs = rng.normal(size=(4, 3))
+    border[1] = jacobian[1, 0]  # two equal rows: singular
+    jacobian[2, 1, 2] = np.nan
+    rhs[3, 0] = np.inf
+    x = native.bordered_solve(jacobian, border, rhs)
+    assert np.all(np.isnan(x[1:])) and np.all(np.isfinite(x[0]))
+    np.testing.assert_allclose(np.concatenate([jacobian[0], border[:1]]) @ x[0], rhs[0], atol=1e-12)
+    with pytest.raises(ValueError, match=r"the kernel takes \(n - 1, n\)"):
+        native.bordered_solve(np.zeros((1, 3, 3)), np.zeros((1, 3)), np.zeros((1, 3)))
+
+
+@pytest.mark.parametrize(
+    ("model", "axes", "orientation"),
+    [
+        ("iiwa14-pose", [0, 1, 2], True),
+        ("iiwa14-pose", [0, 1, 2], False),
+        ("planar3r-position", [0, 1], False),
+    ],
+)
+def test_task_residual_equals_the_task_error_of_the_kinematics(
+    model: str, axes: list[int], orientation: bool
+) -> None:
+    """One compiled pass gives `task_error` of the chain kinematics, and of kinematics.onnx
+    (what pytorch-kinematics exported) to 1e-12; `residual_of` takes it for a chain."""
+    kinematics = chain(model)
+    q = turns(kinematics.joint_count, 1000, seed=14)
+    task = TaskSpec(
+        name="pose" if orientation else "position", position_axes=axes, orientation=orientation
+    )
+    rotation = Rotation.random(random_state=15).as_matrix() if orientation else None
+    target = Target(
+        position_m=np.array([0.3, -0.2, 0.5])[: len(axes)],
+        rotation=rotation,
+        condition=np.zeros(1, np.float32),
+    )
+    error, jacobian = native.task_residual(
+        kinematics.fixed, kinematics.tip, q, axes, target.position_m, rotation
+    )
+    expected_error, expected_jacobian = task_error(kinematics(q), target, task)
+    np.testing.assert_array_equal(error, expected_error)
+    np.testing.assert_array_equal(jacobian, expected_jacobian)
+    onnx = OnnxKinematics(open_session(REPO_MODELS_DIR / model / KINEMATICS_FILE, threads=1))
+    onnx_error, onnx_jacobian = task_error(onnx(q), target, task)
+    np.testing.assert_allclose(error, onnx_error, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(jacobian, onnx_jacobian, rtol=0, atol=1e-12)
+    compiled = residual_of(kinematics, target, task)(q)
+    np.testing.assert_array_equal(compiled[0], error)
+    through = residual_of(onnx, target, task)(q)  # not a chain: through the kinematics
+    np.testing.assert_array_equal(through[0], onnx_error)

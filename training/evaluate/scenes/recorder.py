@@ -5,9 +5,9 @@ free, so that the evaluation can check each of them with coal too.
 margin, so the same verdicts) that keeps the rows `free` returned True for: the
 accepted samples, every walk step of an r > 1 roadmap edge and the local planner's
 checks, the members of the r = 1 free pieces. `recorded_answer` runs the pipeline's own
-stages (`service.pipeline.run`: encode, sample, `answer_samples`' correct, accept,
-connect, summarise) in a space built with that check, since `run` builds its check
-inside; the service's code is not changed.
+stages (`service.pipeline.run`: encode, then `answer`: sample, correct, accept, in
+rounds where the model draws so, connect, summarise) in a space built with that check,
+since `run` builds its check inside; the service's code is not changed.
 """
 
 from __future__ import annotations
@@ -21,11 +21,10 @@ from service.pipeline.arrays import BoolArray, FloatArray
 from service.pipeline.collision.check import CollisionCheck
 from service.pipeline.run import (
     Stopwatch,
-    answer_in,
+    answer,
     collision_of,
     encode,
     run,
-    sample,
     space_of,
 )
 from service.pipeline.types import Query, SmmResult
@@ -61,10 +60,9 @@ def recorded_answer(model: ServedModel, query: Query) -> tuple[SmmResult, Record
     """The service's answer to `query`, stage by stage as `run` gives it, with the check
     that recorded what it called free."""
     target = encode(model, query)
-    q_sampled_rad = sample(model, query, target)
     check = RecordingCheck.like(collision_of(model, query))
     space = space_of(model, target, query.tolerance, check)
-    result = answer_in(model, query, space, q_sampled_rad, Stopwatch())
+    result = answer(model, query, target, Stopwatch(), space=space)
     return result, check
 
 
