@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import ctypes
 import logging
 import math
 from collections.abc import AsyncIterator
@@ -25,9 +26,26 @@ from service.models.registry import Registry
 from service.observability.logs import configure_logging, log_event
 from service.observability.metrics import Metrics
 
+# glibc's malloc.h: the parameter of mallopt that caps the number of arenas.
+M_ARENA_MAX = -8
+
+
+def limit_malloc_arenas(count: int) -> bool:
+    """Cap glibc's malloc arenas at `count` (Settings.malloc_arenas says why); whether it
+    took effect (0 asks for nothing; a C library other than glibc has no such cap)."""
+    if count <= 0:
+        return False
+    try:
+        libc = ctypes.CDLL("libc.so.6")
+        return bool(libc.mallopt(M_ARENA_MAX, count))
+    except (OSError, AttributeError):
+        return False
+
 
 def create_app(settings: Settings | None = None) -> FastAPI:
     settings = settings or Settings()
+    # Before any model starts a thread: an arena is taken at a thread's first allocation.
+    limit_malloc_arenas(settings.malloc_arenas)
     logger = configure_logging(settings.log_level)
     app_metrics = Metrics()
 
