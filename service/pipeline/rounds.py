@@ -6,8 +6,11 @@ recovers. With the model's `sampler.round_samples`, stage 2 draws that many at a
 generator for every round, seeded by the query, so an answer depends on its seed alone),
 each round is corrected and accepted, and the curves through its accepted samples that
 no traced curve passes are traced (connect.trace_curves, connect.extend_curves, on the
-kinematic space: collisions cut the curves later). Drawing stops after a round with
-accepted samples that all lie on curves already traced, or once num_samples are drawn.
+kinematic space: collisions cut the curves later), and so are those through its samples
+within tolerance but outside the limits that no traced point comes near (a curve can
+leave the limits and come back where no sample fell, as the one-shot trace from every
+sample within tolerance finds). Drawing stops after a round whose samples within
+tolerance all lie on curves already traced, or once num_samples are drawn.
 The connect stage then starts from these curves.
 
 The rule's miss rate, a component no round put a sample on, is measured against the exact
@@ -75,8 +78,10 @@ def draw_in_rounds(
                 q_within = correction.q_rad[acceptance.within_tolerance]
                 curves = trace_curves(kinematic, q_within, q_accepted, spec, deadline)
                 continue
-            curves, strays = extend_curves(curves, kinematic, q_accepted, spec, deadline)
-        if len(q_accepted) and not strays:
+            outside = acceptance.within_tolerance & ~acceptance.within_limits
+            q_outside = correction.q_rad[outside]  # (O, n) their curves may enter the limits
+            curves, strays = extend_curves(curves, kinematic, q_accepted, spec, deadline, q_outside)
+        if (len(q_accepted) or len(q_outside)) and not strays:
             break
     assert curves is not None, "num_samples >= 1 draws a round"
     return Drawn(

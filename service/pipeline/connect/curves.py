@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from service.manifest import ConnectivitySpec
-from service.pipeline.arrays import FloatArray, IntArray
+from service.pipeline.arrays import BoolArray, FloatArray, IntArray
 from service.pipeline.connect.settings import trace_settings
 from service.pipeline.connect.trace import TracedPiece, trace_fibre
 from service.pipeline.correction import error_norms
@@ -29,12 +29,14 @@ ON_CURVE_FRACTION = 0.2
 
 @dataclass(frozen=True)
 class TracedCurves:
-    """r = 1: the exact paths of every curve traced so far, whether all came whole, and
-    the least sigma_min met on them."""
+    """r = 1: the exact paths of every curve traced so far, whether all came whole, the
+    least sigma_min met on them, and every point the trace reached on the whole curves
+    (inside the limits or not, at most a trace step apart along each)."""
 
     paths: list[ComponentPath]
     complete: bool
     min_singular_value: float
+    reached_rad: FloatArray  # (R, n)
 
 
 def trace_curves(
@@ -46,10 +48,8 @@ def trace_curves(
 ) -> TracedCurves:
     """Every curve through the samples within tolerance, then through any accepted sample
     that none of them passes (`extend_curves`)."""
-    paths, complete, sigma = traced_paths(space, q_within_rad, spec, deadline)
-    return extend_curves(
-        TracedCurves(paths, complete, sigma), space, q_accepted_rad, spec, deadline
-    )[0]
+    curves = traced_paths(space, q_within_rad, spec, deadline)
+    return extend_curves(curves, space, q_accepted_rad, spec, deadline)[0]
 
 
 def extend_curves(
@@ -58,25 +58,47 @@ def extend_curves(
     q_accepted_rad: FloatArray,  # (K, n)
     spec: ConnectivitySpec,
     deadline: Deadline,
+    q_outside_rad: FloatArray | None = None,  # (O, n) within tolerance, outside the limits
 ) -> tuple[TracedCurves, int]:
-    """The curves and those through the accepted samples on none of them (curves the first
-    seeds missed, such as a twin a few hundredths of a radian from a traced one near a
-    singular value), a path traced again kept once; and how many samples were on none."""
+    """The curves and those through the samples on none of them, a path traced again
+    kept once; and how many samples were on none. An accepted sample is on a curve when
+    a path passes it (`owner_path`: a twin a few hundredths of a radian from a traced
+    curve near a singular value is not); a sample outside the limits, which no path
+    passes, when a point the trace reached lies within a trace step of it (its curve may
+    come back inside the limits where no sample fell)."""
     limits = space.limits
     on_curve_rad = ON_CURVE_FRACTION * spec.path_spacing_rad
     stray = owner_path(q_accepted_rad, curves.paths, limits, on_curve_rad) < 0  # (K,)
-    if not stray.any():
+    q_stray = q_accepted_rad[stray]
+    if q_outside_rad is not None and len(q_outside_rad):
+        far = off_the_reached(q_outside_rad, curves.reached_rad, limits, spec.trace_step_rad)
+        q_stray = np.concatenate([q_stray, q_outside_rad[far]])
+    if not len(q_stray):
         return curves, 0
-    more, more_complete, more_sigma = traced_paths(space, q_accepted_rad[stray], spec, deadline)
-    new = [p for p in more if not retraced(p, curves.paths, limits, on_curve_rad)]
+    more = traced_paths(space, q_stray, spec, deadline)
+    new = [p for p in more.paths if not retraced(p, curves.paths, limits, on_curve_rad)]
     return (
         TracedCurves(
             curves.paths + new,
-            curves.complete and more_complete,
-            min(curves.min_singular_value, more_sigma),
+            curves.complete and more.complete,
+            min(curves.min_singular_value, more.min_singular_value),
+            np.concatenate([curves.reached_rad, more.reached_rad]),
         ),
-        int(stray.sum()),
+        len(q_stray),
     )
+
+
+def off_the_reached(
+    q_rad: FloatArray,  # (O, n)
+    reached_rad: FloatArray,  # (R, n)
+    limits: JointLimits,
+    within_rad: float,
+) -> BoolArray:  # (O,) no reached point within `within_rad` (joint metric)
+    if not len(reached_rad):
+        return np.ones(len(q_rad), dtype=bool)
+    box = limits.box(np.concatenate([reached_rad, q_rad]), margin_rad=1.0)
+    distance, _ = box.tree(reached_rad).query(box.points(q_rad), k=1)
+    return np.asarray(distance, dtype=np.float64).reshape(len(q_rad)) > within_rad
 
 
 def traced_paths(
@@ -84,9 +106,9 @@ def traced_paths(
     q_on_fibre_rad: FloatArray,  # (M, n) seeds' source: samples within tolerance
     spec: ConnectivitySpec,
     deadline: Deadline,
-) -> tuple[list[ComponentPath], bool, float]:
-    """The exact paths of every curve through the samples; whether all are whole; the
-    least sigma_min met on them."""
+) -> TracedCurves:
+    """The exact paths of every curve through the samples, whether all are whole, the
+    least sigma_min met on them, and the points the trace reached."""
     trace = trace_fibre(space, q_on_fibre_rad, trace_settings(spec), deadline)
     complete = trace.complete
     paths: list[ComponentPath] = []
@@ -96,7 +118,7 @@ def traced_paths(
         for path in pieces:
             if not duplicate(path, paths, space.limits, spec.path_spacing_rad):
                 paths.append(path)
-    return paths, complete, trace.min_singular_value
+    return TracedCurves(paths, complete, trace.min_singular_value, trace.reached_rad)
 
 
 def duplicate(

@@ -40,6 +40,7 @@ class Trace:
     pieces: list[TracedPiece]
     complete: bool  # every front met another: every curve traced closed
     min_singular_value: float  # over the traced points (inf when nothing was traced)
+    reached_rad: FloatArray  # (R, n) every point the fronts reached, inside the limits or not
 
 
 @dataclass(frozen=True)

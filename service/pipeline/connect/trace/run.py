@@ -51,14 +51,17 @@ def trace_fibre(
     """Every curve through `q_on_fibre_rad`, cut by the limits, as ordered dense paths."""
     fibre, limits = space.fibre, space.limits
     if len(q_on_fibre_rad) == 0:
-        return Trace(pieces=[], complete=True, min_singular_value=np.inf)
+        return Trace(
+            pieces=[], complete=True, min_singular_value=np.inf, reached_rad=q_on_fibre_rad[:0]
+        )
     start = evaluate(fibre, spread_seeds(q_on_fibre_rad, settings.seed_spacing_rad))  # (S,)
     tangent0 = unit_tangent(start.jacobian)  # (S, n)
     seeds = Evaluated.of(start, tangent0).take(np.all(np.isfinite(tangent0), axis=1))
     evaluated, loops, complete = walk_fronts(fibre, seeds, settings, deadline)
+    reached_rad = evaluated.q_rad  # (R, n) the whole curves, before the limits cut them
     # sigma_min over the seeds and every point the fronts reached.
     sigma = min_singular_value(np.concatenate([start.jacobian, evaluated.jacobian[len(seeds) :]]))
     evaluated, loops = refine_near_limits(fibre, evaluated, loops, limits, settings)
     runs = cut_by_limits(loops, limits)
     dense = densify(fibre, evaluated, runs, limits, settings)
-    return Trace(pieces=dense, complete=complete, min_singular_value=sigma)
+    return Trace(pieces=dense, complete=complete, min_singular_value=sigma, reached_rad=reached_rad)
