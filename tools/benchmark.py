@@ -68,6 +68,7 @@ from tools.goals import (
     FLOAT32,
     GOAL_NUM_SAMPLES,
     GOALS,
+    HTTP_GOALS,
     PAPER,
     RESTART,
     SERVICE,
@@ -384,6 +385,13 @@ def _goals(report: dict) -> list[str]:
             f"{'yes' if met else f'no: {ms / most_ms:.2f}x the goal'} | "
             f"{'no worse' if not worse else 'worse: ' + '; '.join(worse)} |"
         )
+    for model_id, most_ms in HTTP_GOALS:
+        row = report["models"].get(model_id, {}).get("sizes", {}).get("1000")
+        if row is None or "http" not in row:
+            continue
+        ms = row["http"]["median_ms"]
+        met = "yes" if ms <= most_ms else f"no: {ms / most_ms:.2f}x the goal"
+        lines.append(f"| {model_id} over HTTP | {ms:.1f} | {most_ms:g} | - | - | {met} | - |")
     return lines
 
 

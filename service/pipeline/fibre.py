@@ -21,7 +21,7 @@ from service.pipeline import native
 from service.pipeline.arrays import BoolArray, FloatArray, IntArray
 from service.pipeline.correction import Residual, dls_step, iterate, residual_of
 from service.pipeline.targets import Target
-from service.pipeline.types import Kinematics
+from service.pipeline.types import ChainKinematics, Kinematics
 
 
 @dataclass(frozen=True)
@@ -40,6 +40,13 @@ class Fibre:
     @cached_property
     def _residual(self) -> Residual:
         return residual_of(self.kinematics, self.target, self.task)
+
+    @cached_property
+    def chain(self) -> ChainKinematics | None:
+        """The kinematics, where the compiled kernels evaluate it themselves (checked once:
+        a Protocol's isinstance costs tens of microseconds)."""
+        kinematics = self.kinematics
+        return kinematics if isinstance(kinematics, ChainKinematics) else None
 
 
 @dataclass(frozen=True)
@@ -93,8 +100,21 @@ def newton(
     repeated, so iterations = k costs at most k evaluations per row.
 
     Each step is one batched kinematics call over the rows still moving: every row with
-    `until` None, else the rows whose |e| is above `until` (or not finite).
+    `until` None, else the rows whose |e| is above `until` (or not finite). With a serial
+    chain's kinematics, the steps of every row run compiled instead (`native.newton`,
+    the same steps row by row; a DLS step needs damping above 0 there, which every
+    manifest's is, since a singular system has no pseudo-inverse fallback in it).
     """
+    kinematics = fibre.chain
+    if kinematics is not None and (tangent is not None or fibre.damping > 0):
+        target, task = fibre.target, fibre.task
+        q, error, jacobian = native.newton(
+            kinematics.fixed, kinematics.tip, task.position_axes, target.position_m,
+            target.rotation if task.orientation else None,
+            start.q_rad, start.error, start.jacobian, iterations, fibre.damping, until,
+            locked, tangent,
+        )  # fmt: skip
+        return Projection(q_rad=q, error=error, jacobian=jacobian)
 
     def step(jacobian: FloatArray, error: FloatArray, rows: IntArray | slice) -> FloatArray:
         return _step(

@@ -280,6 +280,50 @@ static void bordered_rows(const double *jacobian, const double *border, const do
     }
 }
 
+/* ---------------------------------------------------------------- Newton onto the fibre */
+
+/* Up to `iterations` Newton steps per row from q (B, n) with its measured error (B, m) and
+ * task Jacobian (B, m, n), all updated in place: a DLS step (damping > 0; the joints a row
+ * locks have their Jacobian columns zeroed for the step), or with `tangent` (B, n, r = 1)
+ * the bordered step [J; t^T] dq = [e; 0]. Each step is evaluated (residual_rows), so the
+ * returned error and Jacobian are measured at the returned q. With until >= 0 a row stops
+ * once |e| <= until (a NaN |e| never stops). A step entry that is not finite makes that
+ * joint NaN, as numpy's iterate does. `scratch` holds (m + 1) * n + 2 n doubles. */
+static void newton_rows(const double *fixed, const double *tip, Py_ssize_t n, const long long *rows,
+                        Py_ssize_t m, Py_ssize_t m_position, const double *target_position,
+                        const double *target_rotation, double *q, double *error, double *jacobian,
+                        Py_ssize_t batch, Py_ssize_t iterations, double until, double damping,
+                        const unsigned char *locked, const double *tangent, double *scratch) {
+    double *system = scratch, *dq = scratch + (m + 1) * n, *rhs = dq + n;
+    unsigned char singular;
+    for (Py_ssize_t b = 0; b < batch; ++b) {
+        double *qb = q + b * n, *e = error + b * m, *J = jacobian + b * m * n;
+        for (Py_ssize_t it = 0; it < iterations; ++it) {
+            if (until >= 0.0) {
+                double norm2 = 0.0;
+                for (Py_ssize_t k = 0; k < m; ++k) norm2 += e[k] * e[k];
+                if (sqrt(norm2) <= until) break;
+            }
+            if (tangent != NULL) {
+                for (Py_ssize_t k = 0; k < n; ++k) rhs[k] = k < m ? e[k] : 0.0;
+                bordered_rows(J, tangent + b * n, rhs, 1, n, dq, system);
+            } else {
+                const double *step_J = J;
+                if (locked != NULL) {
+                    for (Py_ssize_t r = 0; r < m; ++r)
+                        for (Py_ssize_t k = 0; k < n; ++k)
+                            system[r * n + k] = locked[b * n + k] ? 0.0 : J[r * n + k];
+                    step_J = system;
+                }
+                dls_rows(step_J, e, 1, m, n, damping, dq, &singular);
+            }
+            for (Py_ssize_t k = 0; k < n; ++k) qb[k] = isfinite(dq[k]) ? qb[k] + dq[k] : NAN;
+            residual_rows(fixed, tip, n, qb, 1, rows, m, m_position, target_position,
+                          target_rotation, e, J);
+        }
+    }
+}
+
 /* ---------------------------------------------------------------- URDF joint frames */
 
 /* origin (n, 4, 4) joint k's fixed transform, axis (n, 3) unit; q (B, n) -> frames
@@ -479,6 +523,29 @@ static PyObject *py_task_residual(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
+static PyObject *py_newton(PyObject *self, PyObject *args) {
+    Py_buffer fixed, tip, rows, target_position, target_rotation, q, error, jacobian, locked,
+        tangent, scratch;
+    Py_ssize_t n, m, m_position, batch, iterations;
+    int orientation, has_locked, has_tangent;
+    double until, damping;
+    if (!PyArg_ParseTuple(args, "y*y*ny*nny*y*pw*w*w*nnddy*py*pw*", &fixed, &tip, &n, &rows, &m,
+                          &m_position, &target_position, &target_rotation, &orientation, &q,
+                          &error, &jacobian, &batch, &iterations, &until, &damping, &locked,
+                          &has_locked, &tangent, &has_tangent, &scratch))
+        return NULL;
+    Py_BEGIN_ALLOW_THREADS
+    newton_rows(fixed.buf, tip.buf, n, rows.buf, m, m_position, target_position.buf,
+                orientation ? target_rotation.buf : NULL, q.buf, error.buf, jacobian.buf, batch,
+                iterations, until, damping, has_locked ? locked.buf : NULL,
+                has_tangent ? tangent.buf : NULL, scratch.buf);
+    Py_END_ALLOW_THREADS
+    Py_buffer *all[] = {&fixed, &tip, &rows, &target_position, &target_rotation, &q, &error,
+                        &jacobian, &locked, &tangent, &scratch};
+    for (size_t i = 0; i < sizeof all / sizeof *all; ++i) PyBuffer_Release(all[i]);
+    Py_RETURN_NONE;
+}
+
 static PyMethodDef methods[] = {
     {"chain", py_chain, METH_VARARGS,
      "chain(fixed, tip, q, n, batch, position, rotation, jacobian): serial-chain FK and Jacobian."},
@@ -496,6 +563,10 @@ static PyMethodDef methods[] = {
     {"task_residual", py_task_residual, METH_VARARGS,
      "task_residual(fixed, tip, q, n, batch, rows, m, m_position, target_position, "
      "target_rotation, orientation, error, jacobian): task error and Jacobian per row."},
+    {"newton", py_newton, METH_VARARGS,
+     "newton(fixed, tip, n, rows, m, m_position, target_position, target_rotation, orientation, "
+     "q, error, jacobian, batch, iterations, until, damping, locked, has_locked, tangent, "
+     "has_tangent, scratch): Newton steps onto the fibre per row, in place."},
     {NULL, NULL, 0, NULL},
 };
 

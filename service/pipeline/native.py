@@ -27,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 
 from service.pipeline import _native  # type: ignore[attr-defined]
-from service.pipeline.arrays import FloatArray, IntArray
+from service.pipeline.arrays import BoolArray, FloatArray, IntArray
 
 # The C code keeps a chain's joint frames on the stack.
 MAX_JOINTS = 64
@@ -239,3 +239,59 @@ def task_residual(
             target_rotation is not None, error, jacobian,
         )  # fmt: skip
     return error, jacobian
+
+
+def newton(
+    fixed: FloatArray,  # (n, 4, 4) as `chain_kinematics`
+    tip: FloatArray,  # (4, 4)
+    position_axes: list[int],
+    target_position_m: FloatArray,  # (len(position_axes),)
+    target_rotation: FloatArray | None,  # (3, 3) or None, as `task_residual`
+    q_rad: FloatArray,  # (B, n) evaluated: error and jacobian are measured there
+    error: FloatArray,  # (B, m)
+    jacobian: FloatArray,  # (B, m, n)
+    iterations: int,
+    damping: float,
+    until: float | None = None,
+    locked: BoolArray | None = None,  # (B, n) joints a row holds fixed (DLS steps)
+    tangent: FloatArray | None = None,  # (B, n) bordered steps [J; t^T] dq = [e; 0] (r = 1)
+) -> tuple[FloatArray, FloatArray, FloatArray]:  # q (B, n), error (B, m), jacobian (B, m, n)
+    """Up to `iterations` Newton steps per row, each evaluated by the task residual, as
+    `correction.iterate` takes them with `fibre`'s step rules: a DLS step with the locked
+    joints' columns zeroed, or with `tangent` the bordered step; with `until`, a row stops
+    once |e| <= until (a NaN |e| never does); a step entry that is not finite makes its
+    joint NaN. The inputs are not changed."""
+    n = len(fixed)
+    rows = [*position_axes, *([3, 4, 5] if target_rotation is not None else [])]
+    m, m_position = len(rows), len(position_axes)
+    if not 0 < n <= MAX_JOINTS or not 0 < m <= MAX_TASK_DIMENSION:
+        raise ValueError(f"a task of {m} rows on {n} joints; the kernel takes 1 to 6 on 1 to 64")
+    if tangent is not None and m != n - 1:
+        raise ValueError(f"a tangent step needs n - 1 task rows, got {m} on {n} joints")
+    if tangent is None and not damping > 0.0:
+        raise ValueError(f"a DLS step needs a positive damping, got {damping}")
+    batch = len(q_rad)
+    q = np.array(_float64(q_rad, "q_rad", (batch, n)))
+    e = np.array(_float64(error, "error", (batch, m)))
+    j = np.array(_float64(jacobian, "jacobian", (batch, m, n)))
+    lock = (
+        np.zeros(1, dtype=np.uint8)
+        if locked is None
+        else np.ascontiguousarray(np.broadcast_to(locked, (batch, n)), dtype=np.uint8)
+    )
+    border = np.zeros(1) if tangent is None else _float64(tangent, "tangent", (batch, n))
+    rotation = (
+        np.eye(3)
+        if target_rotation is None
+        else _float64(target_rotation, "target_rotation", (3, 3))
+    )
+    if batch and iterations > 0:
+        _native.newton(
+            _float64(fixed, "fixed", (n, 4, 4)), _float64(tip, "tip", (4, 4)), n,
+            np.array(rows, dtype=np.int64), m, m_position,
+            _float64(target_position_m, "target_position_m", (m_position,)), rotation,
+            target_rotation is not None, q, e, j, batch, iterations,
+            -1.0 if until is None else float(until), float(damping), lock, locked is not None,
+            border, tangent is not None, np.empty((m + 3) * n),
+        )  # fmt: skip
+    return q, e, j

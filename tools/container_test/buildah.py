@@ -24,7 +24,9 @@ HOST_CA_BUNDLE = Path("/etc/ssl/certs/ca-certificates.crt")
 # to behave like the real image (python and pip on PATH, pip allowed to install).
 DEBIAN_SUITE = "bookworm"
 DEBIAN_MIRROR = os.environ.get("SMM_DEBIAN_MIRROR", "http://deb.debian.org/debian")
-STANDIN_PACKAGES = ("python3", "python3-venv", "python3-pip", "ca-certificates")
+# python3-dev: CPython's headers, which python:3.11-slim ships (its Python is built from
+# source) and the compiled kernels' build needs.
+STANDIN_PACKAGES = ("python3", "python3-venv", "python3-pip", "python3-dev", "ca-certificates")
 STANDIN_LINKS = {
     "python": "/usr/bin/python3",
     "python3": "/usr/bin/python3",

@@ -15,7 +15,9 @@ chain kinematics' end effector. Self-clearance of the iiwa14's and Panda's spher
 the numpy two-pass minimum and a brute force over every sphere pair. The bordered solve
 [J; t^T] x = b of the trace's corrector and tangent equals LAPACK's, NaN where singular.
 The task residual (FK and task error in one pass) equals `task_error` of the chain kernel
-bitwise and of kinematics.onnx to 1e-12, for pose and position tasks.
+bitwise and of kinematics.onnx to 1e-12, for pose and position tasks. The compiled Newton
+steps (DLS, stopping at a tolerance, locked joints, bordered on a tangent) end where the
+numpy steps do, to 1e-12.
 """
 
 from __future__ import annotations
@@ -39,8 +41,10 @@ from service.pipeline import native
 from service.pipeline.collision.frames import chain_frames
 from service.pipeline.collision.robot import RobotSpheres
 from service.pipeline.correction import residual_of, task_error
+from service.pipeline.fibre import Fibre, project, unit_tangent
 from service.pipeline.rotations import rotation_log
 from service.pipeline.targets import Target
+from service.pipeline.types import KinematicsResult
 from tests.support.chains import pytorch_kinematics_answer
 from tests.support.numpy_kernels import NumpyChainKinematics
 from tests.support.numpy_kernels import chain_frames as numpy_chain_frames
@@ -322,3 +326,55 @@ def test_task_residual_equals_the_task_error_of_the_kinematics(
     np.testing.assert_array_equal(compiled[0], error)
     through = residual_of(onnx, target, task)(q)  # not a chain: through the kinematics
     np.testing.assert_array_equal(through[0], onnx_error)
+
+
+class _Through:
+    """The chain's kinematics behind a plain callable: not a ChainKinematics, so the fibre
+    takes the numpy steps (`correction.iterate`)."""
+
+    def __init__(self, kinematics: SerialChainKinematics) -> None:
+        self.kinematics = kinematics
+
+    def __call__(self, q_rad: np.ndarray) -> KinematicsResult:
+        return self.kinematics(q_rad)
+
+
+@pytest.mark.parametrize("model", ["iiwa14-pose", "planar3r-position"])
+def test_newton_takes_the_numpy_steps(model: str) -> None:
+    """DLS steps (every row, and stopping rows at `until`), with locked joints, and the
+    bordered steps of a tangent: the compiled Newton ends where `correction.iterate` does,
+    to 1e-12, with the error and Jacobian measured there; a NaN row stays in its row."""
+    kinematics = chain(model)
+    n = kinematics.joint_count
+    task = TaskSpec(
+        name="pose" if model == "iiwa14-pose" else "position",
+        position_axes=[0, 1, 2] if model == "iiwa14-pose" else [0, 1],
+        orientation=model == "iiwa14-pose",
+    )
+    q_target = turns(n, 1, seed=16)
+    fk = kinematics(q_target)
+    target = Target(
+        position_m=fk.position_m[0, task.position_axes],
+        rotation=fk.rotation[0] if task.orientation else None,
+        condition=np.zeros(1, np.float32),
+    )
+    compiled = Fibre(target, task, kinematics, damping=1e-3)
+    through = Fibre(target, task, _Through(kinematics), damping=1e-3)
+    q = q_target + np.random.default_rng(17).normal(scale=0.05, size=(300, n))
+    q[7] = np.nan
+    locked = np.random.default_rng(18).random((300, n)) < 0.2
+    tangent = unit_tangent(compiled.residual(q)[1])
+    cases: list[dict[str, object]] = [
+        {"iterations": 4},
+        {"iterations": 8, "until": 1e-10},
+        {"iterations": 5, "locked": locked},
+        {"iterations": 3, "tangent": tangent},
+    ]
+    for case in cases:
+        a = project(compiled, q, **case)  # type: ignore[arg-type]
+        b = project(through, q, **case)  # type: ignore[arg-type]
+        for x, y in ((a.q_rad, b.q_rad), (a.error, b.error), (a.jacobian, b.jacobian)):
+            np.testing.assert_allclose(x, y, rtol=0, atol=1e-12, equal_nan=True)
+        assert np.all(np.isnan(a.q_rad[7])) and np.all(np.isfinite(np.delete(a.q_rad, 7, 0)))
+        moved = np.linalg.norm(a.error, axis=1) < np.linalg.norm(compiled.residual(q)[0], axis=1)
+        assert moved.mean() > 0.9

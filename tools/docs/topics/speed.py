@@ -38,6 +38,7 @@ from tools.goals import (
     FLOAT32,
     GOAL_NUM_SAMPLES,
     GOALS,
+    HTTP_GOALS,
     PAPER,
     RESTART,
     SERVICE,
@@ -262,6 +263,13 @@ def speed_goals(*arguments: str) -> str:
                 f"`{model_id}`", f"at least {least_x:g}x faster than the paper's configuration",
                 f"{x:.1f}x", "yes" if x >= least_x else "no",
             ])  # fmt: skip
+        http_goal = dict(HTTP_GOALS).get(model_id)
+        if http_goal is not None and "http" in row:
+            over_http = row["http"]["median_ms"]
+            rows.append([
+                f"`{model_id}`", f"over HTTP at most {http_goal:g} ms", f"{over_http:.1f} ms",
+                "yes" if over_http <= http_goal else f"no, {over_http / http_goal:.2f}x the goal",
+            ])  # fmt: skip
         lost = worse(service["figures"], paper["figures"])
         rows.append([
             f"`{model_id}`", "truth no worse than the paper's configuration",
@@ -413,7 +421,9 @@ def speed_judged(name: str) -> str:
         d = record[f"{side}_defaults"]
         sampler = d["sampler"]
         words = sampler_words(sampler.get("flow", "base"), sampler["steps"], sampler["precision"])
-        return f"{words}, {d['correction_steps']} DLS, N = {d['num_samples']}"
+        rounds = sampler.get("round_samples")
+        drawn = f"N = {d['num_samples']}" + (f" in rounds of {rounds}" if rounds else "")
+        return f"{words}, {d['correction_steps']} DLS, {drawn}"
 
     rows = [["defaults", defaults("incumbent"), defaults("candidate")]]
     if "candidate_model" in record:
