@@ -469,18 +469,16 @@ def _time_bound(entry: dict, ms: float, most_ms: float, stage: dict[str, float])
         )
     profile = entry.get("connect_profile")
     if profile is not None:
-        calls, configurations = profile["kinematics_calls"], profile["configurations_evaluated"]
-        own_ms = profile["connect_ms"] - profile["kinematics_ms"]
         # A report without the profile's N profiled at each model's default N.
         n = profile.get("num_samples")
         at = "the model's default N" if n is None else f"N = {n}"
         text += (
             f"The connect stage profiled alone (`tools.connect_profile`, the same targets at "
-            f"{at}, one thread): {profile['connect_ms']:.1f} ms, of which the kinematics "
-            f"{profile['kinematics_ms']:.1f} ms in {calls:.0f} calls over "
-            f"{configurations:.0f} configurations ({configurations / max(calls, 1):.0f} per "
-            f"call), and {own_ms:.1f} ms the stage's own array work between those calls "
-            "(steps, neighbour searches, solves on a few dozen rows at a time)."
+            f"{at}, one thread): {profile['connect_ms']:.1f} ms, of which the compiled kernels "
+            f"{profile['kernels_ms']:.1f} ms in {profile['kernel_calls']:.0f} calls, and "
+            f"{profile['connect_ms'] - profile['kernels_ms']:.1f} ms the stage's own Python "
+            "and numpy between those calls (steps, neighbour searches, bookkeeping on a few "
+            "dozen rows at a time)."
         )
     if entry.get("judged"):
         text += " The judge's verdicts on the configurations tried (the manifest's reasons):"

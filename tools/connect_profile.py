@@ -1,48 +1,76 @@
-"""Where the connect stage's time goes: kinematics evaluations against everything else.
+"""Where the connect stage's time goes: the compiled kernels against everything else.
 
     python -m tools.connect_profile --model iiwa14-pose --targets 20
 
 Runs stages 1-4 on held-out targets (uniform configurations in the limits, their FK),
-then stage 5 with the model's kinematics behind a timer, and prints per target the
-connect stage's wall time, the kinematics calls and configurations evaluated inside it
-and their time; then medians. One thread, in process. Compare figures only within one
-run (the CPU, and what else runs on it, differ between runs and machines).
+then stage 5 with every compiled kernel (`service.pipeline.native`: the task residual,
+Newton steps, bordered solves, frames, clearances...) and the model's kinematics behind
+timers, and prints per target the connect stage's wall time, the kernel calls inside it
+and their time; then medians. What is left is the stage's own Python and numpy between
+those calls. One thread, in process. Compare figures only within one run (the CPU, and
+what else runs on it, differ between runs and machines).
 """
 
 from __future__ import annotations
 
 import argparse
+import inspect
 import json
 import time
-from dataclasses import dataclass, replace
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
+from service.pipeline import native
 from service.pipeline.arrays import FloatArray
 from service.pipeline.connect import connect
-from service.pipeline.fibre import Fibre
 from service.pipeline.run import collision_of, correct_samples, encode, sample, space_of
-from service.pipeline.types import Kinematics, KinematicsResult, Query
+from service.pipeline.types import Query
 from training.evaluate.served import orientation_wxyz
 from training.evaluate.targets import uniform_configurations
 
 
 @dataclass
-class TimedKinematics:
-    inner: Kinematics
+class KernelTimer:
+    """Time and calls of the compiled kernels while it is entered: each public function of
+    `service.pipeline.native` is wrapped (callers look them up on the module at call time)."""
+
     calls: int = 0
-    configurations: int = 0
     seconds: float = 0.0
 
-    def __call__(self, q_rad: FloatArray) -> KinematicsResult:
-        start = time.perf_counter()
-        result = self.inner(q_rad)
-        self.seconds += time.perf_counter() - start
-        self.calls += 1
-        self.configurations += len(q_rad)
-        return result
+    @contextmanager
+    def timing(self) -> Iterator[None]:
+        originals = {
+            name: getattr(native, name)
+            for name in dir(native)
+            if not name.startswith("_")
+            and inspect.isfunction(getattr(native, name))
+            and getattr(native, name).__module__ == native.__name__
+        }
+
+        def timed(kernel: Callable[..., Any]) -> Callable[..., Any]:
+            def call(*args: Any, **kwargs: Any) -> Any:
+                start = time.perf_counter()
+                try:
+                    return kernel(*args, **kwargs)
+                finally:
+                    self.seconds += time.perf_counter() - start
+                    self.calls += 1
+
+            return call
+
+        for name, kernel in originals.items():
+            setattr(native, name, timed(kernel))
+        try:
+            yield
+        finally:
+            for name, kernel in originals.items():
+                setattr(native, name, kernel)
 
 
 def profile_connect(
@@ -69,19 +97,18 @@ def profile_connect(
         space = space_of(model, target, query.tolerance, collision_of(model, query))
         correction = correct_samples(model, space, sample(model, query, target))
         acceptance = space.accept(correction)
-        timed = TimedKinematics(model.kinematics)
-        timed_space = replace(space, fibre=Fibre(target, manifest.task, timed, defaults.damping))
-        start = time.perf_counter()
-        connection = connect(timed_space, correction, acceptance, defaults.connectivity)
-        connect_ms = (time.perf_counter() - start) * 1e3
+        timer = KernelTimer()
+        with timer.timing():
+            start = time.perf_counter()
+            connection = connect(space, correction, acceptance, defaults.connectivity)
+            connect_ms = (time.perf_counter() - start) * 1e3
         rows.append(
             {
                 "target": i,
                 "components": len(connection.components),
                 "connect_ms": round(connect_ms, 1),
-                "kinematics_ms": round(timed.seconds * 1e3, 1),
-                "kinematics_calls": timed.calls,
-                "configurations_evaluated": timed.configurations,
+                "kernels_ms": round(timer.seconds * 1e3, 1),
+                "kernel_calls": timer.calls,
             }
         )
     return rows
@@ -91,7 +118,7 @@ def summarise(rows: list[dict[str, float]]) -> dict[str, float]:
     """Medians over the targets, and the connect stage's p95."""
     summary = {
         key: float(np.median([r[key] for r in rows]))
-        for key in ("connect_ms", "kinematics_ms", "kinematics_calls", "configurations_evaluated")
+        for key in ("connect_ms", "kernels_ms", "kernel_calls")
     }
     summary["connect_p95_ms"] = float(np.percentile([r["connect_ms"] for r in rows], 95))
     return summary

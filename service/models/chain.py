@@ -29,8 +29,8 @@ from pydantic import ValidationError
 
 from service.errors import ModelVerificationError
 from service.manifest import ChainSpec
+from service.pipeline import native
 from service.pipeline.arrays import FloatArray
-from service.pipeline.native import chain_kinematics
 from service.pipeline.types import KinematicsResult
 
 
@@ -77,5 +77,5 @@ class SerialChainKinematics:
         n = self.joint_count
         if q.ndim != 2 or q.shape[1] != n:
             raise ValueError(f"joint values have shape {q.shape}; expected (B, {n})")
-        position, rotation, jacobian = chain_kinematics(self.fixed, self.tip, q)
+        position, rotation, jacobian = native.chain_kinematics(self.fixed, self.tip, q)
         return KinematicsResult(position_m=position, rotation=rotation, jacobian=jacobian)

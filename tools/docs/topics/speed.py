@@ -329,13 +329,23 @@ def speed_bound(model_id: str, *arguments: str) -> str:
     if profile:
         n = profile.get("num_samples")
         at = "the model's default N" if n is None else f"N = {n}"
-        lines.append(
+        head = (
             f"- The connect stage profiled alone (one thread, the same targets at {at}): "
-            f"{profile['connect_ms']:.1f} ms, of which the kinematics "
-            f"{profile['kinematics_ms']:.1f} ms in {profile['kinematics_calls']:.0f} calls over "
-            f"{profile['configurations_evaluated']:.0f} configurations; the rest is the "
-            "stage's own array work between those calls."
+            f"{profile['connect_ms']:.1f} ms, of which "
         )
+        if "kernels_ms" in profile:  # tools/connect_profile times the compiled kernels
+            lines.append(
+                f"{head}the compiled kernels {profile['kernels_ms']:.1f} ms in "
+                f"{profile['kernel_calls']:.0f} calls; the rest is the stage's own Python and "
+                "numpy between those calls."
+            )
+        else:  # a report from before the kernels: the kinematics behind a timer
+            lines.append(
+                f"{head}the kinematics {profile['kinematics_ms']:.1f} ms in "
+                f"{profile['kinematics_calls']:.0f} calls over "
+                f"{profile['configurations_evaluated']:.0f} configurations; the rest is the "
+                "stage's own array work between those calls."
+            )
     return "\n".join(lines)
 
 
@@ -426,7 +436,7 @@ def speed_judged(name: str) -> str:
         return f"{words}, {d['correction_steps']} DLS, {drawn}"
 
     rows = [["defaults", defaults("incumbent"), defaults("candidate")]]
-    if "candidate_model" in record:
+    if record.get("candidate_model"):
         rows.append(["model", "served", f"`{record['candidate_model']}`"])
     for key, label, _ in TRUTH:
         if key in record["incumbent"] or key in record["candidate"]:
