@@ -1,5 +1,5 @@
-"""The speed blocks (tools/docs/topics/speed.py) write what the committed benchmark reports,
-judge records and manifests hold: each figure and table cell is checked here against the
+"""The speed blocks (tools/docs/topics/speed.py) write what the committed benchmark, soak
+and judge records and manifests hold: each figure and table cell is checked here against the
 JSON read directly, rounded as the block documents; the replica table's t follows its
 stated formula (CPU ms plus what HTTP adds) and the pods follow ceil(L x t / (c x u)) with
 c and u from deploy/; the goals are tools/goals.py's; an unknown report, model, path,
@@ -336,3 +336,40 @@ def test_the_load_table_is_the_committed_load_report() -> None:
         for model_id, figures in run["by_model"].items():
             assert models[model_id][1 + i] == f"{figures['p50_ms']:.0f}"
     assert all(run["errors"] == 0 for run in report["runs"])  # the page shows 0 errors
+
+
+SOAK = json.loads((Path(__file__).resolve().parents[2] / "docs/benchmark/soak.json").read_text())
+
+
+def test_the_soak_goals_are_the_records_verdicts_and_its_trend() -> None:
+    text = run_block("soak-goals", [])
+    v = SOAK["verdicts"]
+    assert f"{v['rss_at_settle_mib']:.1f} MiB at 5 min" in text
+    assert (
+        f"{v['rss_max_after_mib']:.1f} MiB (x{v['rss_min_ratio']:.3f} to x{v['rss_max_ratio']:.3f})"
+        in text
+    )
+    rss_met = "yes" if v["rss_goal_met"] else "**no**"
+    assert re.search(r"within 5 % above its value at 5 min \| [^|]+ \| " + re.escape(rss_met), text)
+    assert f"{v['server_errors']} in {v['requests']} requests" in text
+    # The trend: a least-squares line through the readings after settling, here recomputed
+    # from the windows with a plain formula (not numpy's polyfit).
+    after = [w for w in SOAK["windows"] if w["end_s"] > v["settle_s"]]
+    x = [w["end_s"] / 60 for w in after]
+    y = [w["rss_mib"] for w in after]
+    mx, my = sum(x) / len(x), sum(y) / len(y)
+    slope = sum((a - mx) * (b - my) for a, b in zip(x, y, strict=True)) / sum(
+        (a - mx) ** 2 for a in x
+    )
+    assert f"{slope * 60:+.1f} MiB per hour" in text
+
+
+def test_the_soak_timeline_shows_every_tenth_minute_and_the_last() -> None:
+    rows = [line for line in run_block("soak-timeline", []).splitlines()[2:]]
+    windows = SOAK["windows"]
+    expected = [windows[0]] + [w for w in windows if (w["index"] + 1) % 10 == 0]
+    if windows[-1] not in expected:
+        expected.append(windows[-1])
+    assert len(rows) == len(expected)
+    for row, window in zip(rows, expected, strict=True):
+        assert row.startswith(f"| {window['end_s'] / 60:g} | {window['rss_mib']:.0f} |")

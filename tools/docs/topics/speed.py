@@ -27,6 +27,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
+import numpy as np
 import yaml
 
 from tools.docs import sources
@@ -596,3 +597,84 @@ def model_default(path: str, *models: str) -> str:
     if len(by_value) == 1:
         return next(iter(by_value))
     return ", ".join(f"{value} ({', '.join(ids)})" for value, ids in by_value.items())
+
+
+@block("soak-goals")
+def soak_goals(*arguments: str) -> str:
+    """docs/benchmark/soak.json: the soak's three goals, each with what was measured."""
+    chosen = options(arguments, {"report": "soak"})
+    record = sources.benchmark(chosen["report"])
+    v = record["verdicts"]
+    settle_min = v["settle_s"] / 60
+
+    def met(value: bool | None) -> str:
+        return "not measured" if value is None else ("yes" if value else "**no**")
+
+    rows = [
+        [
+            f"RSS after {settle_min:g} min within 5 % above its value at {settle_min:g} min",
+            f"{v['rss_at_settle_mib']:.1f} MiB at {settle_min:g} min; after it "
+            f"{v['rss_min_after_mib']:.1f} to {v['rss_max_after_mib']:.1f} MiB "
+            f"(x{v['rss_min_ratio']:.3f} to x{v['rss_max_ratio']:.3f})",
+            met(v["rss_goal_met"]),
+        ],
+        [
+            f"single p99 over the last {record['settings']['p99_span_s'] / 60:g} min within "
+            f"10 % of its p99 over the {record['settings']['p99_span_s'] / 60:g} min up to "
+            f"minute {settle_min:g}",
+            f"{v['single_p99_at_settle_ms']:.0f} ms -> {v['single_p99_last_ms']:.0f} ms "
+            f"(x{v['single_p99_ratio']:.3f})",
+            met(v["p99_goal_met"]),
+        ],
+        [
+            f"(no goal) RSS trend after {settle_min:g} min: least-squares slope, and the median "
+            "RSS of the first and last ten minutes after it",
+            _rss_trend(record["windows"], v["settle_s"]),
+            "-",
+        ],
+        [
+            "no 5xx other than 503",
+            f"{v['server_errors']} in {v['requests']} requests ({v['errors']} errors of any kind)",
+            met(v["server_errors_goal_met"]),
+        ],
+    ]
+    return table(["goal", "measured", "met"], rows)
+
+
+def _rss_trend(windows: list[dict[str, Any]], settle_s: float) -> str:
+    """The RSS readings after `settle_s`: their least-squares slope in MiB per hour, and
+    the median reading of the first and of the last ten of them."""
+    after = [w for w in windows if w["end_s"] > settle_s and w["rss_mib"] is not None]
+    if len(after) < 2:
+        return "-"
+    minutes = np.array([w["end_s"] / 60 for w in after])
+    rss = np.array([w["rss_mib"] for w in after])
+    slope = float(np.polyfit(minutes, rss, 1)[0]) * 60
+    first, last = float(np.median(rss[:10])), float(np.median(rss[-10:]))
+    return f"{slope:+.1f} MiB per hour; median {first:.1f} MiB, then {last:.1f} MiB"
+
+
+@block("soak-timeline")
+def soak_timeline(*arguments: str) -> str:
+    """docs/benchmark/soak.json: every `every`-th window (default 10): its end, the
+    server's RSS, requests, single p50/p99 and batch p50/p99 in that window."""
+    chosen = options(arguments, {"report": "soak", "every": "10"})
+    record = sources.benchmark(chosen["report"])
+    every = int(chosen["every"])
+    windows = record["windows"]
+    shown = [w for w in windows if (w["index"] + 1) % every == 0 or w is windows[-1]]
+    if windows and windows[0] not in shown:
+        shown.insert(0, windows[0])
+    rows = [
+        [
+            f"{w['end_s'] / 60:g}", _whole(w["rss_mib"]), str(w["requests"]),
+            _whole(w["single_p50_ms"]), _whole(w["single_p99_ms"]),
+            _whole(w["batch_p50_ms"]), _whole(w["batch_p99_ms"]),
+        ]
+        for w in shown
+    ]  # fmt: skip
+    return table(
+        ["minute", "RSS MiB", "requests", "single p50 ms", "single p99 ms", "batch p50 ms",
+         "batch p99 ms"],
+        rows,
+    )  # fmt: skip
