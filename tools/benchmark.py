@@ -74,6 +74,7 @@ from tools.goals import (
     SERVICE,
 )
 from tools.local_server import LocalServer
+from training.checkout import git_commit
 from training.evaluate.judge import (
     JUDGED_SEPARATOR,
     TRUTH_FIGURES,
@@ -86,7 +87,6 @@ from training.evaluate.metrics import median_stage_ms, p95_stage_ms
 from training.evaluate.served import orientation_wxyz, serving, with_defaults
 from training.evaluate.targets import uniform_configurations
 from training.evaluate.truth import ground_truth
-from training.export import git_commit
 from training.kinematics import load_chain
 from training.machine import Machine
 from training.robots import robot_spec

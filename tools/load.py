@@ -41,6 +41,7 @@ from service.manifest import KINEMATICS_FILE, MANIFEST_FILE, REPO_MODELS_DIR, Ma
 from service.models.sessions import OnnxKinematics, open_session
 from service.pipeline.joint_space import JointLimits
 from tools.local_server import LocalServer
+from training.checkout import git_commit
 from training.machine import Machine, cpu_model
 
 TARGETS_PER_MODEL = 64
@@ -254,8 +255,6 @@ def main(argv: list[str] | None = None) -> int:
         "settings": settings,
     }
     if args.json:
-        from training.export import git_commit  # imports torch: only for a written record
-
         record["git_commit"] = git_commit()
     machine = Machine.now()
 

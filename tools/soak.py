@@ -43,7 +43,6 @@ import json
 import math
 import os
 import random
-import subprocess
 import sys
 import time
 from collections import Counter
@@ -57,6 +56,7 @@ import numpy as np
 
 from tools.load import machine_description, percentiles_ms, request_bodies, require_loopback
 from tools.local_server import LocalServer, resident_memory_bytes
+from training.checkout import git_commit
 from training.machine import Machine
 
 Kind = Literal["single", "batch", "bad"]
@@ -493,22 +493,6 @@ def memory_environment(pid: int | None) -> dict[str, str]:
             pairs = (item.split(b"=", 1) for item in raw.split(b"\0") if b"=" in item)
             variables = {k.decode(errors="replace"): v.decode(errors="replace") for k, v in pairs}
     return {k: variables[k] for k in MEMORY_ENVIRONMENT if k in variables}
-
-
-def git_commit() -> str:
-    """HEAD, with "+dirty" when service/ or training/ differ from it; "unknown" outside a
-    checkout (as training.export.git_commit, which imports torch)."""
-    try:
-        head = subprocess.run(
-            ["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True
-        ).stdout.strip()
-        changed = subprocess.run(
-            ["git", "status", "--porcelain", "--untracked-files=no", "--", "service", "training"],
-            capture_output=True, text=True, check=True,
-        ).stdout.strip()  # fmt: skip
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-    return f"{head}+dirty" if changed else head
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -62,7 +62,7 @@ class BestCheckpoint:
     best_epoch: int
     wall_time_s: float
     command: str
-    # The commit the run started from (training.export.git_commit); None in a best.pt
+    # The commit the run started from (training.checkout.git_commit); None in a best.pt
     # written before runs stored it.
     git_commit: str | None = None
 

@@ -14,7 +14,6 @@ from __future__ import annotations
 import datetime as dt
 import logging
 import shutil
-import subprocess
 import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import replace
@@ -197,23 +196,6 @@ def check_chain_parity(fk: ForwardKinematics, path: Path, joints: JointSpec) -> 
         return [answer.position_m, answer.rotation, answer.jacobian]
 
     _check_against_torch(fk, joints, chain, path, "chain", CHAIN_PARITY_ATOL)
-
-
-def git_commit() -> str:
-    """HEAD, with "+dirty" when the code the run imports (service/, training/) differs from
-    it; "unknown" outside a git checkout. Called when a run starts: a run takes hours, and
-    HEAD may move while it does."""
-    try:
-        head = subprocess.run(
-            ["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True
-        ).stdout.strip()
-        changed = subprocess.run(
-            ["git", "status", "--porcelain", "--untracked-files=no", "--", "service", "training"],
-            capture_output=True, text=True, check=True,
-        ).stdout.strip()  # fmt: skip
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-    return f"{head}+dirty" if changed else head
 
 
 def export_model(

@@ -62,12 +62,13 @@ from service.manifest import (
 from service.models.registry import load_model, sha256_of
 from service.pipeline.sampling import euler_integrate
 from service.pipeline.types import VelocityField as NumpyVelocityField
+from training.checkout import git_commit
 from training.checkpoint import LAST_FILE
 from training.config import TrainConfig
 from training.data import Labeller
 from training.evaluate.judge import REPORT_TARGETS
 from training.evaluate.quality import PAPER_SAMPLER, same_sampler
-from training.export import export_flow, git_commit, sweep_and_measure
+from training.export import export_flow, sweep_and_measure
 from training.kinematics import ForwardKinematics, load_chain
 from training.loop import Best, Optimiser, RunClock, atomic_torch_save, resume_payload
 from training.model import VelocityField

@@ -51,6 +51,7 @@ from training.budget import (
     plan_run,
     scaled_config,
 )
+from training.checkout import git_commit
 from training.checkpoint import (
     BEST_FILE,
     HISTORY_FILE,
@@ -63,7 +64,7 @@ from training.collision.geometry import mesh_references
 from training.config import TrainConfig, preset
 from training.data import FlowData, build_flow_data
 from training.distributed import Processes, from_environment, process_group
-from training.export import export_model, git_commit, refresh_kinematics
+from training.export import export_model, refresh_kinematics
 from training.kinematics import ForwardKinematics, joint_spec, load_chain
 from training.reflow import LAST_FILE as REFLOW_LAST_FILE
 from training.reflow import ReflowConfig, reflow_command, reflow_model

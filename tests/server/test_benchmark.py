@@ -31,8 +31,8 @@ from tools.benchmark import (
     batch_profile,
     paper_judgement,
 )
+from training.checkout import git_commit
 from training.evaluate.targets import uniform_configurations
-from training.export import git_commit
 
 ROOT = Path(__file__).resolve().parents[2]
 

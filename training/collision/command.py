@@ -31,10 +31,10 @@ from service.manifest import (
     Manifest,
 )
 from service.models.registry import load_model, sha256_of
+from training.checkout import git_commit
 from training.collision.pairs import DEFAULT_CONFIGURATIONS
 from training.collision.record import CollisionSettings, write_collision
 from training.collision.spheres import DEFAULT_SPHERES_PER_BODY
-from training.export import git_commit
 from training.kinematics import chain_spec, load_chain
 from training.robots import robot_spec
 from training.staging import staged_copy
