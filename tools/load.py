@@ -224,18 +224,14 @@ def format_report(report: Report) -> str:
     return "\n".join(lines)
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--url", help="a running server (loopback only); default: start one")
-    parser.add_argument(
-        "--clients", type=int, nargs="+", default=[16], help="one run per count, in turn"
-    )
-    parser.add_argument("--duration-s", type=float, default=60.0)
+def add_client_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options a load client shares with the soak (tools/soak.py): per-request timeout,
+    seed, backoff, API key, the JSON record, and the started server's settings."""
     parser.add_argument("--timeout-s", type=float, default=60.0, help="per-request timeout")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--no-backoff", action="store_true", help="ignore Retry-After")
     parser.add_argument("--api-key", default=os.environ.get("SMM_API_KEY"))
-    parser.add_argument("--json", help="also write the reports here (JSON)")
+    parser.add_argument("--json", help="also write the record here (JSON)")
     parser.add_argument(
         "--setting",
         action="append",
@@ -243,6 +239,16 @@ def main(argv: list[str] | None = None) -> int:
         metavar="NAME=VALUE",
         help="a Settings field for the started server, e.g. max_in_flight=2 (repeatable)",
     )
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--url", help="a running server (loopback only); default: start one")
+    parser.add_argument(
+        "--clients", type=int, nargs="+", default=[16], help="one run per count, in turn"
+    )
+    parser.add_argument("--duration-s", type=float, default=60.0)
+    add_client_arguments(parser)
     args = parser.parse_args(argv)
     bodies = request_bodies(args.seed)
     headers = {"X-API-Key": args.api_key} if args.api_key else None

@@ -54,7 +54,13 @@ from typing import Any, Literal
 import httpx
 import numpy as np
 
-from tools.load import machine_description, percentiles_ms, request_bodies, require_loopback
+from tools.load import (
+    add_client_arguments,
+    machine_description,
+    percentiles_ms,
+    request_bodies,
+    require_loopback,
+)
 from tools.local_server import LocalServer, resident_memory_bytes
 from training.checkout import git_commit
 from training.machine import Machine
@@ -512,18 +518,7 @@ def main(argv: list[str] | None = None) -> int:
         help="the p99 at settle and at the end is over the windows of this span",
     )
     parser.add_argument("--batch-targets", type=int, default=4, help="targets in each batch")
-    parser.add_argument("--timeout-s", type=float, default=60.0, help="per-request timeout")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--no-backoff", action="store_true", help="ignore Retry-After")
-    parser.add_argument("--api-key", default=os.environ.get("SMM_API_KEY"))
-    parser.add_argument("--json", help="also write the record here (JSON)")
-    parser.add_argument(
-        "--setting",
-        action="append",
-        default=[],
-        metavar="NAME=VALUE",
-        help="a Settings field for the started server, e.g. max_in_flight=2 (repeatable)",
-    )
+    add_client_arguments(parser)
     args = parser.parse_args(argv)
     if args.pid is not None and not args.url:
         parser.error("--pid goes with --url (a started server's pid is known)")
