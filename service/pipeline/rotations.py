@@ -26,7 +26,7 @@ def rotation_log(rotation: FloatArray) -> FloatArray:
     that is no rotation at all (non-finite, or a non-positive determinant, as a faulty
     network may produce) gets a NaN vector instead of failing the whole batch.
     """
-    return _log(rotation.reshape(len(rotation), 9), transposed=False)
+    return _log(rotation.reshape(len(rotation), 9))
 
 
 def rotation_error(rotation_target: FloatArray, rotation: FloatArray) -> FloatArray:
@@ -47,17 +47,16 @@ _SKEW_PLUS, _SKEW_MINUS = [7, 2, 3], [5, 6, 1]
 _COFACTOR = ([0, 1, 2], [4, 5, 3], [8, 6, 7], [5, 3, 4], [7, 8, 6])
 
 
-def _log(matrix: FloatArray, transposed: bool) -> FloatArray:  # (B, 9) -> (B, 3)
-    """rotation_log of row-major flattened matrices M (B, 9), or of M where `matrix` holds
-    M^T (the skew part changes sign; trace and determinant do not). Every step acts on
-    whole columns; the determinant is taken by cofactors (a LAPACK LU per row costs ten
+def _log(matrix: FloatArray) -> FloatArray:  # (B, 9) -> (B, 3)
+    """rotation_log of row-major flattened matrices M (B, 9). Every step acts on whole
+    columns; the determinant is taken by cofactors (a LAPACK LU per row costs ten
     times more), and only rows over 150 degrees go through scipy."""
-    plus, minus = (_SKEW_MINUS, _SKEW_PLUS) if transposed else (_SKEW_PLUS, _SKEW_MINUS)
     first, a, b, c, d = (matrix[:, k] for k in _COFACTOR)
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
         determinant = np.einsum("bi,bi->b", first, a * b - c * d)
         valid = np.isfinite(matrix).all(axis=1) & (determinant > 0.0)  # (B,)
-        sin_axis = 0.5 * (matrix[:, plus] - matrix[:, minus])  # (B, 3) = sin(theta) * axis
+        # (B, 3): sin(theta) * axis
+        sin_axis = 0.5 * (matrix[:, _SKEW_PLUS] - matrix[:, _SKEW_MINUS])
         sin = np.sqrt(np.einsum("bi,bi->b", sin_axis, sin_axis))
         cos = 0.5 * (matrix[:, ::4].sum(axis=1) - 1.0)  # entries 0, 4, 8: the trace
         angle = np.arctan2(sin, cos)
@@ -69,9 +68,7 @@ def _log(matrix: FloatArray, transposed: bool) -> FloatArray:  # (B, 9) -> (B, 3
     wide = valid & (cos < _COS_150_DEG)
     if wide.any():
         rows = matrix[wide].reshape(-1, 3, 3)
-        rotvec[wide] = Rotation.from_matrix(
-            np.swapaxes(rows, 1, 2) if transposed else rows
-        ).as_rotvec()
+        rotvec[wide] = Rotation.from_matrix(rows).as_rotvec()
     if not valid.all():
         rotvec[~valid] = np.nan
     return rotvec

@@ -84,18 +84,24 @@ def encode(model: SmmModel, query: Query) -> Target:
 
 
 def sample(
-    model: SmmModel, query: Query, target: Target, deadline: Deadline = NO_DEADLINE
+    model: SmmModel,
+    query: Query,
+    target: Target,
+    deadline: Deadline = NO_DEADLINE,
+    count: int | None = None,
+    rng: np.random.Generator | None = None,
 ) -> FloatArray:  # (N, n) rad
-    """Stage 2: the query's num_samples flow samples, drawn from its seed."""
+    """Stage 2: the query's num_samples flow samples, drawn from its seed; or `count` of
+    them, the next from `rng` (a round of rounds.py)."""
     manifest = model.manifest
     return sample_configurations(
         velocity=model.velocity,
         condition=target.condition,
-        num_samples=query.num_samples,
+        num_samples=query.num_samples if count is None else count,
         sampler=manifest.defaults.sampler,
         joint_normalisation=manifest.joint_normalisation,
         limits=model.limits,
-        rng=np.random.default_rng(query.seed),
+        rng=np.random.default_rng(query.seed) if rng is None else rng,
         deadline=deadline,
     )
 
@@ -252,25 +258,12 @@ def answer(
             q_sampled_rad = sample(model, query, target, deadline)
         return answer_in(model, query, space, q_sampled_rad, watch, deadline)
     manifest = model.manifest
-    rng = np.random.default_rng(query.seed)
-
-    def draw(count: int) -> FloatArray:  # (count, n) the next draws of the query's stream
-        return sample_configurations(
-            velocity=model.velocity,
-            condition=target.condition,
-            num_samples=count,
-            sampler=manifest.defaults.sampler,
-            joint_normalisation=manifest.joint_normalisation,
-            limits=model.limits,
-            rng=rng,
-            deadline=deadline,
-        )
-
+    rng = np.random.default_rng(query.seed)  # one stream for every round
     drawn = draw_in_rounds(
         space,
         num_samples=query.num_samples,
         round_samples=cast(int, manifest.defaults.sampler.round_samples),
-        draw=draw,
+        draw=lambda count: sample(model, query, target, deadline, count, rng),
         correct=lambda q: correct_samples(model, space, q, deadline),
         spec=manifest.defaults.connectivity,
         stage=watch.stage,
