@@ -22,6 +22,7 @@ which is never less than the spheres' and is the hulls' distance itself when cer
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -33,7 +34,7 @@ from service.pipeline.collision.convex import (
     hull_support,
     separation_deepest_first_m,
 )
-from service.pipeline.collision.frames import chain_frames
+from service.pipeline.collision.frames import frames_of, joint_transforms
 
 
 @dataclass(frozen=True)
@@ -153,8 +154,13 @@ class RobotSpheres:
         body fixed to the base is where the robot stands: its scene places it."""
         return self.frame > 0
 
+    @cached_property
+    def _joint_transforms(self) -> tuple[FloatArray, FloatArray]:
+        """The chain's joint transforms as arrays, made once, not at every placement."""
+        return joint_transforms(self.chain)
+
     def place(self, q_rad: FloatArray) -> PlacedBodies:  # q (B, n)
-        frames = chain_frames(self.chain, q_rad)[:, self.frame]  # (B, K, 4, 4)
+        frames = frames_of(*self._joint_transforms, q_rad)[:, self.frame]  # (B, K, 4, 4)
         rotation, origin = frames[:, :, :3, :3], frames[:, :, :3, 3]
         points = np.stack([self.bound_local_m, self.centre_local_m[:, 0]], axis=2)  # (K, 3, 2)
         placed = np.matmul(rotation, points) + origin[..., None]  # (B, K, 3, 2)
