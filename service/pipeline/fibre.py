@@ -5,8 +5,8 @@ Jacobian J(q) (B, m, n) (correction.task_error): Newton projection onto F (min-n
 steps, float64), from fresh configurations or from ones already evaluated (no point is
 evaluated twice), optionally keeping chosen joints fixed or moving orthogonally to a
 tangent, each row stopping once within a given error; the unit tangent of a 1-D fibre;
-the smallest singular value of J (per row, or the least over a batch), which says how
-near the fibre is to a singular point (where components can touch).
+the smallest singular value of J (per row, or the least over a batch; compiled), which
+says how near the fibre is to a singular point (where components can touch).
 """
 
 from __future__ import annotations
@@ -182,28 +182,19 @@ def unit_tangent(
 
 
 def smallest_singular_value(jacobian: FloatArray) -> FloatArray:  # (B, m, n) -> (B,)
-    """sigma_min of each task Jacobian: 0 at a singular configuration (NaN rows: NaN)."""
+    """sigma_min of each task Jacobian: 0 at a singular configuration (NaN rows: NaN).
+    Compiled for m <= n (`native.smallest_singular_values`, as accurate as LAPACK's SVD,
+    which takes the other shapes)."""
+    batch, m, n = jacobian.shape
+    if 0 < m <= n:
+        return native.smallest_singular_values(jacobian)
     finite = np.all(np.isfinite(jacobian), axis=(1, 2))
-    sigma = np.full(len(jacobian), np.nan)
+    sigma = np.full(batch, np.nan)
     if finite.any():
         sigma[finite] = np.linalg.svd(jacobian[finite], compute_uv=False)[:, -1]
     return sigma
 
 
 def min_singular_value(jacobian: FloatArray) -> float:  # (B, m, n), m <= n
-    """The least sigma_min over the rows with a finite J (inf for none): the same number as
-    `smallest_singular_value(jacobian)` least, at about half the cost.
-
-    The eigenvalues of J J^T (one symmetric eigensolve per row, cheaper than an SVD) give
-    each sigma_min to within sqrt(eps) sigma_max; only the rows within that of the least
-    estimate go through the SVD, which then decides the minimum.
-    """
-    finite = np.all(np.isfinite(jacobian), axis=(1, 2))
-    j = jacobian if finite.all() else jacobian[finite]
-    if not len(j):
-        return float(np.inf)
-    eigenvalues = np.linalg.eigvalsh(j @ np.swapaxes(j, 1, 2))  # (B, m) ascending
-    estimate = np.sqrt(np.maximum(eigenvalues[:, 0], 0.0))
-    slack = 1e-6 * (1.0 + np.sqrt(max(float(eigenvalues[:, -1].max()), 0.0)))
-    close = estimate <= estimate.min() + slack
-    return float(smallest_singular_value(j[close]).min())
+    """The least sigma_min over the rows with a finite J (inf for none)."""
+    return float(np.nanmin(smallest_singular_value(jacobian), initial=np.inf))

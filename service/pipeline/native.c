@@ -11,7 +11,9 @@
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 #include <math.h>
+#include <stdlib.h>
 #include <string.h>
+#include <time.h>
 
 /* ---------------------------------------------------------------- chain kinematics */
 
@@ -419,6 +421,271 @@ static void self_clearance_rows(const double *rotation, const double *origin, Py
     }
 }
 
+/* ---------------------------------------------------------------- smallest singular value */
+
+/* J (m, n), m <= n -> its least singular value, by one-sided Jacobi (Hestenes) on J's rows:
+ * plane rotations of row pairs until every pair is orthogonal to 1e-15 relative; the
+ * singular values are then the rows' norms (to about eps x sigma_max, as an SVD's). NaN
+ * for a J with a non-finite entry. `work` holds m * n doubles. */
+static double smallest_singular_row(const double *J, Py_ssize_t m, Py_ssize_t n, double *work) {
+    for (Py_ssize_t k = 0; k < m * n; ++k) {
+        if (!isfinite(J[k])) return NAN;
+        work[k] = J[k];
+    }
+    for (int sweep = 0; sweep < 60; ++sweep) {
+        int rotated = 0;
+        for (Py_ssize_t i = 0; i + 1 < m; ++i) {
+            for (Py_ssize_t j = i + 1; j < m; ++j) {
+                double *a = work + i * n, *b = work + j * n;
+                double alpha = 0.0, beta = 0.0, gamma = 0.0;
+                for (Py_ssize_t k = 0; k < n; ++k) {
+                    alpha += a[k] * a[k];
+                    beta += b[k] * b[k];
+                    gamma += a[k] * b[k];
+                }
+                if (fabs(gamma) <= 1e-15 * sqrt(alpha * beta)) continue;
+                rotated = 1;
+                double zeta = (beta - alpha) / (2.0 * gamma);
+                double t = (zeta >= 0.0 ? 1.0 : -1.0) / (fabs(zeta) + sqrt(1.0 + zeta * zeta));
+                double c = 1.0 / sqrt(1.0 + t * t), s = c * t;
+                for (Py_ssize_t k = 0; k < n; ++k) {
+                    double x = a[k], y = b[k];
+                    a[k] = c * x - s * y;
+                    b[k] = s * x + c * y;
+                }
+            }
+        }
+        if (!rotated) break;
+    }
+    double least = INFINITY;
+    for (Py_ssize_t i = 0; i < m; ++i) {
+        double norm2 = 0.0;
+        for (Py_ssize_t k = 0; k < n; ++k) norm2 += work[i * n + k] * work[i * n + k];
+        if (sqrt(norm2) < least) least = sqrt(norm2);
+    }
+    return least;
+}
+
+/* ---------------------------------------------------------------- continuation walk */
+
+static const double PI = 3.141592653589793, TWO_PI = 2.0 * 3.141592653589793;
+
+/* (-pi, pi], as joint_space.wrap_to_pi computes it. */
+static double wrap_to_pi(double angle) { return angle - TWO_PI * ceil((angle - PI) / TWO_PI); }
+
+static double norm_of(const double *x, Py_ssize_t n) {
+    double sum = 0.0;
+    for (Py_ssize_t k = 0; k < n; ++k) sum += x[k] * x[k];
+    return sqrt(sum);
+}
+
+static double dot_of(const double *x, const double *y, Py_ssize_t n) {
+    double sum = 0.0;
+    for (Py_ssize_t k = 0; k < n; ++k) sum += x[k] * y[k];
+    return sum;
+}
+
+static double monotonic_s(void) {
+    struct timespec now;
+    clock_gettime(CLOCK_MONOTONIC, &now);
+    return (double)now.tv_sec + 1e-9 * (double)now.tv_nsec;
+}
+
+/* What a walk holds between its steps (trace/walk.py's arrays, updated in place), the
+ * fibre's residual and the walk's constants. */
+typedef struct {
+    const double *fixed, *tip, *target_position, *target_rotation;
+    const long long *rows;
+    Py_ssize_t n, m, m_position, fronts;
+    double *q, *tangent, *jacobian, *step; /* (F, n), (F, n), (F, m, n), (F,) */
+    unsigned char *alive;                  /* (F,) */
+    long long *partner;                    /* (F,) */
+    double h, damping, meet_factor, twin_sigma, twin_offset;
+    Py_ssize_t corrector_iterations;
+} Walk;
+
+typedef struct {
+    long long a, b;
+    double length;
+} Pair;
+
+/* trace/walk.py's `meet`, step for step: stop the pairs of fronts that meet head-on on one
+ * curve, nearest pairs first. `previous` (F, n): the ends one step before; `circle`
+ * (F, 2n) and `work` (m n) scratch; `*pairs` grows as candidates need. */
+static int meet_fronts(Walk *w, const double *previous, double *circle, double *work,
+                       Pair **pairs, Py_ssize_t *pair_capacity) {
+    Py_ssize_t n = w->n, F = w->fronts, count = 0;
+    double largest = -INFINITY;
+    int any = 0;
+    for (Py_ssize_t f = 0; f < F; ++f) {
+        any |= w->alive[f];
+        if (w->step[f] > largest || isnan(w->step[f])) largest = w->step[f];
+        for (Py_ssize_t k = 0; k < n; ++k) {
+            circle[f * 2 * n + k] = cos(w->q[f * n + k]);
+            circle[f * 2 * n + n + k] = sin(w->q[f * n + k]);
+        }
+    }
+    if (!any) return 0;
+    double reach = w->meet_factor * largest, reach2 = reach * reach + 1e-9;
+    for (Py_ssize_t a = 0; a < F; ++a) {
+        if (!w->alive[a]) continue;
+        for (Py_ssize_t b = 0; b < F; ++b) {
+            double chordal2 = 2.0 * n - 2.0 * dot_of(circle + a * 2 * n, circle + b * 2 * n, 2 * n);
+            if (!(chordal2 <= reach2) || a == b || w->partner[b] >= 0 || !(a < b || !w->alive[b]))
+                continue;
+            if (count == *pair_capacity) {
+                Py_ssize_t grown = 2 * *pair_capacity + 16;
+                Pair *more = realloc(*pairs, grown * sizeof(Pair));
+                if (more == NULL) return -1;
+                *pairs = more, *pair_capacity = grown;
+            }
+            (*pairs)[count].a = a < b ? a : b;
+            (*pairs)[count].b = a < b ? b : a;
+            ++count;
+        }
+    }
+    double chord[64], mean[64], offset_vector[64];
+    Py_ssize_t ok = 0;
+    for (Py_ssize_t p = 0; p < count; ++p) {
+        long long a = (*pairs)[p].a, b = (*pairs)[p].b;
+        const double *qa = w->q + a * n, *qb = w->q + b * n, *ta = w->tangent + a * n,
+                     *tb = w->tangent + b * n;
+        double before2 = 0.0;
+        for (Py_ssize_t k = 0; k < n; ++k) {
+            chord[k] = wrap_to_pi(qb[k] - qa[k]);
+            double d = wrap_to_pi(previous[b * n + k] - previous[a * n + k]);
+            before2 += d * d;
+        }
+        double length = norm_of(chord, n), before = sqrt(before2);
+        double sa = w->step[a], sb = w->step[b];
+        int near = length <= w->meet_factor * (sa > sb ? sa : sb);
+        int head_on = dot_of(ta, tb, n) < -0.5;
+        int along = fabs(dot_of(chord, ta, n)) >= 0.7 * length;
+        int closer = length < before;
+        if (near && head_on && along && closer) {
+            for (Py_ssize_t k = 0; k < n; ++k) mean[k] = ta[k] - tb[k];
+            double scale = norm_of(mean, n);
+            scale = scale > 1e-300 ? scale : 1e-300;
+            for (Py_ssize_t k = 0; k < n; ++k) mean[k] /= scale;
+            double projected = dot_of(chord, mean, n);
+            for (Py_ssize_t k = 0; k < n; ++k) offset_vector[k] = chord[k] - projected * mean[k];
+            double offset = norm_of(offset_vector, n);
+            if ((sa < sb ? sa : sb) >= w->h && offset > w->twin_offset * w->h) {
+                size_t size = (size_t)(w->m * n);
+                double sigma_a = smallest_singular_row(w->jacobian + a * size, w->m, n, work);
+                double sigma_b = smallest_singular_row(w->jacobian + b * size, w->m, n, work);
+                double sigma = isnan(sigma_a) || isnan(sigma_b) ? NAN
+                               : sigma_a < sigma_b              ? sigma_a
+                                                                : sigma_b;
+                if (sigma < w->twin_sigma) along = 0;
+            }
+        }
+        if (near && head_on && along && closer) {
+            (*pairs)[ok] = (*pairs)[p];
+            (*pairs)[ok].length = length;
+            ++ok;
+        }
+    }
+    /* Nearest first (insertion sort: a few pairs, ties kept in their order). */
+    for (Py_ssize_t i = 1; i < ok; ++i) {
+        Pair key = (*pairs)[i];
+        Py_ssize_t j = i - 1;
+        for (; j >= 0 && (*pairs)[j].length > key.length; --j) (*pairs)[j + 1] = (*pairs)[j];
+        (*pairs)[j + 1] = key;
+    }
+    for (Py_ssize_t p = 0; p < ok; ++p) {
+        long long i = (*pairs)[p].a, j = (*pairs)[p].b;
+        if (w->partner[i] < 0 && w->partner[j] < 0) {
+            w->partner[i] = j, w->partner[j] = i;
+            w->alive[i] = w->alive[j] = 0;
+        }
+    }
+    return 0;
+}
+
+/* trace/walk.py's `walk_fronts` loop, step for step, from the state in `w`: up to
+ * `max_steps` lockstep steps (fewer once no front is alive), each followed by meet_fronts.
+ * Each point a front moves to is written to the next row of out_q (C, n), out_error
+ * (C, m), out_jacobian (C, m, n), out_tangent (C, n), out_front (C,), from row *count on.
+ * Returns 0 when the walk is over, 1 when the next step might not fit in the C rows (call
+ * again with more), 2 when `expires_at_s` (monotonic clock) has passed, -1 when out of
+ * memory; *steps counts the steps taken. */
+static int walk_steps(Walk *w, Py_ssize_t max_steps, double expires_at_s, double *out_q,
+                      double *out_error, double *out_jacobian, double *out_tangent,
+                      long long *out_front, Py_ssize_t capacity, Py_ssize_t *count,
+                      Py_ssize_t *steps) {
+    Py_ssize_t n = w->n, m = w->m, F = w->fronts, mn = m * n;
+    double *previous = malloc((size_t)(F * n * 3 + (m + 3) * n + n * n + 4 * n + mn) * sizeof(double));
+    if (previous == NULL) return -1;
+    double *circle = previous + F * n, *newton_scratch = circle + 2 * F * n;
+    double *system = newton_scratch + (m + 3) * n, *predicted = system + n * n;
+    double *rhs = predicted + n, *direction = rhs + n, *moved_q = direction + n,
+           *work = moved_q + n;
+    Pair *pairs = NULL;
+    Py_ssize_t pair_capacity = 0;
+    int status = 0;
+    double error[6], jacobian[6 * 64];
+    for (; *steps < max_steps; ++*steps) {
+        Py_ssize_t alive = 0;
+        for (Py_ssize_t f = 0; f < F; ++f) alive += w->alive[f];
+        if (alive == 0) break;
+        if (monotonic_s() > expires_at_s) {
+            status = 2;
+            break;
+        }
+        if (*count + alive > capacity) {
+            status = 1;
+            break;
+        }
+        memcpy(previous, w->q, (size_t)(F * n) * sizeof(double));
+        for (Py_ssize_t f = 0; f < F; ++f) {
+            if (!w->alive[f]) continue;
+            double h_f = w->step[f], *q = w->q + f * n, *t = w->tangent + f * n;
+            for (Py_ssize_t k = 0; k < n; ++k) moved_q[k] = predicted[k] = q[k] + h_f * t[k];
+            residual_rows(w->fixed, w->tip, n, moved_q, 1, w->rows, m, w->m_position,
+                          w->target_position, w->target_rotation, error, jacobian);
+            newton_rows(w->fixed, w->tip, n, w->rows, m, w->m_position, w->target_position,
+                        w->target_rotation, moved_q, error, jacobian, 1,
+                        w->corrector_iterations, -1.0, w->damping, NULL, t, newton_scratch);
+            double step2 = 0.0, pulled2 = 0.0;
+            for (Py_ssize_t k = 0; k < n; ++k) {
+                double d = moved_q[k] - q[k], p = moved_q[k] - predicted[k];
+                step2 += d * d;
+                pulled2 += p * p;
+            }
+            for (Py_ssize_t k = 0; k < n; ++k) rhs[k] = k < m ? 0.0 : 1.0;
+            bordered_rows(jacobian, t, rhs, 1, n, direction, system);
+            double scale = norm_of(direction, n);
+            for (Py_ssize_t k = 0; k < n; ++k) direction[k] /= scale;
+            double turn = dot_of(direction, t, n);
+            int moved = (norm_of(error, m) < 1e-2 * h_f / w->h) && (sqrt(pulled2) < 0.25 * h_f) &&
+                        (sqrt(step2) < 2.0 * h_f) && (turn > 0.5);
+            if (!moved) {
+                w->step[f] *= 0.5;
+                if (w->step[f] < w->h / 16) w->alive[f] = 0;
+                continue;
+            }
+            Py_ssize_t row = (*count)++;
+            memcpy(out_q + row * n, moved_q, (size_t)n * sizeof(double));
+            memcpy(out_error + row * m, error, (size_t)m * sizeof(double));
+            memcpy(out_jacobian + row * mn, jacobian, (size_t)mn * sizeof(double));
+            memcpy(out_tangent + row * n, direction, (size_t)n * sizeof(double));
+            out_front[row] = f;
+            memcpy(q, moved_q, (size_t)n * sizeof(double));
+            memcpy(t, direction, (size_t)n * sizeof(double));
+            memcpy(w->jacobian + f * mn, jacobian, (size_t)mn * sizeof(double));
+            w->step[f] = 1.5 * h_f < w->h ? 1.5 * h_f : w->h;
+        }
+        if (meet_fronts(w, previous, circle, work, &pairs, &pair_capacity) < 0) {
+            status = -1;
+            break;
+        }
+    }
+    free(pairs);
+    free(previous);
+    return status;
+}
+
 /* ---------------------------------------------------------------- Python entry points */
 
 static PyObject *py_chain(PyObject *self, PyObject *args) {
@@ -546,6 +813,53 @@ static PyObject *py_newton(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
+static PyObject *py_walk(PyObject *self, PyObject *args) {
+    Py_buffer fixed, tip, rows, target_position, target_rotation, q, tangent, jacobian, step,
+        alive, partner, out_q, out_error, out_jacobian, out_tangent, out_front;
+    Walk w;
+    int orientation;
+    Py_ssize_t max_steps, capacity, count, steps = 0;
+    double expires_at_s;
+    if (!PyArg_ParseTuple(args, "y*y*ny*nny*y*pnw*w*w*w*w*w*dddddnndw*w*w*w*w*nn", &fixed, &tip,
+                          &w.n, &rows, &w.m, &w.m_position, &target_position, &target_rotation,
+                          &orientation, &w.fronts, &q, &tangent, &jacobian, &step, &alive,
+                          &partner, &w.h, &w.damping, &w.meet_factor, &w.twin_sigma,
+                          &w.twin_offset, &w.corrector_iterations, &max_steps, &expires_at_s,
+                          &out_q, &out_error, &out_jacobian, &out_tangent, &out_front, &capacity,
+                          &count))
+        return NULL;
+    w.fixed = fixed.buf, w.tip = tip.buf, w.rows = rows.buf;
+    w.target_position = target_position.buf;
+    w.target_rotation = orientation ? target_rotation.buf : NULL;
+    w.q = q.buf, w.tangent = tangent.buf, w.jacobian = jacobian.buf, w.step = step.buf;
+    w.alive = alive.buf, w.partner = partner.buf;
+    int status;
+    Py_BEGIN_ALLOW_THREADS
+    status = walk_steps(&w, max_steps, expires_at_s, out_q.buf, out_error.buf, out_jacobian.buf,
+                        out_tangent.buf, out_front.buf, capacity, &count, &steps);
+    Py_END_ALLOW_THREADS
+    Py_buffer *all[] = {&fixed, &tip, &rows, &target_position, &target_rotation, &q, &tangent,
+                        &jacobian, &step, &alive, &partner, &out_q, &out_error, &out_jacobian,
+                        &out_tangent, &out_front};
+    for (size_t i = 0; i < sizeof all / sizeof *all; ++i) PyBuffer_Release(all[i]);
+    if (status < 0) return PyErr_NoMemory();
+    return Py_BuildValue("inn", status, count, steps);
+}
+
+static PyObject *py_smallest_singular_values(PyObject *self, PyObject *args) {
+    Py_buffer jacobian, sigma, work;
+    Py_ssize_t batch, m, n;
+    if (!PyArg_ParseTuple(args, "y*nnnw*w*", &jacobian, &batch, &m, &n, &sigma, &work))
+        return NULL;
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t b = 0; b < batch; ++b)
+        ((double *)sigma.buf)[b] =
+            smallest_singular_row((const double *)jacobian.buf + b * m * n, m, n, work.buf);
+    Py_END_ALLOW_THREADS
+    PyBuffer_Release(&jacobian), PyBuffer_Release(&sigma), PyBuffer_Release(&work);
+    Py_RETURN_NONE;
+}
+
 static PyMethodDef methods[] = {
     {"chain", py_chain, METH_VARARGS,
      "chain(fixed, tip, q, n, batch, position, rotation, jacobian): serial-chain FK and Jacobian."},
@@ -567,6 +881,14 @@ static PyMethodDef methods[] = {
      "newton(fixed, tip, n, rows, m, m_position, target_position, target_rotation, orientation, "
      "q, error, jacobian, batch, iterations, until, damping, locked, has_locked, tangent, "
      "has_tangent, scratch): Newton steps onto the fibre per row, in place."},
+    {"walk", py_walk, METH_VARARGS,
+     "walk(fixed, tip, n, rows, m, m_position, target_position, target_rotation, orientation, "
+     "fronts, q, tangent, jacobian, step, alive, partner, h, damping, meet_factor, twin_sigma, "
+     "twin_offset, corrector_iterations, max_steps, expires_at_s, out_q, out_error, "
+     "out_jacobian, out_tangent, out_front, capacity, count) -> (status, count, steps): the "
+     "trace's fronts walked in lockstep until they meet."},
+    {"smallest_singular_values", py_smallest_singular_values, METH_VARARGS,
+     "smallest_singular_values(jacobian, batch, m, n, sigma, work): sigma_min per row."},
     {NULL, NULL, 0, NULL},
 };
 

@@ -24,6 +24,8 @@ pinned by tests/service/pipeline/test_native.py to the numpy implementation it r
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from service.pipeline import _native  # type: ignore[attr-defined]
@@ -295,3 +297,122 @@ def newton(
             border, tangent is not None, np.empty((m + 3) * n),
         )  # fmt: skip
     return q, e, j
+
+
+def smallest_singular_values(jacobian: FloatArray) -> FloatArray:  # (B, m, n), m <= n -> (B,)
+    """sigma_min of each row's J by one-sided Jacobi on its rows (as accurate as an SVD:
+    to about eps x sigma_max); NaN for a row with a non-finite entry."""
+    batch, m, n = jacobian.shape
+    if not 0 < m <= n:
+        raise ValueError(f"a Jacobian of {m} rows on {n} columns; the kernel takes 1 to n rows")
+    sigma = np.empty(batch)
+    if batch:
+        j = _float64(jacobian, "jacobian", (batch, m, n))
+        _native.smallest_singular_values(j, batch, m, n, sigma, np.empty(m * n))
+    return sigma
+
+
+@dataclass(frozen=True)
+class WalkRules:
+    """trace/walk.py's constants, passed down so that they are written once."""
+
+    step_rad: float  # h
+    corrector_iterations: int
+    max_steps: int
+    meet_factor: float
+    twin_sigma: float
+    twin_offset: float
+
+
+@dataclass(frozen=True)
+class Walked:
+    """Every point the fronts moved to, in the order they moved, and how the walk ended."""
+
+    q_rad: FloatArray  # (T, n)
+    error: FloatArray  # (T, m)
+    jacobian: FloatArray  # (T, m, n)
+    tangent: FloatArray  # (T, n)
+    front: IntArray  # (T,) the front that moved there
+    partner: IntArray  # (F,) the front each met, -1 for none
+    expired: bool  # the deadline passed before the walk was over
+
+
+def walk(
+    fixed: FloatArray,  # (n, 4, 4) as `chain_kinematics`
+    tip: FloatArray,  # (4, 4)
+    position_axes: list[int],
+    target_position_m: FloatArray,
+    target_rotation: FloatArray | None,  # as `task_residual`
+    q_rad: FloatArray,  # (F, n) front ends, evaluated
+    tangent: FloatArray,  # (F, n) their directions of travel
+    jacobian: FloatArray,  # (F, n - 1, n) at the ends
+    rules: WalkRules,
+    damping: float,
+    expires_at_s: float,  # time.monotonic() after which the walk stops (inf: never)
+    capacity: int | None = None,  # output rows to start with (None: 16 per front)
+) -> Walked:
+    """trace/walk.py's fronts walked in lockstep, every step and meeting as `walk_fronts`
+    takes them (its numpy loop is the reference this is pinned to), compiled. The output
+    rows grow as needed: the walk pauses when a step might not fit and goes on."""
+    n = len(fixed)
+    rows = [*position_axes, *([3, 4, 5] if target_rotation is not None else [])]
+    m, m_position = len(rows), len(position_axes)
+    if not 0 < n <= MAX_JOINTS or m != n - 1:
+        raise ValueError(
+            f"a walk needs n - 1 task rows on 1 to {MAX_JOINTS} joints, got {m} on {n}"
+        )
+    fronts = len(q_rad)
+    q = np.array(_float64(q_rad, "q_rad", (fronts, n)))
+    t = np.array(_float64(tangent, "tangent", (fronts, n)))
+    j = np.array(_float64(jacobian, "jacobian", (fronts, m, n)))
+    step = np.full(fronts, rules.step_rad)
+    alive = np.ones(fronts, dtype=np.uint8)
+    partner = np.full(fronts, -1, dtype=np.int64)
+    rotation = (
+        np.eye(3)
+        if target_rotation is None
+        else _float64(target_rotation, "target_rotation", (3, 3))
+    )
+    constants = (
+        _float64(fixed, "fixed", (n, 4, 4)), _float64(tip, "tip", (4, 4)), n,
+        np.array(rows, dtype=np.int64), m, m_position,
+        _float64(target_position_m, "target_position_m", (m_position,)), rotation,
+        target_rotation is not None, fronts, q, t, j, step, alive, partner, rules.step_rad,
+        float(damping), rules.meet_factor, rules.twin_sigma, rules.twin_offset,
+        rules.corrector_iterations,
+    )  # fmt: skip
+    capacity = max(16 * fronts, 1) if capacity is None else max(capacity, fronts, 1)
+    out = _WalkRows(capacity, m, n)
+    count, steps, status = 0, 0, 1
+    while status == 1:
+        if count + fronts > capacity:
+            capacity *= 2
+            out = out.grown(capacity, count)
+        status, count, taken = _native.walk(
+            *constants, rules.max_steps - steps, expires_at_s,
+            out.q, out.error, out.jacobian, out.tangent, out.front, capacity, count,
+        )  # fmt: skip
+        steps += taken
+    return Walked(
+        q_rad=out.q[:count], error=out.error[:count], jacobian=out.jacobian[:count],
+        tangent=out.tangent[:count], front=out.front[:count], partner=partner,
+        expired=status == 2,
+    )  # fmt: skip
+
+
+class _WalkRows:
+    """The walk's output rows, `capacity` of them."""
+
+    def __init__(self, capacity: int, m: int, n: int) -> None:
+        self.q = np.empty((capacity, n))
+        self.error = np.empty((capacity, m))
+        self.jacobian = np.empty((capacity, m, n))
+        self.tangent = np.empty((capacity, n))
+        self.front = np.empty(capacity, dtype=np.int64)
+
+    def grown(self, capacity: int, count: int) -> _WalkRows:
+        """A larger set of rows holding the first `count` of these."""
+        bigger = _WalkRows(capacity, self.error.shape[1], self.q.shape[1])
+        for name in ("q", "error", "jacobian", "tangent", "front"):
+            getattr(bigger, name)[:count] = getattr(self, name)[:count]
+        return bigger

@@ -39,17 +39,30 @@ from service.pipeline.collision.frames import frames_of, joint_transforms
 
 @dataclass(frozen=True)
 class PlacedBodies:
-    """The bodies at B configurations, base frame: each body's frame, its bounding
-    sphere's and first sphere's centres; the other spheres placed on demand (`spheres`),
-    only for the (configuration, body) pairs a distance needs."""
+    """The bodies at B configurations, base frame: each body's frame; its bounding
+    sphere's and first sphere's centres when first asked for (the obstacle and refined
+    passes: the compiled self-clearance places its own); the other spheres on demand
+    (`spheres`), only for the (configuration, body) pairs a distance needs."""
 
     rotation: FloatArray  # (B, K, 3, 3) each body's frame
     origin_m: FloatArray  # (B, K, 3)
-    bound_centres_m: FloatArray  # (B, K, 3)
-    first_centres_m: FloatArray  # (B, K, 3) each body's first sphere
+    bound_local_m: FloatArray  # (K, 3) the robot's bounding spheres' centres, body frames
     centre_local_m: FloatArray  # (K, S, 3) the robot's, in each body's frame
     hull_local_m: FloatArray  # (K, S, V, 3) the robot's
     hull_count: IntArray  # (K, S)
+
+    @cached_property
+    def _centres_m(self) -> FloatArray:  # (B, K, 3, 2) bounding, then first sphere centres
+        points = np.stack([self.bound_local_m, self.centre_local_m[:, 0]], axis=2)  # (K, 3, 2)
+        return np.matmul(self.rotation, points) + self.origin_m[..., None]
+
+    @property
+    def bound_centres_m(self) -> FloatArray:  # (B, K, 3)
+        return self._centres_m[..., 0]
+
+    @property
+    def first_centres_m(self) -> FloatArray:  # (B, K, 3) each body's first sphere
+        return self._centres_m[..., 1]
 
     def hulls(self, rows: IntArray, bodies: IntArray, spheres: IntArray) -> Support:
         """The support of hull spheres[i] of body bodies[i] at configuration rows[i]."""
@@ -161,14 +174,10 @@ class RobotSpheres:
 
     def place(self, q_rad: FloatArray) -> PlacedBodies:  # q (B, n)
         frames = frames_of(*self._joint_transforms, q_rad)[:, self.frame]  # (B, K, 4, 4)
-        rotation, origin = frames[:, :, :3, :3], frames[:, :, :3, 3]
-        points = np.stack([self.bound_local_m, self.centre_local_m[:, 0]], axis=2)  # (K, 3, 2)
-        placed = np.matmul(rotation, points) + origin[..., None]  # (B, K, 3, 2)
         return PlacedBodies(
-            rotation=rotation,
-            origin_m=origin,
-            bound_centres_m=placed[..., 0],
-            first_centres_m=placed[..., 1],
+            rotation=frames[:, :, :3, :3],
+            origin_m=frames[:, :, :3, 3],
+            bound_local_m=self.bound_local_m,
             centre_local_m=self.centre_local_m,
             hull_local_m=self.hull_local_m,
             hull_count=self.hull_count,

@@ -5,9 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from service.pipeline import native
 from service.pipeline.arrays import BoolArray, FloatArray, IntArray
 from service.pipeline.connect.trace.points import Curve, Evaluated, TraceSettings, torus_difference
-from service.pipeline.connect.trace.strands import chain
+from service.pipeline.connect.trace.strands import chain as chain_fronts
 from service.pipeline.deadline import Deadline
 from service.pipeline.fibre import Fibre, project, smallest_singular_value, unit_tangent
 
@@ -37,11 +38,54 @@ def walk_fronts(
     value are walked, not jumped.
     """
     num_seeds = len(seeds)
-    h = settings.step_rad
     num_fronts = 2 * num_seeds  # front 2i leaves seed i along +t, front 2i + 1 along -t
     q = np.repeat(seeds.q_rad, 2, axis=0)  # (F, n) front ends
     tangent = np.repeat(seeds.tangent, 2, axis=0) * np.tile([1.0, -1.0], num_seeds)[:, None]
     jacobian = np.repeat(seeds.jacobian, 2, axis=0)  # (F, m, n) at the front ends
+    chain = fibre.chain
+    if chain is None:
+        reached, by_front, partner = _walk(fibre, q, tangent, jacobian, settings, deadline)
+    else:  # the same steps, compiled (native.walk)
+        target = fibre.target
+        walked = native.walk(
+            chain.fixed, chain.tip, fibre.task.position_axes, target.position_m,
+            target.rotation if fibre.task.orientation else None, q, tangent, jacobian,
+            native.WalkRules(
+                step_rad=settings.step_rad,
+                corrector_iterations=settings.corrector_iterations,
+                max_steps=settings.max_steps,
+                meet_factor=MEET_FACTOR,
+                twin_sigma=TWIN_SIGMA,
+                twin_offset=TWIN_OFFSET,
+            ),
+            fibre.damping, deadline.expires_at_s,
+        )  # fmt: skip
+        if walked.expired:
+            deadline.check("connect")
+        reached = Evaluated(walked.q_rad, walked.error, walked.jacobian, walked.tangent)
+        by_front, partner = walked.front, walked.partner
+    evaluated = seeds.extended(reached)
+    # Each front's points in travel order, as rows of `evaluated` (after the seeds).
+    order = np.argsort(by_front, kind="stable")
+    bounds = np.searchsorted(by_front[order], np.arange(num_fronts + 1))
+    fronts = [num_seeds + order[bounds[f] : bounds[f + 1]] for f in range(num_fronts)]
+    loops = chain_fronts(evaluated, num_seeds, fronts, partner)
+    # A front that gave up but was met by another leaves its curve closed all the same.
+    return evaluated, loops, all(loop.closed for loop in loops)
+
+
+def _walk(
+    fibre: Fibre,
+    q: FloatArray,  # (F, n) front ends, updated as they move
+    tangent: FloatArray,  # (F, n)
+    jacobian: FloatArray,  # (F, m, n)
+    settings: TraceSettings,
+    deadline: Deadline,
+) -> tuple[Evaluated, IntArray, IntArray]:
+    """The lockstep loop in numpy (any kinematics): every point the fronts moved to, in
+    the order they moved, the front that moved to each, and the front each met (-1: none)."""
+    num_fronts = len(q)
+    h = settings.step_rad
     step_rad = np.full(num_fronts, h)  # (F,)
     alive = np.ones(num_fronts, dtype=bool)
     partner = np.full(num_fronts, -1)  # (F,) the front each met, end to end
@@ -76,15 +120,10 @@ def walk_fronts(
         jacobian[index] = reached[-1].jacobian
         step_rad[index] = np.minimum(h, 1.5 * step_rad[index])
         meet(q, previous, tangent, jacobian, step_rad, h, alive, partner)
-    evaluated = seeds.extended(*reached)
-    # Each front's points in travel order, as rows of `evaluated` (after the seeds).
-    by_front = np.concatenate([np.zeros(0, dtype=np.int64), *reached_by])  # (T - S,)
-    order = np.argsort(by_front, kind="stable")
-    bounds = np.searchsorted(by_front[order], np.arange(num_fronts + 1))
-    fronts = [num_seeds + order[bounds[f] : bounds[f + 1]] for f in range(num_fronts)]
-    loops = chain(evaluated, num_seeds, fronts, partner)
-    # A front that gave up but was met by another leaves its curve closed all the same.
-    return evaluated, loops, all(loop.closed for loop in loops)
+    if not reached:
+        empty = Evaluated(q[:0], np.zeros((0, jacobian.shape[1])), jacobian[:0], q[:0])
+        return empty, np.zeros(0, dtype=np.int64), partner
+    return reached[0].extended(*reached[1:]), np.concatenate(reached_by), partner
 
 
 def meet(
