@@ -196,5 +196,8 @@ def smallest_singular_value(jacobian: FloatArray) -> FloatArray:  # (B, m, n) ->
 
 
 def min_singular_value(jacobian: FloatArray) -> float:  # (B, m, n), m <= n
-    """The least sigma_min over the rows with a finite J (inf for none)."""
+    """The least sigma_min over the rows with a finite J (inf for none): compiled, exact
+    only for the rows whose cheap bound could hold the least (`native.least_singular_value`)."""
+    if 0 < jacobian.shape[1] <= jacobian.shape[2]:
+        return native.least_singular_value(jacobian)
     return float(np.nanmin(smallest_singular_value(jacobian), initial=np.inf))

@@ -468,6 +468,7 @@ static double smallest_singular_row(const double *J, Py_ssize_t m, Py_ssize_t n,
 
 /* ---------------------------------------------------------------- continuation walk */
 
+
 static const double PI = 3.141592653589793, TWO_PI = 2.0 * 3.141592653589793;
 
 /* (-pi, pi], as joint_space.wrap_to_pi computes it. */
@@ -483,6 +484,80 @@ static double dot_of(const double *x, const double *y, Py_ssize_t n) {
     double sum = 0.0;
     for (Py_ssize_t k = 0; k < n; ++k) sum += x[k] * y[k];
     return sum;
+}
+
+/* A lower bound of J's least singular value (m <= n), from the Cholesky factor L of
+ * J J^T: with T = tr((J J^T)^-1) = |L^-1|_F^2, sigma_min^2 >= 1 / T (and <= m / T), shrunk
+ * by the rounding of forming and inverting J J^T so that it stays a bound. 0 where J J^T
+ * is not numerically positive definite (J near rank deficiency: no cheap bound); NaN for
+ * a J with a non-finite entry. `work` holds 2 m^2 doubles. */
+static double singular_lower_bound_row(const double *J, Py_ssize_t m, Py_ssize_t n, double *work) {
+    double *L = work, *inverse = work + m * m, trace = 0.0;
+    for (Py_ssize_t k = 0; k < m * n; ++k)
+        if (!isfinite(J[k])) return NAN;
+    for (Py_ssize_t r = 0; r < m; ++r) {
+        for (Py_ssize_t c = 0; c <= r; ++c) {
+            double sum = dot_of(J + r * n, J + c * n, n);
+            if (c == r) trace += sum;
+            for (Py_ssize_t k = 0; k < c; ++k) sum -= L[r * m + k] * L[c * m + k];
+            if (c == r) {
+                if (!(sum > 0.0)) return 0.0;
+                L[r * m + r] = sqrt(sum);
+            } else {
+                L[r * m + c] = sum / L[c * m + c];
+            }
+        }
+    }
+    double inverse_trace = 0.0; /* |L^-1|_F^2, column by column of L^-1 (lower triangular) */
+    for (Py_ssize_t c = 0; c < m; ++c) {
+        for (Py_ssize_t r = c; r < m; ++r) {
+            double sum = r == c ? 1.0 : 0.0;
+            for (Py_ssize_t k = c; k < r; ++k) sum -= L[r * m + k] * inverse[k];
+            inverse[r] = sum / L[r * m + r];
+            inverse_trace += inverse[r] * inverse[r];
+        }
+    }
+    double bound2 = (1.0 / inverse_trace) * (1.0 - 1e-8) - 1e-12 * trace;
+    return bound2 > 0.0 ? sqrt(bound2) : 0.0;
+}
+
+typedef struct {
+    double bound;
+    Py_ssize_t row;
+} Bound;
+
+static int by_bound(const void *a, const void *b) {
+    const Bound *x = a, *y = b;
+    return x->bound < y->bound ? -1 : x->bound > y->bound ? 1 : (x->row > y->row) - (x->row < y->row);
+}
+
+/* The least of smallest_singular_row over the rows of J (B, m, n) with no non-finite entry
+ * (+inf for none), the same number: rows are visited by their lower bound, least first,
+ * and the exact one-sided Jacobi runs only until the next bound is above the least found.
+ * -1 when out of memory. */
+static double least_singular_value(const double *jacobian, Py_ssize_t batch, Py_ssize_t m,
+                                   Py_ssize_t n) {
+    Bound *order = malloc((size_t)(batch > 0 ? batch : 1) * sizeof(Bound));
+    double *work = malloc((size_t)(2 * m * m + m * n) * sizeof(double));
+    if (order == NULL || work == NULL) {
+        free(order), free(work);
+        return -1.0;
+    }
+    Py_ssize_t count = 0;
+    for (Py_ssize_t b = 0; b < batch; ++b) {
+        double bound = singular_lower_bound_row(jacobian + b * m * n, m, n, work);
+        if (isnan(bound)) continue;
+        order[count].bound = bound, order[count].row = b;
+        ++count;
+    }
+    qsort(order, (size_t)count, sizeof(Bound), by_bound);
+    double least = INFINITY;
+    for (Py_ssize_t i = 0; i < count && order[i].bound <= least; ++i) {
+        double sigma = smallest_singular_row(jacobian + order[i].row * m * n, m, n, work);
+        if (sigma < least) least = sigma;
+    }
+    free(order), free(work);
+    return least;
 }
 
 static double monotonic_s(void) {
@@ -860,6 +935,19 @@ static PyObject *py_smallest_singular_values(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
+static PyObject *py_least_singular_value(PyObject *self, PyObject *args) {
+    Py_buffer jacobian;
+    Py_ssize_t batch, m, n;
+    if (!PyArg_ParseTuple(args, "y*nnn", &jacobian, &batch, &m, &n)) return NULL;
+    double least;
+    Py_BEGIN_ALLOW_THREADS
+    least = least_singular_value(jacobian.buf, batch, m, n);
+    Py_END_ALLOW_THREADS
+    PyBuffer_Release(&jacobian);
+    if (least < 0.0) return PyErr_NoMemory();
+    return PyFloat_FromDouble(least);
+}
+
 static PyMethodDef methods[] = {
     {"chain", py_chain, METH_VARARGS,
      "chain(fixed, tip, q, n, batch, position, rotation, jacobian): serial-chain FK and Jacobian."},
@@ -889,6 +977,8 @@ static PyMethodDef methods[] = {
      "trace's fronts walked in lockstep until they meet."},
     {"smallest_singular_values", py_smallest_singular_values, METH_VARARGS,
      "smallest_singular_values(jacobian, batch, m, n, sigma, work): sigma_min per row."},
+    {"least_singular_value", py_least_singular_value, METH_VARARGS,
+     "least_singular_value(jacobian, batch, m, n) -> the least sigma_min over the finite rows."},
     {NULL, NULL, 0, NULL},
 };
 

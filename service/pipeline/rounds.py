@@ -76,11 +76,12 @@ def draw_in_rounds(
         with stage("connect"):
             if curves is None:
                 q_within = correction.q_rad[acceptance.within_tolerance]
-                curves = trace_curves(kinematic, q_within, q_accepted, spec, deadline)
+                curves = trace_curves(kinematic, q_within, q_accepted, spec, deadline).curves
                 continue
             outside = acceptance.within_tolerance & ~acceptance.within_limits
             q_outside = correction.q_rad[outside]  # (O, n) their curves may enter the limits
-            curves, strays = extend_curves(curves, kinematic, q_accepted, spec, deadline, q_outside)
+            extension = extend_curves(curves, kinematic, q_accepted, spec, deadline, q_outside)
+            curves, strays = extension.curves, extension.strays
         if (len(q_accepted) or len(q_outside)) and not strays:
             break
     assert curves is not None, "num_samples >= 1 draws a round"

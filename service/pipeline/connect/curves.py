@@ -39,17 +39,27 @@ class TracedCurves:
     reached_rad: FloatArray  # (R, n)
 
 
+@dataclass(frozen=True)
+class Extension:
+    """`extend_curves`' answer: the curves, how many samples were on none of the curves it
+    was given, and the path each accepted sample lies on now (-1: none; `owner_path`)."""
+
+    curves: TracedCurves
+    strays: int
+    owner: IntArray  # (K,)
+
+
 def trace_curves(
     space: FibreSpace,
     q_within_rad: FloatArray,  # (M, n) samples within tolerance, inside the limits or not
     q_accepted_rad: FloatArray,  # (K, n) those inside the limits (and free)
     spec: ConnectivitySpec,
     deadline: Deadline,
-) -> TracedCurves:
+) -> Extension:
     """Every curve through the samples within tolerance, then through any accepted sample
     that none of them passes (`extend_curves`)."""
     curves = traced_paths(space, q_within_rad, spec, deadline)
-    return extend_curves(curves, space, q_accepted_rad, spec, deadline)[0]
+    return extend_curves(curves, space, q_accepted_rad, spec, deadline)
 
 
 def extend_curves(
@@ -59,33 +69,34 @@ def extend_curves(
     spec: ConnectivitySpec,
     deadline: Deadline,
     q_outside_rad: FloatArray | None = None,  # (O, n) within tolerance, outside the limits
-) -> tuple[TracedCurves, int]:
+) -> Extension:
     """The curves and those through the samples on none of them, a path traced again
-    kept once; and how many samples were on none. An accepted sample is on a curve when
-    a path passes it (`owner_path`: a twin a few hundredths of a radian from a traced
-    curve near a singular value is not); a sample outside the limits, which no path
-    passes, when a point the trace reached lies within a trace step of it (its curve may
-    come back inside the limits where no sample fell)."""
+    kept once; how many samples were on none, and the path each accepted sample is on.
+    An accepted sample is on a curve when a path passes it (`owner_path`: a twin a few
+    hundredths of a radian from a traced curve near a singular value is not); a sample
+    outside the limits, which no path passes, when a point the trace reached lies within
+    a trace step of it (its curve may come back inside the limits where no sample fell)."""
     limits = space.limits
     on_curve_rad = ON_CURVE_FRACTION * spec.path_spacing_rad
-    stray = owner_path(q_accepted_rad, curves.paths, limits, on_curve_rad) < 0  # (K,)
-    q_stray = q_accepted_rad[stray]
+    owner = owner_path(q_accepted_rad, curves.paths, limits, on_curve_rad)  # (K,)
+    q_stray = q_accepted_rad[owner < 0]
     if q_outside_rad is not None and len(q_outside_rad):
         far = off_the_reached(q_outside_rad, curves.reached_rad, limits, spec.trace_step_rad)
         q_stray = np.concatenate([q_stray, q_outside_rad[far]])
     if not len(q_stray):
-        return curves, 0
+        return Extension(curves, 0, owner)
     more = traced_paths(space, q_stray, spec, deadline)
     new = [p for p in more.paths if not retraced(p, curves.paths, limits, on_curve_rad)]
-    return (
-        TracedCurves(
-            curves.paths + new,
-            curves.complete and more.complete,
-            min(curves.min_singular_value, more.min_singular_value),
-            np.concatenate([curves.reached_rad, more.reached_rad]),
-        ),
-        len(q_stray),
+    paths = curves.paths + new
+    if new:  # a new path may pass nearer to a sample than its old one
+        owner = owner_path(q_accepted_rad, paths, limits, on_curve_rad)
+    extended = TracedCurves(
+        paths,
+        curves.complete and more.complete,
+        min(curves.min_singular_value, more.min_singular_value),
+        np.concatenate([curves.reached_rad, more.reached_rad]),
     )
+    return Extension(extended, len(q_stray), owner)
 
 
 def off_the_reached(

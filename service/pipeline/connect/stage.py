@@ -43,7 +43,7 @@ from service.pipeline.connect.settings import planner_settings, roadmap_settings
 from service.pipeline.connect.splicing import attach_by_walk, open_ends, splice_paths
 from service.pipeline.connect.trace import MEET_FACTOR, closest_strands_rad
 from service.pipeline.deadline import NO_DEADLINE, Deadline
-from service.pipeline.fibre import smallest_singular_value
+from service.pipeline.fibre import min_singular_value
 from service.pipeline.space import FibreSpace
 from service.pipeline.types import (
     Acceptance,
@@ -77,8 +77,7 @@ def connect(
     redundancy = correction.q_rad.shape[1] - correction.jacobian.shape[1]
     min_sigma = np.inf
     if redundancy > 1:  # r = 1: the trace measures sigma_min along every curve instead
-        sigmas = smallest_singular_value(correction.jacobian[acceptance.within_tolerance])
-        min_sigma = float(np.nanmin(sigmas, initial=np.inf))
+        min_sigma = min_singular_value(correction.jacobian[acceptance.within_tolerance])
     components: list[Component] = []
     leftover = accepted
     complete = True
@@ -134,12 +133,12 @@ def _curve_components(
     limits = space.limits
     if curves is None:
         q_within = correction.q_rad[acceptance.within_tolerance]
-        curves = trace_curves(space, q_within, q_accepted, spec, deadline)
+        extension = trace_curves(space, q_within, q_accepted, spec, deadline)
     else:  # traced while sampling (rounds.py): only samples on none of them are traced
-        curves = extend_curves(curves, space, q_accepted, spec, deadline)[0]
+        extension = extend_curves(curves, space, q_accepted, spec, deadline)
+    curves, owner = extension.curves, extension.owner
     paths, complete, sigma = curves.paths, curves.complete, curves.min_singular_value
     on_curve_rad = ON_CURVE_FRACTION * spec.path_spacing_rad
-    owner = owner_path(q_accepted, paths, limits, on_curve_rad)
     # A piece that ends off the limits is where a front stopped or a cut went wrong:
     # splice the pieces the fibre joins (splicing.py); an end left open means the
     # curve is not whole.

@@ -18,7 +18,8 @@ The task residual (FK and task error in one pass) equals `task_error` of the cha
 bitwise and of kinematics.onnx to 1e-12, for pose and position tasks. The compiled Newton
 steps (DLS, stopping at a tolerance, locked joints, bordered on a tangent) end where the
 numpy steps do, to 1e-12. The smallest singular value (one-sided Jacobi) equals LAPACK's
-SVD to 1e-12, singular and near-singular Jacobians included. The trace's walk moves its
+SVD to 1e-12, singular and near-singular Jacobians included, and the bounded search
+for the least over many rows finds exactly the least. The trace's walk moves its
 fronts where the numpy walk does, meets the same partners and chains the same curves
 (1e-12), grows its output rows as needed and stops at the deadline.
 """
@@ -417,6 +418,28 @@ def test_smallest_singular_values_equal_lapack() -> None:
     broken[1, 2, 3] = np.inf
     sigma = native.smallest_singular_values(broken)
     assert np.isnan(sigma[1]) and np.all(np.isfinite(sigma[[0, 2]]))
+
+
+def test_least_singular_value_is_the_least_of_every_rows() -> None:
+    """The bounded search returns exactly the least of the per-row values: on random sets
+    of the iiwa's pose and position Jacobians, with a singular row (the elbow straight),
+    rows along a smooth path (many bounds close together) and non-finite rows (skipped;
+    inf when none is left)."""
+    kinematics = chain("iiwa14-pose")
+    rng = np.random.default_rng(27)
+    folded = kinematics(np.zeros((1, 7))).jacobian
+    path = kinematics(np.linspace(0, 1, 400)[:, None] * rng.uniform(-2, 2, (1, 7))).jacobian
+    for trial in range(60):
+        j = kinematics(turns(7, int(rng.integers(1, 600)), seed=100 + trial)).jacobian
+        j = np.concatenate([j, folded]) if trial % 4 == 0 else j
+        j = path if trial % 5 == 0 else j
+        j = j[:, :3] if trial % 3 == 0 else j
+        j = j.copy()
+        if trial % 7 == 0:
+            j[0, 0, 0] = np.nan
+        expected = float(np.nanmin(native.smallest_singular_values(j), initial=np.inf))
+        assert native.least_singular_value(j) == expected
+    assert native.least_singular_value(np.full((3, 6, 7), np.nan)) == np.inf
 
 
 @pytest.mark.parametrize("model", ["iiwa14-pose", "panda-pose", "planar3r-position"])

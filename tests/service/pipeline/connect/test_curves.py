@@ -40,14 +40,14 @@ def test_extend_traces_only_samples_on_no_traced_curve(planar3r: ServedModel) ->
     space = space_of(planar3r, target, query.tolerance, collision_of(planar3r, query))
     spec = planar3r.manifest.defaults.connectivity
     up, down = closed_form_smm(np.array([0.5, 0.0]), phi_step_rad=0.37)
-    curves = trace_curves(space, up[:2], up[:2], spec, NO_DEADLINE)
+    curves = trace_curves(space, up[:2], up[:2], spec, NO_DEADLINE).curves
     assert len(curves.paths) == 1 and len(curves.reached_rad) > 10
-    same, strays = extend_curves(curves, space, up[5:9], spec, NO_DEADLINE)
-    assert same is curves and strays == 0
-    more, strays = extend_curves(
-        curves, space, np.concatenate([up[3:4], down[2:3]]), spec, NO_DEADLINE
-    )
-    assert strays == 1 and len(more.paths) == 2
-    assert len(more.reached_rad) > len(curves.reached_rad)
-    again, strays = extend_curves(more, space, down[4:6], spec, NO_DEADLINE)
-    assert again is more and strays == 0
+    same = extend_curves(curves, space, up[5:9], spec, NO_DEADLINE)
+    assert same.curves is curves and same.strays == 0 and same.owner.tolist() == [0] * 4
+    q_mixed = np.concatenate([up[3:4], down[2:3]])
+    more = extend_curves(curves, space, q_mixed, spec, NO_DEADLINE)
+    assert more.strays == 1 and len(more.curves.paths) == 2
+    assert more.owner[0] == 0 and more.owner[1] == 1  # the new path is the down loop's
+    assert len(more.curves.reached_rad) > len(curves.reached_rad)
+    again = extend_curves(more.curves, space, down[4:6], spec, NO_DEADLINE)
+    assert again.curves is more.curves and again.strays == 0 and again.owner.tolist() == [1, 1]
