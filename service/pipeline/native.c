@@ -421,6 +421,33 @@ static void self_clearance_rows(const double *rotation, const double *origin, Py
     }
 }
 
+/* self_clearance_rows at configurations q (B, n) instead of placed frames: per row the
+ * chain's frames (frame_rows), each body's taken from frame[k], then the same clearance,
+ * so the (B, n + 1, 4, 4) frames are never stored. `scratch` holds (n + 1) 16 + K 12 +
+ * K S 3 + K 3 doubles. */
+static void self_clearance_at_rows(const double *origin, const double *axis, Py_ssize_t n,
+                                   const double *q, Py_ssize_t batch, const long long *frame,
+                                   Py_ssize_t K, Py_ssize_t S, const double *centre,
+                                   const double *radius, const long long *own, const double *bound,
+                                   const double *bound_radius, const long long *pair_a,
+                                   const long long *pair_b, Py_ssize_t P, double *clearance,
+                                   double *scratch) {
+    double *T = scratch, *rotation = T + (n + 1) * 16, *origin_k = rotation + K * 9;
+    double *placed = origin_k + K * 3;
+    for (Py_ssize_t b = 0; b < batch; ++b) {
+        frame_rows(origin, axis, n, q + b * n, 1, T);
+        for (Py_ssize_t k = 0; k < K; ++k) {
+            const double *F = T + 16 * frame[k];
+            for (int r = 0; r < 3; ++r) {
+                for (int c = 0; c < 3; ++c) rotation[9 * k + 3 * r + c] = F[4 * r + c];
+                origin_k[3 * k + r] = F[4 * r + 3];
+            }
+        }
+        self_clearance_rows(rotation, origin_k, 1, K, S, centre, radius, own, bound, bound_radius,
+                            pair_a, pair_b, P, clearance + b, placed);
+    }
+}
+
 /* ---------------------------------------------------------------- smallest singular value */
 
 /* J (m, n), m <= n -> its least singular value, by one-sided Jacobi (Hestenes) on J's rows:
@@ -948,6 +975,25 @@ static PyObject *py_least_singular_value(PyObject *self, PyObject *args) {
     return PyFloat_FromDouble(least);
 }
 
+static PyObject *py_self_clearance_at(PyObject *self, PyObject *args) {
+    Py_buffer origin, axis, q, frame, centre, radius, own, bound, bound_radius, pair_a, pair_b;
+    Py_buffer clearance, scratch;
+    Py_ssize_t n, batch, K, S, P;
+    if (!PyArg_ParseTuple(args, "y*y*ny*ny*nny*y*y*y*y*y*y*nw*w*", &origin, &axis, &n, &q, &batch,
+                          &frame, &K, &S, &centre, &radius, &own, &bound, &bound_radius, &pair_a,
+                          &pair_b, &P, &clearance, &scratch))
+        return NULL;
+    Py_BEGIN_ALLOW_THREADS
+    self_clearance_at_rows(origin.buf, axis.buf, n, q.buf, batch, frame.buf, K, S, centre.buf,
+                           radius.buf, own.buf, bound.buf, bound_radius.buf, pair_a.buf,
+                           pair_b.buf, P, clearance.buf, scratch.buf);
+    Py_END_ALLOW_THREADS
+    Py_buffer *all[] = {&origin, &axis, &q, &frame, &centre, &radius, &own, &bound,
+                        &bound_radius, &pair_a, &pair_b, &clearance, &scratch};
+    for (size_t i = 0; i < sizeof all / sizeof *all; ++i) PyBuffer_Release(all[i]);
+    Py_RETURN_NONE;
+}
+
 static PyMethodDef methods[] = {
     {"chain", py_chain, METH_VARARGS,
      "chain(fixed, tip, q, n, batch, position, rotation, jacobian): serial-chain FK and Jacobian."},
@@ -979,6 +1025,9 @@ static PyMethodDef methods[] = {
      "smallest_singular_values(jacobian, batch, m, n, sigma, work): sigma_min per row."},
     {"least_singular_value", py_least_singular_value, METH_VARARGS,
      "least_singular_value(jacobian, batch, m, n) -> the least sigma_min over the finite rows."},
+    {"self_clearance_at", py_self_clearance_at, METH_VARARGS,
+     "self_clearance_at(origin, axis, n, q, batch, frame, K, S, centre, radius, own, bound, "
+     "bound_radius, pair_a, pair_b, P, clearance, scratch): self_clearance at joint values."},
     {NULL, NULL, 0, NULL},
 };
 

@@ -162,28 +162,88 @@ def self_clearance_m(
     pairs whose bounding spheres are no nearer than the least gap found so far are
     skipped: they cannot lower it."""
     batch, count = len(rotation), len(centre_local_m)
-    spheres = centre_local_m.shape[1]
-    pairs = len(pair_a)
-    if count and (own_spheres.min() < 1 or own_spheres.max() > spheres):
-        raise ValueError(f"own_spheres must lie in 1 to {spheres}")
+    bodies = _Bodies.of(centre_local_m, radius_m, own_spheres, bound_local_m, bound_radius_m,
+                        pair_a, pair_b)  # fmt: skip
     rotation = _float64(rotation, "rotation", (batch, count, 3, 3))
     origin = _float64(origin_m, "origin_m", (batch, count, 3))
-    centre = _float64(centre_local_m, "centre_local_m", (count, spheres, 3))
-    radius = _float64(radius_m, "radius_m", (count, spheres))
-    own = _int64(own_spheres, "own_spheres", (count,))
-    bound = _float64(bound_local_m, "bound_local_m", (count, 3))
-    bound_radius = _float64(bound_radius_m, "bound_radius_m", (count,))
-    a, b = _int64(pair_a, "pair_a", (pairs,)), _int64(pair_b, "pair_b", (pairs,))
-    if pairs and (min(a.min(), b.min()) < 0 or max(a.max(), b.max()) >= count):
-        raise ValueError(f"body pairs must index 0 to {count - 1}")
     clearance = np.empty(batch)
-    scratch = np.empty(count * spheres * 3 + count * 3 + 1)
+    scratch = np.empty(count * bodies.spheres * 3 + count * 3 + 1)
     if batch:
-        _native.self_clearance(
-            rotation, origin, batch, count, spheres, centre, radius, own, bound, bound_radius,
-            a, b, pairs, clearance, scratch,
+        arguments = (rotation, origin, batch, count, *bodies.arguments, clearance, scratch)
+        _native.self_clearance(*arguments)
+    return clearance
+
+
+def self_clearance_at_m(
+    joint_origin: FloatArray,  # (n, 4, 4) as `chain_frames`
+    joint_axis: FloatArray,  # (n, 3)
+    q_rad: FloatArray,  # (B, n)
+    frame: IntArray,  # (K,) the chain frame (0 to n) each body moves with
+    centre_local_m: FloatArray,  # (K, S, 3), and the rest as `self_clearance_m`
+    radius_m: FloatArray,  # (K, S)
+    own_spheres: IntArray,  # (K,)
+    bound_local_m: FloatArray,  # (K, 3)
+    bound_radius_m: FloatArray,  # (K,)
+    pair_a: IntArray,  # (P,)
+    pair_b: IntArray,  # (P,)
+) -> FloatArray:  # (B,)
+    """`self_clearance_m` with each body in chain frame frame[k] at q_rad (`chain_frames`),
+    row by row: the same numbers, without storing every frame of every row."""
+    n, batch, count = len(joint_origin), len(q_rad), len(centre_local_m)
+    bodies = _Bodies.of(centre_local_m, radius_m, own_spheres, bound_local_m, bound_radius_m,
+                        pair_a, pair_b)  # fmt: skip
+    frames = _int64(frame, "frame", (count,))
+    if count and (frames.min() < 0 or frames.max() > n):
+        raise ValueError(f"body frames must lie in 0 to {n}")
+    clearance = np.empty(batch)
+    scratch = np.empty((n + 1) * 16 + count * 12 + count * bodies.spheres * 3 + count * 3 + 1)
+    if batch:
+        _native.self_clearance_at(
+            _float64(joint_origin, "joint_origin", (n, 4, 4)),
+            _float64(joint_axis, "joint_axis", (n, 3)), n,
+            _float64(q_rad, "q_rad", (batch, n)), batch, frames, count,
+            *bodies.arguments, clearance, scratch,
         )  # fmt: skip
     return clearance
+
+
+@dataclass(frozen=True)
+class _Bodies:
+    """The robot's spheres as the self-clearance kernels take them, checked."""
+
+    spheres: int
+    arguments: tuple[object, ...]  # S, centre, radius, own, bound, bound_radius, a, b, P
+
+    @classmethod
+    def of(
+        cls,
+        centre_local_m: FloatArray,
+        radius_m: FloatArray,
+        own_spheres: IntArray,
+        bound_local_m: FloatArray,
+        bound_radius_m: FloatArray,
+        pair_a: IntArray,
+        pair_b: IntArray,
+    ) -> _Bodies:
+        count, spheres = len(centre_local_m), centre_local_m.shape[1]
+        pairs = len(pair_a)
+        if count and (own_spheres.min() < 1 or own_spheres.max() > spheres):
+            raise ValueError(f"own_spheres must lie in 1 to {spheres}")
+        a, b = _int64(pair_a, "pair_a", (pairs,)), _int64(pair_b, "pair_b", (pairs,))
+        if pairs and (min(a.min(), b.min()) < 0 or max(a.max(), b.max()) >= count):
+            raise ValueError(f"body pairs must index 0 to {count - 1}")
+        return cls(
+            spheres=spheres,
+            arguments=(
+                spheres,
+                _float64(centre_local_m, "centre_local_m", (count, spheres, 3)),
+                _float64(radius_m, "radius_m", (count, spheres)),
+                _int64(own_spheres, "own_spheres", (count,)),
+                _float64(bound_local_m, "bound_local_m", (count, 3)),
+                _float64(bound_radius_m, "bound_radius_m", (count,)),
+                a, b, pairs,
+            ),
+        )  # fmt: skip
 
 
 def bordered_solve(

@@ -57,19 +57,27 @@ class CollisionCheck:
         robot = self.robot
         for start in range(0, len(q_rad), CHUNK):
             span = slice(start, start + CHUNK)
-            placed = robot.place(q_rad[span])
+            q = q_rad[span]  # (C, n)
+            # The bodies are placed (every frame stored) only where the obstacles or the
+            # refined pass need them; the self-clearance places its own, row by row.
+            placed = robot.place(q) if self.scene.obstacles else None
             if self.self_checked:
-                clearance[span] = robot.self_clearance_m(placed)
-            clearance[span] = self.scene.clearance_m(placed, robot, clearance[span])
+                clearance[span] = robot.self_clearance_at_m(q)
+            if placed is not None:
+                clearance[span] = self.scene.clearance_m(placed, robot, clearance[span])
             near = np.flatnonzero(clearance[span] < self.margin_m)  # the hulls decide
             if len(near):
+                if placed is None:
+                    placed, rows = robot.place(q[near]), np.arange(len(near))
+                else:
+                    rows = near
                 refined = np.full(len(near), np.inf)
                 if self.self_checked:
-                    refined = robot.refined_self_clearance_m(placed, near, self.margin_m)
+                    refined = robot.refined_self_clearance_m(placed, rows, self.margin_m)
                 alive = refined >= self.margin_m  # not free on itself: no obstacle asked
                 refined[alive] = np.minimum(
                     refined[alive],
-                    self.scene.refined_clearance_m(placed, robot, near[alive], self.margin_m),
+                    self.scene.refined_clearance_m(placed, robot, rows[alive], self.margin_m),
                 )
                 # Free by the hulls: their bound; not free: the spheres' (a lower bound of
                 # the least distance over everything, where the refined passes stop early).

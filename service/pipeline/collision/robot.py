@@ -192,6 +192,15 @@ class RobotSpheres:
             self.own_spheres, self.bound_local_m, self.bound_radius_m, self.pair_a, self.pair_b,
         )  # fmt: skip
 
+    def self_clearance_at_m(self, q_rad: FloatArray) -> FloatArray:  # (B, n) -> (B,)
+        """`self_clearance_m` of the bodies placed at q_rad, row by row in compiled code
+        (`native.self_clearance_at_m`): the same numbers, no placed frames stored."""
+        origin, axis = self._joint_transforms
+        return native.self_clearance_at_m(
+            origin, axis, q_rad, self.frame, self.centre_local_m, self.radius_m,
+            self.own_spheres, self.bound_local_m, self.bound_radius_m, self.pair_a, self.pair_b,
+        )  # fmt: skip
+
     def refined_self_clearance_m(
         self, placed: PlacedBodies, rows: IntArray, margin_m: float
     ) -> FloatArray:  # rows (R,) -> (R,)

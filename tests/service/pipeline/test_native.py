@@ -12,7 +12,8 @@ the pseudo-inverse's step and a non-finite row is NaN in its own row. Wrong shap
 sizes beyond the kernels' fixed bounds are refused with the valid range named. URDF joint
 frames equal the numpy frames (Rodrigues on whole columns) and end, times the tip, at the
 chain kinematics' end effector. Self-clearance of the iiwa14's and Panda's spheres equals
-the numpy two-pass minimum and a brute force over every sphere pair. The bordered solve
+the numpy two-pass minimum and a brute force over every sphere pair, and the same at
+joint values (each row placing its own frames) bitwise. The bordered solve
 [J; t^T] x = b of the trace's corrector and tangent equals LAPACK's, NaN where singular.
 The task residual (FK and task error in one pass) equals `task_error` of the chain kernel
 bitwise and of kinematics.onnx to 1e-12, for pose and position tasks. The compiled Newton
@@ -246,6 +247,12 @@ def test_self_clearance_equals_the_numpy_two_passes_and_brute_force(model: str) 
             gap -= robot.radius_m[a, : len(ca), None] + robot.radius_m[b, None, : len(cb)]
             least = min(least, float(gap.min()))
         assert abs(clearance[row] - least) <= 1e-12
+    # At joint values, each row placing its own frames: bitwise the same numbers, NaN rows
+    # in their own row.
+    q[5, 1] = np.nan
+    at_q = robot.self_clearance_at_m(q)
+    np.testing.assert_array_equal(at_q, robot.self_clearance_m(robot.place(q)))
+    assert np.isnan(at_q[5]) and np.isfinite(np.delete(at_q, 5)).all()
 
 
 def test_self_clearance_without_pairs_is_infinite_and_nan_rows_stay_nan() -> None:
