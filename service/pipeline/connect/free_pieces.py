@@ -33,17 +33,21 @@ def free_pieces(
     clearances = space.collision.clearances_m(parts)
     of_members, of_paths = clearances[: len(components)], iter(clearances[len(components) :])
     margin_m = space.collision.margin_m
-    pieces: list[Component] = []
+    kept: list[Component] = []  # each component's free members
+    cuts: list[list[tuple[IntArray, ComponentPath]] | None] = []  # its path's free runs
     for component, member_clearance in zip(components, of_members, strict=True):
-        free_members = _members(
-            replace(component, clearance_m=member_clearance), member_clearance >= margin_m
-        )
-        if component.path is None:
-            if len(free_members.q_rad):
-                pieces.append(free_members)
+        free = member_clearance >= margin_m
+        kept.append(_members(replace(component, clearance_m=member_clearance), free))
+        path = component.path
+        cuts.append(None if path is None else _cut(space, path, next(of_paths)))
+    owners = _nearest_pieces(space, kept, cuts, spacing_rad)
+    pieces: list[Component] = []
+    for members, cut, owner in zip(kept, cuts, owners, strict=True):
+        if cut is None:
+            if len(members.q_rad):
+                pieces.append(members)
             continue
-        cut = _cut(space, component.path, next(of_paths))
-        pieces += _assign(space, free_members, component.path, cut, spacing_rad)
+        pieces += _assign(members, cut, owner)
     return pieces
 
 
@@ -95,31 +99,66 @@ def _cut(
     return paths
 
 
-def _assign(
+def _nearest_pieces(
     space: FibreSpace,
-    members: Component,
-    path: ComponentPath,
-    cut: list[tuple[IntArray, ComponentPath]],
+    members: list[Component],
+    cuts: list[list[tuple[IntArray, ComponentPath]] | None],
     spacing_rad: float,
-) -> list[Component]:
-    """Components of the pieces, each with the free members nearest one of its points."""
-    piece_of_row = np.full(len(path.q_rad), -1)  # (P,) -1 where in collision
-    for index, (rows, _) in enumerate(cut):
-        piece_of_row[rows] = index
-    free_rows = np.flatnonzero(piece_of_row >= 0)  # (F,)
-    owner = np.full(len(members.q_rad), -1)
-    if len(members.q_rad) and len(free_rows):
-        limits = space.limits
-        box = limits.box(np.concatenate([path.q_rad, members.q_rad]), margin_rad=1.0)
-        _, nearest = box.tree(path.q_rad[free_rows]).query(box.points(members.q_rad))
-        nearest_rows = free_rows[nearest]  # (k,)
-        near = limits.distance(members.q_rad, path.q_rad[nearest_rows]) <= spacing_rad
-        owner[near] = piece_of_row[nearest_rows[near]]
-    pieces = [piece for _, piece in cut]
-    components = [
-        replace(_members(members, owner == index), path=piece) for index, piece in enumerate(pieces)
+) -> list[IntArray]:
+    """For each component with a path, the piece of its path each free member joins: the
+    piece of its nearest free path point when that is within the spacing, -1 (an island)
+    otherwise; empty for a component without a path.
+
+    One KD-tree over every component's free path points answers every member at once:
+    each component's points are set apart from the others' by an extra coordinate
+    (its index times more than any joint-metric distance in the box), so the nearest
+    point found is the nearest of the member's own component.
+    """
+    limits = space.limits
+    points, point_piece, point_group, queries, query_group = [], [], [], [], []
+    for group, (component, cut) in enumerate(zip(members, cuts, strict=True)):
+        if cut is None or not len(component.q_rad):
+            continue
+        for index, (rows, piece) in enumerate(cut):
+            points.append(piece.q_rad)
+            point_piece.append(np.full(len(rows), index))
+            point_group.append(np.full(len(rows), group))
+        queries.append(component.q_rad)
+        query_group.append(np.full(len(component.q_rad), group))
+    owners = [
+        np.full(0 if cut is None else len(c.q_rad), -1)
+        for c, cut in zip(members, cuts, strict=True)
     ]
-    for island in np.flatnonzero(owner < 0):  # no checked motion joins it to a piece
+    if not points or not queries:
+        return owners
+    q_points, q_queries = np.concatenate(points), np.concatenate(queries)  # (P, n), (Q, n)
+    of_point, group_of_point = np.concatenate(point_piece), np.concatenate(point_group)
+    group_of_query = np.concatenate(query_group)
+    box = limits.box(np.concatenate([q_points, q_queries]), margin_rad=1.0)
+    apart = 2.0 * float(np.sqrt(np.sum(box.box_rad**2)))  # > any distance in the box
+    tree = box.grouped_tree(q_points, group_of_point, apart)
+    _, nearest = tree.query(box.grouped_points(q_queries, group_of_query, apart))
+    nearest = np.asarray(nearest, dtype=np.int64)  # (Q,)
+    same = group_of_point[np.minimum(nearest, len(q_points) - 1)] == group_of_query
+    near = np.zeros(len(q_queries), dtype=bool)
+    near[same] = limits.distance(q_queries[same], q_points[nearest[same]]) <= spacing_rad
+    owner = np.where(near, of_point[np.minimum(nearest, len(q_points) - 1)], -1)
+    bounds = np.cumsum([0] + [len(q) for q in queries])
+    for g, group in enumerate(np.unique(group_of_query).tolist()):
+        owners[group] = owner[bounds[g] : bounds[g + 1]]
+    return owners
+
+
+def _assign(
+    members: Component, cut: list[tuple[IntArray, ComponentPath]], owner: IntArray
+) -> list[Component]:
+    """Components of the pieces, each with the free members `owner` gives it (-1: an
+    island of its own, since no checked motion joins it to a piece)."""
+    components = [
+        replace(_members(members, owner == index), path=piece)
+        for index, (_, piece) in enumerate(cut)
+    ]
+    for island in np.flatnonzero(owner < 0):
         only = _members(members, np.arange(len(owner)) == island)
         components.append(replace(only, path=None))
     return components
