@@ -123,13 +123,57 @@ def traced_paths(
     trace = trace_fibre(space, q_on_fibre_rad, trace_settings(spec), deadline)
     complete = trace.complete
     paths: list[ComponentPath] = []
-    for piece in trace.pieces:
-        pieces, whole = exact_paths(piece, space, spec.path_spacing_rad, 2.0 * spec.trace_step_rad)
+    for pieces, whole in all_exact_paths(
+        trace.pieces, space, spec.path_spacing_rad, 2.0 * spec.trace_step_rad
+    ):
         complete &= whole
         for path in pieces:
             if not duplicate(path, paths, space.limits, spec.path_spacing_rad):
                 paths.append(path)
     return TracedCurves(paths, complete, trace.min_singular_value, trace.reached_rad)
+
+
+def all_exact_paths(
+    pieces: list[TracedPiece], space: FibreSpace, spacing_rad: float, cut_rad: float
+) -> list[tuple[list[ComponentPath], bool]]:
+    """`exact_paths` of every piece, in order. The error norms, the exactness test and
+    the steps are measured once over all pieces' points; a piece whose points are all
+    exact and whose steps are all continuation steps (the usual case) becomes its one
+    path from those, the others go through `exact_paths`."""
+    if not pieces:
+        return []
+    limits = space.limits
+    q_all = np.concatenate([p.path_rad for p in pieces])  # (P, n)
+    error_all = np.concatenate([p.error for p in pieces])  # (P, m)
+    position_all, orientation_all = error_norms(error_all, space.fibre.task)
+    exact_all = space.tolerance.within(position_all, orientation_all)  # (P,)
+    steps_all = limits.distance(q_all[1:], q_all[:-1])  # (P - 1,) across pieces too
+    size = np.array([len(p.path_rad) for p in pieces])
+    first = np.cumsum(size) - size
+    loops = np.flatnonzero(np.array([p.closed for p in pieces]) & (size > 1))
+    closing_all = np.zeros(len(pieces))  # (pieces,) from the last point back to the first
+    closing_all[loops] = limits.distance(q_all[first[loops] + size[loops] - 1], q_all[first[loops]])
+    inexact_before = np.concatenate([[0], np.cumsum(~exact_all)])
+    answers = []
+    for index, piece in enumerate(pieces):
+        a, b = int(first[index]), int(first[index] + size[index])
+        steps = steps_all[a : b - 1]
+        longest = float(steps.max(initial=0.0))
+        closing = float(closing_all[index])
+        inexact = inexact_before[b] > inexact_before[a]
+        if inexact or max(longest, closing) > cut_rad or size[index] < 1:
+            answers.append(exact_paths(piece, space, spacing_rad, cut_rad))
+            continue
+        whole = max(longest, closing) <= spacing_rad
+        path = ComponentPath(
+            q_rad=piece.path_rad,
+            position_error_m=position_all[a:b],
+            orientation_error_rad=orientation_all[a:b],
+            closed=piece.closed,
+            arc_length_rad=float(steps.sum()) + closing,
+        )
+        answers.append(([path], whole))
+    return answers
 
 
 def duplicate(

@@ -5,21 +5,31 @@ the distance of a reached point is on, one beyond it off, every sample off an em
 `extend_curves` on the planar 3R (two loops at 0.5 m, by the closed form of
 training/evaluate/references/planar3r.py): samples on the traced loop add nothing and
 count no stray; a sample of the other loop is traced, its loop added once, and the
-reached points grow.
+reached points grow. The exact paths of all traced pieces measured at once equal each
+piece's own, on real pieces and on pieces with an inexact point, a long step, a loop
+opened there and no point.
 """
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
-from service.models.registry import ServedModel
+from service.manifest import REPO_MODELS_DIR
+from service.models.registry import ServedModel, load_model
 from service.pipeline.connect import extend_curves, trace_curves
-from service.pipeline.connect.curves import off_the_reached
+from service.pipeline.connect.curves import all_exact_paths, exact_paths, off_the_reached
+from service.pipeline.connect.settings import trace_settings
+from service.pipeline.connect.trace import trace_fibre
 from service.pipeline.deadline import NO_DEADLINE
+from service.pipeline.fibre import project
 from service.pipeline.joint_space import JointLimits
 from service.pipeline.run import collision_of, encode, space_of
 from service.pipeline.types import Query
 from training.evaluate.references.planar3r import closed_form_smm
+from training.evaluate.served import orientation_wxyz
+from training.evaluate.targets import uniform_configurations
 
 
 def test_off_the_reached_uses_the_joint_metric() -> None:
@@ -51,3 +61,46 @@ def test_extend_traces_only_samples_on_no_traced_curve(planar3r: ServedModel) ->
     assert len(more.curves.reached_rad) > len(curves.reached_rad)
     again = extend_curves(more.curves, space, down[4:6], spec, NO_DEADLINE)
     assert again.curves is more.curves and again.strays == 0 and again.owner.tolist() == [1, 1]
+
+
+def test_all_exact_paths_equal_each_pieces_own() -> None:
+    """Measuring every traced piece at once gives each piece's `exact_paths` answer,
+    bitwise: on the iiwa14 pose's pieces (many, cut by the limits), and on pieces made to
+    take the other way: a point off the fibre (left out), a step longer than two trace
+    steps (a cut), a closed loop opened there, and an empty piece."""
+    iiwa = load_model(REPO_MODELS_DIR / "iiwa14-pose", threads=1)
+    q_target = uniform_configurations(iiwa.limits, 1, seed=31)[0]
+    fk = iiwa.kinematics(q_target[None])
+    query = Query.for_model(
+        iiwa.manifest, position_m=fk.position_m[0].tolist(),
+        orientation_wxyz=orientation_wxyz(fk.rotation[0]), seed=0,
+    )  # fmt: skip
+    target = encode(iiwa, query)
+    space = space_of(iiwa, target, query.tolerance, collision_of(iiwa, query)).kinematic()
+    spec = iiwa.manifest.defaults.connectivity
+    exact = project(space.fibre, q_target + np.random.default_rng(32).normal(0, 0.3, (300, 7)), 20)
+    pieces = trace_fibre(space, exact.q_rad[exact.error_norm < 1e-9], trace_settings(spec)).pieces
+    assert len(pieces) >= 3
+    longest = max(pieces, key=lambda p: len(p.path_rad))
+    off = longest.error.copy()
+    off[len(off) // 2] += 1e-3  # off the fibre
+    gap = np.delete(np.arange(len(longest.path_rad)), np.s_[5:25])  # a long step
+    closed_gap = replace(longest, path_rad=longest.path_rad[gap], error=longest.error[gap])
+    pieces += [
+        replace(longest, error=off),
+        replace(closed_gap, closed=True),
+        replace(closed_gap, closed=False),
+        replace(longest, path_rad=longest.path_rad[:0], error=longest.error[:0]),
+    ]
+    cut_rad = 2.0 * spec.trace_step_rad
+    together = all_exact_paths(pieces, space, spec.path_spacing_rad, cut_rad)
+    alone = [exact_paths(piece, space, spec.path_spacing_rad, cut_rad) for piece in pieces]
+    assert len(together) == len(alone)
+    for (paths, whole), (paths_alone, whole_alone) in zip(together, alone, strict=True):
+        assert whole == whole_alone and len(paths) == len(paths_alone)
+        for a, b in zip(paths, paths_alone, strict=True):
+            assert (a.closed, a.arc_length_rad) == (b.closed, b.arc_length_rad)
+            for x, y in ((a.q_rad, b.q_rad), (a.position_error_m, b.position_error_m),
+                         (a.orientation_error_rad, b.orientation_error_rad)):  # fmt: skip
+                np.testing.assert_array_equal(x, y)
+    assert [len(p) for p, _ in together[-4:]] == [1, 2, 2, 0]
