@@ -371,30 +371,44 @@ static void frame_rows(const double *origin, const double *axis, Py_ssize_t n, c
  * body pair whose bounding spheres are already no nearer than the least found so far
  * cannot lower it and is skipped: the first spheres' pairs start it. `placed` is scratch
  * (K * S * 3 + K * 3). */
+static void place_spheres(const double *Rk, const double *tk, const double *centre, Py_ssize_t count,
+                          double *out) {
+    for (Py_ssize_t s = 0; s < count; ++s) {
+        const double *c = centre + s * 3;
+        for (int r = 0; r < 3; ++r)
+            out[3 * s + r] = Rk[3 * r] * c[0] + Rk[3 * r + 1] * c[1] + Rk[3 * r + 2] * c[2] + tk[r];
+    }
+}
+
 static void self_clearance_rows(const double *rotation, const double *origin, Py_ssize_t batch,
                                 Py_ssize_t K, Py_ssize_t S, const double *centre,
                                 const double *radius, const long long *own, const double *bound,
                                 const double *bound_radius, const long long *pair_a,
                                 const long long *pair_b, Py_ssize_t P, double *clearance,
                                 double *placed) {
+    /* Spheres are placed when a pair first needs them: a body's first sphere for the first
+     * pass, all its own for the second (`placed_count[k]` of body k placed so far). */
     double *bounds = placed + K * S * 3;
+    Py_ssize_t placed_count[64];
     for (Py_ssize_t b = 0; b < batch; ++b) {
         const double *R = rotation + b * K * 9, *t = origin + b * K * 3;
         for (Py_ssize_t k = 0; k < K; ++k) {
             const double *Rk = R + 9 * k, *tk = t + 3 * k;
-            for (Py_ssize_t s = 0; s < (Py_ssize_t)own[k]; ++s) {
-                const double *c = centre + (k * S + s) * 3;
-                double *out = placed + (k * S + s) * 3;
-                for (int r = 0; r < 3; ++r)
-                    out[r] = Rk[3 * r] * c[0] + Rk[3 * r + 1] * c[1] + Rk[3 * r + 2] * c[2] + tk[r];
-            }
             const double *c = bound + 3 * k;
             for (int r = 0; r < 3; ++r)
                 bounds[3 * k + r] = Rk[3 * r] * c[0] + Rk[3 * r + 1] * c[1] + Rk[3 * r + 2] * c[2] + tk[r];
+            placed_count[k] = 0;
         }
         double best = INFINITY;
         for (Py_ssize_t p = 0; p < P; ++p) {
             Py_ssize_t ka = pair_a[p], kb = pair_b[p];
+            for (int side = 0; side < 2; ++side) {
+                Py_ssize_t k = side ? kb : ka;
+                if (placed_count[k] < 1) {
+                    place_spheres(R + 9 * k, t + 3 * k, centre + k * S * 3, 1, placed + k * S * 3);
+                    placed_count[k] = 1;
+                }
+            }
             const double *ca = placed + ka * S * 3, *cb = placed + kb * S * 3;
             double dx = ca[0] - cb[0], dy = ca[1] - cb[1], dz = ca[2] - cb[2];
             double gap = sqrt(dx * dx + dy * dy + dz * dz) - (radius[ka * S] + radius[kb * S]);
@@ -406,6 +420,13 @@ static void self_clearance_rows(const double *rotation, const double *origin, Py
             double dx = ba[0] - bb[0], dy = ba[1] - bb[1], dz = ba[2] - bb[2];
             double lower = sqrt(dx * dx + dy * dy + dz * dz) - (bound_radius[ka] + bound_radius[kb]);
             if (!(lower < best)) continue;
+            for (int side = 0; side < 2; ++side) {
+                Py_ssize_t k = side ? kb : ka;
+                if (placed_count[k] < own[k]) {
+                    place_spheres(R + 9 * k, t + 3 * k, centre + k * S * 3, own[k], placed + k * S * 3);
+                    placed_count[k] = own[k];
+                }
+            }
             for (Py_ssize_t i = 0; i < (Py_ssize_t)own[ka]; ++i) {
                 const double *ci = placed + (ka * S + i) * 3;
                 double ri = radius[ka * S + i];

@@ -33,6 +33,8 @@ from service.pipeline.arrays import BoolArray, FloatArray, IntArray
 
 # The C code keeps a chain's joint frames on the stack.
 MAX_JOINTS = 64
+# The self-clearance kernels count each body's placed spheres on the stack.
+MAX_BODIES = 64
 # The DLS step's system is m x m on the stack: at most a full pose.
 MAX_TASK_DIMENSION = 6
 
@@ -227,6 +229,8 @@ class _Bodies:
     ) -> _Bodies:
         count, spheres = len(centre_local_m), centre_local_m.shape[1]
         pairs = len(pair_a)
+        if count > MAX_BODIES:
+            raise ValueError(f"{count} bodies; the kernels take at most {MAX_BODIES}")
         if count and (own_spheres.min() < 1 or own_spheres.max() > spheres):
             raise ValueError(f"own_spheres must lie in 1 to {spheres}")
         a, b = _int64(pair_a, "pair_a", (pairs,)), _int64(pair_b, "pair_b", (pairs,))

@@ -190,6 +190,18 @@ def test_shapes_beyond_the_kernels_bounds_are_refused() -> None:
         native.chain_kinematics(np.tile(np.eye(4), (7, 1, 1)), np.eye(4), np.zeros((2, 3)))
     with pytest.raises(ValueError, match="the kernel takes 1 to 6"):
         native.dls_step(np.zeros((1, 7, 7)), np.zeros((1, 7)), 1e-3)
+    with pytest.raises(ValueError, match="65 bodies; the kernels take at most 64"):
+        native.self_clearance_m(
+            np.zeros((1, 65, 3, 3)), np.zeros((1, 65, 3)), np.zeros((65, 1, 3)),
+            np.ones((65, 1)), np.ones(65, dtype=np.int64), np.zeros((65, 3)), np.ones(65),
+            np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64),
+        )  # fmt: skip
+    with pytest.raises(ValueError, match="a walk needs n - 1 task rows"):
+        native.walk(
+            np.tile(np.eye(4), (7, 1, 1)), np.eye(4), [0, 1, 2], np.zeros(3), None,
+            np.zeros((2, 7)), np.zeros((2, 7)), np.zeros((2, 3, 7)),
+            native.WalkRules(0.15, 1, 10, 1.1, 0.05, 0.05), 1e-3, np.inf,
+        )  # fmt: skip
     for batch in (0, 1):
         position, rotation, jacobian = native.chain_kinematics(
             np.tile(np.eye(4), (3, 1, 1)), np.eye(4), np.zeros((batch, 3))
