@@ -96,26 +96,34 @@ def _obstacle(index: int, obstacle: ObstacleIn) -> Obstacle:
 
 
 def _component_out(index: int, summary: ComponentSummary) -> ComponentOut:
+    """The component as the wire has it, built without validation (`model_construct`): its
+    arrays become lists of Python floats here, and validating a few thousand path floats
+    again cost as much as encoding them. tests/service/api/test_smm.py checks that every
+    answer validates as `SmmResponse` to the same JSON."""
     nearest = summary.nearest_to_reference_rad
-    return ComponentOut(
+    return ComponentOut.model_construct(
         id=index,
-        size=summary.size,
+        size=int(summary.size),
         representative=summary.representative_rad.tolist(),
         configurations=summary.configurations_rad.tolist(),
         joint_min=summary.joint_min_rad.tolist(),
         joint_max=summary.joint_max_rad.tolist(),
-        max_position_error=summary.max_position_error_m,
-        max_orientation_error=summary.max_orientation_error_rad,
-        distance_to_reference=summary.distance_to_reference_rad,
+        max_position_error=float(summary.max_position_error_m),
+        max_orientation_error=float(summary.max_orientation_error_rad),
+        distance_to_reference=_float_or_none(summary.distance_to_reference_rad),
         nearest_to_reference=None if nearest is None else nearest.tolist(),
-        arc_length_rad=summary.arc_length_rad,
-        closed=summary.closed,
+        arc_length_rad=_float_or_none(summary.arc_length_rad),
+        closed=None if summary.closed is None else bool(summary.closed),
         ends=None if summary.ends is None else list(summary.ends),
         path=None if summary.path is None else summary.path.q_rad.tolist(),
-        clearance_m=summary.clearance_m,
+        clearance_m=_float_or_none(summary.clearance_m),
         safest_configuration=None if summary.safest_rad is None else summary.safest_rad.tolist(),
-        safest_clearance_m=summary.safest_clearance_m,
+        safest_clearance_m=_float_or_none(summary.safest_clearance_m),
     )
+
+
+def _float_or_none(value: float | None) -> float | None:
+    return None if value is None else float(value)
 
 
 def to_response(model: ServedModel, query: Query, result: SmmResult) -> SmmResponse:
