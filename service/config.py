@@ -35,9 +35,9 @@ class Settings(BaseSettings):
         64,
         ge=1,
         description="Most targets in one POST /smm/batch (413 beyond). A batch holds one "
-        "computation slot for all its targets, one after another, so this bounds how long it "
-        "keeps the slot from other requests; 64 targets with reference configurations are "
-        "about 30 KB, inside max_body_bytes.",
+        "computation slot for all its targets, so this bounds how long it keeps the slot "
+        "from other requests; 64 targets with reference configurations are about 30 KB, "
+        "inside max_body_bytes.",
     )
     max_batch_samples: int = Field(
         64_000,
@@ -47,14 +47,13 @@ class Settings(BaseSettings):
         "default (1000 samples), which the slowest of them (iiwa14 position, ~0.4 s a target "
         "on 2 cores) answers within request_deadline_s.",
     )
-    batch_sampling_threads: int = Field(
+    batch_threads: int = Field(
         0,
         ge=0,
-        description="Threads that sample a POST /smm/batch's next targets (the flow "
-        "network, which releases the GIL) while its earlier ones are corrected and "
-        "connected; 0 runs each target's stages one after another, so a batch, like a "
-        "request, keeps to one core per computation slot. 1 may help a server with idle "
-        "cores; on this 2-core machine, with another job on one core, it did not.",
+        description="Threads that answer a POST /smm/batch's targets at once, each target "
+        "whole (the flow network and the compiled kernels release the GIL): 0 gives a "
+        "batch the process's share of the cores (cores // workers), 1 answers its targets "
+        "one after another. Every target's answer is the same either way.",
     )
     malloc_arenas: int = Field(
         2,
@@ -122,6 +121,13 @@ class Settings(BaseSettings):
         description="On SIGTERM, how long `smm-serve` waits for requests in flight to finish "
         "(new connections are refused meanwhile); longer than the deadline so none is cut.",
     )
+
+    @property
+    def batch_threads_per_request(self) -> int:
+        """batch_threads, or the process's share of the cores: cores // workers."""
+        if self.batch_threads:
+            return self.batch_threads
+        return max(1, (os.cpu_count() or 1) // self.workers)
 
     @property
     def onnx_threads_per_session(self) -> int:

@@ -75,7 +75,7 @@ def batch_against_singles(
 
     `server`: a running LocalServer to ask (its limits must admit the batch); None starts
     one with the default settings but the batch limits and deadline raised to fit the K
-    targets, and `server_settings` (Settings fields, `batch_sampling_threads=1`). Returns
+    targets, and `server_settings` (Settings fields, `batch_threads=1`). Returns
     the medians over `rounds` of the client's wall time of the K singles and of the batch,
     their ratio, the server's own batch timings, and whether every batch answer equalled
     its single answer (`mismatched`: the indices that did not).

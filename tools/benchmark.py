@@ -332,7 +332,7 @@ def markdown(report: dict) -> str:
                     )
     lines += ["", *_goals(report), "", *_bounds(report), "", *_where_the_time_goes(report)]
     if "batch" in report:
-        lines += ["", *_batch(report["batch"], report.get("batch_sampling_ahead"))]
+        lines += ["", *_batch(report["batch"], report.get("batch_one_thread"))]
     lines += [
         "",
         "Configurations: service, each model's defaults when the report ran (their flow, "
@@ -540,10 +540,11 @@ def _where_the_time_goes(report: dict) -> list[str]:
 STAGES = ("sample", "correct", "connect")
 
 
-def _batch(batch: dict, ahead: dict | None) -> list[str]:
-    runs = [("default (`SMM_BATCH_SAMPLING_THREADS=0`)", batch)]
-    if ahead is not None:
-        runs.append(("sampling ahead on the other core (`SMM_BATCH_SAMPLING_THREADS=1`)", ahead))
+def _batch(batch: dict, one_thread: dict | None) -> list[str]:
+    threads = batch.get("batch_threads", "cores // workers")
+    runs = [(f"default (`SMM_BATCH_THREADS=0`: {threads} threads here)", batch)]
+    if one_thread is not None:
+        runs.append(("one thread (`SMM_BATCH_THREADS=1`)", one_thread))
     mismatched = sorted({i for _, run in runs for i in run["mismatched"]})
     lines = [
         f"Many targets in one request (`tools.batch_benchmark`, over HTTP, {batch['rounds']} "
@@ -575,8 +576,9 @@ def _batch(batch: dict, ahead: dict | None) -> list[str]:
         "(`service/pipeline/batch.py` says why the network is not called on all targets' "
         "samples at once: the cost per row does not fall past ~50 rows, and the int8 "
         "network's per-call activation scale would change the answers), so it saves the "
-        "per-request HTTP, validation and JSON round trips, not the computation; on two "
-        "cores, sampling ahead on the second can at most halve the time.",
+        "per-request HTTP, validation and JSON round trips, and answers targets on every "
+        "core at once, not less computation; on two cores, two threads can at most halve "
+        "the computation.",
     ]
 
 
@@ -589,14 +591,15 @@ def batch_profile(batch: dict) -> list[str]:
     rounds), and the client's wall time less the server's total (HTTP, validation, JSON
     at both ends)."""
     targets, server = batch["targets"], batch["server_batch_median_ms"]
+    threads = int(batch.get("batch_threads", 1))  # targets answered at once
     per_target = {stage: server.get(stage, 0.0) / targets for stage in BATCH_STAGES}
     outside = max(batch["batch_median_ms"] - server["total"], 0.0) / targets
     singles = batch["singles_median_ms"] / targets
-    floor = per_target["sample"] + outside
+    floor = per_target["sample"] / threads + outside
     return [
-        "Where the default batch's time goes, ms per target (the server's stages; outside: "
-        "the client's wall time less the server's total, i.e. HTTP, validation and JSON at "
-        "both ends):",
+        "Where the default batch's time goes, ms per target (the server's stages, each "
+        f"target's own, {threads} targets at a time; outside: the client's wall time less the "
+        "server's total, i.e. HTTP, validation and JSON at both ends):",
         "",
         "| singles | batch | " + " | ".join(BATCH_STAGES) + " | outside |",
         "|---|---|" + "---|" * (len(BATCH_STAGES) + 1),
@@ -605,7 +608,8 @@ def batch_profile(batch: dict) -> list[str]:
         + f" | {outside:.1f} |",
         "",
         f"Even with correction, connection and summaries free, the batch would take the "
-        f"sampling and what lies outside the pipeline, {floor:.1f} ms per target: at most "
+        f"sampling ({threads} targets at a time) and what lies outside the pipeline, "
+        f"{floor:.1f} ms per target: at most "
         f"{singles / floor:.1f}x the singles (goal {BATCH_GOAL_X:g}x). The rest of the "
         "goal needs a cheaper network evaluation or answer transport, not only batching.",
     ]
@@ -662,9 +666,10 @@ def main() -> None:
         q_targets = uniform_configurations(limits, args.batch_targets, args.seed)
         print(f"{args.batch_model}: batch of {args.batch_targets} against singles", flush=True)
         report["batch"] = batch_against_singles(model, q_targets, BATCH_NUM_SAMPLES)
-        # The same with the batch's next targets sampled ahead on the other core.
-        report["batch_sampling_ahead"] = batch_against_singles(
-            model, q_targets, BATCH_NUM_SAMPLES, batch_sampling_threads=1
+        report["batch"]["batch_threads"] = Settings().batch_threads_per_request
+        # The same with the batch's targets answered one after another.
+        report["batch_one_thread"] = batch_against_singles(
+            model, q_targets, BATCH_NUM_SAMPLES, batch_threads=1
         )
     report["machine"] = machine.ended().as_json()
     args.out.mkdir(parents=True, exist_ok=True)

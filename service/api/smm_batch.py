@@ -104,11 +104,12 @@ def to_batch_response(
 
 
 def answer_batch(
-    model: ServedModel, queries: list[Query], deadline: Deadline, sampling_threads: int
+    model: ServedModel, queries: list[Query], deadline: Deadline, threads: int
 ) -> tuple[bytes, BatchResult]:
-    """Run the batch and encode its JSON answer (in a worker thread: both are CPU work).
-    A batch stopped by the deadline before its first answer is a 504, as POST /smm's."""
-    batch = run_batch(model, queries, deadline, sampling_threads)
+    """Run the batch on `threads` threads and encode its JSON answer (in a worker thread:
+    both are CPU work). A batch stopped by the deadline before its first answer is a 504,
+    as POST /smm's."""
+    batch = run_batch(model, queries, deadline, threads)
     if batch.deadline_error is not None and not batch.results:
         raise batch.deadline_error
     response = to_batch_response(model, queries, batch)
@@ -149,7 +150,7 @@ async def post_smm_batch(
     queries = to_queries(body, model, settings)
     content, batch = await compute_in_slot(
         admission, metrics, deadline, answer_batch, model, queries, deadline,
-        settings.batch_sampling_threads,
+        settings.batch_threads_per_request,
     )  # fmt: skip
     for result in batch.results:
         metrics.observe_pipeline(model.manifest.model_id, result.timings, result.counts)

@@ -2,13 +2,12 @@
 
 Every query goes through the pieces of `run.py` (target -> sample -> correct -> accept ->
 connect -> components) with its own seed, so its answer is the one `run` gives it, to
-the bit. With `sampling_threads` above 0 the flow network (stage 2) samples the next
-queries in worker threads while the calling thread corrects, connects and summarises
-the earlier ones in order: onnxruntime releases the GIL while it evaluates the network,
-so with a core to spare the two overlap (two threads evaluating the network at once did
-twice the work of one, measured on an idle 2-core machine). The service's default is 0:
-measured end to end with another job on one of the two cores, sampling ahead gained
-nothing, and a computation slot is meant to hold one core.
+the bit, whichever thread answers it. With `threads` above 1, that many worker threads
+answer the queries at once, each query whole: the flow network (onnxruntime) and the
+compiled kernels (native.c) release the GIL, so on two cores two threads answered 64
+iiwa14 pose targets 1.7x as fast as one (in process, one onnxruntime thread per call;
+the rest of each stage's Python holds the GIL and bounds the gain). The answers are
+collected in order.
 
 Why the targets' samples are not concatenated into one network call per Euler step:
 measured with one onnxruntime thread (2-core AMD EPYC), a call costs the same per row
@@ -34,10 +33,8 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
 from service.errors import DeadlineExceededError
-from service.pipeline.arrays import FloatArray
 from service.pipeline.deadline import NO_DEADLINE, Deadline
-from service.pipeline.run import Stopwatch, answer, answer_samples, encode, in_rounds, sample
-from service.pipeline.targets import Target
+from service.pipeline.run import Stopwatch, answer, encode
 from service.pipeline.types import Query, SmmModel, SmmResult
 
 
@@ -54,25 +51,18 @@ class BatchResult:
         return self.deadline_error is None
 
 
-def _sample_timed(
-    model: SmmModel, query: Query, target: Target, watch: Stopwatch, deadline: Deadline
-) -> FloatArray:  # (N, n) rad
-    with watch.stage("sample"):
-        return sample(model, query, target, deadline)
-
-
 def run_batch(
     model: SmmModel,
     queries: Sequence[Query],
     deadline: Deadline = NO_DEADLINE,
-    sampling_threads: int = 0,
+    threads: int = 1,
 ) -> BatchResult:
-    """Answer every query in order; `results[i]` equals `run(model, queries[i])` but for
-    its timings, whose total is the sum of its stages (they do not run back to back).
+    """Answer every query; `results[i]` equals `run(model, queries[i])` but for its
+    timings, whose total is the sum of its stages (they do not run back to back).
 
-    `sampling_threads`: worker threads that sample ahead (0: every stage in the calling
-    thread, one query after another). Past `deadline`, the batch stops and returns the
-    queries answered so far with the DeadlineExceededError that stopped it.
+    `threads`: worker threads answering queries at once (1: one after another in the
+    calling thread). Past `deadline`, the batch stops and returns the queries answered so
+    far, in order, with the DeadlineExceededError that stopped the first one unanswered.
     """
     start_s = time.perf_counter()
     watches = [Stopwatch(total="stages") for _ in queries]
@@ -80,28 +70,27 @@ def run_batch(
     for query, watch in zip(queries, watches, strict=True):
         with watch.stage("encode"):
             targets.append(encode(model, query))
+    jobs = list(zip(queries, targets, watches, strict=True))
     results: list[SmmResult] = []
-    pool = ThreadPoolExecutor(sampling_threads) if sampling_threads > 0 else None
-    futures: list[Future[FloatArray]] = []
-    try:
-        if pool is not None:  # a query drawn in rounds samples as it goes
-            futures = [
-                pool.submit(_sample_timed, model, query, target, watch, deadline)
-                for query, target, watch in zip(queries, targets, watches, strict=True)
-                if not in_rounds(model, query)
-            ]
-        ahead = iter(futures)
-        for query, target, watch in zip(queries, targets, watches, strict=True):
-            if pool is None or in_rounds(model, query):
+    if threads <= 1:
+        try:
+            for query, target, watch in jobs:
                 results.append(answer(model, query, target, watch, deadline))
-            else:
-                q_sampled_rad = next(ahead).result()
-                results.append(answer_samples(model, query, target, q_sampled_rad, watch, deadline))
+        except DeadlineExceededError as error:
+            return BatchResult(results, error, (time.perf_counter() - start_s) * 1e3)
+        return BatchResult(results, None, (time.perf_counter() - start_s) * 1e3)
+    pool = ThreadPoolExecutor(threads, thread_name_prefix="smm-batch")
+    try:
+        futures: list[Future[SmmResult]] = [
+            pool.submit(answer, model, query, target, watch, deadline)
+            for query, target, watch in jobs
+        ]
+        for future in futures:
+            results.append(future.result())
     except DeadlineExceededError as error:
         return BatchResult(results, error, (time.perf_counter() - start_s) * 1e3)
     finally:
-        if pool is not None:
-            # Samples not started are dropped; one under way stops at its next deadline
-            # check (the deadline has passed) or finishes its query.
-            pool.shutdown(wait=True, cancel_futures=True)
+        # Queries not started are dropped; one under way stops at its next deadline check
+        # (the deadline has passed) or finishes.
+        pool.shutdown(wait=True, cancel_futures=True)
     return BatchResult(results, None, (time.perf_counter() - start_s) * 1e3)

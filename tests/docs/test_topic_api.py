@@ -112,7 +112,7 @@ def test_the_defaults_table_takes_no_arguments() -> None:
 @pytest.mark.parametrize(
     "name",
     ["max_num_samples", "max_batch_targets", "max_batch_samples", "max_body_bytes",
-     "request_deadline_s", "batch_sampling_threads", "api_key"],
+     "request_deadline_s", "batch_threads", "api_key"],
 )  # fmt: skip
 def test_a_setting_is_its_default_in_an_empty_environment(
     name: str, monkeypatch: pytest.MonkeyPatch

@@ -70,16 +70,16 @@ def test_the_command_writes_every_configuration_and_size(tmp_path: Path) -> None
     assert text.count("| planar3r-position |") == 2 * len(names) + 2
     assert report["machine"]["cores"] >= 1
     assert report["git_commit"] == git_commit() and f"at commit {git_commit()} on " in text
-    # The batch against its singles, by default and sampling ahead: the same answers.
-    for key, threads in (("batch", {}), ("batch_sampling_ahead", {"batch_sampling_threads": 1})):
+    # The batch against its singles, by default and on one thread: the same answers.
+    for key, threads in (("batch", {}), ("batch_one_thread", {"batch_threads": 1})):
         batch = report[key]
         assert batch["targets"] == 3 and batch["identical"] and batch["mismatched"] == []
         assert batch["server_settings"] == threads
         assert batch["singles_over_batch"] == pytest.approx(
             batch["singles_median_ms"] / batch["batch_median_ms"]
         )
-    assert text.count("| default (`SMM_BATCH_SAMPLING_THREADS=0`) |") == 1
-    assert text.count("| sampling ahead on the other core") == 1
+    assert text.count("| default (`SMM_BATCH_THREADS=0`: ") == 1
+    assert text.count("| one thread (`SMM_BATCH_THREADS=1`) |") == 1
     assert text.count("Where the default batch's time goes") == 1
 
 

@@ -266,10 +266,10 @@ def test_the_route_is_documented(client: TestClient) -> None:
     assert result["status"]["enum"] == ["ok", "no_solution", "deadline_exceeded"]
 
 
-@pytest.mark.parametrize("threads", [1, 2])
-def test_the_sampling_threads_setting_leaves_answers_unchanged(threads: int) -> None:
-    targets = [{"target": {"position": [0.5, y]}} for y in (0.0, 0.3)]
-    with make_client(REPO_MODELS_DIR, batch_sampling_threads=threads) as other:
+@pytest.mark.parametrize("threads", [1, 2, 3])
+def test_the_batch_threads_setting_leaves_answers_unchanged(threads: int) -> None:
+    targets = [{"target": {"position": [0.5, y]}} for y in (0.0, 0.3, 0.6)]
+    with make_client(REPO_MODELS_DIR, batch_threads=threads) as other:
         theirs = batch(other, targets, num_samples=100).json()["results"]
     with make_client(REPO_MODELS_DIR) as default:
         ours = batch(default, targets, num_samples=100).json()["results"]

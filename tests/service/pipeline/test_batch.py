@@ -1,8 +1,8 @@
 """batch: every query of a batch gets `run`'s answer to the bit (samples, corrected
-configurations, components, paths, counts), whether the flow samples ahead in worker
-threads or not, on the planar 3R and the iiwa14 pose; a target's timings add up its
-stages; a deadline that passes mid-batch returns the queries answered before it, in
-order, and names the stage it stopped."""
+configurations, components, paths, counts), whether one thread answers the queries or
+several answer them at once, on the planar 3R and the iiwa14 pose; a target's timings
+add up its stages; a deadline that passes mid-batch returns the queries answered before
+it, in order, and names the stage it stopped, whatever the threads."""
 
 from __future__ import annotations
 
@@ -68,12 +68,12 @@ def planar_queries(model: ServedModel) -> list[Query]:
     ]
 
 
-@pytest.mark.parametrize("sampling_threads", [0, 1, 2])
+@pytest.mark.parametrize("threads", [1, 2, 3])
 def test_each_answer_is_the_single_query_answer_bitwise(
-    planar3r: ServedModel, sampling_threads: int
+    planar3r: ServedModel, threads: int
 ) -> None:
     queries = planar_queries(planar3r)
-    batch = run_batch(planar3r, queries, sampling_threads=sampling_threads)
+    batch = run_batch(planar3r, queries, threads=threads)
     assert batch.complete and batch.deadline_error is None
     assert len(batch.results) == len(queries)
     for query, result in zip(queries, batch.results, strict=True):
@@ -115,7 +115,7 @@ def test_iiwa14_pose_answers_are_the_single_answers_bitwise(iiwa14_pose: ServedM
                 seed=seed,
             )
         )
-    batch = run_batch(iiwa14_pose, queries, sampling_threads=1)
+    batch = run_batch(iiwa14_pose, queries, threads=2)
     for query, result in zip(queries, batch.results, strict=True):
         assert result.components  # every target is the FK of a configuration: reachable
         assert_same_answer(result, run(iiwa14_pose, query))
@@ -175,7 +175,10 @@ class SlowSecondTarget:
         return self.model.robot_spheres
 
 
-def test_a_deadline_mid_batch_returns_the_answers_before_it(planar3r: ServedModel) -> None:
+@pytest.mark.parametrize("threads", [1, 2])
+def test_a_deadline_mid_batch_returns_the_answers_before_it(
+    planar3r: ServedModel, threads: int
+) -> None:
     queries = [
         Query.for_model(planar3r.manifest, position_m=position, num_samples=50, seed=1)
         for position in ([0.5, 0.0], [0.5, 0.2], [0.5, 0.4])
@@ -183,7 +186,7 @@ def test_a_deadline_mid_batch_returns_the_answers_before_it(planar3r: ServedMode
     deadline = Deadline.after(2.0)
     second = planar3r.manifest.condition.normalisation.normalise(np.array([[0.5, 0.2]]))[0]
     slow = SlowSecondTarget(planar3r, second.astype(np.float32), deadline)
-    batch = run_batch(slow, queries, deadline, sampling_threads=0)
+    batch = run_batch(slow, queries, deadline, threads=threads)
     assert not batch.complete and batch.deadline_error is not None
     assert batch.deadline_error.stage == "sample"
     assert len(batch.results) == 1  # the first target, answered before the deadline
@@ -193,7 +196,7 @@ def test_a_deadline_mid_batch_returns_the_answers_before_it(planar3r: ServedMode
 def test_an_expired_deadline_answers_nothing_whatever_the_threads(planar3r: ServedModel) -> None:
     queries = planar_queries(planar3r)[:3]
     expired = Deadline(budget_s=1.0, expires_at_s=time.monotonic() - 1.0)
-    for sampling_threads in (0, 2):
-        batch = run_batch(planar3r, queries, expired, sampling_threads=sampling_threads)
+    for threads in (1, 2):
+        batch = run_batch(planar3r, queries, expired, threads=threads)
         assert batch.results == [] and batch.deadline_error is not None
         assert batch.deadline_error.stage == "sample"

@@ -276,7 +276,7 @@ def speed_goals(*arguments: str) -> str:
             f"`{model_id}`", "truth no worse than the paper's configuration",
             "; ".join(lost) if lost else "no worse", "no" if lost else "yes",
         ])  # fmt: skip
-    for key, name in (("batch", "default"), ("batch_sampling_ahead", "sampling ahead")):
+    for key, name in (("batch", "default"), ("batch_one_thread", "one thread")):
         if key in report:
             batch = report[key]
             x = batch["singles_over_batch"]
@@ -375,8 +375,8 @@ def speed_stages(*arguments: str) -> str:
 
 @block("speed-batch")
 def speed_batch(*arguments: str) -> str:
-    """The batch against its targets sent one by one (default, and sampling ahead), where
-    the default batch's time goes per target, and the ratio sampling and transport alone
+    """The batch against its targets sent one by one (default, and one thread), where the
+    default batch's time goes per target, and the ratio sampling and transport alone
     leave."""
     chosen = options(arguments, {"report": "benchmark"})
     report = sources.benchmark(chosen["report"])
@@ -385,11 +385,10 @@ def speed_batch(*arguments: str) -> str:
         with_batch = [r for r in names if "batch" in sources.benchmark(r)]
         raise KeyError(f"{chosen['report']}.json has no batch; reports with one: {with_batch}")
     batch = report["batch"]
-    runs = [("default (`SMM_BATCH_SAMPLING_THREADS=0`)", batch)]
-    if "batch_sampling_ahead" in report:
-        runs.append(
-            ("sampling ahead (`SMM_BATCH_SAMPLING_THREADS=1`)", report["batch_sampling_ahead"])
-        )
+    threads = batch.get("batch_threads", "cores // workers")
+    runs = [(f"default (`SMM_BATCH_THREADS=0`: {threads} threads here)", batch)]
+    if "batch_one_thread" in report:
+        runs.append(("one thread (`SMM_BATCH_THREADS=1`)", report["batch_one_thread"]))
     rows = [
         [name, f"{run['singles_median_ms']:.0f}", f"{run['batch_median_ms']:.0f}",
          f"{run['singles_over_batch']:.2f}x", "yes" if run["identical"] else "no"]
@@ -400,21 +399,23 @@ def speed_batch(*arguments: str) -> str:
         rows,
     )
     targets, server = batch["targets"], batch["server_batch_median_ms"]
+    at_once = int(batch.get("batch_threads", 1))
     per = {s: server.get(s, 0.0) / targets for s in (*STAGES, "summarise")}
     outside = max(batch["batch_median_ms"] - server["total"], 0.0) / targets
     singles = batch["singles_median_ms"] / targets
-    floor = per["sample"] + outside
+    floor = per["sample"] / at_once + outside
     second = table(
         ["singles", "batch", "sample", "correct", "connect", "summarise", "outside"],
         [[f"{singles:.1f}", f"{batch['batch_median_ms'] / targets:.1f}",
           *(f"{per[s]:.1f}" for s in (*STAGES, "summarise")), f"{outside:.1f}"]],
     )  # fmt: skip
     return (
-        f"{first}\n\nWhere the default batch's time goes, ms per target (outside: the "
-        "client's wall time less the server's total, i.e. HTTP, validation and JSON at both "
-        f"ends):\n\n{second}\n\nWith correction, connection and summaries free, sampling and "
-        f"what lies outside the pipeline would still take {floor:.1f} ms per target: at most "
-        f"**{singles / floor:.1f}x** the singles."
+        f"{first}\n\nWhere the default batch's time goes, ms per target (each target's own "
+        f"stages, {at_once} targets at a time; outside: the client's wall time less the "
+        "server's total, i.e. HTTP, validation and JSON at both ends):\n\n"
+        f"{second}\n\nWith correction, connection and summaries free, sampling ({at_once} "
+        f"targets at a time) and what lies outside the pipeline would still take "
+        f"{floor:.1f} ms per target: at most **{singles / floor:.1f}x** the singles."
     )
 
 
