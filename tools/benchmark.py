@@ -3,8 +3,10 @@
     python -m tools.benchmark                      # -> docs/benchmark/benchmark.{json,md}
     python -m tools.benchmark --models iiwa14-pose --sizes 1000 --targets 5 --no-http
 
-For each model and N in --sizes, over a fixed target set (the evaluation's held-out
-targets: FK of configurations uniform in the limits, seed 7, the first --targets):
+For each model and N in --sizes and the model's served default N (its manifest's
+num_samples, what a request without num_samples gets), over a fixed target set (the
+evaluation's held-out targets: FK of configurations uniform in the limits, seed 7, the
+first --targets):
 
 - the service's pipeline in process, with the model's defaults and the onnxruntime
   threads the service itself would use on this machine (`Settings`), median and p95 of
@@ -232,7 +234,8 @@ def benchmark_model(
     if sampler.flow == "reflow" and manifest.reflow and manifest.reflow.base_sampler:
         base = with_defaults(model, sampler=manifest.reflow.base_sampler)
     rows: dict[str, object] = {}
-    for n in sizes:
+    default_n = manifest.defaults.num_samples
+    for n in sorted({*sizes, default_n}):
         progress(f"{manifest.model_id} N={n}")
         served = {SERVICE: model}  # the service first: restart DLS matches its count
         if manifest.defaults.sampler.precision != "float32":
@@ -252,6 +255,7 @@ def benchmark_model(
     return {
         "model": model.reference,
         "targets": num_targets,
+        "default_num_samples": default_n,
         # Where the connect stage's time goes on the same targets at the goals' N
         # (tools.connect_profile).
         "connect_profile": {
@@ -365,34 +369,50 @@ def markdown(report: dict) -> str:
 
 def _goals(report: dict) -> list[str]:
     lines = [
-        "Speed goals (N = 1000, in process, median):",
+        f"Speed goals (N = {GOAL_NUM_SAMPLES}, and each model's served default N where it "
+        "differs, in process, median):",
         "",
-        "| model | median ms | goal ms | x the paper's time | goal x | time met | truth against "
-        "the paper's configuration |",
-        "|---|---|---|---|---|---|---|",
+        "| model | N | median ms | goal ms | x the paper's time | goal x | time met | truth "
+        "against the paper's configuration |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for model_id, most_ms, least_x in GOALS:
-        row = report["models"].get(model_id, {}).get("sizes", {}).get("1000")
-        if row is None:
-            continue
-        ms = row[SERVICE]["median_ms"]
-        speed_up = row[PAPER]["median_ms"] / ms
-        met = ms <= most_ms and (least_x is None or speed_up >= least_x)
-        worse = worse_than(row[SERVICE]["figures"], row[PAPER]["figures"])
-        lines.append(
-            f"| {model_id} | {ms:.1f} | {most_ms:g} | {speed_up:.1f} | "
-            f"{'-' if least_x is None else f'{least_x:g}'} | "
-            f"{'yes' if met else f'no: {ms / most_ms:.2f}x the goal'} | "
-            f"{'no worse' if not worse else 'worse: ' + '; '.join(worse)} |"
-        )
+        entry = report["models"].get(model_id, {})
+        for n, label in goal_sizes(entry):
+            row = entry["sizes"][str(n)]
+            ms = row[SERVICE]["median_ms"]
+            speed_up = row[PAPER]["median_ms"] / ms
+            met = ms <= most_ms and (least_x is None or speed_up >= least_x)
+            worse = worse_than(row[SERVICE]["figures"], row[PAPER]["figures"])
+            lines.append(
+                f"| {model_id} | {label} | {ms:.1f} | {most_ms:g} | {speed_up:.1f} | "
+                f"{'-' if least_x is None else f'{least_x:g}'} | "
+                f"{'yes' if met else f'no: {ms / most_ms:.2f}x the goal'} | "
+                f"{'no worse' if not worse else 'worse: ' + '; '.join(worse)} |"
+            )
     for model_id, most_ms in HTTP_GOALS:
-        row = report["models"].get(model_id, {}).get("sizes", {}).get("1000")
-        if row is None or "http" not in row:
-            continue
-        ms = row["http"]["median_ms"]
-        met = "yes" if ms <= most_ms else f"no: {ms / most_ms:.2f}x the goal"
-        lines.append(f"| {model_id} over HTTP | {ms:.1f} | {most_ms:g} | - | - | {met} | - |")
+        entry = report["models"].get(model_id, {})
+        for n, label in goal_sizes(entry):
+            row = entry["sizes"][str(n)]
+            if "http" not in row:
+                continue
+            ms = row["http"]["median_ms"]
+            met = "yes" if ms <= most_ms else f"no: {ms / most_ms:.2f}x the goal"
+            lines.append(
+                f"| {model_id} over HTTP | {label} | {ms:.1f} | {most_ms:g} | - | - | {met} | - |"
+            )
     return lines
+
+
+def goal_sizes(entry: dict) -> list[tuple[int, str]]:
+    """The N a model's goals are measured at, with their labels: N = 1000, and its served
+    default where that differs (and the report has it)."""
+    sizes = entry.get("sizes", {})
+    chosen = [(GOAL_NUM_SAMPLES, f"{GOAL_NUM_SAMPLES}")] if str(GOAL_NUM_SAMPLES) in sizes else []
+    default_n = entry.get("default_num_samples")
+    if default_n is not None and default_n != GOAL_NUM_SAMPLES and str(default_n) in sizes:
+        chosen.append((default_n, f"{default_n} (served default)"))
+    return chosen
 
 
 def paper_judgement(manifest: Manifest, records_dir: Path = OUT_DIR) -> dict | None:

@@ -1,6 +1,6 @@
 """tools.benchmark: the command writes a report (JSON and Markdown) with every configuration
 for every size (the float32 network beside an int8 default, the base flow beside a reflowed
-one), over HTTP too, whose figures
+one) and for the served default N, over HTTP too, whose figures
 are the evaluation's (planar 3R: the count against the closed form); random-restart DLS is
 run to at least the service's number of valid configurations per target; a batch of
 targets against its single requests, with identical answers, in the same report (when a
@@ -28,6 +28,7 @@ from tools.benchmark import (
     SERVICE,
     RestartMatch,
     _bounds,
+    _goals,
     batch_profile,
     paper_judgement,
 )
@@ -46,7 +47,9 @@ def test_the_command_writes_every_configuration_and_size(tmp_path: Path) -> None
     subprocess.run(command, cwd=ROOT, check=True, capture_output=True, timeout=600)
     report = json.loads((tmp_path / "benchmark.json").read_text())
     entry = report["models"]["planar3r-position"]
-    assert set(entry["sizes"]) == {"100", "200"}
+    # --sizes and the model's served default N (planar 3R: 1000, also the goals' N).
+    assert entry["default_num_samples"] == 1000
+    assert set(entry["sizes"]) == {"100", "200", "1000"}
     # The float32 network beside the service's own where the defaults serve int8, and the
     # base flow beside a reflowed sampler.
     names = [SERVICE, PAPER, RESTART] + ([FLOAT32] if entry["sampler_precision"] == "int8" else [])
@@ -66,8 +69,9 @@ def test_the_command_writes_every_configuration_and_size(tmp_path: Path) -> None
     profile = entry["connect_profile"]
     assert 0 < profile["kernels_ms"] < profile["connect_ms"] and profile["kernel_calls"] > 0
     text = (tmp_path / "benchmark.md").read_text()
-    # every configuration and HTTP, at 2 sizes
-    assert text.count("| planar3r-position |") == 2 * len(names) + 2
+    # every configuration and HTTP at 3 sizes, then its goal row and where its time goes
+    assert text.count("| planar3r-position |") == 3 * len(names) + 3 + 2
+    assert text.count("| planar3r-position | 1000 | ") == len(names) + 1 + 1
     assert report["machine"]["cores"] >= 1
     assert report["git_commit"] == git_commit() and f"at commit {git_commit()} on " in text
     # The batch against its singles, by default and on one thread: the same answers.
@@ -183,3 +187,30 @@ def test_a_committed_paper_judgement_is_read_service_first(
         "service vs paper: worse on splits 0.05 vs 0.04, better on count right 0.98 vs 0.94."
         in (truth)
     )
+
+
+def test_goals_are_read_at_n_1000_and_at_the_served_default() -> None:
+    """A model served at another N than the goals' gets a goal row at each, labelled, in
+    process and over HTTP; a model served at 1000 gets one; a report without the default
+    (older ones) gets the N = 1000 rows only."""
+    figures = {"count_right": 1.0, "recall": 1.0}
+
+    def row(ms: float, http_ms: float) -> dict:
+        return {SERVICE: {"median_ms": ms, "figures": figures},
+                PAPER: {"median_ms": 20 * ms, "figures": figures},
+                "http": {"median_ms": http_ms}}  # fmt: skip
+
+    report = {"models": {
+        "panda-pose": {"default_num_samples": 500,
+                       "sizes": {"500": row(14.0, 19.0), "1000": row(20.0, 27.0)}},
+        "planar3r-position": {"default_num_samples": 1000, "sizes": {"1000": row(8.0, 9.0)}},
+        "iiwa14-pose": {"sizes": {"500": row(17.0, 22.0), "1000": row(26.0, 33.0)}},
+    }}  # fmt: skip
+    lines = [line for line in _goals(report) if line.startswith("| ") and "---" not in line]
+    assert "| panda-pose | 500 (served default) | 14.0 | 15 | 20.0 | - | yes |" in "\n".join(lines)
+    assert "| panda-pose | 1000 | 20.0 | 15 | 20.0 | - | no: 1.33x the goal |" in "\n".join(lines)
+    assert "| panda-pose over HTTP | 500 (served default) | 19.0 | 20 | - | - | yes | - |" in lines
+    assert sum(line.startswith("| planar3r-position |") for line in lines) == 1
+    assert [line.split(" | ")[1] for line in lines if line.startswith("| iiwa14-pose |")] == [
+        "1000"
+    ]

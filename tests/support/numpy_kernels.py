@@ -13,7 +13,7 @@ import queue
 import numpy as np
 
 from service.manifest import ChainSpec
-from service.models.chain import _z_to_axis
+from service.models.chain import SerialChainKinematics, _z_to_axis
 from service.pipeline.arrays import FloatArray
 from service.pipeline.collision.robot import PlacedBodies, RobotSpheres
 from service.pipeline.types import KinematicsResult
@@ -225,3 +225,15 @@ def self_clearance_m(self: RobotSpheres, placed: PlacedBodies) -> FloatArray:  #
         gap -= self.radius_m[a[pairs]][:, :, None] + self.radius_m[b[pairs]][:, None]
         np.minimum.at(clearance, rows, gap.min(axis=(1, 2)))
     return clearance
+
+
+class NumpyStepsKinematics:
+    """The chain's kinematics behind a plain callable: not a ChainKinematics, so a fibre
+    on it takes the numpy steps (`correction.iterate`, the trace's numpy walk) that the
+    compiled ones are pinned to."""
+
+    def __init__(self, kinematics: SerialChainKinematics) -> None:
+        self.kinematics = kinematics
+
+    def __call__(self, q_rad: np.ndarray) -> KinematicsResult:
+        return self.kinematics(q_rad)

@@ -20,21 +20,16 @@ bitwise and of kinematics.onnx to 1e-12, for pose and position tasks. The compil
 steps (DLS, stopping at a tolerance, locked joints, bordered on a tangent) end where the
 numpy steps do, to 1e-12. The smallest singular value (one-sided Jacobi) equals LAPACK's
 SVD to 1e-12, singular and near-singular Jacobians included, and the bounded search
-for the least over many rows finds exactly the least. The trace's walk moves its
-fronts where the numpy walk does, meets the same partners and chains the same curves
-(1e-12), grows its output rows as needed and stops at the deadline.
+for the least over many rows finds exactly the least. (The trace's compiled walk is
+pinned in tests/service/pipeline/connect/test_walk.py.)
 """
 
 from __future__ import annotations
-
-import time
-from dataclasses import replace
 
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from service.errors import DeadlineExceededError
 from service.manifest import (
     CHAIN_FILE,
     COLLISION_FILE,
@@ -45,28 +40,19 @@ from service.manifest import (
     TaskSpec,
 )
 from service.models.chain import SerialChainKinematics
-from service.models.registry import load_model
 from service.models.sessions import OnnxKinematics, open_session
 from service.pipeline import native
 from service.pipeline.collision.frames import chain_frames
 from service.pipeline.collision.robot import RobotSpheres
-from service.pipeline.connect.settings import trace_settings
-from service.pipeline.connect.trace.points import Evaluated
-from service.pipeline.connect.trace.seeds import spread_seeds
-from service.pipeline.connect.trace.walk import MEET_FACTOR, TWIN_OFFSET, TWIN_SIGMA, walk_fronts
 from service.pipeline.correction import residual_of, task_error
-from service.pipeline.deadline import NO_DEADLINE, Deadline
-from service.pipeline.fibre import Fibre, evaluate, project, unit_tangent
+from service.pipeline.fibre import Fibre, project, unit_tangent
 from service.pipeline.rotations import rotation_log
 from service.pipeline.targets import Target
-from service.pipeline.types import KinematicsResult
-from tests.service.pipeline.fibre_support import pose_fibre
 from tests.support.chains import pytorch_kinematics_answer
-from tests.support.numpy_kernels import NumpyChainKinematics
+from tests.support.numpy_kernels import NumpyChainKinematics, NumpyStepsKinematics
 from tests.support.numpy_kernels import chain_frames as numpy_chain_frames
 from tests.support.numpy_kernels import dls_step as numpy_dls_step
 from tests.support.numpy_kernels import self_clearance_m as numpy_self_clearance_m
-from training.evaluate.targets import uniform_configurations
 
 MODELS = ["iiwa14-pose", "panda-pose", "planar3r-position"]
 URDF = {"iiwa14-pose": "iiwa14", "panda-pose": "panda", "planar3r-position": "planar3r"}
@@ -363,17 +349,6 @@ def test_task_residual_equals_the_task_error_of_the_kinematics(
     np.testing.assert_array_equal(through[0], onnx_error)
 
 
-class _Through:
-    """The chain's kinematics behind a plain callable: not a ChainKinematics, so the fibre
-    takes the numpy steps (`correction.iterate`)."""
-
-    def __init__(self, kinematics: SerialChainKinematics) -> None:
-        self.kinematics = kinematics
-
-    def __call__(self, q_rad: np.ndarray) -> KinematicsResult:
-        return self.kinematics(q_rad)
-
-
 @pytest.mark.parametrize("model", ["iiwa14-pose", "planar3r-position"])
 def test_newton_takes_the_numpy_steps(model: str) -> None:
     """DLS steps (every row, and stopping rows at `until`), with locked joints, and the
@@ -394,7 +369,7 @@ def test_newton_takes_the_numpy_steps(model: str) -> None:
         condition=np.zeros(1, np.float32),
     )
     compiled = Fibre(target, task, kinematics, damping=1e-3)
-    through = Fibre(target, task, _Through(kinematics), damping=1e-3)
+    through = Fibre(target, task, NumpyStepsKinematics(kinematics), damping=1e-3)
     q = q_target + np.random.default_rng(17).normal(scale=0.05, size=(300, n))
     q[7] = np.nan
     locked = np.random.default_rng(18).random((300, n)) < 0.2
@@ -459,66 +434,3 @@ def test_least_singular_value_is_the_least_of_every_rows() -> None:
         expected = float(np.nanmin(native.smallest_singular_values(j), initial=np.inf))
         assert native.least_singular_value(j) == expected
     assert native.least_singular_value(np.full((3, 6, 7), np.nan)) == np.inf
-
-
-@pytest.mark.parametrize("model", ["iiwa14-pose", "panda-pose", "planar3r-position"])
-def test_walk_takes_the_numpy_walks_steps(model: str) -> None:
-    """The trace's fronts, compiled, move to the points the numpy loop moves them to, in
-    the same order, meet the same partners and chain into the same curves, on fibres of
-    uniform targets and of one next to a singular value (the iiwa's elbow almost
-    straight, where the twins test may act): points, errors, Jacobians and tangents to
-    1e-12, with the output rows grown from a single step's worth."""
-    served = load_model(REPO_MODELS_DIR / model, threads=1)
-    settings = trace_settings(served.manifest.defaults.connectivity)
-    limits = served.limits
-    q_targets = list(uniform_configurations(limits, 4, seed=25))
-    if model == "iiwa14-pose":
-        q_targets.append(np.array([0.3, 0.8, -0.2, 0.004, 0.5, -0.6, 0.1]))
-    for q_target in q_targets:
-        fibre = pose_fibre(served, q_target)
-        assert isinstance(fibre.kinematics, SerialChainKinematics) and fibre.chain is not None
-        through = replace(fibre, kinematics=_Through(fibre.kinematics))  # numpy steps
-        assert through.chain is None
-        q_near = q_target + np.random.default_rng(26).normal(scale=0.3, size=(400, len(q_target)))
-        exact = project(fibre, q_near, 30)
-        start = evaluate(fibre, spread_seeds(exact.q_rad[exact.error_norm < 1e-8], 1.0))
-        seeds = Evaluated.of(start, unit_tangent(start.jacobian))
-        compiled = walk_fronts(fibre, seeds, settings, NO_DEADLINE)
-        reference = walk_fronts(through, seeds, settings, NO_DEADLINE)
-        for a, b in zip(
-            (compiled[0].q_rad, compiled[0].error, compiled[0].jacobian, compiled[0].tangent),
-            (reference[0].q_rad, reference[0].error, reference[0].jacobian, reference[0].tangent),
-            strict=True,
-        ):
-            np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
-        assert [list(c.rows) for c in compiled[1]] == [list(c.rows) for c in reference[1]]
-        assert compiled[2] == reference[2]
-        fronts = 2 * len(seeds)
-        q = np.repeat(seeds.q_rad, 2, axis=0)
-        t = np.repeat(seeds.tangent, 2, axis=0) * np.tile([1.0, -1.0], len(seeds))[:, None]
-        target = fibre.target
-        rules = native.WalkRules(
-            settings.step_rad, settings.corrector_iterations, settings.max_steps,
-            MEET_FACTOR, TWIN_SIGMA, TWIN_OFFSET,
-        )  # fmt: skip
-        chain_of = fibre.kinematics
-        walked = native.walk(
-            chain_of.fixed, chain_of.tip, fibre.task.position_axes, target.position_m,
-            target.rotation, q, t, np.repeat(seeds.jacobian, 2, axis=0), rules, fibre.damping,
-            np.inf, capacity=fronts,
-        )  # fmt: skip
-        assert len(walked.front) > fronts  # it grew its rows, and lost none
-        np.testing.assert_array_equal(walked.q_rad, compiled[0].q_rad[len(seeds) :])
-
-
-def test_walk_stops_at_the_deadline() -> None:
-    """A walk whose deadline has passed stops before its first step, and the trace
-    raises the deadline error naming the connect stage."""
-    served = load_model(REPO_MODELS_DIR / "planar3r-position", threads=1)
-    settings = trace_settings(served.manifest.defaults.connectivity)
-    fibre = pose_fibre(served, np.array([0.3, 0.9, -0.4]))
-    start = evaluate(fibre, project(fibre, np.array([[0.3, 0.9, -0.4]]), 3).q_rad)
-    seeds = Evaluated.of(start, unit_tangent(start.jacobian))
-    passed = Deadline(budget_s=1.0, expires_at_s=time.monotonic() - 1.0)
-    with pytest.raises(DeadlineExceededError, match="connect"):
-        walk_fronts(fibre, seeds, settings, passed)

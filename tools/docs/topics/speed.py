@@ -242,22 +242,33 @@ def speed_table(*arguments: str) -> str:
 
 @block("speed-goals")
 def speed_goals(*arguments: str) -> str:
-    """Each speed goal (tools/goals.py) against the report: time at N = 1000, the ratio to
-    the paper's configuration, truth no worse than the paper's configuration on the same
-    targets, and the batch against single requests."""
+    """Each speed goal (tools/goals.py) against the report: time at N = 1000 and at the
+    model's served default N where it differs, the ratio to the paper's configuration,
+    truth no worse than the paper's configuration on the same targets, and the batch
+    against single requests."""
     chosen = options(arguments, {"report": "benchmark"})
     report = sources.benchmark(chosen["report"])
     rows = []
     for model_id, most_ms, least_x in GOALS:
         if model_id not in report["models"]:
             continue
-        row = size_row(report["models"][model_id], GOAL_NUM_SAMPLES, chosen["report"])
+        entry = report["models"][model_id]
+        row = size_row(entry, GOAL_NUM_SAMPLES, chosen["report"])
         service, paper = row[SERVICE], row[PAPER]
         took = service["median_ms"]
         rows.append([
             f"`{model_id}`", f"at most {most_ms:g} ms", f"{took:.1f} ms",
             "yes" if took <= most_ms else f"no, {took / most_ms:.2f}x the goal",
         ])  # fmt: skip
+        default_row = _served_default_row(entry)
+        if default_row is not None:
+            n, at_default = default_row
+            took_there = at_default[SERVICE]["median_ms"]
+            rows.append([
+                f"`{model_id}`", f"at most {most_ms:g} ms at its served default N = {n}",
+                f"{took_there:.1f} ms",
+                "yes" if took_there <= most_ms else f"no, {took_there / most_ms:.2f}x the goal",
+            ])  # fmt: skip
         if least_x is not None:
             x = paper["median_ms"] / took
             rows.append([
@@ -265,10 +276,16 @@ def speed_goals(*arguments: str) -> str:
                 f"{x:.1f}x", "yes" if x >= least_x else "no",
             ])  # fmt: skip
         http_goal = dict(HTTP_GOALS).get(model_id)
-        if http_goal is not None and "http" in row:
-            over_http = row["http"]["median_ms"]
+        http_rows = [("", row)]
+        if default_row is not None:
+            http_rows.append((f" at its served default N = {default_row[0]}", default_row[1]))
+        for where, measured in http_rows:
+            if http_goal is None or "http" not in measured:
+                continue
+            over_http = measured["http"]["median_ms"]
             rows.append([
-                f"`{model_id}`", f"over HTTP at most {http_goal:g} ms", f"{over_http:.1f} ms",
+                f"`{model_id}`", f"over HTTP at most {http_goal:g} ms{where}",
+                f"{over_http:.1f} ms",
                 "yes" if over_http <= http_goal else f"no, {over_http / http_goal:.2f}x the goal",
             ])  # fmt: skip
         lost = worse(service["figures"], paper["figures"])
@@ -286,6 +303,15 @@ def speed_goals(*arguments: str) -> str:
                 "yes" if x >= BATCH_GOAL_X else "no",
             ])  # fmt: skip
     return table(["model", "goal", "measured", "met"], rows)
+
+
+def _served_default_row(entry: dict[str, Any]) -> tuple[int, dict[str, Any]] | None:
+    """The model's served default N and its row, where that N is not the goals' and the
+    report measured it (reports from before it recorded the default have none)."""
+    n = entry.get("default_num_samples")
+    if n is None or n == GOAL_NUM_SAMPLES or str(n) not in entry["sizes"]:
+        return None
+    return int(n), entry["sizes"][str(n)]
 
 
 @block("speed-bound")
