@@ -1,4 +1,4 @@
-"""Compiled kernels for the pipeline's innermost loops: chain kinematics, rotation error, DLS step.
+"""Compiled kernels for the pipeline's innermost loops: kinematics, Newton steps, the trace's walk.
 
 Why compiled: every stage after sampling calls these on a few dozen rows at a time (the
 trace's fronts, the Newton projections), hundreds of times per answer, where numpy

@@ -1,5 +1,8 @@
 """Phase 2: fronts walk each curve both ways from every seed by predictor-corrector
-continuation, in lockstep, until they meet a front coming the other way."""
+continuation, in lockstep, until they meet a front coming the other way.
+
+On a serial chain the loop runs compiled (`native.walk`: the same steps, tests, meetings
+and order, pinned bitwise to this numpy loop, which any other kinematics takes)."""
 
 from __future__ import annotations
 
