@@ -11,8 +11,8 @@
   privilege escalation, every capability dropped, RuntimeDefault seccomp, no service
   account token and no service-link variables; probes on the service's real /readyz and
   /healthz routes and port; Guaranteed CPU and memory with SMM_WORKERS x
-  SMM_MAX_IN_FLIGHT and SMM_WORKERS x SMM_ONNX_THREADS equal to the CPU limit and the env a
-  valid Settings;
+  SMM_MAX_IN_FLIGHT, SMM_WORKERS x SMM_ONNX_THREADS and SMM_WORKERS x SMM_BATCH_THREADS
+  equal to the CPU limit and the env a valid Settings;
   a grace period longer than preStop + SMM_SHUTDOWN_DRAIN_S; Prometheus annotations on
   the real /metrics; HPA (autoscaling/v2, CPU), PDB, Service and NetworkPolicy aimed at
   the Deployment's pods.
@@ -241,12 +241,15 @@ def test_threads_match_the_cpu_limit_and_resources_are_guaranteed(
     settings = settings_of(objects, monkeypatch)
     # 0 would divide os.cpu_count(): the node's cores in a container, not the limit.
     assert settings.onnx_threads >= 1, "SMM_ONNX_THREADS must be set in a pod"
+    assert settings.batch_threads >= 1, "SMM_BATCH_THREADS must be set in a pod"
     # One computation per core for the pipeline's Python; every session's threads on the
     # process's cores, shared by the computations in flight.
     slots = settings.workers * settings.max_in_flight
     assert slots == cores, f"SMM_WORKERS x SMM_MAX_IN_FLIGHT = {slots}, CPU limit {cores}"
     threads = settings.workers * settings.onnx_threads
     assert threads == cores, f"SMM_WORKERS x SMM_ONNX_THREADS = {threads}, CPU limit {cores}"
+    batch = settings.workers * settings.batch_threads
+    assert batch == cores, f"SMM_WORKERS x SMM_BATCH_THREADS = {batch}, CPU limit {cores}"
     assert env(objects).get("OPENBLAS_NUM_THREADS") == "1"
 
 
