@@ -72,25 +72,23 @@ def run_batch(
             targets.append(encode(model, query))
     jobs = list(zip(queries, targets, watches, strict=True))
     results: list[SmmResult] = []
-    if threads <= 1:
-        try:
-            for query, target, watch in jobs:
-                results.append(answer(model, query, target, watch, deadline))
-        except DeadlineExceededError as error:
-            return BatchResult(results, error, (time.perf_counter() - start_s) * 1e3)
-        return BatchResult(results, None, (time.perf_counter() - start_s) * 1e3)
-    pool = ThreadPoolExecutor(threads, thread_name_prefix="smm-batch")
+    pool = ThreadPoolExecutor(threads, thread_name_prefix="smm-batch") if threads > 1 else None
     try:
-        futures: list[Future[SmmResult]] = [
-            pool.submit(answer, model, query, target, watch, deadline)
-            for query, target, watch in jobs
-        ]
-        for future in futures:
-            results.append(future.result())
+        if pool is None:  # one after another, in the calling thread
+            answers = (answer(model, q, target, watch, deadline) for q, target, watch in jobs)
+        else:
+            futures: list[Future[SmmResult]] = [
+                pool.submit(answer, model, query, target, watch, deadline)
+                for query, target, watch in jobs
+            ]
+            answers = (future.result() for future in futures)
+        for result in answers:  # in order
+            results.append(result)
     except DeadlineExceededError as error:
         return BatchResult(results, error, (time.perf_counter() - start_s) * 1e3)
     finally:
-        # Queries not started are dropped; one under way stops at its next deadline check
-        # (the deadline has passed) or finishes.
-        pool.shutdown(wait=True, cancel_futures=True)
+        if pool is not None:
+            # Queries not started are dropped; one under way stops at its next deadline
+            # check (the deadline has passed) or finishes.
+            pool.shutdown(wait=True, cancel_futures=True)
     return BatchResult(results, None, (time.perf_counter() - start_s) * 1e3)

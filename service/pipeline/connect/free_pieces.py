@@ -116,6 +116,7 @@ def _nearest_pieces(
     """
     limits = space.limits
     points, point_piece, point_group, queries, query_group = [], [], [], [], []
+    asking: list[int] = []  # the components whose members are queried, in order
     for group, (component, cut) in enumerate(zip(members, cuts, strict=True)):
         if cut is None or not len(component.q_rad):
             continue
@@ -125,6 +126,7 @@ def _nearest_pieces(
             point_group.append(np.full(len(rows), group))
         queries.append(component.q_rad)
         query_group.append(np.full(len(component.q_rad), group))
+        asking.append(group)
     owners = [
         np.full(0 if cut is None else len(c.q_rad), -1)
         for c, cut in zip(members, cuts, strict=True)
@@ -139,12 +141,12 @@ def _nearest_pieces(
     tree = box.grouped_tree(q_points, group_of_point, apart)
     _, nearest = tree.query(box.grouped_points(q_queries, group_of_query, apart))
     nearest = np.asarray(nearest, dtype=np.int64)  # (Q,)
-    same = group_of_point[np.minimum(nearest, len(q_points) - 1)] == group_of_query
+    same = group_of_point[nearest] == group_of_query
     near = np.zeros(len(q_queries), dtype=bool)
     near[same] = limits.distance(q_queries[same], q_points[nearest[same]]) <= spacing_rad
-    owner = np.where(near, of_point[np.minimum(nearest, len(q_points) - 1)], -1)
+    owner = np.where(near, of_point[nearest], -1)
     bounds = np.cumsum([0] + [len(q) for q in queries])
-    for g, group in enumerate(np.unique(group_of_query).tolist()):
+    for g, group in enumerate(asking):
         owners[group] = owner[bounds[g] : bounds[g + 1]]
     return owners
 
