@@ -26,26 +26,39 @@ from service.models.registry import Registry
 from service.observability.logs import configure_logging, log_event
 from service.observability.metrics import Metrics
 
-# glibc's malloc.h: the parameter of mallopt that caps the number of arenas.
+# glibc's malloc.h: the parameters of mallopt that cap the number of arenas and fix the
+# size from which a block is mapped on its own (and unmapped when freed).
 M_ARENA_MAX = -8
+M_MMAP_THRESHOLD = -3
+
+
+def _mallopt(parameter: int, value: int) -> bool:
+    """glibc's mallopt; whether it took effect (a C library other than glibc has none)."""
+    try:
+        libc = ctypes.CDLL("libc.so.6")
+        return bool(libc.mallopt(parameter, value))
+    except (OSError, AttributeError):
+        return False
 
 
 def limit_malloc_arenas(count: int) -> bool:
     """Cap glibc's malloc arenas at `count` (Settings.malloc_arenas says why); whether it
-    took effect (0 asks for nothing; a C library other than glibc has no such cap)."""
-    if count <= 0:
-        return False
-    try:
-        libc = ctypes.CDLL("libc.so.6")
-        return bool(libc.mallopt(M_ARENA_MAX, count))
-    except (OSError, AttributeError):
-        return False
+    took effect (0 asks for nothing)."""
+    return count > 0 and _mallopt(M_ARENA_MAX, count)
+
+
+def fix_mmap_threshold(size_bytes: int) -> bool:
+    """Map every block of at least `size_bytes` on its own, for good (Settings.
+    malloc_mmap_threshold_bytes says why); whether it took effect (0 asks for nothing and
+    leaves glibc's threshold, which rises to the size of each mapped block freed)."""
+    return size_bytes > 0 and _mallopt(M_MMAP_THRESHOLD, size_bytes)
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:
     settings = settings or Settings()
     # Before any model starts a thread: an arena is taken at a thread's first allocation.
     limit_malloc_arenas(settings.malloc_arenas)
+    fix_mmap_threshold(settings.malloc_mmap_threshold_bytes)
     logger = configure_logging(settings.log_level)
     app_metrics = Metrics()
 
