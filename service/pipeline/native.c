@@ -469,6 +469,167 @@ static void self_clearance_at_rows(const double *origin, const double *axis, Py_
     }
 }
 
+/* ---------------------------------------------------------------- hull separation (GJK) */
+
+/* The constants of convex.py: its GJK, step for step, one row at a time. */
+enum { GJK_ITERATIONS = 32 };
+static const double GJK_RESOLUTION_M = 1e-4, GJK_DEGENERATE = 1e-10, GJK_STALLED = 1e-12;
+
+/* The vertex of a placed hull farthest along u (base frame): R^T u in the hull's frame, the
+ * first vertex of greatest reach (as numpy's argmax), placed back by R and t. */
+static void hull_support_row(const double *vertices, long long count, const double *R,
+                             const double *t, const double *u, double *out) {
+    double local[3];
+    for (int i = 0; i < 3; ++i) local[i] = R[i] * u[0] + R[3 + i] * u[1] + R[6 + i] * u[2];
+    long long best = 0;
+    double reach = -INFINITY;
+    for (long long v = 0; v < count; ++v) {
+        const double *p = vertices + 3 * v;
+        double along = p[0] * local[0] + p[1] * local[1] + p[2] * local[2];
+        if (along > reach) reach = along, best = v;
+    }
+    const double *p = vertices + 3 * best;
+    for (int i = 0; i < 3; ++i) out[i] = R[3 * i] * p[0] + R[3 * i + 1] * p[1] + R[3 * i + 2] * p[2] + t[i];
+}
+
+static double norm3(const double *x) { return sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2]); }
+
+/* convex.py's nearest_in_hull for one row: points (4, 3), the first always used; the
+ * nearest point of the faces holding the first point into `nearest`, their points into
+ * `keep`. */
+static void nearest_in_hull_row(const double points[4][3], const int used[4], double nearest[3],
+                                int keep[4]) {
+    const double *p0 = points[0];
+    double e[3][3], gram[3][3], toward[3];
+    for (int i = 0; i < 3; ++i)
+        for (int c = 0; c < 3; ++c) e[i][c] = points[i + 1][c] - p0[c];
+    for (int i = 0; i < 3; ++i) {
+        for (int j = 0; j < 3; ++j) gram[i][j] = e[i][0] * e[j][0] + e[i][1] * e[j][1] + e[i][2] * e[j][2];
+        toward[i] = -(e[i][0] * p0[0] + e[i][1] * p0[1] + e[i][2] * p0[2]);
+    }
+    double best = norm3(p0);
+    memcpy(nearest, p0, sizeof(double) * 3);
+    keep[0] = 1, keep[1] = keep[2] = keep[3] = 0;
+#define OFFER(candidate, f1, f2, f3)                                                       \
+    do {                                                                                   \
+        double norm_ = norm3(candidate);                                                   \
+        if (norm_ < best) {                                                                \
+            best = norm_;                                                                  \
+            memcpy(nearest, candidate, sizeof(double) * 3);                                \
+            keep[0] = 1, keep[1] = (f1), keep[2] = (f2), keep[3] = (f3);                   \
+        }                                                                                  \
+    } while (0)
+    for (int i = 0; i < 3; ++i) { /* edges {0, i} */
+        double length = gram[i][i];
+        double t = toward[i] / (length > 0 ? length : 1.0);
+        if (used[i + 1] && length > 0 && t >= 0 && t <= 1) {
+            double candidate[3];
+            for (int c = 0; c < 3; ++c) candidate[c] = p0[c] + t * e[i][c];
+            OFFER(candidate, i == 0, i == 1, i == 2);
+        }
+    }
+    static const int faces[3][2] = {{0, 1}, {0, 2}, {1, 2}};
+    for (int f = 0; f < 3; ++f) { /* triangles {0, i, j} */
+        int i = faces[f][0], j = faces[f][1];
+        double a = gram[i][i], b = gram[i][j], c = gram[j][j];
+        double det = a * c - b * b;
+        if (!(used[i + 1] && used[j + 1] && det > GJK_DEGENERATE * a * c)) continue;
+        double s = (c * toward[i] - b * toward[j]) / det;
+        double t = (a * toward[j] - b * toward[i]) / det;
+        if (s >= 0 && t >= 0 && s + t <= 1) {
+            double candidate[3];
+            for (int k = 0; k < 3; ++k) candidate[k] = p0[k] + s * e[i][k] + t * e[j][k];
+            OFFER(candidate, i == 0 || j == 0, i == 1 || j == 1, i == 2 || j == 2);
+        }
+    }
+    /* The tetrahedron: p_0 + E mu = 0 by Cramer's rule, E's columns the edges. */
+    if (used[1] && used[2] && used[3]) {
+        double cross[3][3];
+        const double *e1 = e[0], *e2 = e[1], *e3 = e[2];
+        const double *pairs[3][2] = {{e2, e3}, {e3, e1}, {e1, e2}};
+        for (int k = 0; k < 3; ++k) {
+            const double *u = pairs[k][0], *v = pairs[k][1];
+            cross[k][0] = u[1] * v[2] - u[2] * v[1];
+            cross[k][1] = u[2] * v[0] - u[0] * v[2];
+            cross[k][2] = u[0] * v[1] - u[1] * v[0];
+        }
+        double det = e1[0] * cross[0][0] + e1[1] * cross[0][1] + e1[2] * cross[0][2];
+        double scale = sqrt(gram[0][0] * gram[1][1] * gram[2][2]);
+        if (fabs(det) > GJK_DEGENERATE * scale) {
+            double mu[3], total = 0.0;
+            int inside = 1;
+            for (int k = 0; k < 3; ++k) {
+                mu[k] = -(cross[k][0] * p0[0] + cross[k][1] * p0[1] + cross[k][2] * p0[2]) / det;
+                inside &= mu[k] >= 0;
+                total += mu[k];
+            }
+            if (inside && total <= 1) {
+                double origin[3] = {0.0, 0.0, 0.0};
+                OFFER(origin, 1, 1, 1);
+            }
+        }
+    }
+#undef OFFER
+}
+
+/* GJK between two placed hulls (convex.py's separation_m on one row): the best lower bound
+ * of the distance between A + ball(pad_A) and B + ball(pad_B), pad = pad_A + pad_B. */
+static double hull_separation_row(const double *vertices_a, long long count_a, const double *Ra,
+                                  const double *ta, const double *vertices_b, long long count_b,
+                                  const double *Rb, const double *tb, const double *x0, double pad,
+                                  double margin) {
+    double x[3] = {x0[0], x0[1], x0[2]}, simplex[4][3] = {{0}};
+    int used[4] = {1, 0, 0, 0};
+    memcpy(simplex[0], x, sizeof x);
+    double best = -INFINITY;
+    for (int iteration = 0; iteration < GJK_ITERATIONS; ++iteration) {
+        double squared = x[0] * x[0] + x[1] * x[1] + x[2] * x[2];
+        double minus_x[3] = {-x[0], -x[1], -x[2]}, sa[3], sb[3], z[3];
+        hull_support_row(vertices_a, count_a, Ra, ta, minus_x, sa);
+        hull_support_row(vertices_b, count_b, Rb, tb, x, sb);
+        for (int c = 0; c < 3; ++c) z[c] = sa[c] - sb[c];
+        double along = x[0] * z[0] + x[1] * z[1] + x[2] * z[2];
+        double norm = sqrt(squared);
+        double bound = norm > 0 ? along / norm : -INFINITY;
+        if (bound - pad > best) best = bound - pad;
+        int stalled = squared - along <= GJK_STALLED * squared;
+        /* z first, then W's used points in order, then its unused ones: 3 of them. */
+        double points[4][3];
+        int kept[4] = {1, 0, 0, 0}, slot = 1;
+        memcpy(points[0], z, sizeof z);
+        for (int pass = 1; pass >= 0; --pass)
+            for (int i = 0; i < 4 && slot < 4; ++i)
+                if (used[i] == pass) {
+                    memcpy(points[slot], simplex[i], sizeof z);
+                    kept[slot++] = used[i];
+                }
+        nearest_in_hull_row((const double(*)[3])points, kept, x, used);
+        memcpy(simplex, points, sizeof points);
+        double upper = norm3(x) - pad;
+        int met = used[0] && used[1] && used[2] && used[3];
+        if (best >= margin || upper < margin + GJK_RESOLUTION_M || met || stalled) break;
+    }
+    return best;
+}
+
+/* hulls (H, V, 3) every hull padded, counts (H,); per row r of `measure`: hull index
+ * hull_a[r] placed by rotation_a[r] (3, 3) and origin_a[r] (3), the same for b, x0 (3),
+ * pad -> best[r]. */
+static void hull_separation_rows(const double *hulls, const long long *counts, Py_ssize_t V,
+                                 const long long *hull_a, const double *rotation_a,
+                                 const double *origin_a, const long long *hull_b,
+                                 const double *rotation_b, const double *origin_b,
+                                 const double *x0, const double *pad, double margin,
+                                 const long long *measure, Py_ssize_t M, double *best) {
+    for (Py_ssize_t k = 0; k < M; ++k) {
+        long long r = measure[k], a = hull_a[r], b = hull_b[r];
+        best[r] = hull_separation_row(hulls + a * V * 3, counts[a], rotation_a + 9 * r,
+                                      origin_a + 3 * r, hulls + b * V * 3, counts[b],
+                                      rotation_b + 9 * r, origin_b + 3 * r, x0 + 3 * r, pad[r],
+                                      margin);
+    }
+}
+
 /* ---------------------------------------------------------------- smallest singular value */
 
 /* J (m, n), m <= n -> its least singular value, by one-sided Jacobi (Hestenes) on J's rows:
@@ -809,6 +970,185 @@ static int walk_steps(Walk *w, Py_ssize_t max_steps, double expires_at_s, double
     return status;
 }
 
+/* ---------------------------------------------------------------- projected walk */
+
+/* local_planner.py's walk_on_fibre, one edge at a time: the same steps, projections, tests
+ * and order as its lockstep numpy loop, with the fibre's coaxial crossings
+ * (space.py's crossings_on_fibre) and self-collision (collision/check.py's `free` without
+ * obstacles: the spheres, then the hulls where the spheres are within the margin). */
+typedef struct {
+    const double *fixed, *tip, *target_position, *target_rotation;
+    const long long *rows;
+    Py_ssize_t n, m, m_position;
+    double damping, delta, stretch, tolerance, margin, expires_at_s;
+    Py_ssize_t iterations, extra_iterations, set_iterations, max_steps;
+    const double *lower, *upper;
+    const unsigned char *periodic;
+    Py_ssize_t sets;
+    const long long *set_joint;
+    const double *set_angle;
+    int check_self;
+    const double *joint_origin, *joint_axis, *centre, *radius, *bound, *bound_radius, *hulls,
+        *hull_pad;
+    const long long *frame, *own, *pair_a, *pair_b, *hull_count;
+    Py_ssize_t K, S, P, V;
+} Planner;
+
+/* Scratch of one edge's walk, in doubles. */
+static Py_ssize_t planner_scratch(const Planner *p) {
+    Py_ssize_t n = p->n, m = p->m;
+    return 6 * n + m + m * n + (m + 1) * n + 2 * n + n + m + m * n + (n + 1) * 16 + p->K * 12 +
+           p->K * p->S * 3 + p->K * 3 + p->K * 3;
+}
+
+static double distance_of(const double *a, const double *b, Py_ssize_t n) {
+    double total = 0.0;
+    for (Py_ssize_t k = 0; k < n; ++k) total += (a[k] - b[k]) * (a[k] - b[k]);
+    return sqrt(total);
+}
+
+/* evaluate q, then `iterations` DLS steps (locked: joint `lock` held, -1 none); error and
+ * Jacobian measured at the returned q. */
+static void project_row(const Planner *p, double *q, double *e, double *J, Py_ssize_t iterations,
+                        Py_ssize_t lock, unsigned char *locked, double *scratch) {
+    residual_rows(p->fixed, p->tip, p->n, q, 1, p->rows, p->m, p->m_position, p->target_position,
+                  p->target_rotation, e, J);
+    if (lock >= 0) {
+        memset(locked, 0, (size_t)p->n);
+        locked[lock] = 1;
+    }
+    newton_rows(p->fixed, p->tip, p->n, p->rows, p->m, p->m_position, p->target_position,
+                p->target_rotation, q, e, J, 1, iterations, -1.0, p->damping,
+                lock >= 0 ? locked : NULL, NULL, scratch);
+}
+
+/* Whether the step q_from -> q_to crosses no coaxial set, or crosses one where the fibre
+ * reaches it. */
+static int crossings_on_fibre_row(const Planner *p, const double *q_from, const double *q_to,
+                                  double *guess, double *e, double *J, double *scratch) {
+    Py_ssize_t n = p->n;
+    unsigned char locked[64];
+    for (Py_ssize_t c = 0; c < p->sets; ++c) {
+        Py_ssize_t j = p->set_joint[c];
+        double angle = p->set_angle[c];
+        double before = q_from[j] - angle, after = q_to[j] - angle;
+        if (p->periodic[j]) before = wrap_to_pi(before), after = wrap_to_pi(after);
+        if (!(before * after < 0 && fabs(before) < PI / 2 && fabs(after) < PI / 2)) continue;
+        double fraction = before / (before - after), step_norm = 0.0;
+        for (Py_ssize_t k = 0; k < n; ++k) {
+            double step = q_to[k] - q_from[k];
+            guess[k] = q_from[k] + fraction * step;
+            step_norm += step * step;
+        }
+        guess[j] = angle;
+        double start[64];
+        memcpy(start, guess, sizeof(double) * (size_t)n);
+        project_row(p, guess, e, J, p->set_iterations, j, locked, scratch);
+        double error = 0.0;
+        for (Py_ssize_t k = 0; k < p->m; ++k) error += e[k] * e[k];
+        if (!(sqrt(error) <= p->tolerance && distance_of(guess, start, n) <= sqrt(step_norm)))
+            return 0;
+    }
+    return 1;
+}
+
+/* collision/check.py's `free` at q with self-collision only: the spheres' clearance (the
+ * compiled self-clearance), and where it is under the margin, the refined pass of
+ * robot.py's refined_self_clearance_m: every hull pair whose spheres are within the margin,
+ * of a body pair whose bounding spheres are, must be separated by at least the margin. */
+static int self_free_row(const Planner *p, const double *q, double *scratch) {
+    Py_ssize_t K = p->K, S = p->S, n = p->n;
+    double *T = scratch, *rotation = T + (n + 1) * 16, *origin = rotation + K * 9;
+    double *placed = origin + K * 3, *bounds = placed + K * S * 3 + K * 3;
+    frame_rows(p->joint_origin, p->joint_axis, n, q, 1, T);
+    for (Py_ssize_t k = 0; k < K; ++k) {
+        const double *F = T + 16 * p->frame[k];
+        for (int r = 0; r < 3; ++r) {
+            for (int c = 0; c < 3; ++c) rotation[9 * k + 3 * r + c] = F[4 * r + c];
+            origin[3 * k + r] = F[4 * r + 3];
+        }
+    }
+    double clearance;
+    self_clearance_rows(rotation, origin, 1, K, S, p->centre, p->radius, p->own, p->bound,
+                        p->bound_radius, p->pair_a, p->pair_b, p->P, &clearance, placed);
+    if (isnan(clearance)) return 0;
+    if (clearance >= p->margin) return 1;
+    for (Py_ssize_t k = 0; k < K; ++k) {
+        place_spheres(rotation + 9 * k, origin + 3 * k, p->bound + 3 * k, 1, bounds + 3 * k);
+        place_spheres(rotation + 9 * k, origin + 3 * k, p->centre + k * S * 3, p->own[k],
+                      placed + k * S * 3);
+    }
+    for (Py_ssize_t pair = 0; pair < p->P; ++pair) {
+        Py_ssize_t ka = p->pair_a[pair], kb = p->pair_b[pair];
+        double lower = distance_of(bounds + 3 * ka, bounds + 3 * kb, 3) -
+                       (p->bound_radius[ka] + p->bound_radius[kb]);
+        if (lower >= p->margin) continue;
+        for (Py_ssize_t i = 0; i < p->own[ka]; ++i)
+            for (Py_ssize_t j = 0; j < p->own[kb]; ++j) {
+                double gap = distance_of(placed + (ka * S + i) * 3, placed + (kb * S + j) * 3, 3) -
+                             (p->radius[ka * S + i] + p->radius[kb * S + j]);
+                if (gap >= p->margin) continue;
+                Py_ssize_t ha = ka * S + i, hb = kb * S + j;
+                const double *va = p->hulls + ha * p->V * 3, *vb = p->hulls + hb * p->V * 3;
+                const double *Ra = rotation + 9 * ka, *Rb = rotation + 9 * kb;
+                const double *ta = origin + 3 * ka, *tb = origin + 3 * kb;
+                double x0[3];
+                for (int r = 0; r < 3; ++r)
+                    x0[r] = (Ra[3 * r] * va[0] + Ra[3 * r + 1] * va[1] + Ra[3 * r + 2] * va[2] + ta[r]) -
+                            (Rb[3 * r] * vb[0] + Rb[3 * r + 1] * vb[1] + Rb[3 * r + 2] * vb[2] + tb[r]);
+                double bound = hull_separation_row(va, p->hull_count[ha], Ra, ta, vb,
+                                                   p->hull_count[hb], Rb, tb, x0,
+                                                   p->hull_pad[ha] + p->hull_pad[hb], p->margin);
+                if (!((gap > bound ? gap : bound) >= p->margin)) return 0;
+            }
+    }
+    return 1;
+}
+
+/* One edge: from q_from toward goal (unwrapped), steps of delta projected onto the fibre,
+ * each a valid motion (converged, inside the limits, no jump, nearer the goal, no detour,
+ * no unreached coaxial crossing, free) until within delta of the goal: 1 reached, 0 not,
+ * -1 the deadline passed. The steps' points go to `path` (count of them) when given. */
+static int walk_edge(const Planner *p, const double *q_from, const double *goal, double chord,
+                     double *path, Py_ssize_t *count, double *work) {
+    Py_ssize_t n = p->n, m = p->m;
+    double *q = work, *q_new = q + n, *guess = q_new + n, *e = guess + n, *J = e + m;
+    double *scratch = J + m * n, *e2 = scratch + (m + 1) * n + 2 * n, *J2 = e2 + m,
+           *frames = J2 + m * n + 3 * n;
+    memcpy(q, q_from, sizeof(double) * (size_t)n);
+    double travelled = 0.0;
+    *count = 0;
+    for (Py_ssize_t step = 0; step < p->max_steps; ++step) {
+        double distance = distance_of(goal, q, n);
+        if (distance <= p->delta) return 1;
+        if (p->expires_at_s < INFINITY && monotonic_s() > p->expires_at_s) return -1;
+        for (Py_ssize_t k = 0; k < n; ++k) q_new[k] = q[k] + p->delta * (goal[k] - q[k]) / distance;
+        project_row(p, q_new, e, J, p->iterations, -1, NULL, scratch);
+        double error = 0.0;
+        for (Py_ssize_t k = 0; k < m; ++k) error += e[k] * e[k];
+        error = sqrt(error);
+        for (Py_ssize_t extra = 0; extra < p->extra_iterations && !(error <= p->tolerance); ++extra) {
+            project_row(p, q_new, e, J, 1, -1, NULL, scratch);
+            error = 0.0;
+            for (Py_ssize_t k = 0; k < m; ++k) error += e[k] * e[k];
+            error = sqrt(error);
+        }
+        double moved = distance_of(q_new, q, n);
+        int ok = error <= p->tolerance && moved <= p->stretch * p->delta &&
+                 distance_of(goal, q_new, n) < distance &&
+                 travelled + moved <= p->stretch * chord;
+        for (Py_ssize_t k = 0; k < n && ok; ++k)
+            ok = p->periodic[k] || (q_new[k] >= p->lower[k] && q_new[k] <= p->upper[k]);
+        if (ok && p->sets) ok = crossings_on_fibre_row(p, q, q_new, guess, e2, J2, scratch);
+        if (ok && p->check_self) ok = self_free_row(p, q_new, frames);
+        if (!ok) return 0;
+        memcpy(q, q_new, sizeof(double) * (size_t)n);
+        travelled += moved;
+        if (path != NULL) memcpy(path + (*count)++ * n, q_new, sizeof(double) * (size_t)n);
+    }
+    return 0;
+}
+
 /* ---------------------------------------------------------------- Python entry points */
 
 static PyObject *py_chain(PyObject *self, PyObject *args) {
@@ -1015,6 +1355,85 @@ static PyObject *py_self_clearance_at(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
+static PyObject *py_hull_separation(PyObject *self, PyObject *args) {
+    Py_buffer hulls, counts, hull_a, rotation_a, origin_a, hull_b, rotation_b, origin_b, x0, pad;
+    Py_buffer measure, best;
+    Py_ssize_t V, M;
+    double margin;
+    if (!PyArg_ParseTuple(args, "y*y*ny*y*y*y*y*y*y*y*dy*nw*", &hulls, &counts, &V, &hull_a,
+                          &rotation_a, &origin_a, &hull_b, &rotation_b, &origin_b, &x0, &pad,
+                          &margin, &measure, &M, &best))
+        return NULL;
+    Py_BEGIN_ALLOW_THREADS
+    hull_separation_rows(hulls.buf, counts.buf, V, hull_a.buf, rotation_a.buf, origin_a.buf,
+                         hull_b.buf, rotation_b.buf, origin_b.buf, x0.buf, pad.buf, margin,
+                         measure.buf, M, best.buf);
+    Py_END_ALLOW_THREADS
+    Py_buffer *all[] = {&hulls, &counts, &hull_a, &rotation_a, &origin_a, &hull_b,
+                        &rotation_b, &origin_b, &x0, &pad, &measure, &best};
+    for (size_t i = 0; i < sizeof all / sizeof *all; ++i) PyBuffer_Release(all[i]);
+    Py_RETURN_NONE;
+}
+
+static PyObject *py_projected_walk(PyObject *self, PyObject *args) {
+    Py_buffer numbers, sizes, fixed, tip, rows, target_position, target_rotation, lower, upper,
+        periodic, set_joint, set_angle, joint_origin, joint_axis, frame, centre, radius, own,
+        bound, bound_radius, pair_a, pair_b, hulls, hull_count, hull_pad, q_from, goal, chord,
+        reached, points, counts, work;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*y*y*y*y*y*y*y*y*y*y*y*y*y*y*y*y*y*y*y*y*y*w*w*w*w*",
+                          &numbers, &sizes, &fixed, &tip, &rows, &target_position,
+                          &target_rotation, &lower, &upper, &periodic, &set_joint, &set_angle,
+                          &joint_origin, &joint_axis, &frame, &centre, &radius, &own, &bound,
+                          &bound_radius, &pair_a, &pair_b, &hulls, &hull_count, &hull_pad,
+                          &q_from, &goal, &chord, &reached, &points, &counts, &work))
+        return NULL;
+    const double *number = numbers.buf;
+    const long long *size = sizes.buf;
+    Planner p = {
+        .fixed = fixed.buf, .tip = tip.buf, .target_position = target_position.buf,
+        .target_rotation = size[3] ? target_rotation.buf : NULL, .rows = rows.buf,
+        .n = size[0], .m = size[1], .m_position = size[2],
+        .damping = number[0], .delta = number[1], .stretch = number[2], .tolerance = number[3],
+        .margin = number[4], .expires_at_s = number[5],
+        .iterations = size[4], .extra_iterations = size[5], .set_iterations = size[6],
+        .max_steps = size[7], .lower = lower.buf, .upper = upper.buf, .periodic = periodic.buf,
+        .sets = size[8], .set_joint = set_joint.buf, .set_angle = set_angle.buf,
+        .check_self = (int)size[9], .joint_origin = joint_origin.buf, .joint_axis = joint_axis.buf,
+        .centre = centre.buf, .radius = radius.buf, .bound = bound.buf,
+        .bound_radius = bound_radius.buf, .hulls = hulls.buf, .hull_pad = hull_pad.buf,
+        .frame = frame.buf, .own = own.buf, .pair_a = pair_a.buf, .pair_b = pair_b.buf,
+        .hull_count = hull_count.buf, .K = size[10], .S = size[11], .P = size[12], .V = size[13],
+    };
+    Py_ssize_t edges = size[14], record = size[15], n = p.n;
+    int status = 0;
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t edge = 0; edge < edges && status == 0; ++edge) {
+        Py_ssize_t count = 0;
+        int result = walk_edge(&p, (const double *)q_from.buf + edge * n,
+                               (const double *)goal.buf + edge * n, ((const double *)chord.buf)[edge],
+                               record ? (double *)points.buf + edge * p.max_steps * n : NULL,
+                               &count, work.buf);
+        if (result < 0) status = 1;
+        ((unsigned char *)reached.buf)[edge] = result == 1;
+        ((long long *)counts.buf)[edge] = count;
+    }
+    Py_END_ALLOW_THREADS
+    Py_buffer *all[] = {&numbers, &sizes, &fixed, &tip, &rows, &target_position, &target_rotation,
+                        &lower, &upper, &periodic, &set_joint, &set_angle, &joint_origin,
+                        &joint_axis, &frame, &centre, &radius, &own, &bound, &bound_radius,
+                        &pair_a, &pair_b, &hulls, &hull_count, &hull_pad, &q_from, &goal, &chord,
+                        &reached, &points, &counts, &work};
+    for (size_t i = 0; i < sizeof all / sizeof *all; ++i) PyBuffer_Release(all[i]);
+    return PyLong_FromLong(status);
+}
+
+static PyObject *py_projected_walk_scratch(PyObject *self, PyObject *args) {
+    Py_ssize_t n, m, K, S;
+    if (!PyArg_ParseTuple(args, "nnnn", &n, &m, &K, &S)) return NULL;
+    Planner p = {.n = n, .m = m, .K = K, .S = S};
+    return PyLong_FromSsize_t(planner_scratch(&p));
+}
+
 static PyMethodDef methods[] = {
     {"chain", py_chain, METH_VARARGS,
      "chain(fixed, tip, q, n, batch, position, rotation, jacobian): serial-chain FK and Jacobian."},
@@ -1046,6 +1465,12 @@ static PyMethodDef methods[] = {
      "smallest_singular_values(jacobian, batch, m, n, sigma, work): sigma_min per row."},
     {"least_singular_value", py_least_singular_value, METH_VARARGS,
      "least_singular_value(jacobian, batch, m, n) -> the least sigma_min over the finite rows."},
+    {"projected_walk", py_projected_walk, METH_VARARGS,
+     "local_planner.py's walk on the fibre, edge by edge: 1 when the deadline passed"},
+    {"projected_walk_scratch", py_projected_walk_scratch, METH_VARARGS,
+     "doubles of scratch one edge's walk needs"},
+    {"hull_separation", py_hull_separation, METH_VARARGS,
+     "GJK lower bounds of the distance between pairs of placed hulls"},
     {"self_clearance_at", py_self_clearance_at, METH_VARARGS,
      "self_clearance_at(origin, axis, n, q, batch, frame, K, S, centre, radius, own, bound, "
      "bound_radius, pair_a, pair_b, P, clearance, scratch): self_clearance at joint values."},

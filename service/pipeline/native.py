@@ -1,4 +1,4 @@
-"""Compiled kernels for the pipeline's innermost loops: kinematics, Newton steps, the trace's walk.
+"""Compiled kernels for the pipeline's innermost loops: kinematics, Newton steps, the walks, GJK.
 
 Why compiled: every stage after sampling calls these on a few dozen rows at a time (the
 trace's fronts, the Newton projections), hundreds of times per answer, where numpy
@@ -207,6 +207,48 @@ def self_clearance_at_m(
             *bodies.arguments, clearance, scratch,
         )  # fmt: skip
     return clearance
+
+
+def hull_separation_m(
+    hulls_local_m: FloatArray,  # (H, V, 3) every hull's vertices in its frame, padded
+    counts: IntArray,  # (H,) each hull's own vertex count (at least 1)
+    hull_a: IntArray,  # (N,) each pair's first hull
+    rotation_a: FloatArray,  # (N, 3, 3) its frame -> base frame
+    origin_a_m: FloatArray,  # (N, 3)
+    hull_b: IntArray,  # (N,) each pair's second hull
+    rotation_b: FloatArray,  # (N, 3, 3)
+    origin_b_m: FloatArray,  # (N, 3)
+    x0_m: FloatArray,  # (N, 3) a point of A - B to start from
+    pad_m: FloatArray,  # (N,) pad_A + pad_B
+    margin_m: float,
+    measure: IntArray,  # (M,) the pairs to measure
+) -> FloatArray:  # (N,)
+    """`collision.convex.separation_m` between placed hulls, each row's GJK whole in
+    compiled code: the best lower bound of the distance between A + ball(pad_A) and
+    B + ball(pad_B) at the rows measured, -inf at the others."""
+    num_hulls, width = len(hulls_local_m), hulls_local_m.shape[1]
+    count = _int64(counts, "counts", (num_hulls,))
+    if num_hulls and (count.min() < 1 or count.max() > width):
+        raise ValueError(f"hull vertex counts must lie in 1 to {width}")
+    batch = len(x0_m)
+    a, b = _int64(hull_a, "hull_a", (batch,)), _int64(hull_b, "hull_b", (batch,))
+    rows = _int64(measure, "measure", (len(measure),))
+    for name, index, size in (("hull_a", a, num_hulls), ("hull_b", b, num_hulls),
+                              ("measure", rows, batch)):  # fmt: skip
+        if len(index) and (index.min() < 0 or index.max() >= size):
+            raise ValueError(f"{name} must index 0 to {size - 1}")
+    best = np.full(batch, -np.inf)
+    if len(rows):
+        _native.hull_separation(
+            _float64(hulls_local_m, "hulls_local_m", (num_hulls, width, 3)), count, width,
+            a, _float64(rotation_a, "rotation_a", (batch, 3, 3)),
+            _float64(origin_a_m, "origin_a_m", (batch, 3)),
+            b, _float64(rotation_b, "rotation_b", (batch, 3, 3)),
+            _float64(origin_b_m, "origin_b_m", (batch, 3)),
+            _float64(x0_m, "x0_m", (batch, 3)), _float64(pad_m, "pad_m", (batch,)),
+            float(margin_m), rows, len(rows), best,
+        )  # fmt: skip
+    return best
 
 
 @dataclass(frozen=True)
@@ -492,3 +534,158 @@ class _WalkRows:
         for name in ("q", "error", "jacobian", "tangent", "front"):
             getattr(bigger, name)[:count] = getattr(self, name)[:count]
         return bigger
+
+
+@dataclass(frozen=True)
+class PlannerRules:
+    """local_planner.py's constants for one batch of edges, passed down once."""
+
+    delta_rad: float  # step along the segment
+    stretch: float  # largest step and path length, in delta and chord units (lambda)
+    tolerance: float  # |e| a projected step must reach
+    iterations: int  # Newton steps per projected step ...
+    extra_iterations: int  # ... and up to this many more for a step not yet converged
+    max_steps: int  # steps an edge may take
+    set_iterations: int = 4  # Newton steps onto a coaxial set at a crossing (space.py)
+
+
+@dataclass(frozen=True)
+class SelfBodies:
+    """What collision/check.py's `free` needs for self-collision alone (robot.py's arrays)."""
+
+    joint_origin: FloatArray  # (n, 4, 4) as `chain_frames`
+    joint_axis: FloatArray  # (n, 3)
+    frame: IntArray  # (K,) the chain frame each body moves with
+    centre_local_m: FloatArray  # (K, S, 3)
+    radius_m: FloatArray  # (K, S)
+    own_spheres: IntArray  # (K,)
+    bound_local_m: FloatArray  # (K, 3)
+    bound_radius_m: FloatArray  # (K,)
+    pair_a: IntArray  # (P,)
+    pair_b: IntArray  # (P,)
+    hull_local_m: FloatArray  # (K, S, V, 3) padded with each hull's first vertex
+    hull_count: IntArray  # (K, S)
+    hull_pad_m: FloatArray  # (K, S)
+    margin_m: float
+
+
+@dataclass(frozen=True)
+class PlannedWalks:
+    """Where each edge's walk went, as local_planner.Walks has it, and whether the
+    deadline passed before every edge was walked."""
+
+    reached: BoolArray  # (E,)
+    points_rad: list[FloatArray]  # per edge (k_e, n), empty unless recorded
+    expired: bool
+
+
+def projected_walk(
+    fixed: FloatArray,  # (n, 4, 4) as `chain_kinematics`
+    tip: FloatArray,  # (4, 4)
+    position_axes: list[int],
+    target_position_m: FloatArray,
+    target_rotation: FloatArray | None,  # as `task_residual`
+    damping: float,  # the DLS steps' (above 0)
+    lower_rad: FloatArray,  # (n,) the joint limits
+    upper_rad: FloatArray,  # (n,)
+    periodic: BoolArray,  # (n,)
+    set_joint: IntArray,  # (C,) the coaxial sets' joints
+    set_angle_rad: FloatArray,  # (C,) and angles
+    bodies: SelfBodies | None,  # self-collision checked on them; None: no collision check
+    q_from_rad: FloatArray,  # (E, n) valid configurations
+    goal_rad: FloatArray,  # (E, n) each edge's end, unwrapped toward its start
+    chord_rad: FloatArray,  # (E,) |goal - q_from|
+    rules: PlannerRules,
+    expires_at_s: float,  # time.monotonic() after which the walks stop (inf: never)
+    record: bool,
+) -> PlannedWalks:
+    """local_planner.py's `walk_on_fibre`, each edge whole in compiled code: the same
+    projected steps and validity tests (space.py's motion_valid with its coaxial crossings,
+    and collision/check.py's `free` for self-collision, the hulls deciding where the
+    spheres are within the margin), in the same order, as its numpy loop, which is the
+    reference it is pinned to. Without obstacles only: a scene's obstacles are the numpy
+    loop's."""
+    n = len(fixed)
+    rows = [*position_axes, *([3, 4, 5] if target_rotation is not None else [])]
+    m, m_position = len(rows), len(position_axes)
+    if not 0 < n <= MAX_JOINTS or not 0 < m <= MAX_TASK_DIMENSION:
+        raise ValueError(f"a task of {m} rows on {n} joints; the kernel takes 1 to 6 on 1 to 64")
+    if not damping > 0.0:
+        raise ValueError(f"a DLS step needs a positive damping, got {damping}")
+    edges = len(q_from_rad)
+    sets = len(set_joint)
+    joints = _int64(set_joint, "set_joint", (sets,))
+    if sets and (joints.min() < 0 or joints.max() >= n):
+        raise ValueError(f"coaxial set joints must lie in 0 to {n - 1}")
+    if bodies is None:
+        count, spheres, width = 0, 1, 1
+        body_arguments: tuple[object, ...] = (
+            np.zeros((n, 4, 4)), np.zeros((n, 3)), np.zeros(1, dtype=np.int64),
+            *(np.zeros(1), np.zeros(1), np.zeros(1, dtype=np.int64), np.zeros(1), np.zeros(1)),
+            np.zeros(1, dtype=np.int64), np.zeros(1, dtype=np.int64),
+            np.zeros(1), np.zeros(1, dtype=np.int64), np.zeros(1),
+        )  # fmt: skip
+        pairs, margin = 0, 0.0
+    else:
+        count, spheres = len(bodies.centre_local_m), bodies.centre_local_m.shape[1]
+        width = bodies.hull_local_m.shape[2]
+        checked = _Bodies.of(
+            bodies.centre_local_m, bodies.radius_m, bodies.own_spheres, bodies.bound_local_m,
+            bodies.bound_radius_m, bodies.pair_a, bodies.pair_b,
+        )  # fmt: skip
+        frames = _int64(bodies.frame, "frame", (count,))
+        if count and (frames.min() < 0 or frames.max() > n):
+            raise ValueError(f"body frames must lie in 0 to {n}")
+        hull_count = _int64(bodies.hull_count, "hull_count", (count, spheres))
+        if count and (hull_count.min() < 1 or hull_count.max() > width):
+            raise ValueError(f"hull vertex counts must lie in 1 to {width}")
+        _, centre, radius, own, bound, bound_radius, pair_a, pair_b, _ = checked.arguments
+        pairs = len(bodies.pair_a)
+        body_arguments = (
+            _float64(bodies.joint_origin, "joint_origin", (n, 4, 4)),
+            _float64(bodies.joint_axis, "joint_axis", (n, 3)),
+            frames, centre, radius, own, bound, bound_radius, pair_a, pair_b,
+            _float64(bodies.hull_local_m, "hull_local_m", (count, spheres, width, 3)),
+            hull_count, _float64(bodies.hull_pad_m, "hull_pad_m", (count, spheres)),
+        )  # fmt: skip
+        margin = float(bodies.margin_m)
+    rotation = (
+        np.eye(3)
+        if target_rotation is None
+        else _float64(target_rotation, "target_rotation", (3, 3))
+    )
+    numbers = np.array(
+        [damping, rules.delta_rad, rules.stretch, rules.tolerance, margin, expires_at_s]
+    )
+    sizes = np.array(
+        [
+            n, m, m_position, target_rotation is not None, rules.iterations,
+            rules.extra_iterations, rules.set_iterations, rules.max_steps, sets,
+            bodies is not None, count, spheres, pairs, width, edges, record,
+        ],
+        dtype=np.int64,
+    )  # fmt: skip
+    reached = np.zeros(edges, dtype=np.uint8)
+    counts = np.zeros(edges, dtype=np.int64)
+    points = np.empty((edges * rules.max_steps if record else 1, n))
+    work = np.empty(_native.projected_walk_scratch(n, m, count, spheres))
+    status = 0
+    if edges:
+        status = _native.projected_walk(
+            numbers, sizes, _float64(fixed, "fixed", (n, 4, 4)), _float64(tip, "tip", (4, 4)),
+            np.array(rows, dtype=np.int64),
+            _float64(target_position_m, "target_position_m", (m_position,)), rotation,
+            _float64(lower_rad, "lower_rad", (n,)), _float64(upper_rad, "upper_rad", (n,)),
+            np.ascontiguousarray(periodic, dtype=np.uint8), joints,
+            _float64(set_angle_rad, "set_angle_rad", (sets,)), *body_arguments,
+            _float64(q_from_rad, "q_from_rad", (edges, n)),
+            _float64(goal_rad, "goal_rad", (edges, n)),
+            _float64(chord_rad, "chord_rad", (edges,)), reached, points, counts, work,
+        )  # fmt: skip
+    expired = bool(status)
+    if not record:
+        return PlannedWalks(reached.astype(bool), [], expired)
+    walked = points.reshape(edges, rules.max_steps, n) if edges else points[:0].reshape(0, 0, n)
+    return PlannedWalks(
+        reached.astype(bool), [walked[e, : counts[e]].copy() for e in range(edges)], expired
+    )

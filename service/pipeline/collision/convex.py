@@ -38,6 +38,9 @@ from service.pipeline.arrays import BoolArray, FloatArray, IntArray
 # Support point of a set at the rows asked: (directions (M, 3), rows (M,)) -> (M, 3),
 # a point of each row's set that is farthest along its direction.
 Support = Callable[[FloatArray, IntArray], FloatArray]
+# Separations of the pairs asked: rows (M,) -> (N,), each row's lower bound at those rows
+# (`separation_m` with its sets and margin, or its compiled form for two placed hulls).
+Separation = Callable[[IntArray], FloatArray]
 
 ITERATIONS = 32
 # Vertex counts the support groups hulls by (past the last: the widest asked).
@@ -180,28 +183,21 @@ def hull_support(
 
 
 def separation_deepest_first_m(
-    support_a: Support,
-    support_b: Support,
-    x0: FloatArray,  # (N, 3)
-    pad_m: FloatArray,  # (N,)
+    separation: Separation,
     margin_m: float,
     group: IntArray,  # (N,) the configuration each pair belongs to
     gap_m: FloatArray,  # (N,) the pair's distance on the spheres: a lower bound already
 ) -> FloatArray:  # (N,)
     """A lower bound of each pair's distance, at least `gap_m`: each configuration's
-    deepest pair by the spheres is measured first, and a configuration it leaves less
-    clear than the margin is not free whatever its other pairs are, which keep their
-    gap; the other configurations' pairs are all measured."""
+    deepest pair by the spheres is measured first (`separation` of those rows), and a
+    configuration it leaves less clear than the margin is not free whatever its other
+    pairs are, which keep their gap; the other configurations' pairs are all measured."""
     order = np.lexsort((gap_m, group))  # by configuration, deepest first
     first = order[np.r_[True, group[order][1:] != group[order][:-1]]]  # (G,)
     bound = np.array(gap_m, dtype=np.float64)
-    bound[first] = np.maximum(
-        bound[first], separation_m(support_a, support_b, x0, pad_m, margin_m, first)[first]
-    )
+    bound[first] = np.maximum(bound[first], separation(first)[first])
     failed = group[first][bound[first] < margin_m]
     rest = np.setdiff1d(np.flatnonzero(~np.isin(group, failed)), first)
     if len(rest):
-        bound[rest] = np.maximum(
-            bound[rest], separation_m(support_a, support_b, x0, pad_m, margin_m, rest)[rest]
-        )
+        bound[rest] = np.maximum(bound[rest], separation(rest)[rest])
     return bound

@@ -22,7 +22,7 @@ which is never less than the spheres' and is the hulls' distance itself when cer
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cached_property
+from functools import cached_property, partial
 
 import numpy as np
 
@@ -30,6 +30,7 @@ from service.manifest import ChainSpec, CollisionSpec
 from service.pipeline import native
 from service.pipeline.arrays import BoolArray, FloatArray, IntArray
 from service.pipeline.collision.convex import (
+    Separation,
     Support,
     hull_support,
     separation_deepest_first_m,
@@ -73,6 +74,35 @@ class PlacedBodies:
             spheres,
             self.rotation[rows, bodies],
             self.origin_m[rows, bodies],
+        )
+
+    def hull_separation(
+        self,
+        rows: IntArray,  # (N,) the configuration of each pair
+        body_a: IntArray,  # (N,) and sphere_a (N,): the first hull
+        sphere_a: IntArray,
+        body_b: IntArray,  # (N,) and sphere_b (N,): the second hull
+        sphere_b: IntArray,
+        pad_m: FloatArray,  # (N,) pad_A + pad_B
+        margin_m: float,
+    ) -> Separation:
+        """`convex.separation_m` between the placed hull pairs, in compiled code
+        (`native.hull_separation_m`, the same GJK), from their first vertices' difference."""
+        spheres = self.hull_local_m.shape[1]
+        x0 = self.hull_points(rows, body_a, sphere_a) - self.hull_points(rows, body_b, sphere_b)
+        return partial(
+            native.hull_separation_m,
+            self.hull_local_m.reshape(-1, *self.hull_local_m.shape[2:]),
+            self.hull_count.ravel(),
+            body_a * spheres + sphere_a,
+            self.rotation[rows, body_a],
+            self.origin_m[rows, body_a],
+            body_b * spheres + sphere_b,
+            self.rotation[rows, body_b],
+            self.origin_m[rows, body_b],
+            x0,
+            pad_m,
+            margin_m,
         )
 
     def hull_points(self, rows: IntArray, bodies: IntArray, spheres: IntArray) -> FloatArray:
@@ -168,12 +198,12 @@ class RobotSpheres:
         return self.frame > 0
 
     @cached_property
-    def _joint_transforms(self) -> tuple[FloatArray, FloatArray]:
+    def joint_transforms(self) -> tuple[FloatArray, FloatArray]:
         """The chain's joint transforms as arrays, made once, not at every placement."""
         return joint_transforms(self.chain)
 
     def place(self, q_rad: FloatArray) -> PlacedBodies:  # q (B, n)
-        frames = frames_of(*self._joint_transforms, q_rad)[:, self.frame]  # (B, K, 4, 4)
+        frames = frames_of(*self.joint_transforms, q_rad)[:, self.frame]  # (B, K, 4, 4)
         return PlacedBodies(
             rotation=frames[:, :, :3, :3],
             origin_m=frames[:, :, :3, 3],
@@ -195,7 +225,7 @@ class RobotSpheres:
     def self_clearance_at_m(self, q_rad: FloatArray) -> FloatArray:  # (B, n) -> (B,)
         """`self_clearance_m` of the bodies placed at q_rad, row by row in compiled code
         (`native.self_clearance_at_m`): the same numbers, no placed frames stored."""
-        origin, axis = self._joint_transforms
+        origin, axis = self.joint_transforms
         return native.self_clearance_at_m(
             origin, axis, q_rad, self.frame, self.centre_local_m, self.radius_m,
             self.own_spheres, self.bound_local_m, self.bound_radius_m, self.pair_a, self.pair_b,
@@ -231,14 +261,10 @@ class RobotSpheres:
         gap = np.where(own, gap, np.inf)
         n, sa, sb = np.nonzero(gap < margin_m)  # the sphere pairs the hulls decide
         if len(n):
-            hull_a = placed.hulls(row[n], body_a[n], sa)
-            hull_b = placed.hulls(row[n], body_b[n], sb)
-            x0 = placed.hull_points(row[n], body_a[n], sa) - placed.hull_points(
-                row[n], body_b[n], sb
-            )
             pad = self.hull_pad_m[body_a[n], sa] + self.hull_pad_m[body_b[n], sb]
+            separation = placed.hull_separation(row[n], body_a[n], sa, body_b[n], sb, pad, margin_m)
             gap[n, sa, sb] = separation_deepest_first_m(
-                hull_a, hull_b, x0, pad, margin_m, near[n], gap[n, sa, sb]
+                separation, margin_m, near[n], gap[n, sa, sb]
             )
         np.minimum.at(clearance, near, gap.min(axis=(1, 2)))
         return clearance

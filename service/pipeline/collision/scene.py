@@ -18,13 +18,14 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import partial
 from typing import Literal, get_args
 
 import numpy as np
 
 from service.errors import RequestFieldError
 from service.pipeline.arrays import FloatArray, IntArray
-from service.pipeline.collision.convex import separation_deepest_first_m
+from service.pipeline.collision.convex import separation_deepest_first_m, separation_m
 from service.pipeline.collision.robot import PlacedBodies, RobotSpheres
 from service.pipeline.rotations import quaternion_to_matrix
 from service.pipeline.targets import QUATERNION_NORM_TOLERANCE
@@ -225,7 +226,10 @@ class Scene:
                 x0 = placed.hull_points(row[n], body[n], s) - obstacle.position_m
                 pad = robot.hull_pad_m[body[n], s] + obstacle.pad_m
                 gap[n, s] = separation_deepest_first_m(
-                    hull, obstacle.support_m, x0, pad, margin_m, near[n], gap[n, s]
+                    partial(separation_m, hull, obstacle.support_m, x0, pad, margin_m),
+                    margin_m,
+                    near[n],
+                    gap[n, s],
                 )
             np.minimum.at(clearance, near, gap.min(axis=1))
         return clearance

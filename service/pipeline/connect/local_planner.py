@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from service.pipeline import native
 from service.pipeline.arrays import BoolArray, FloatArray, IntArray
 from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.fibre import project
@@ -82,6 +83,13 @@ def walk_on_fibre(
     travelled = np.zeros(num_edges)
     walking = np.ones(num_edges, dtype=bool)
     max_steps = int(np.ceil(stretch * chord.max() / delta)) + 2
+    rules = native.PlannerRules(
+        delta, stretch, settings.projection_tolerance, settings.projection_iterations,
+        settings.extra_iterations, max_steps,
+    )  # fmt: skip
+    compiled = _compiled_walks(space, q_from_rad, goal, chord, rules, deadline, record)
+    if compiled is not None:
+        return compiled
     for _ in range(max_steps):
         remaining = goal - q  # (E, n)
         distance = np.linalg.norm(remaining, axis=1)
@@ -122,3 +130,42 @@ def walk_on_fibre(
     order = np.argsort(edge, kind="stable")  # each edge's points in step order
     bounds = np.searchsorted(edge[order], np.arange(num_edges + 1))
     return Walks(reached, [points[order[bounds[e] : bounds[e + 1]]] for e in range(num_edges)])
+
+
+def _compiled_walks(
+    space: FibreSpace,
+    q_from_rad: FloatArray,  # (E, n)
+    goal_rad: FloatArray,  # (E, n) unwrapped toward q_from
+    chord_rad: FloatArray,  # (E,)
+    rules: native.PlannerRules,
+    deadline: Deadline,
+    record: bool,
+) -> Walks | None:
+    """The walks in compiled code (`native.projected_walk`, each edge whole, the same steps
+    and tests as the loop above), for a serial chain's fibre whose collision check is
+    self-collision alone or nothing; None otherwise (obstacles: the loop above)."""
+    fibre, collision = space.fibre, space.collision
+    chain = fibre.chain
+    if chain is None or not fibre.damping > 0 or collision.scene.obstacles:
+        return None
+    bodies = None
+    robot = collision.robot
+    if collision.active and robot is not None:
+        origin, axis = robot.joint_transforms
+        bodies = native.SelfBodies(
+            origin, axis, robot.frame, robot.centre_local_m, robot.radius_m, robot.own_spheres,
+            robot.bound_local_m, robot.bound_radius_m, robot.pair_a, robot.pair_b,
+            robot.hull_local_m, robot.hull_count, robot.hull_pad_m, collision.margin_m,
+        )  # fmt: skip
+    limits, target = space.limits, fibre.target
+    walked = native.projected_walk(
+        chain.fixed, chain.tip, fibre.task.position_axes, target.position_m,
+        target.rotation if fibre.task.orientation else None, fibre.damping,
+        limits.lower_rad, limits.upper_rad, limits.periodic,
+        np.array([c.joint for c in space.coaxial_sets], dtype=np.int64),
+        np.array([c.angle_rad for c in space.coaxial_sets]),
+        bodies, q_from_rad, goal_rad, chord_rad, rules, deadline.expires_at_s, record,
+    )  # fmt: skip
+    if walked.expired:
+        deadline.check("connect")
+    return Walks(walked.reached, walked.points_rad)

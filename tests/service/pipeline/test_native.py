@@ -20,7 +20,8 @@ bitwise and of kinematics.onnx to 1e-12, for pose and position tasks. The compil
 steps (DLS, stopping at a tolerance, locked joints, bordered on a tangent) end where the
 numpy steps do, to 1e-12. The smallest singular value (one-sided Jacobi) equals LAPACK's
 SVD to 1e-12, singular and near-singular Jacobians included, and the bounded search
-for the least over many rows finds exactly the least. (The trace's compiled walk is
+for the least over many rows finds exactly the least. GJK between placed hulls takes
+convex.py's numpy steps (1e-12) on the robots' own hulls. (The trace's compiled walk is
 pinned in tests/service/pipeline/connect/test_walk.py.)
 """
 
@@ -42,6 +43,7 @@ from service.manifest import (
 from service.models.chain import SerialChainKinematics
 from service.models.sessions import OnnxKinematics, open_session
 from service.pipeline import native
+from service.pipeline.collision.convex import hull_support, separation_m
 from service.pipeline.collision.frames import chain_frames
 from service.pipeline.collision.robot import RobotSpheres
 from service.pipeline.correction import residual_of, task_error
@@ -434,3 +436,62 @@ def test_least_singular_value_is_the_least_of_every_rows() -> None:
         expected = float(np.nanmin(native.smallest_singular_values(j), initial=np.inf))
         assert native.least_singular_value(j) == expected
     assert native.least_singular_value(np.full((3, 6, 7), np.nan)) == np.inf
+
+
+def _turns(count: int, rng: np.random.Generator) -> np.ndarray:
+    return Rotation.random(count, random_state=rng).as_matrix()
+
+
+@pytest.mark.parametrize("model", COLLISION_MODELS)
+def test_hull_separation_takes_the_numpy_gjk_steps(model: str) -> None:
+    """Pairs of the robot's own hulls (padded as it stores them), turned and placed from
+    apart to overlapping, at margins that certify some pairs and give up on others: every
+    measured row's compiled GJK bound equals convex.separation_m's to 1e-12, and the rows
+    not measured stay -inf."""
+    robot = robot_spheres(model)
+    hulls = robot.hull_local_m.reshape(-1, *robot.hull_local_m.shape[2:])  # (H, V, 3)
+    counts = robot.hull_count.ravel()
+    real = np.flatnonzero(counts > 0)
+    rng = np.random.default_rng(5)
+    size = 400
+    a, b = rng.choice(real, size), rng.choice(real, size)
+    turn_a, turn_b = _turns(size, rng), _turns(size, rng)
+    shift_a = rng.normal(size=(size, 3)) * 0.05
+    shift_b = shift_a + rng.normal(size=(size, 3)) * rng.choice([0.02, 0.1, 0.3], (size, 1))
+    pad = rng.uniform(0.0, 0.01, size)
+    zero = np.zeros(size, dtype=np.int64)
+    support_a = hull_support(hulls[:, None], counts[:, None], a, zero, turn_a, shift_a)
+    support_b = hull_support(hulls[:, None], counts[:, None], b, zero, turn_b, shift_b)
+    x0 = (np.einsum("nij,nj->ni", turn_a, hulls[a, 0]) + shift_a) - (
+        np.einsum("nij,nj->ni", turn_b, hulls[b, 0]) + shift_b
+    )
+    measure = np.sort(rng.choice(size, size - 20, replace=False))
+    for margin in (0.0, 0.01, 0.05):
+        expected = separation_m(support_a, support_b, x0, pad, margin, measure)
+        compiled = native.hull_separation_m(
+            hulls, counts, a, turn_a, shift_a, b, turn_b, shift_b, x0, pad, margin, measure
+        )
+        np.testing.assert_allclose(compiled, expected, rtol=0, atol=1e-12)
+        assert np.isneginf(compiled[np.setdiff1d(np.arange(size), measure)]).all()
+    assert (compiled[measure] >= 0.05).any() and (compiled[measure] < 0).any()
+
+
+def test_hull_separation_refuses_hulls_and_rows_out_of_range() -> None:
+    hulls, one = np.zeros((2, 4, 3)), np.zeros((1, 3, 3))
+    pair = (np.zeros(1, dtype=np.int64), one, np.zeros((1, 3)))
+    with pytest.raises(ValueError, match="hull vertex counts must lie in 1 to 4"):
+        native.hull_separation_m(
+            hulls,
+            np.array([4, 0]),
+            *pair,
+            *pair,
+            np.zeros((1, 3)),
+            np.zeros(1),
+            0.0,
+            np.zeros(1, dtype=np.int64),
+        )
+    with pytest.raises(ValueError, match="hull_b must index 0 to 1"):
+        native.hull_separation_m(
+            hulls, np.array([4, 4]), *pair, np.array([2]), one, np.zeros((1, 3)),
+            np.zeros((1, 3)), np.zeros(1), 0.0, np.zeros(1, dtype=np.int64),
+        )  # fmt: skip

@@ -6,6 +6,8 @@ turned; sets that meet are never certified."""
 
 from __future__ import annotations
 
+from functools import partial
+
 import coal
 import numpy as np
 import pytest
@@ -236,7 +238,8 @@ def test_a_configurations_deepest_pair_decides_first() -> None:
     full = separation_m(support_a, support_b, x0, np.zeros(6), 0.0)
     group = np.array([0, 0, 0, 1, 1, 1])
     gap = np.array([-1.0, -2.0, -0.5, -0.1, -0.3, -0.2])
-    bound = separation_deepest_first_m(support_a, support_b, x0, np.zeros(6), 0.0, group, gap)
+    separation = partial(separation_m, support_a, support_b, x0, np.zeros(6), 0.0)
+    bound = separation_deepest_first_m(separation, 0.0, group, gap)
     assert (bound >= gap).all()
     for g in (0, 1):
         rows = np.flatnonzero(group == g)
