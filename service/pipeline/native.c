@@ -230,6 +230,38 @@ static void dls_rows(const double *jacobian, const double *error, Py_ssize_t bat
 
 /* ---------------------------------------------------------------- bordered solve */
 
+/* A (n, n) x = y by Gaussian elimination with partial pivoting, A and y overwritten (y
+ * becomes x); 0 where A is exactly singular. */
+static int gauss_solve(double *A, double *y, Py_ssize_t n) {
+    for (Py_ssize_t col = 0; col < n; ++col) {
+        Py_ssize_t pivot = col;
+        for (Py_ssize_t r = col + 1; r < n; ++r)
+            if (fabs(A[r * n + col]) > fabs(A[pivot * n + col])) pivot = r;
+        if (A[pivot * n + col] == 0.0) return 0;
+        if (pivot != col) {
+            for (Py_ssize_t c = 0; c < n; ++c) {
+                double swap = A[col * n + c];
+                A[col * n + c] = A[pivot * n + c];
+                A[pivot * n + c] = swap;
+            }
+            double swap = y[col];
+            y[col] = y[pivot];
+            y[pivot] = swap;
+        }
+        for (Py_ssize_t r = col + 1; r < n; ++r) {
+            double factor = A[r * n + col] / A[col * n + col];
+            for (Py_ssize_t c = col; c < n; ++c) A[r * n + c] -= factor * A[col * n + c];
+            y[r] -= factor * y[col];
+        }
+    }
+    for (Py_ssize_t r = n - 1; r >= 0; --r) {
+        double sum = y[r];
+        for (Py_ssize_t c = r + 1; c < n; ++c) sum -= A[r * n + c] * y[c];
+        y[r] = sum / A[r * n + r];
+    }
+    return 1;
+}
+
 /* jacobian (B, n - 1, n), border (B, n), rhs (B, n) -> x (B, n) with [J; border^T] x = rhs,
  * by Gaussian elimination with partial pivoting; NaN rows where the system is not finite
  * or exactly singular. `scratch` holds one n x n system. */
@@ -245,40 +277,8 @@ static void bordered_rows(const double *jacobian, const double *border, const do
             finite &= isfinite(A[m * n + k] = t[k]) != 0;
             finite &= isfinite(y[k] = e[k]) != 0;
         }
-        int failed = !finite;
-        for (Py_ssize_t col = 0; col < n && !failed; ++col) {
-            Py_ssize_t pivot = col;
-            for (Py_ssize_t r = col + 1; r < n; ++r)
-                if (fabs(A[r * n + col]) > fabs(A[pivot * n + col])) pivot = r;
-            if (A[pivot * n + col] == 0.0) {
-                failed = 1;
-                break;
-            }
-            if (pivot != col) {
-                for (Py_ssize_t c = 0; c < n; ++c) {
-                    double swap = A[col * n + c];
-                    A[col * n + c] = A[pivot * n + c];
-                    A[pivot * n + c] = swap;
-                }
-                double swap = y[col];
-                y[col] = y[pivot];
-                y[pivot] = swap;
-            }
-            for (Py_ssize_t r = col + 1; r < n; ++r) {
-                double factor = A[r * n + col] / A[col * n + col];
-                for (Py_ssize_t c = col; c < n; ++c) A[r * n + c] -= factor * A[col * n + c];
-                y[r] -= factor * y[col];
-            }
-        }
-        if (failed) {
+        if (!finite || !gauss_solve(A, y, n))
             for (Py_ssize_t k = 0; k < n; ++k) y[k] = NAN;
-            continue;
-        }
-        for (Py_ssize_t r = n - 1; r >= 0; --r) {
-            double sum = y[r];
-            for (Py_ssize_t c = r + 1; c < n; ++c) sum -= A[r * n + c] * y[c];
-            y[r] = sum / A[r * n + r];
-        }
     }
 }
 
@@ -994,11 +994,13 @@ typedef struct {
     Py_ssize_t K, S, P, V;
 } Planner;
 
-/* Scratch of one edge's walk, in doubles. */
+/* Scratch of one projected or steered walk, in doubles. */
 static Py_ssize_t planner_scratch(const Planner *p) {
     Py_ssize_t n = p->n, m = p->m;
-    return 6 * n + m + m * n + (m + 1) * n + 2 * n + n + m + m * n + (n + 1) * 16 + p->K * 12 +
-           p->K * p->S * 3 + p->K * 3 + p->K * 3;
+    /* steer_one's layout, the larger: J, e, q_new, e_new, J_new, d, g, gram, y, Jf, start,
+     * the Newton scratch, e2, J2, then self_free_row's frames. */
+    return m * n + m + n + m + m * n + n + n + m * m + m + m * n + n + (m + 1) * n + 2 * n + m +
+           m * n + (n + 1) * 16 + p->K * 18 + p->K * p->S * 3;
 }
 
 static double distance_of(const double *a, const double *b, Py_ssize_t n) {
@@ -1114,7 +1116,7 @@ static int walk_edge(const Planner *p, const double *q_from, const double *goal,
     Py_ssize_t n = p->n, m = p->m;
     double *q = work, *q_new = q + n, *guess = q_new + n, *e = guess + n, *J = e + m;
     double *scratch = J + m * n, *e2 = scratch + (m + 1) * n + 2 * n, *J2 = e2 + m,
-           *frames = J2 + m * n + 3 * n;
+           *frames = J2 + m * n;
     memcpy(q, q_from, sizeof(double) * (size_t)n);
     double travelled = 0.0;
     *count = 0;
@@ -1375,59 +1377,179 @@ static PyObject *py_hull_separation(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
-static PyObject *py_projected_walk(PyObject *self, PyObject *args) {
-    Py_buffer numbers, sizes, fixed, tip, rows, target_position, target_rotation, lower, upper,
-        periodic, set_joint, set_angle, joint_origin, joint_axis, frame, centre, radius, own,
-        bound, bound_radius, pair_a, pair_b, hulls, hull_count, hull_pad, q_from, goal, chord,
-        reached, points, counts, work;
-    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*y*y*y*y*y*y*y*y*y*y*y*y*y*y*y*y*y*y*y*y*y*w*w*w*w*",
-                          &numbers, &sizes, &fixed, &tip, &rows, &target_position,
-                          &target_rotation, &lower, &upper, &periodic, &set_joint, &set_angle,
-                          &joint_origin, &joint_axis, &frame, &centre, &radius, &own, &bound,
-                          &bound_radius, &pair_a, &pair_b, &hulls, &hull_count, &hull_pad,
-                          &q_from, &goal, &chord, &reached, &points, &counts, &work))
-        return NULL;
-    const double *number = numbers.buf;
-    const long long *size = sizes.buf;
+/* steering.py's steer for one walk from q (updated in place to where it ends, unwrapped)
+ * toward goal: 1 arrived, 0 not, -1 the deadline passed. p->delta is the step length;
+ * p->iterations Newton steps per projected step, stopping once within tolerance. */
+static int steer_one(const Planner *p, Py_ssize_t stall_steps, double min_progress,
+                     const double *goal, double *q, double *work) {
+    Py_ssize_t n = p->n, m = p->m;
+    double *J = work, *e = J + m * n, *q_new = e + m, *e_new = q_new + n, *J_new = e_new + m;
+    double *d = J_new + m * n, *g = d + n, *gram = g + n, *y = gram + m * m, *Jf = y + m;
+    double *start = Jf + m * n, *scratch = start + n, *e2 = scratch + (m + 1) * n + 2 * n;
+    double *J2 = e2 + m, *frames = J2 + m * n;
+    unsigned char on_limit[64];
+    residual_rows(p->fixed, p->tip, n, q, 1, p->rows, m, p->m_position, p->target_position,
+                  p->target_rotation, e, J);
+    double best = distance_of(goal, q, n);
+    Py_ssize_t since_best = 0;
+    for (Py_ssize_t step = 0; step < p->max_steps; ++step) {
+        if (distance_of(goal, q, n) <= p->delta) return 1;
+        if (p->expires_at_s < INFINITY && monotonic_s() > p->expires_at_s) return -1;
+        /* The direction to the goal projected onto J's null space, the joints on a limit
+         * that it pushes further out held (tangent_direction). */
+        for (Py_ssize_t k = 0; k < n; ++k) {
+            double wanted = goal[k] - q[k];
+            int held = !p->periodic[k] && ((q[k] <= p->lower[k] && wanted < 0) ||
+                                           (q[k] >= p->upper[k] && wanted > 0));
+            g[k] = held ? 0.0 : wanted;
+            for (Py_ssize_t i = 0; i < m; ++i) Jf[i * n + k] = held ? 0.0 : J[i * n + k];
+        }
+        for (Py_ssize_t i = 0; i < m; ++i) {
+            double rhs = 0.0;
+            for (Py_ssize_t k = 0; k < n; ++k) rhs += Jf[i * n + k] * g[k];
+            y[i] = rhs;
+            for (Py_ssize_t l = 0; l < m; ++l) {
+                double sum = 0.0;
+                for (Py_ssize_t k = 0; k < n; ++k) sum += Jf[i * n + k] * Jf[l * n + k];
+                gram[i * m + l] = sum + (i == l ? 1e-9 : 0.0);
+            }
+        }
+        if (!gauss_solve(gram, y, m))
+            for (Py_ssize_t i = 0; i < m; ++i) y[i] = NAN;
+        double length = 0.0;
+        for (Py_ssize_t k = 0; k < n; ++k) {
+            double sum = 0.0;
+            for (Py_ssize_t i = 0; i < m; ++i) sum += Jf[i * n + k] * y[i];
+            d[k] = g[k] - sum;
+            length += d[k] * d[k];
+        }
+        length = sqrt(length);
+        int moving = length > 1e-9;
+        double scale = (p->delta < length ? p->delta : length) / (length > 1e-300 ? length : 1e-300);
+        for (Py_ssize_t k = 0; k < n; ++k) {
+            double x = q[k] + d[k] * scale;
+            if (!p->periodic[k]) x = x < p->lower[k] ? p->lower[k] : (x > p->upper[k] ? p->upper[k] : x);
+            q_new[k] = x;
+            on_limit[k] = !p->periodic[k] && (x <= p->lower[k] || x >= p->upper[k]);
+        }
+        residual_rows(p->fixed, p->tip, n, q_new, 1, p->rows, m, p->m_position,
+                      p->target_position, p->target_rotation, e_new, J_new);
+        newton_rows(p->fixed, p->tip, n, p->rows, m, p->m_position, p->target_position,
+                    p->target_rotation, q_new, e_new, J_new, 1, p->iterations, p->tolerance,
+                    p->damping, on_limit, NULL, scratch);
+        double error = 0.0;
+        for (Py_ssize_t k = 0; k < m; ++k) error += e_new[k] * e_new[k];
+        int ok = sqrt(error) <= p->tolerance && distance_of(q_new, q, n) <= p->stretch * p->delta &&
+                 moving;
+        for (Py_ssize_t k = 0; k < n && ok; ++k)
+            ok = p->periodic[k] || (q_new[k] >= p->lower[k] && q_new[k] <= p->upper[k]);
+        if (ok && p->sets) ok = crossings_on_fibre_row(p, q, q_new, start, e2, J2, scratch);
+        if (ok && p->check_self) ok = self_free_row(p, q_new, frames);
+        if (!ok) return 0;
+        memcpy(q, q_new, sizeof(double) * (size_t)n);
+        memcpy(J, J_new, sizeof(double) * (size_t)(m * n));
+        double now = distance_of(goal, q, n);
+        if (now < best - min_progress) {
+            best = now;
+            since_best = 0;
+        } else if (++since_best >= stall_steps) {
+            return 0;
+        }
+    }
+    return distance_of(goal, q, n) <= p->delta;
+}
+
+/* The buffers every walk takes (native.py's CompiledSpace.arguments), in that order. */
+enum { SPACE_BUFFERS = 23 };
+
+/* numbers: damping, step, stretch, tolerance, margin, expires_at_s (and for the steer,
+ * min_progress); sizes: n, m, m_position, orientation, sets, check_self, K, S, P, V,
+ * iterations, (extra iterations or stall steps), set_iterations, max_steps. */
+static Planner planner_of(const double *number, const long long *size, Py_buffer *space) {
     Planner p = {
-        .fixed = fixed.buf, .tip = tip.buf, .target_position = target_position.buf,
-        .target_rotation = size[3] ? target_rotation.buf : NULL, .rows = rows.buf,
-        .n = size[0], .m = size[1], .m_position = size[2],
-        .damping = number[0], .delta = number[1], .stretch = number[2], .tolerance = number[3],
-        .margin = number[4], .expires_at_s = number[5],
-        .iterations = size[4], .extra_iterations = size[5], .set_iterations = size[6],
-        .max_steps = size[7], .lower = lower.buf, .upper = upper.buf, .periodic = periodic.buf,
-        .sets = size[8], .set_joint = set_joint.buf, .set_angle = set_angle.buf,
-        .check_self = (int)size[9], .joint_origin = joint_origin.buf, .joint_axis = joint_axis.buf,
-        .centre = centre.buf, .radius = radius.buf, .bound = bound.buf,
-        .bound_radius = bound_radius.buf, .hulls = hulls.buf, .hull_pad = hull_pad.buf,
-        .frame = frame.buf, .own = own.buf, .pair_a = pair_a.buf, .pair_b = pair_b.buf,
-        .hull_count = hull_count.buf, .K = size[10], .S = size[11], .P = size[12], .V = size[13],
+        .fixed = space[0].buf, .tip = space[1].buf, .rows = space[2].buf,
+        .target_position = space[3].buf, .target_rotation = size[3] ? space[4].buf : NULL,
+        .lower = space[5].buf, .upper = space[6].buf, .periodic = space[7].buf,
+        .set_joint = space[8].buf, .set_angle = space[9].buf, .joint_origin = space[10].buf,
+        .joint_axis = space[11].buf, .frame = space[12].buf, .centre = space[13].buf,
+        .radius = space[14].buf, .own = space[15].buf, .bound = space[16].buf,
+        .bound_radius = space[17].buf, .pair_a = space[18].buf, .pair_b = space[19].buf,
+        .hulls = space[20].buf, .hull_count = space[21].buf, .hull_pad = space[22].buf,
+        .n = size[0], .m = size[1], .m_position = size[2], .sets = size[4],
+        .check_self = (int)size[5], .K = size[6], .S = size[7], .P = size[8], .V = size[9],
+        .iterations = size[10], .extra_iterations = size[11], .set_iterations = size[12],
+        .max_steps = size[13], .damping = number[0], .delta = number[1], .stretch = number[2],
+        .tolerance = number[3], .margin = number[4], .expires_at_s = number[5],
     };
+    return p;
+}
+
+/* Parses (numbers, sizes, the space's buffers, then `more` buffers: the first `read` of
+ * them read-only) into `buffers`; 0 on failure (the exception set). */
+static int parse_walk(PyObject *args, Py_buffer *buffers, Py_ssize_t read, Py_ssize_t more) {
+    Py_ssize_t total = 2 + SPACE_BUFFERS + more;
+    if (PyTuple_GET_SIZE(args) != total) {
+        PyErr_Format(PyExc_TypeError, "expected %zd arguments, got %zd", total,
+                     PyTuple_GET_SIZE(args));
+        return 0;
+    }
+    for (Py_ssize_t i = 0; i < total; ++i) {
+        int writable = i >= 2 + SPACE_BUFFERS + read;
+        if (PyObject_GetBuffer(PyTuple_GET_ITEM(args, i), &buffers[i],
+                               writable ? PyBUF_WRITABLE | PyBUF_C_CONTIGUOUS : PyBUF_C_CONTIGUOUS) < 0) {
+            for (Py_ssize_t k = 0; k < i; ++k) PyBuffer_Release(&buffers[k]);
+            return 0;
+        }
+    }
+    return 1;
+}
+
+static PyObject *py_projected_walk(PyObject *self, PyObject *args) {
+    Py_buffer b[2 + SPACE_BUFFERS + 7];
+    if (!parse_walk(args, b, 3, 7)) return NULL;
+    const long long *size = b[1].buf;
+    Planner p = planner_of(b[0].buf, size, b + 2);
+    Py_buffer *io = b + 2 + SPACE_BUFFERS; /* q_from, goal, chord, reached, points, counts, work */
     Py_ssize_t edges = size[14], record = size[15], n = p.n;
     int status = 0;
     Py_BEGIN_ALLOW_THREADS
     for (Py_ssize_t edge = 0; edge < edges && status == 0; ++edge) {
         Py_ssize_t count = 0;
-        int result = walk_edge(&p, (const double *)q_from.buf + edge * n,
-                               (const double *)goal.buf + edge * n, ((const double *)chord.buf)[edge],
-                               record ? (double *)points.buf + edge * p.max_steps * n : NULL,
-                               &count, work.buf);
+        int result = walk_edge(&p, (const double *)io[0].buf + edge * n,
+                               (const double *)io[1].buf + edge * n, ((const double *)io[2].buf)[edge],
+                               record ? (double *)io[4].buf + edge * p.max_steps * n : NULL, &count,
+                               io[6].buf);
         if (result < 0) status = 1;
-        ((unsigned char *)reached.buf)[edge] = result == 1;
-        ((long long *)counts.buf)[edge] = count;
+        ((unsigned char *)io[3].buf)[edge] = result == 1;
+        ((long long *)io[5].buf)[edge] = count;
     }
     Py_END_ALLOW_THREADS
-    Py_buffer *all[] = {&numbers, &sizes, &fixed, &tip, &rows, &target_position, &target_rotation,
-                        &lower, &upper, &periodic, &set_joint, &set_angle, &joint_origin,
-                        &joint_axis, &frame, &centre, &radius, &own, &bound, &bound_radius,
-                        &pair_a, &pair_b, &hulls, &hull_count, &hull_pad, &q_from, &goal, &chord,
-                        &reached, &points, &counts, &work};
-    for (size_t i = 0; i < sizeof all / sizeof *all; ++i) PyBuffer_Release(all[i]);
+    for (size_t i = 0; i < sizeof b / sizeof *b; ++i) PyBuffer_Release(&b[i]);
     return PyLong_FromLong(status);
 }
 
-static PyObject *py_projected_walk_scratch(PyObject *self, PyObject *args) {
+static PyObject *py_steer_walk(PyObject *self, PyObject *args) {
+    Py_buffer b[2 + SPACE_BUFFERS + 4];
+    if (!parse_walk(args, b, 1, 4)) return NULL;
+    const long long *size = b[1].buf;
+    const double *number = b[0].buf;
+    Planner p = planner_of(number, size, b + 2);
+    Py_buffer *io = b + 2 + SPACE_BUFFERS; /* goal, q, arrived, work */
+    Py_ssize_t walks = size[14], n = p.n;
+    int status = 0;
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t w = 0; w < walks && status == 0; ++w) {
+        int result = steer_one(&p, size[11], number[6], (const double *)io[0].buf + w * n,
+                               (double *)io[1].buf + w * n, io[3].buf);
+        if (result < 0) status = 1;
+        ((unsigned char *)io[2].buf)[w] = result == 1;
+    }
+    Py_END_ALLOW_THREADS
+    for (size_t i = 0; i < sizeof b / sizeof *b; ++i) PyBuffer_Release(&b[i]);
+    return PyLong_FromLong(status);
+}
+
+static PyObject *py_walk_scratch(PyObject *self, PyObject *args) {
     Py_ssize_t n, m, K, S;
     if (!PyArg_ParseTuple(args, "nnnn", &n, &m, &K, &S)) return NULL;
     Planner p = {.n = n, .m = m, .K = K, .S = S};
@@ -1467,8 +1589,10 @@ static PyMethodDef methods[] = {
      "least_singular_value(jacobian, batch, m, n) -> the least sigma_min over the finite rows."},
     {"projected_walk", py_projected_walk, METH_VARARGS,
      "local_planner.py's walk on the fibre, edge by edge: 1 when the deadline passed"},
-    {"projected_walk_scratch", py_projected_walk_scratch, METH_VARARGS,
-     "doubles of scratch one edge's walk needs"},
+    {"steer_walk", py_steer_walk, METH_VARARGS,
+     "steering.py's walks on the fibre, walk by walk: 1 when the deadline passed"},
+    {"walk_scratch", py_walk_scratch, METH_VARARGS,
+     "doubles of scratch one projected or steered walk needs"},
     {"hull_separation", py_hull_separation, METH_VARARGS,
      "GJK lower bounds of the distance between pairs of placed hulls"},
     {"self_clearance_at", py_self_clearance_at, METH_VARARGS,

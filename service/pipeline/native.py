@@ -537,19 +537,6 @@ class _WalkRows:
 
 
 @dataclass(frozen=True)
-class PlannerRules:
-    """local_planner.py's constants for one batch of edges, passed down once."""
-
-    delta_rad: float  # step along the segment
-    stretch: float  # largest step and path length, in delta and chord units (lambda)
-    tolerance: float  # |e| a projected step must reach
-    iterations: int  # Newton steps per projected step ...
-    extra_iterations: int  # ... and up to this many more for a step not yet converged
-    max_steps: int  # steps an edge may take
-    set_iterations: int = 4  # Newton steps onto a coaxial set at a crossing (space.py)
-
-
-@dataclass(frozen=True)
 class SelfBodies:
     """What collision/check.py's `free` needs for self-collision alone (robot.py's arrays)."""
 
@@ -570,63 +557,64 @@ class SelfBodies:
 
 
 @dataclass(frozen=True)
-class PlannedWalks:
-    """Where each edge's walk went, as local_planner.Walks has it, and whether the
-    deadline passed before every edge was walked."""
+class CompiledSpace:
+    """A FibreSpace as the compiled walks take it (space.py's `compiled`): a serial chain's
+    fibre, its limits and coaxial sets, and self-collision or no collision check (a
+    scene's obstacles are the numpy loops')."""
 
-    reached: BoolArray  # (E,)
-    points_rad: list[FloatArray]  # per edge (k_e, n), empty unless recorded
-    expired: bool
+    fixed: FloatArray  # (n, 4, 4) as `chain_kinematics`
+    tip: FloatArray  # (4, 4)
+    position_axes: list[int]
+    target_position_m: FloatArray
+    target_rotation: FloatArray | None  # as `task_residual`
+    damping: float  # the DLS steps' (above 0)
+    lower_rad: FloatArray  # (n,)
+    upper_rad: FloatArray  # (n,)
+    periodic: BoolArray  # (n,)
+    set_joint: IntArray  # (C,) the coaxial sets' joints
+    set_angle_rad: FloatArray  # (C,) and angles
+    bodies: SelfBodies | None  # self-collision checked on them; None: no collision check
 
-
-def projected_walk(
-    fixed: FloatArray,  # (n, 4, 4) as `chain_kinematics`
-    tip: FloatArray,  # (4, 4)
-    position_axes: list[int],
-    target_position_m: FloatArray,
-    target_rotation: FloatArray | None,  # as `task_residual`
-    damping: float,  # the DLS steps' (above 0)
-    lower_rad: FloatArray,  # (n,) the joint limits
-    upper_rad: FloatArray,  # (n,)
-    periodic: BoolArray,  # (n,)
-    set_joint: IntArray,  # (C,) the coaxial sets' joints
-    set_angle_rad: FloatArray,  # (C,) and angles
-    bodies: SelfBodies | None,  # self-collision checked on them; None: no collision check
-    q_from_rad: FloatArray,  # (E, n) valid configurations
-    goal_rad: FloatArray,  # (E, n) each edge's end, unwrapped toward its start
-    chord_rad: FloatArray,  # (E,) |goal - q_from|
-    rules: PlannerRules,
-    expires_at_s: float,  # time.monotonic() after which the walks stop (inf: never)
-    record: bool,
-) -> PlannedWalks:
-    """local_planner.py's `walk_on_fibre`, each edge whole in compiled code: the same
-    projected steps and validity tests (space.py's motion_valid with its coaxial crossings,
-    and collision/check.py's `free` for self-collision, the hulls deciding where the
-    spheres are within the margin), in the same order, as its numpy loop, which is the
-    reference it is pinned to. Without obstacles only: a scene's obstacles are the numpy
-    loop's."""
-    n = len(fixed)
-    rows = [*position_axes, *([3, 4, 5] if target_rotation is not None else [])]
-    m, m_position = len(rows), len(position_axes)
-    if not 0 < n <= MAX_JOINTS or not 0 < m <= MAX_TASK_DIMENSION:
-        raise ValueError(f"a task of {m} rows on {n} joints; the kernel takes 1 to 6 on 1 to 64")
-    if not damping > 0.0:
-        raise ValueError(f"a DLS step needs a positive damping, got {damping}")
-    edges = len(q_from_rad)
-    sets = len(set_joint)
-    joints = _int64(set_joint, "set_joint", (sets,))
-    if sets and (joints.min() < 0 or joints.max() >= n):
-        raise ValueError(f"coaxial set joints must lie in 0 to {n - 1}")
-    if bodies is None:
-        count, spheres, width = 0, 1, 1
-        body_arguments: tuple[object, ...] = (
-            np.zeros((n, 4, 4)), np.zeros((n, 3)), np.zeros(1, dtype=np.int64),
-            *(np.zeros(1), np.zeros(1), np.zeros(1, dtype=np.int64), np.zeros(1), np.zeros(1)),
-            np.zeros(1, dtype=np.int64), np.zeros(1, dtype=np.int64),
-            np.zeros(1), np.zeros(1, dtype=np.int64), np.zeros(1),
+    def arguments(self) -> tuple[tuple[object, ...], list[int]]:
+        """The C arguments every walk takes, checked, and (n, m, m_position, orientation,
+        sets, check_self, K, S, P, V) for its sizes."""
+        n = len(self.fixed)
+        rows = [*self.position_axes, *([3, 4, 5] if self.target_rotation is not None else [])]
+        m, m_position = len(rows), len(self.position_axes)
+        if not 0 < n <= MAX_JOINTS or not 0 < m <= MAX_TASK_DIMENSION:
+            raise ValueError(
+                f"a task of {m} rows on {n} joints; the kernel takes 1 to 6 on 1 to 64"
+            )
+        if not self.damping > 0.0:
+            raise ValueError(f"a DLS step needs a positive damping, got {self.damping}")
+        sets = len(self.set_joint)
+        joints = _int64(self.set_joint, "set_joint", (sets,))
+        if sets and (joints.min() < 0 or joints.max() >= n):
+            raise ValueError(f"coaxial set joints must lie in 0 to {n - 1}")
+        rotation = (
+            np.eye(3)
+            if self.target_rotation is None
+            else _float64(self.target_rotation, "target_rotation", (3, 3))
+        )
+        chain = (
+            _float64(self.fixed, "fixed", (n, 4, 4)), _float64(self.tip, "tip", (4, 4)),
+            np.array(rows, dtype=np.int64),
+            _float64(self.target_position_m, "target_position_m", (m_position,)), rotation,
+            _float64(self.lower_rad, "lower_rad", (n,)),
+            _float64(self.upper_rad, "upper_rad", (n,)),
+            np.ascontiguousarray(self.periodic, dtype=np.uint8), joints,
+            _float64(self.set_angle_rad, "set_angle_rad", (sets,)),
         )  # fmt: skip
-        pairs, margin = 0, 0.0
-    else:
+        bodies = self.bodies
+        if bodies is None:
+            none = (np.zeros(1), np.zeros(1, dtype=np.int64))
+            body_arguments: tuple[object, ...] = (
+                np.zeros((n, 4, 4)), np.zeros((n, 3)), none[1], none[0], none[0], none[1],
+                none[0], none[0], none[1], none[1], none[0], none[1], none[0],
+            )  # fmt: skip
+            return (*chain, *body_arguments), [
+                n, m, m_position, self.target_rotation is not None, sets, 0, 0, 1, 0, 1
+            ]  # fmt: skip
         count, spheres = len(bodies.centre_local_m), bodies.centre_local_m.shape[1]
         width = bodies.hull_local_m.shape[2]
         checked = _Bodies.of(
@@ -640,7 +628,6 @@ def projected_walk(
         if count and (hull_count.min() < 1 or hull_count.max() > width):
             raise ValueError(f"hull vertex counts must lie in 1 to {width}")
         _, centre, radius, own, bound, bound_radius, pair_a, pair_b, _ = checked.arguments
-        pairs = len(bodies.pair_a)
         body_arguments = (
             _float64(bodies.joint_origin, "joint_origin", (n, 4, 4)),
             _float64(bodies.joint_axis, "joint_axis", (n, 3)),
@@ -648,36 +635,70 @@ def projected_walk(
             _float64(bodies.hull_local_m, "hull_local_m", (count, spheres, width, 3)),
             hull_count, _float64(bodies.hull_pad_m, "hull_pad_m", (count, spheres)),
         )  # fmt: skip
-        margin = float(bodies.margin_m)
-    rotation = (
-        np.eye(3)
-        if target_rotation is None
-        else _float64(target_rotation, "target_rotation", (3, 3))
-    )
+        sizes = [
+            n, m, m_position, self.target_rotation is not None, sets, 1, count, spheres,
+            len(bodies.pair_a), width,
+        ]  # fmt: skip
+        return (*chain, *body_arguments), sizes
+
+    def margin_m(self) -> float:
+        return 0.0 if self.bodies is None else float(self.bodies.margin_m)
+
+
+@dataclass(frozen=True)
+class PlannerRules:
+    """local_planner.py's constants for one batch of edges, passed down once."""
+
+    delta_rad: float  # step along the segment
+    stretch: float  # largest step and path length, in delta and chord units (lambda)
+    tolerance: float  # |e| a projected step must reach
+    iterations: int  # Newton steps per projected step ...
+    extra_iterations: int  # ... and up to this many more for a step not yet converged
+    max_steps: int  # steps an edge may take
+    set_iterations: int = 4  # Newton steps onto a coaxial set at a crossing (space.py)
+
+
+@dataclass(frozen=True)
+class PlannedWalks:
+    """Where each edge's walk went, as local_planner.Walks has it, and whether the
+    deadline passed before every edge was walked."""
+
+    reached: BoolArray  # (E,)
+    points_rad: list[FloatArray]  # per edge (k_e, n), empty unless recorded
+    expired: bool
+
+
+def projected_walk(
+    space: CompiledSpace,
+    q_from_rad: FloatArray,  # (E, n) valid configurations
+    goal_rad: FloatArray,  # (E, n) each edge's end, unwrapped toward its start
+    chord_rad: FloatArray,  # (E,) |goal - q_from|
+    rules: PlannerRules,
+    expires_at_s: float,  # time.monotonic() after which the walks stop (inf: never)
+    record: bool,
+) -> PlannedWalks:
+    """local_planner.py's `walk_on_fibre`, each edge whole in compiled code: the same
+    projected steps and validity tests (space.py's motion_valid with its coaxial crossings,
+    and collision/check.py's `free` for self-collision, the hulls deciding where the
+    spheres are within the margin), in the same order, as its numpy loop, which is the
+    reference it is pinned to."""
+    arguments, sizes = space.arguments()
+    n, m = sizes[0], sizes[1]
+    edges = len(q_from_rad)
     numbers = np.array(
-        [damping, rules.delta_rad, rules.stretch, rules.tolerance, margin, expires_at_s]
-    )
-    sizes = np.array(
-        [
-            n, m, m_position, target_rotation is not None, rules.iterations,
-            rules.extra_iterations, rules.set_iterations, rules.max_steps, sets,
-            bodies is not None, count, spheres, pairs, width, edges, record,
-        ],
-        dtype=np.int64,
+        [space.damping, rules.delta_rad, rules.stretch, rules.tolerance, space.margin_m(),
+         expires_at_s]
     )  # fmt: skip
+    counts_of = [rules.iterations, rules.extra_iterations, rules.set_iterations, rules.max_steps]
+    all_sizes = np.array([*sizes, *counts_of, edges, record], dtype=np.int64)
     reached = np.zeros(edges, dtype=np.uint8)
     counts = np.zeros(edges, dtype=np.int64)
     points = np.empty((edges * rules.max_steps if record else 1, n))
-    work = np.empty(_native.projected_walk_scratch(n, m, count, spheres))
+    work = np.empty(_native.walk_scratch(n, m, sizes[6], sizes[7]))
     status = 0
     if edges:
         status = _native.projected_walk(
-            numbers, sizes, _float64(fixed, "fixed", (n, 4, 4)), _float64(tip, "tip", (4, 4)),
-            np.array(rows, dtype=np.int64),
-            _float64(target_position_m, "target_position_m", (m_position,)), rotation,
-            _float64(lower_rad, "lower_rad", (n,)), _float64(upper_rad, "upper_rad", (n,)),
-            np.ascontiguousarray(periodic, dtype=np.uint8), joints,
-            _float64(set_angle_rad, "set_angle_rad", (sets,)), *body_arguments,
+            numbers, all_sizes, *arguments,
             _float64(q_from_rad, "q_from_rad", (edges, n)),
             _float64(goal_rad, "goal_rad", (edges, n)),
             _float64(chord_rad, "chord_rad", (edges,)), reached, points, counts, work,
@@ -689,3 +710,59 @@ def projected_walk(
     return PlannedWalks(
         reached.astype(bool), [walked[e, : counts[e]].copy() for e in range(edges)], expired
     )
+
+
+@dataclass(frozen=True)
+class SteerRules:
+    """steering.py's constants, passed down once."""
+
+    step_rad: float  # longest step along the tangent
+    max_steps: int
+    stretch: float  # a projected step may move at most stretch x step_rad
+    tolerance: float  # |e| a projected step must reach
+    iterations: int  # Newton steps per projected step (stopping once within tolerance)
+    stall_steps: int  # end a walk that got no nearer over this many steps ...
+    min_progress_rad: float  # ... by at least this much
+    set_iterations: int = 4  # Newton steps onto a coaxial set at a crossing (space.py)
+
+
+@dataclass(frozen=True)
+class Steered:
+    """Where each walk ended (unwrapped) and whether it arrived; whether the deadline
+    passed before every walk was over."""
+
+    q_end_rad: FloatArray  # (E, n)
+    arrived: BoolArray  # (E,)
+    expired: bool
+
+
+def steer_walk(
+    space: CompiledSpace,
+    q_from_rad: FloatArray,  # (E, n) valid configurations
+    goal_rad: FloatArray,  # (E, n) unwrapped toward each start
+    rules: SteerRules,
+    expires_at_s: float,
+) -> Steered:
+    """steering.py's `steer`, each walk whole in compiled code: the direction to the goal
+    projected onto J's null space with the joints pushed out of a limit held, the step
+    clipped to the limits and projected back with those joints locked, and the planner's
+    validity tests, in the same order as its numpy loop, which it is pinned to."""
+    arguments, sizes = space.arguments()
+    n, m = sizes[0], sizes[1]
+    walks = len(q_from_rad)
+    numbers = np.array(
+        [space.damping, rules.step_rad, rules.stretch, rules.tolerance, space.margin_m(),
+         expires_at_s, rules.min_progress_rad]
+    )  # fmt: skip
+    counts_of = [rules.iterations, rules.stall_steps, rules.set_iterations, rules.max_steps]
+    all_sizes = np.array([*sizes, *counts_of, walks, 0], dtype=np.int64)
+    q = np.array(_float64(q_from_rad, "q_from_rad", (walks, n)))
+    arrived = np.zeros(walks, dtype=np.uint8)
+    work = np.empty(_native.walk_scratch(n, m, sizes[6], sizes[7]))
+    status = 0
+    if walks:
+        status = _native.steer_walk(
+            numbers, all_sizes, *arguments, _float64(goal_rad, "goal_rad", (walks, n)), q,
+            arrived, work,
+        )  # fmt: skip
+    return Steered(q, arrived.astype(bool), bool(status))

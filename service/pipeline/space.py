@@ -23,6 +23,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from service.pipeline import native
 from service.pipeline.acceptance import accept
 from service.pipeline.arrays import BoolArray, FloatArray
 from service.pipeline.collision.check import CollisionCheck
@@ -44,6 +45,33 @@ class FibreSpace:
     def kinematic(self) -> FibreSpace:
         """This space with collisions aside."""
         return replace(self, collision=CollisionCheck.none())
+
+    def compiled(self) -> native.CompiledSpace | None:
+        """This space as the compiled walks take it (a serial chain's fibre, checked for
+        self-collision or nothing), or None where they cannot: other kinematics, or a
+        scene's obstacles (the walks' numpy loops check those)."""
+        fibre, collision, limits = self.fibre, self.collision, self.limits
+        chain = fibre.chain
+        if chain is None or not fibre.damping > 0 or collision.scene.obstacles:
+            return None
+        bodies = None
+        robot = collision.robot
+        if collision.active and robot is not None:
+            origin, axis = robot.joint_transforms
+            bodies = native.SelfBodies(
+                origin, axis, robot.frame, robot.centre_local_m, robot.radius_m,
+                robot.own_spheres, robot.bound_local_m, robot.bound_radius_m, robot.pair_a,
+                robot.pair_b, robot.hull_local_m, robot.hull_count, robot.hull_pad_m,
+                collision.margin_m,
+            )  # fmt: skip
+        target = fibre.target
+        return native.CompiledSpace(
+            chain.fixed, chain.tip, fibre.task.position_axes, target.position_m,
+            target.rotation if fibre.task.orientation else None, fibre.damping,
+            limits.lower_rad, limits.upper_rad, limits.periodic,
+            np.array([c.joint for c in self.coaxial_sets], dtype=np.int64),
+            np.array([c.angle_rad for c in self.coaxial_sets]), bodies,
+        )  # fmt: skip
 
     def accept(self, correction: Correction) -> Acceptance:
         """Which corrected configurations are valid: within the tolerance (NaN and inf

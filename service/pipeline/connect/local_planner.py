@@ -142,30 +142,14 @@ def _compiled_walks(
     record: bool,
 ) -> Walks | None:
     """The walks in compiled code (`native.projected_walk`, each edge whole, the same steps
-    and tests as the loop above), for a serial chain's fibre whose collision check is
-    self-collision alone or nothing; None otherwise (obstacles: the loop above)."""
-    fibre, collision = space.fibre, space.collision
-    chain = fibre.chain
-    if chain is None or not fibre.damping > 0 or collision.scene.obstacles:
+    and tests as the loop above) where the space allows (`FibreSpace.compiled`); None
+    otherwise."""
+    compiled = space.compiled()
+    if compiled is None:
         return None
-    bodies = None
-    robot = collision.robot
-    if collision.active and robot is not None:
-        origin, axis = robot.joint_transforms
-        bodies = native.SelfBodies(
-            origin, axis, robot.frame, robot.centre_local_m, robot.radius_m, robot.own_spheres,
-            robot.bound_local_m, robot.bound_radius_m, robot.pair_a, robot.pair_b,
-            robot.hull_local_m, robot.hull_count, robot.hull_pad_m, collision.margin_m,
-        )  # fmt: skip
-    limits, target = space.limits, fibre.target
     walked = native.projected_walk(
-        chain.fixed, chain.tip, fibre.task.position_axes, target.position_m,
-        target.rotation if fibre.task.orientation else None, fibre.damping,
-        limits.lower_rad, limits.upper_rad, limits.periodic,
-        np.array([c.joint for c in space.coaxial_sets], dtype=np.int64),
-        np.array([c.angle_rad for c in space.coaxial_sets]),
-        bodies, q_from_rad, goal_rad, chord_rad, rules, deadline.expires_at_s, record,
-    )  # fmt: skip
+        compiled, q_from_rad, goal_rad, chord_rad, rules, deadline.expires_at_s, record
+    )
     if walked.expired:
         deadline.check("connect")
     return Walks(walked.reached, walked.points_rad)

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from service.pipeline import native
 from service.pipeline.arrays import BoolArray, FloatArray
 from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.fibre import evaluate, newton
@@ -62,6 +63,17 @@ def steer(
     lower_rad, upper_rad, periodic = limits.lower_rad, limits.upper_rad, limits.periodic
     num_walks = len(q_from_rad)
     goal = q_from_rad + limits.difference(q_to_rad, q_from_rad)  # (E, n) unwrapped
+    compiled = space.compiled()
+    if compiled is not None:  # the same walks, each whole in compiled code
+        rules = native.SteerRules(
+            settings.step_rad, settings.max_steps, settings.lambda_,
+            settings.projection_tolerance, settings.projection_iterations,
+            settings.stall_steps, settings.min_progress_rad,
+        )  # fmt: skip
+        steered = native.steer_walk(compiled, q_from_rad, goal, rules, deadline.expires_at_s)
+        if steered.expired:
+            deadline.check("connect")
+        return Steer(q_end_rad=limits.wrap(steered.q_end_rad), arrived=steered.arrived)
     state = evaluate(fibre, q_from_rad.copy())
     q, jacobian = state.q_rad.copy(), state.jacobian.copy()  # (E, n), (E, m, n)
     arrived = np.zeros(num_walks, dtype=bool)

@@ -2,21 +2,31 @@
 held joints still (against an explicit null-space basis); on the iiwa14's position fibre a
 walk steered from one end of a null-space random walk reaches the other end, every step
 exact by the DH table and inside the limits; walks between the elbow-up and elbow-down
-components, which no path joins, never arrive and never change the sign of q4; and a
-walk whose straight way out is blocked by a joint limit slides along it to its goal."""
+components, which no path joins, never arrive and never change the sign of q4; a walk
+whose straight way out is blocked by a joint limit slides along it to its goal; and the
+compiled walks take the numpy loop's steps on the iiwa14's and Panda's r = 4 fibres."""
+
+from dataclasses import replace
 
 import numpy as np
 import pytest
 from scipy.linalg import null_space
 
+from service.errors import DeadlineExceededError
 from service.manifest import REPO_MODELS_DIR
+from service.models.chain import SerialChainKinematics
 from service.models.registry import ServedModel, load_model
 from service.pipeline.connect.steering import SteerSettings, steer, tangent_direction
+from service.pipeline.deadline import Deadline
 from service.pipeline.fibre import Fibre
 from service.pipeline.joint_space import JointLimits
+from service.pipeline.run import collision_of, correct_samples, encode, sample, space_of
 from service.pipeline.space import FibreSpace
+from service.pipeline.types import Query
 from tests.service.pipeline.fibre_support import fibre_space, null_space_walk, pose_fibre
+from tests.support.numpy_kernels import NumpyStepsKinematics
 from training.evaluate.references.iiwa14 import dh_pose as iiwa14_pose
+from training.evaluate.targets import uniform_configurations
 
 SETTINGS = SteerSettings(step_rad=0.15, max_steps=100, lambda_=2.0, projection_tolerance=1e-4)
 
@@ -123,3 +133,39 @@ def test_a_walk_slides_along_a_joint_limit_to_its_goal(iiwa14_position: ServedMo
     points = np.stack(_walk_points(limited, start, goal))
     assert np.all(points[:, 5] <= 0.9) and np.sum(points[:, 5] == 0.9) > len(points) // 2
     assert_on_fibre(points, q0)
+
+
+@pytest.mark.parametrize("model", ["iiwa14-position", "panda-position"])
+def test_the_compiled_walks_take_the_numpy_loops_steps(model: str) -> None:
+    """Walks between configurations of r = 4 fibres, self-collision checked and the coaxial
+    sets crossed as the service checks them: the compiled walks (`native.steer_walk`, taken
+    for a serial chain without obstacles) end where the numpy loop's do (the same fibre
+    behind a plain callable), to 1e-12, and arrive alike; an expired deadline stops them
+    with the connect stage named."""
+    served = load_model(REPO_MODELS_DIR / model, threads=1)
+    rng = np.random.default_rng(41)
+    arrived_any = stopped_any = False
+    for i, q_target in enumerate(uniform_configurations(served.limits, 3, seed=42)):
+        fk = served.kinematics(q_target[None])
+        query = Query.for_model(
+            served.manifest, position_m=fk.position_m[0].tolist(), num_samples=300, seed=i
+        )
+        target = encode(served, query)
+        space = space_of(served, target, query.tolerance, collision_of(served, query))
+        assert space.collision.self_checked and space.compiled() is not None
+        correction = correct_samples(served, space, sample(served, query, target))
+        nodes = correction.q_rad[space.accept(correction).on_fibre]  # (K, n)
+        a, b = rng.integers(len(nodes), size=(2, 60))
+        chain = space.fibre.kinematics
+        assert isinstance(chain, SerialChainKinematics)
+        through = replace(space, fibre=replace(space.fibre, kinematics=NumpyStepsKinematics(chain)))
+        assert through.compiled() is None
+        compiled = steer(space, nodes[a], nodes[b], SETTINGS)
+        reference = steer(through, nodes[a], nodes[b], SETTINGS)
+        assert compiled.arrived.tolist() == reference.arrived.tolist()
+        np.testing.assert_allclose(compiled.q_end_rad, reference.q_end_rad, rtol=0, atol=1e-12)
+        arrived_any |= bool(compiled.arrived.any())
+        stopped_any |= bool((~compiled.arrived).any())
+    assert arrived_any and stopped_any
+    with pytest.raises(DeadlineExceededError, match="connect"):
+        steer(space, nodes[a], nodes[b], SETTINGS, deadline=Deadline.after(0.0))
