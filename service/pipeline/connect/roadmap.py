@@ -102,8 +102,31 @@ class Roadmap:
 
     _KEY = 1 << 32
 
+    _labels: IntArray | None = field(default=None, init=False, repr=False)  # roots() ...
+    _applied: int = field(default=0, init=False, repr=False)  # ... after this many joins
+
     def roots(self) -> IntArray:  # (N,) the component of each node, from the edges so far
-        return _components(len(self.q_rad), self.joined_from, self.joined_to)
+        """The connected components, numbered as `_components` numbers them (by their
+        lowest node), updated from the edges joined since the last call: the components
+        so far are merged along the new edges only (read-only; do not modify)."""
+        num_nodes, edges = len(self.q_rad), len(self.joined_from)
+        labels = self._labels
+        if labels is not None and self._applied == edges and len(labels) == num_nodes:
+            return labels
+        if labels is None:
+            labels = np.arange(num_nodes)
+        else:  # nodes added since: each its own component until an edge joins it
+            added = labels.max(initial=-1) + 1 + np.arange(num_nodes - len(labels))
+            labels = np.append(labels, added)
+        merged = _components(
+            int(labels.max(initial=-1)) + 1,
+            [labels[a] for a in self.joined_from[self._applied :]],
+            [labels[b] for b in self.joined_to[self._applied :]],
+        )[labels]  # (N,) the components of the components along the new edges
+        self._labels = _numbered_by_lowest_node(merged)
+        self._labels.flags.writeable = False
+        self._applied = edges
+        return self._labels
 
     def join(self, a: IntArray, b: IntArray) -> None:
         """Record edges known to lie on the fibre (not walked by the planner)."""
@@ -357,6 +380,17 @@ def _components(num_nodes: int, starts: list[IntArray], ends: list[IntArray]) ->
     b = np.concatenate([np.zeros(0, dtype=np.int64), *ends])
     graph = coo_matrix((np.ones(len(a), dtype=np.int8), (a, b)), shape=(num_nodes, num_nodes))
     return connected_components(graph, directed=False)[1].astype(np.int64)
+
+
+def _numbered_by_lowest_node(label: IntArray) -> IntArray:
+    """The same partition of the nodes (N,) with its parts numbered 0, 1, ... in the order
+    of their lowest node, as scipy's connected_components numbers components."""
+    _, part = np.unique(label, return_inverse=True)
+    lowest = np.full(part.max(initial=-1) + 1, len(label))
+    np.minimum.at(lowest, part, np.arange(len(label)))
+    rank = np.empty_like(lowest)
+    rank[np.argsort(lowest)] = np.arange(len(lowest))
+    return rank[part].astype(np.int64)
 
 
 def _first_per(group: IntArray, index: IntArray) -> IntArray:

@@ -7,12 +7,15 @@ its steering walks, and two without either;
 and where the link lengths keep the fibre off the shoulder and elbow sets, no component
 holds both signs of q2 or of q4. The links tried between components left apart are, per
 pair of components, the shortest of every node's nearest node in each other component
-(brute force on the joint metric), lone nodes included."""
+(brute force on the joint metric), lone nodes included. The components kept up to date
+as edges and nodes come are scipy's over every edge so far."""
 
 from dataclasses import replace
 
 import numpy as np
 import pytest
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
@@ -177,3 +180,35 @@ def test_the_links_tried_between_components_are_the_shortest_by_brute_force(
     expected = {link for kept in by_pair.values() for _, link in sorted(kept)[:per_pair]}
     got = {(int(min(a, b)), int(max(a, b))) for a, b in zip(rows, cols, strict=True)}
     assert len(expected) > 100 and got == expected
+
+
+def test_the_components_kept_up_to_date_are_scipys_over_every_edge(
+    iiwa14_position: ServedModel,
+) -> None:
+    """Edges joined in rounds and nodes appended between them, as the roadmap's stages do:
+    after every round `roots` (merged along the new edges only) is the labelling of
+    scipy's connected_components over every edge so far, numbers included."""
+    rng = np.random.default_rng(5)
+    q = rng.uniform(-2.0, 2.0, size=(200, 7))
+    limits = iiwa14_position.limits
+    space = fibre_space(pose_fibre(iiwa14_position, q[0]), limits, ())
+    planner = planner_settings(iiwa14_position.manifest.defaults.connectivity)
+    roadmap = Roadmap(space, q, planner, NO_DEADLINE)
+    assert roadmap.roots().tolist() == list(range(200))
+    for round_ in range(12):
+        if round_ % 4 == 3:  # new nodes, as the steering walks' ends and the coaxial lines
+            roadmap.q_rad = np.concatenate([roadmap.q_rad, rng.uniform(-2, 2, size=(15, 7))])
+        count = len(roadmap.q_rad)
+        a, b = rng.integers(count, size=(2, int(rng.integers(0, 25))))
+        roadmap.join(a, b)
+        every = connected_components(
+            coo_matrix(
+                (np.ones(sum(len(x) for x in roadmap.joined_from)), (
+                    np.concatenate(roadmap.joined_from), np.concatenate(roadmap.joined_to)
+                )),
+                shape=(count, count),
+            ),
+            directed=False,
+        )[1]  # fmt: skip
+        assert roadmap.roots().tolist() == every.tolist()
+    assert 1 < len(np.unique(roadmap.roots())) < len(roadmap.q_rad)
