@@ -20,6 +20,10 @@ first --targets):
   stage with the model's coaxial sets) to the same number of valid configurations as the
   service returned: the restarts are scaled by the measured yield, and the run that
   reaches it is the one timed;
+- for a full pose of an arm that ssik has (iiwa14, Panda), ssik's closed-form charts
+  (training/evaluate/references/ssik_charts.py): every IK branch cut to the limits, timed
+  to the in-limit intervals, with points along the arcs at the path spacing for the
+  figures (timed apart as "points");
 - the service over HTTP: `smm-serve` as a real uvicorn process on 127.0.0.1 (default
   settings), one request at a time, the client's wall time per answer;
 - many targets in one request: --batch-targets (64) targets of --batch-model as one
@@ -74,6 +78,7 @@ from tools.goals import (
     PAPER,
     RESTART,
     SERVICE,
+    SSIK,
 )
 from tools.local_server import LocalServer
 from training.checkout import git_commit
@@ -84,8 +89,9 @@ from training.evaluate.judge import (
     paper_defaults,
     worse_than,
 )
-from training.evaluate.methods import MethodTarget, restart_target, served_target
+from training.evaluate.methods import MethodTarget, restart_target, served_target, ssik_target
 from training.evaluate.metrics import median_stage_ms, p95_stage_ms
+from training.evaluate.references.ssik_charts import supported as ssik_supports
 from training.evaluate.served import orientation_wxyz, serving, with_defaults
 from training.evaluate.targets import uniform_configurations
 from training.evaluate.truth import ground_truth
@@ -134,11 +140,15 @@ def interleaved(
     one after another over all targets, leaves their ratios unmoved by the machine's
     drift in speed over the run (measured here at up to 29 % between runs)."""
     restart = None if restart_model is None else RestartMatch(restart_model, num_samples)
+    charts = restart_model is not None and ssik_covers(restart_model)
     for model in served.values():  # warm-up
         served_target(model, q_targets[0], num_samples, seed=0)
+    if charts and restart_model is not None:
+        ssik_target(restart_model, q_targets[0])
     answers: dict[str, list[MethodTarget]] = {name: [] for name in served}
     cpu_ms: dict[str, list[float]] = {name: [] for name in served}
     restarts: list[MethodTarget] = []
+    closed_form: list[MethodTarget] = []
     first = next(iter(served))
     for i, q in enumerate(q_targets):
         for name, model in served.items():
@@ -147,10 +157,23 @@ def interleaved(
             cpu_ms[name].append((time.process_time() - start_s) * 1e3)
         if restart is not None:
             restarts.append(restart(q, answers[first][-1].kept, seed=i))
+        if charts and restart_model is not None:
+            closed_form.append(ssik_target(restart_model, q))
     timed = {name: Timed(answers[name], cpu_ms[name]) for name in served}
     if restart is not None:
         timed[RESTART] = Timed(restarts)
+    if closed_form:
+        timed[SSIK] = Timed(closed_form)
     return timed
+
+
+def ssik_covers(model: ServedModel) -> bool:
+    """Whether ssik's closed-form charts answer the model's targets: a full pose of an arm
+    ssik has, with ssik installed (the `train` extra)."""
+    manifest = model.manifest
+    return (
+        manifest.task.name == "pose" and manifest.redundancy == 1 and ssik_supports(manifest.robot)
+    )
 
 
 class RestartMatch:

@@ -10,7 +10,8 @@ from __future__ import annotations
 SERVICE, PAPER, RESTART = "service", "paper (100 Euler, 3 DLS)", "random-restart DLS"
 FLOAT32 = "service, float32 network"
 BASE = "service, base flow"  # the reflowed sampler's base flow at the steps it replaced
-CONFIGURATIONS = (SERVICE, FLOAT32, BASE, PAPER, RESTART)  # in the report's order
+SSIK = "ssik charts (closed form)"  # full pose of the arms ssik covers, when it is installed
+CONFIGURATIONS = (SERVICE, FLOAT32, BASE, PAPER, RESTART, SSIK)  # in the report's order
 
 GOAL_NUM_SAMPLES = 1000  # the N of the speed goals
 # The speed goals at N = 1000, in process, median: (model, at most ms, at least x faster

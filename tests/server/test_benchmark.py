@@ -9,7 +9,8 @@ per target and the ratio its sampling and transport alone leave; for each goal n
 by how much and what bounds it (the stage that alone passes the time goal, or the network
 evaluations the other stages leave for sampling; the connect stage's profile; the judge's
 verdicts; the truth figures that are worse, also on a committed judgement of the paper's
-configuration, each figure read service first)."""
+configuration, each figure read service first); ssik's closed-form charts beside the
+iiwa14 and Panda pose models, with the exact components."""
 
 import json
 import subprocess
@@ -19,21 +20,27 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from service.models.registry import ServedModel
+from service.manifest import REPO_MODELS_DIR
+from service.models.registry import ServedModel, load_model
 from tools.benchmark import (
     BASE,
     FLOAT32,
     PAPER,
     RESTART,
     SERVICE,
+    SSIK,
     RestartMatch,
     _bounds,
     _goals,
     batch_profile,
+    interleaved,
     paper_judgement,
+    ssik_covers,
 )
 from training.checkout import git_commit
+from training.evaluate.judge import figures
 from training.evaluate.targets import uniform_configurations
+from training.evaluate.truth import ground_truth
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -109,6 +116,24 @@ def test_restarts_reach_the_valid_count_asked_for(planar3r: ServedModel) -> None
         for i, (q, wanted) in enumerate(zip(q_targets, [80, 120], strict=True))
     ]
     assert [a.kept >= wanted for a, wanted in zip(answers, [80, 120], strict=True)] == [True, True]
+
+
+def test_ssik_charts_answer_the_full_poses_of_the_arms_it_has(planar3r: ServedModel) -> None:
+    """ssik's closed-form charts are a configuration of the iiwa14 and Panda pose models
+    only; interleaved with the service on the same targets, timed to the in-limit
+    intervals with the points apart, they answer the exact components."""
+    iiwa14 = load_model(REPO_MODELS_DIR / "iiwa14-pose", threads=1)
+    position = load_model(REPO_MODELS_DIR / "iiwa14-position", threads=1)
+    assert ssik_covers(iiwa14) and not ssik_covers(position) and not ssik_covers(planar3r)
+    q_targets = uniform_configurations(iiwa14.limits, 2, seed=7)
+    runs = interleaved({SERVICE: iiwa14}, iiwa14, q_targets, 200)
+    assert set(runs) == {SERVICE, RESTART, SSIK}
+    answers = runs[SSIK].answers
+    truths = [ground_truth(iiwa14, q, 7 + i) for i, q in enumerate(q_targets)]
+    assert figures(iiwa14, answers, truths)["count_right"] == 1.0
+    for answer in answers:
+        assert answer.stage_ms is not None and answer.time_ms == answer.stage_ms["solve"]
+        assert answer.stage_ms["points"] > 0
 
 
 def _goal_row(ms: float, stage: dict[str, float], paper_ms: float) -> dict:

@@ -1,5 +1,6 @@
 """One method's answer to one target, as the report measures it: the service (flow +
-DLS), the flow's raw samples, random-restart DLS and the ODE trace.
+DLS), the flow's raw samples, random-restart DLS, ssik's closed-form charts and the ODE
+trace.
 
 What a method returned is every configuration it hands a client: each component's
 configurations and, for a 1-D SMM, the points of its ordered path, all labelled with
@@ -29,6 +30,7 @@ from service.pipeline.targets import Target, encode_target
 from service.pipeline.types import ComponentPath, Correction, Query, Tolerance
 from training.evaluate.baselines.ode import trace_smm
 from training.evaluate.baselines.restart_dls import random_restart_dls
+from training.evaluate.references.ssik_charts import chart_components
 from training.evaluate.served import orientation_wxyz, stage_times_ms
 
 
@@ -256,6 +258,27 @@ def restart_target(
         model, target, raw_p, raw_o, [(c.q_rad, c.path) for c in connection.components],
         num_samples, stages, connection.structure.near_singular,
     )  # fmt: skip
+
+
+def ssik_target(model: ServedModel, q_target: np.ndarray) -> MethodTarget:
+    """ssik's closed-form charts of a full pose (references/ssik_charts.py), cut to the
+    model's limits, as components: the points along every in-limit arc at the path
+    spacing, labelled by the glued arcs. Its time is the charts' and their in-limit
+    intervals' (ssik's answer); the points, which the figures need, are timed apart
+    ("points")."""
+    manifest = model.manifest
+    target, _ = reference_target(model, q_target)
+    fk = model.kinematics(q_target[None])
+    pose = np.eye(4)
+    pose[:3, :3], pose[:3, 3] = fk.rotation[0], fk.position_m[0]
+    limits = model.limits
+    spacing = manifest.defaults.connectivity.path_spacing_rad
+    charted = chart_components(manifest.robot, pose, limits.lower_rad, limits.upper_rad, spacing)
+    count = int(charted.component.max(initial=-1)) + 1
+    components = [(charted.q_rad[charted.component == c], None) for c in range(count)]
+    stages = {"solve": charted.charts_ms, "points": charted.points_ms, "total": charted.charts_ms}
+    p, o = _errors(model, charted.q_rad, target)
+    return _answered(model, target, p, o, components, len(charted.q_rad), stages, False)
 
 
 def ode_target(model: ServedModel, q_target: np.ndarray) -> MethodTarget:

@@ -43,6 +43,7 @@ from tools.goals import (
     PAPER,
     RESTART,
     SERVICE,
+    SSIK,
 )
 from training.machine import Machine
 
@@ -53,6 +54,7 @@ ALIASES = {
     "base": BASE,
     "paper": PAPER,
     "restart": RESTART,
+    "ssik": SSIK,
     "http": "http",
 }
 STAGES = ("sample", "correct", "connect")
@@ -208,8 +210,9 @@ def bench_machine(*arguments: str) -> str:
 def speed_table(*arguments: str) -> str:
     """Every model at N (the goals' N by default), medians over the report's targets: the
     service (and its CPU time), the same with the other network or flow, the paper's
-    configuration and its ratio to the service, random-restart DLS, over HTTP, and the
-    count right of the service and of the paper's configuration."""
+    configuration and its ratio to the service, random-restart DLS, ssik's closed-form
+    charts where the report has them, over HTTP, and the count right of the service and
+    of the paper's configuration."""
     chosen = options(arguments, {"report": "benchmark", "n": str(GOAL_NUM_SAMPLES)})
     report, n = sources.benchmark(chosen["report"]), int(chosen["n"])
     rows = []
@@ -231,13 +234,24 @@ def speed_table(*arguments: str) -> str:
             other,
             f"{ms(paper['median_ms'])} ({paper['median_ms'] / service['median_ms']:.1f}x)",
             ms(row[RESTART]["median_ms"]) if RESTART in row else "-",
+            _ssik_cell(row),
             ms(row["http"]["median_ms"]) if "http" in row else "-",
             f"{service['figures']['count_right']:.3g} / {paper['figures']['count_right']:.3g}",
         ])  # fmt: skip
     header = ["model", "sampler", "service ms (CPU ms)", "other network or flow ms",
               "paper's configuration ms (x service)", "random-restart DLS ms",
-              "over HTTP ms", "count right (service / paper's)"]  # fmt: skip
+              "ssik charts ms (count right)", "over HTTP ms",
+              "count right (service / paper's)"]  # fmt: skip
     return table(header, rows)
+
+
+def _ssik_cell(row: dict) -> str:
+    """ssik's closed-form charts cut to the limits, where the report ran them: the median
+    time to its in-limit intervals and its count right."""
+    if SSIK not in row:
+        return "-"
+    charts = row[SSIK]
+    return f"{ms(charts['median_ms'])} ({charts['figures']['count_right']:.3g})"
 
 
 @block("speed-goals")
