@@ -25,6 +25,7 @@ ROOT = Path(__file__).resolve().parents[2]
 BENCHMARK = ROOT / "docs" / "benchmark"
 SERVICE, PAPER, RESTART = "service", "paper (100 Euler, 3 DLS)", "random-restart DLS"
 FLOAT32, BASE = "service, float32 network", "service, base flow"
+SSIK = "ssik charts (closed form)"
 
 
 def read(name: str) -> dict[str, Any]:
@@ -100,9 +101,15 @@ def test_the_speed_table_is_the_reports_medians_at_n_1000() -> None:
         x = paper["median_ms"] / service["median_ms"]
         assert cells[4] == f"{paper['median_ms']:.1f} ({x:.1f}x)"
         assert cells[5] == f"{row[RESTART]['median_ms']:.1f}"
-        assert cells[6] == f"{row['http']['median_ms']:.1f}"
+        charts = row.get(SSIK)
+        assert cells[6] == (
+            "-"
+            if charts is None
+            else f"{charts['median_ms']:.1f} ({charts['figures']['count_right']:.3g})"
+        )
+        assert cells[7] == f"{row['http']['median_ms']:.1f}"
         counts = (service["figures"]["count_right"], paper["figures"]["count_right"])
-        assert cells[7] == f"{counts[0]:.3g} / {counts[1]:.3g}"
+        assert cells[8] == f"{counts[0]:.3g} / {counts[1]:.3g}"
     assert rows["iiwa14-position"][1] == "reflowed, 2 float32 steps"  # the report's sampler
 
 
