@@ -3,16 +3,22 @@ in on them, and exact points on them."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass, replace
+
 import numpy as np
 
+from service.models.chain import SerialChainKinematics
 from service.models.registry import ServedModel
 from service.pipeline.collision.check import CollisionCheck
 from service.pipeline.fibre import Fibre, project
 from service.pipeline.joint_space import JointLimits, joint_distance
+from service.pipeline.run import collision_of, correct_samples, encode, sample, space_of
 from service.pipeline.space import FibreSpace
 from service.pipeline.targets import Target
-from service.pipeline.types import CoaxialSet, Tolerance
+from service.pipeline.types import CoaxialSet, Query, Tolerance
+from tests.support.numpy_kernels import NumpyStepsKinematics
 from training.evaluate.references.planar3r import closed_form_smm
+from training.evaluate.targets import uniform_configurations
 
 TOLERANCE = Tolerance(position_m=1e-6, orientation_rad=1e-6)  # the bundled manifests' query default
 
@@ -97,3 +103,36 @@ def null_space_walk(
         else:
             heading = rng.normal(size=n)
     return np.asarray(walk)
+
+
+@dataclass(frozen=True)
+class ServedSpace:
+    """A position target's space as the service builds it (self-collision and coaxial sets
+    included), the same space behind a plain callable (whose steps are numpy's: the
+    reference the compiled walks are pinned to), and valid nodes on it."""
+
+    compiled: FibreSpace
+    numpy: FibreSpace
+    nodes_rad: np.ndarray  # (K, n) accepted samples
+
+
+def served_position_spaces(model: ServedModel, targets: int, seed: int) -> list[ServedSpace]:
+    """`targets` uniform position targets of `model` (FK of configurations in the limits),
+    each with the accepted samples of a 300-sample answer."""
+    spaces = []
+    for i, q_target in enumerate(uniform_configurations(model.limits, targets, seed=seed)):
+        fk = model.kinematics(q_target[None])
+        query = Query.for_model(
+            model.manifest, position_m=fk.position_m[0].tolist(), num_samples=300, seed=i
+        )
+        target = encode(model, query)
+        space = space_of(model, target, query.tolerance, collision_of(model, query))
+        assert space.collision.self_checked and space.compiled() is not None
+        correction = correct_samples(model, space, sample(model, query, target))
+        chain = space.fibre.kinematics
+        assert isinstance(chain, SerialChainKinematics)
+        numpy = replace(space, fibre=replace(space.fibre, kinematics=NumpyStepsKinematics(chain)))
+        assert numpy.compiled() is None
+        nodes = correction.q_rad[space.accept(correction).on_fibre]
+        spaces.append(ServedSpace(space, numpy, nodes))
+    return spaces

@@ -2,24 +2,17 @@
 and fails between different components however close (planar 3R closed form); the
 compiled walks take the numpy loop's steps on the iiwa14's and Panda's r = 4 fibres."""
 
-from dataclasses import replace
-
 import numpy as np
 import pytest
 
 from service.errors import DeadlineExceededError
 from service.manifest import REPO_MODELS_DIR
-from service.models.chain import SerialChainKinematics
 from service.models.registry import ServedModel, load_model
 from service.pipeline.connect.local_planner import PlannerSettings, edges_on_fibre, walk_on_fibre
 from service.pipeline.deadline import Deadline
 from service.pipeline.joint_space import JointLimits
-from service.pipeline.run import collision_of, correct_samples, encode, sample, space_of
-from service.pipeline.types import Query
-from tests.service.pipeline.fibre_support import fibre_space, planar_fibre
-from tests.support.numpy_kernels import NumpyStepsKinematics
+from tests.service.pipeline.fibre_support import fibre_space, planar_fibre, served_position_spaces
 from training.evaluate.references.planar3r import closed_form_smm
-from training.evaluate.targets import uniform_configurations
 
 SETTINGS = PlannerSettings(delta_rad=0.05, lambda_=2.0, projection_tolerance=1e-4)
 PERIODIC = np.ones(3, dtype=bool)
@@ -94,21 +87,9 @@ def test_the_compiled_walks_take_the_numpy_loops_steps(model: str) -> None:
     served = load_model(REPO_MODELS_DIR / model, threads=1)
     rng = np.random.default_rng(31)
     reached_any = failed_any = False
-    for i, q_target in enumerate(uniform_configurations(served.limits, 3, seed=32)):
-        fk = served.kinematics(q_target[None])
-        query = Query.for_model(
-            served.manifest, position_m=fk.position_m[0].tolist(), num_samples=300, seed=i
-        )
-        target = encode(served, query)
-        space = space_of(served, target, query.tolerance, collision_of(served, query))
-        assert space.collision.self_checked and space.fibre.chain is not None
-        correction = correct_samples(served, space, sample(served, query, target))
-        nodes = correction.q_rad[space.accept(correction).on_fibre]  # (K, n)
+    for served_space in served_position_spaces(served, 3, seed=32):
+        space, through, nodes = served_space.compiled, served_space.numpy, served_space.nodes_rad
         a, b = rng.integers(len(nodes), size=(2, 200))
-        chain = space.fibre.kinematics
-        assert isinstance(chain, SerialChainKinematics)
-        through = replace(space, fibre=replace(space.fibre, kinematics=NumpyStepsKinematics(chain)))
-        assert through.fibre.chain is None
         # The service's steps, and steps of 0.5 rad, which some coaxial crossings refuse.
         for settings in (SERVED, LONG_STEPS):
             compiled = walk_on_fibre(space, nodes[a], nodes[b], settings)

@@ -6,27 +6,25 @@ components, which no path joins, never arrive and never change the sign of q4; a
 whose straight way out is blocked by a joint limit slides along it to its goal; and the
 compiled walks take the numpy loop's steps on the iiwa14's and Panda's r = 4 fibres."""
 
-from dataclasses import replace
-
 import numpy as np
 import pytest
 from scipy.linalg import null_space
 
 from service.errors import DeadlineExceededError
 from service.manifest import REPO_MODELS_DIR
-from service.models.chain import SerialChainKinematics
 from service.models.registry import ServedModel, load_model
 from service.pipeline.connect.steering import SteerSettings, steer, tangent_direction
 from service.pipeline.deadline import Deadline
 from service.pipeline.fibre import Fibre
 from service.pipeline.joint_space import JointLimits
-from service.pipeline.run import collision_of, correct_samples, encode, sample, space_of
 from service.pipeline.space import FibreSpace
-from service.pipeline.types import Query
-from tests.service.pipeline.fibre_support import fibre_space, null_space_walk, pose_fibre
-from tests.support.numpy_kernels import NumpyStepsKinematics
+from tests.service.pipeline.fibre_support import (
+    fibre_space,
+    null_space_walk,
+    pose_fibre,
+    served_position_spaces,
+)
 from training.evaluate.references.iiwa14 import dh_pose as iiwa14_pose
-from training.evaluate.targets import uniform_configurations
 
 SETTINGS = SteerSettings(step_rad=0.15, max_steps=100, lambda_=2.0, projection_tolerance=1e-4)
 
@@ -145,21 +143,9 @@ def test_the_compiled_walks_take_the_numpy_loops_steps(model: str) -> None:
     served = load_model(REPO_MODELS_DIR / model, threads=1)
     rng = np.random.default_rng(41)
     arrived_any = stopped_any = False
-    for i, q_target in enumerate(uniform_configurations(served.limits, 3, seed=42)):
-        fk = served.kinematics(q_target[None])
-        query = Query.for_model(
-            served.manifest, position_m=fk.position_m[0].tolist(), num_samples=300, seed=i
-        )
-        target = encode(served, query)
-        space = space_of(served, target, query.tolerance, collision_of(served, query))
-        assert space.collision.self_checked and space.compiled() is not None
-        correction = correct_samples(served, space, sample(served, query, target))
-        nodes = correction.q_rad[space.accept(correction).on_fibre]  # (K, n)
+    for served_space in served_position_spaces(served, 3, seed=42):
+        space, through, nodes = served_space.compiled, served_space.numpy, served_space.nodes_rad
         a, b = rng.integers(len(nodes), size=(2, 60))
-        chain = space.fibre.kinematics
-        assert isinstance(chain, SerialChainKinematics)
-        through = replace(space, fibre=replace(space.fibre, kinematics=NumpyStepsKinematics(chain)))
-        assert through.compiled() is None
         compiled = steer(space, nodes[a], nodes[b], SETTINGS)
         reference = steer(through, nodes[a], nodes[b], SETTINGS)
         assert compiled.arrived.tolist() == reference.arrived.tolist()
