@@ -1107,6 +1107,76 @@ static int self_free_row(const Planner *p, const double *q, double *scratch) {
     return 1;
 }
 
+/* robot.py's refined_self_clearance_m at one configuration q, its number exactly: body
+ * pairs whose bounding spheres are clear by the margin count with that bound, sphere pairs
+ * clear by it with their distance, and every other sphere pair with its hulls' GJK
+ * separation (at least its sphere gap), the configuration's deepest pair first: when that
+ * one is not clear by the margin the others keep their sphere gaps. `candidates` holds
+ * 4 P S^2 doubles; `scratch` as self_free_row's. */
+static double refined_self_clearance_row(const Planner *p, const double *q, double *candidates,
+                                         double *scratch) {
+    Py_ssize_t K = p->K, S = p->S, n = p->n;
+    double *T = scratch, *rotation = T + (n + 1) * 16, *origin = rotation + K * 9;
+    double *placed = origin + K * 3, *bounds = placed + K * S * 3 + K * 3;
+    frame_rows(p->joint_origin, p->joint_axis, n, q, 1, T);
+    for (Py_ssize_t k = 0; k < K; ++k) {
+        const double *F = T + 16 * p->frame[k];
+        for (int r = 0; r < 3; ++r) {
+            for (int c = 0; c < 3; ++c) rotation[9 * k + 3 * r + c] = F[4 * r + c];
+            origin[3 * k + r] = F[4 * r + 3];
+        }
+        place_spheres(rotation + 9 * k, origin + 3 * k, p->bound + 3 * k, 1, bounds + 3 * k);
+        place_spheres(rotation + 9 * k, origin + 3 * k, p->centre + k * S * 3, p->own[k],
+                      placed + k * S * 3);
+    }
+    double clearance = INFINITY;
+    Py_ssize_t count = 0, deepest = -1;
+    for (Py_ssize_t pair = 0; pair < p->P; ++pair) {
+        Py_ssize_t ka = p->pair_a[pair], kb = p->pair_b[pair];
+        double lower = distance_of(bounds + 3 * ka, bounds + 3 * kb, 3) -
+                       (p->bound_radius[ka] + p->bound_radius[kb]);
+        if (lower >= p->margin) {
+            if (lower < clearance) clearance = lower;
+            continue;
+        }
+        for (Py_ssize_t i = 0; i < p->own[ka]; ++i)
+            for (Py_ssize_t j = 0; j < p->own[kb]; ++j) {
+                double gap = distance_of(placed + (ka * S + i) * 3, placed + (kb * S + j) * 3, 3) -
+                             (p->radius[ka * S + i] + p->radius[kb * S + j]);
+                if (!(gap < p->margin)) {
+                    if (gap < clearance) clearance = gap;
+                    continue;
+                }
+                double *c = candidates + 4 * count;
+                c[0] = gap, c[1] = (double)(ka * S + i), c[2] = (double)(kb * S + j), c[3] = gap;
+                if (deepest < 0 || gap < candidates[4 * deepest]) deepest = count;
+                ++count;
+            }
+    }
+    for (Py_ssize_t pass = 0; pass < 2 && count; ++pass) {
+        for (Py_ssize_t k = 0; k < count; ++k) {
+            if ((pass == 0) != (k == deepest)) continue;
+            double *c = candidates + 4 * k;
+            Py_ssize_t ha = (Py_ssize_t)c[1], hb = (Py_ssize_t)c[2], ka = ha / S, kb = hb / S;
+            const double *va = p->hulls + ha * p->V * 3, *vb = p->hulls + hb * p->V * 3;
+            const double *Ra = rotation + 9 * ka, *Rb = rotation + 9 * kb;
+            const double *ta = origin + 3 * ka, *tb = origin + 3 * kb;
+            double x0[3];
+            for (int r = 0; r < 3; ++r)
+                x0[r] = (Ra[3 * r] * va[0] + Ra[3 * r + 1] * va[1] + Ra[3 * r + 2] * va[2] + ta[r]) -
+                        (Rb[3 * r] * vb[0] + Rb[3 * r + 1] * vb[1] + Rb[3 * r + 2] * vb[2] + tb[r]);
+            double separation = hull_separation_row(va, p->hull_count[ha], Ra, ta, vb,
+                                                    p->hull_count[hb], Rb, tb, x0,
+                                                    p->hull_pad[ha] + p->hull_pad[hb], p->margin);
+            if (separation > c[3]) c[3] = separation;
+        }
+        if (pass == 0 && candidates[4 * deepest + 3] < p->margin) break; /* not free: the rest keep their gaps */
+    }
+    for (Py_ssize_t k = 0; k < count; ++k)
+        if (candidates[4 * k + 3] < clearance) clearance = candidates[4 * k + 3];
+    return clearance;
+}
+
 /* One edge: from q_from toward goal (unwrapped), steps of delta projected onto the fibre,
  * each a valid motion (converged, inside the limits, no jump, nearer the goal, no detour,
  * no unreached coaxial crossing, free) until within delta of the goal: 1 reached, 0 not,
@@ -1549,6 +1619,22 @@ static PyObject *py_steer_walk(PyObject *self, PyObject *args) {
     return PyLong_FromLong(status);
 }
 
+static PyObject *py_refined_self_clearance(PyObject *self, PyObject *args) {
+    Py_buffer b[2 + SPACE_BUFFERS + 4];
+    if (!parse_walk(args, b, 1, 4)) return NULL;
+    const long long *size = b[1].buf;
+    Planner p = planner_of(b[0].buf, size, b + 2);
+    Py_buffer *io = b + 2 + SPACE_BUFFERS; /* q, clearance, candidates, work */
+    Py_ssize_t rows = size[14], n = p.n;
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t r = 0; r < rows; ++r)
+        ((double *)io[1].buf)[r] = refined_self_clearance_row(
+            &p, (const double *)io[0].buf + r * n, io[2].buf, io[3].buf);
+    Py_END_ALLOW_THREADS
+    for (size_t i = 0; i < sizeof b / sizeof *b; ++i) PyBuffer_Release(&b[i]);
+    Py_RETURN_NONE;
+}
+
 static PyObject *py_walk_scratch(PyObject *self, PyObject *args) {
     Py_ssize_t n, m, K, S;
     if (!PyArg_ParseTuple(args, "nnnn", &n, &m, &K, &S)) return NULL;
@@ -1591,6 +1677,8 @@ static PyMethodDef methods[] = {
      "local_planner.py's walk on the fibre, edge by edge: 1 when the deadline passed"},
     {"steer_walk", py_steer_walk, METH_VARARGS,
      "steering.py's walks on the fibre, walk by walk: 1 when the deadline passed"},
+    {"refined_self_clearance", py_refined_self_clearance, METH_VARARGS,
+     "robot.py's refined self-clearance at joint values, row by row"},
     {"walk_scratch", py_walk_scratch, METH_VARARGS,
      "doubles of scratch one projected or steered walk needs"},
     {"hull_separation", py_hull_separation, METH_VARARGS,

@@ -605,40 +605,16 @@ class CompiledSpace:
             np.ascontiguousarray(self.periodic, dtype=np.uint8), joints,
             _float64(self.set_angle_rad, "set_angle_rad", (sets,)),
         )  # fmt: skip
-        bodies = self.bodies
-        if bodies is None:
+        if self.bodies is None:
             none = (np.zeros(1), np.zeros(1, dtype=np.int64))
             body_arguments: tuple[object, ...] = (
                 np.zeros((n, 4, 4)), np.zeros((n, 3)), none[1], none[0], none[0], none[1],
                 none[0], none[0], none[1], none[1], none[0], none[1], none[0],
             )  # fmt: skip
-            return (*chain, *body_arguments), [
-                n, m, m_position, self.target_rotation is not None, sets, 0, 0, 1, 0, 1
-            ]  # fmt: skip
-        count, spheres = len(bodies.centre_local_m), bodies.centre_local_m.shape[1]
-        width = bodies.hull_local_m.shape[2]
-        checked = _Bodies.of(
-            bodies.centre_local_m, bodies.radius_m, bodies.own_spheres, bodies.bound_local_m,
-            bodies.bound_radius_m, bodies.pair_a, bodies.pair_b,
-        )  # fmt: skip
-        frames = _int64(bodies.frame, "frame", (count,))
-        if count and (frames.min() < 0 or frames.max() > n):
-            raise ValueError(f"body frames must lie in 0 to {n}")
-        hull_count = _int64(bodies.hull_count, "hull_count", (count, spheres))
-        if count and (hull_count.min() < 1 or hull_count.max() > width):
-            raise ValueError(f"hull vertex counts must lie in 1 to {width}")
-        _, centre, radius, own, bound, bound_radius, pair_a, pair_b, _ = checked.arguments
-        body_arguments = (
-            _float64(bodies.joint_origin, "joint_origin", (n, 4, 4)),
-            _float64(bodies.joint_axis, "joint_axis", (n, 3)),
-            frames, centre, radius, own, bound, bound_radius, pair_a, pair_b,
-            _float64(bodies.hull_local_m, "hull_local_m", (count, spheres, width, 3)),
-            hull_count, _float64(bodies.hull_pad_m, "hull_pad_m", (count, spheres)),
-        )  # fmt: skip
-        sizes = [
-            n, m, m_position, self.target_rotation is not None, sets, 1, count, spheres,
-            len(bodies.pair_a), width,
-        ]  # fmt: skip
+            body_sizes = [0, 0, 1, 0, 1]
+        else:
+            body_arguments, body_sizes = _body_arguments(self.bodies, n)
+        sizes = [n, m, m_position, self.target_rotation is not None, sets, *body_sizes]
         return (*chain, *body_arguments), sizes
 
     def margin_m(self) -> float:
@@ -766,3 +742,58 @@ def steer_walk(
             arrived, work,
         )  # fmt: skip
     return Steered(q, arrived.astype(bool), bool(status))
+
+
+def _body_arguments(bodies: SelfBodies, n: int) -> tuple[tuple[object, ...], list[int]]:
+    """The C arguments of self-collision on `bodies` (n joints), checked, and (check_self,
+    K, S, P, V) for the kernels' sizes."""
+    count, spheres = len(bodies.centre_local_m), bodies.centre_local_m.shape[1]
+    width = bodies.hull_local_m.shape[2]
+    checked = _Bodies.of(
+        bodies.centre_local_m, bodies.radius_m, bodies.own_spheres, bodies.bound_local_m,
+        bodies.bound_radius_m, bodies.pair_a, bodies.pair_b,
+    )  # fmt: skip
+    frames = _int64(bodies.frame, "frame", (count,))
+    if count and (frames.min() < 0 or frames.max() > n):
+        raise ValueError(f"body frames must lie in 0 to {n}")
+    hull_count = _int64(bodies.hull_count, "hull_count", (count, spheres))
+    if count and (hull_count.min() < 1 or hull_count.max() > width):
+        raise ValueError(f"hull vertex counts must lie in 1 to {width}")
+    _, centre, radius, own, bound, bound_radius, pair_a, pair_b, _ = checked.arguments
+    arguments = (
+        _float64(bodies.joint_origin, "joint_origin", (n, 4, 4)),
+        _float64(bodies.joint_axis, "joint_axis", (n, 3)),
+        frames, centre, radius, own, bound, bound_radius, pair_a, pair_b,
+        _float64(bodies.hull_local_m, "hull_local_m", (count, spheres, width, 3)),
+        hull_count, _float64(bodies.hull_pad_m, "hull_pad_m", (count, spheres)),
+    )  # fmt: skip
+    return arguments, [1, count, spheres, len(bodies.pair_a), width]
+
+
+def refined_self_clearance_at_m(
+    bodies: SelfBodies,
+    q_rad: FloatArray,  # (B, n)
+) -> FloatArray:  # (B,)
+    """robot.py's `refined_self_clearance_m` at joint values (bodies.margin_m its margin),
+    row by row in compiled code: the same numbers (the hulls decide the sphere pairs
+    within the margin, each configuration's deepest pair first), and no (pairs, S, S, 3)
+    temporaries, which for a few hundred configurations near themselves took tens of MiB."""
+    n = len(bodies.joint_origin)
+    batch = len(q_rad)
+    body_arguments, body_sizes = _body_arguments(bodies, n)
+    chain = (
+        np.zeros((n, 4, 4)), np.eye(4), np.zeros(1, dtype=np.int64), np.zeros(1), np.eye(3),
+        np.zeros(n), np.zeros(n), np.zeros(n, dtype=np.uint8), np.zeros(1, dtype=np.int64),
+        np.zeros(1),
+    )  # fmt: skip
+    _, count, spheres, pairs, _ = body_sizes
+    numbers = np.array([0.0, 0.0, 0.0, 0.0, float(bodies.margin_m), np.inf])
+    sizes = np.array([n, 1, 1, 0, 0, *body_sizes, 0, 0, 0, 0, batch, 0], dtype=np.int64)
+    clearance = np.empty(batch)
+    if batch:
+        _native.refined_self_clearance(
+            numbers, sizes, *chain, *body_arguments, _float64(q_rad, "q_rad", (batch, n)),
+            clearance, np.empty(4 * max(pairs * spheres * spheres, 1)),
+            np.empty(_native.walk_scratch(n, 1, count, spheres)),
+        )  # fmt: skip
+    return clearance

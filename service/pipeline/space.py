@@ -57,13 +57,7 @@ class FibreSpace:
         bodies = None
         robot = collision.robot
         if collision.active and robot is not None:
-            origin, axis = robot.joint_transforms
-            bodies = native.SelfBodies(
-                origin, axis, robot.frame, robot.centre_local_m, robot.radius_m,
-                robot.own_spheres, robot.bound_local_m, robot.bound_radius_m, robot.pair_a,
-                robot.pair_b, robot.hull_local_m, robot.hull_count, robot.hull_pad_m,
-                collision.margin_m,
-            )  # fmt: skip
+            bodies = robot.self_bodies(collision.margin_m)
         target = fibre.target
         return native.CompiledSpace(
             chain.fixed, chain.tip, fibre.task.position_axes, target.position_m,

@@ -58,19 +58,20 @@ class CollisionCheck:
         for start in range(0, len(q_rad), CHUNK):
             span = slice(start, start + CHUNK)
             q = q_rad[span]  # (C, n)
-            # The bodies are placed (every frame stored) only where the obstacles or the
-            # refined pass need them; the self-clearance places its own, row by row.
+            # The bodies are placed (every frame stored) only for the obstacles; the
+            # self-clearance and its refined pass place their own, row by row.
             placed = robot.place(q) if self.scene.obstacles else None
             if self.self_checked:
                 clearance[span] = robot.self_clearance_at_m(q)
             if placed is not None:
                 clearance[span] = self.scene.clearance_m(placed, robot, clearance[span])
             near = np.flatnonzero(clearance[span] < self.margin_m)  # the hulls decide
-            if len(near):
-                if placed is None:
-                    placed, rows = robot.place(q[near]), np.arange(len(near))
-                else:
-                    rows = near
+            if len(near) and placed is None:  # itself alone: compiled, at joint values
+                refined = robot.refined_self_clearance_at_m(q[near], self.margin_m)
+                free = refined >= self.margin_m
+                clearance[span][near[free]] = refined[free]
+            elif len(near) and placed is not None:
+                rows = near
                 refined = np.full(len(near), np.inf)
                 if self.self_checked:
                     refined = robot.refined_self_clearance_m(placed, rows, self.margin_m)

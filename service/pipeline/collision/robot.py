@@ -231,6 +231,23 @@ class RobotSpheres:
             self.own_spheres, self.bound_local_m, self.bound_radius_m, self.pair_a, self.pair_b,
         )  # fmt: skip
 
+    def self_bodies(self, margin_m: float) -> native.SelfBodies:
+        """These bodies as the compiled self-collision kernels take them."""
+        origin, axis = self.joint_transforms
+        return native.SelfBodies(
+            origin, axis, self.frame, self.centre_local_m, self.radius_m, self.own_spheres,
+            self.bound_local_m, self.bound_radius_m, self.pair_a, self.pair_b,
+            self.hull_local_m, self.hull_count, self.hull_pad_m, margin_m,
+        )  # fmt: skip
+
+    def refined_self_clearance_at_m(
+        self, q_rad: FloatArray, margin_m: float
+    ) -> FloatArray:  # (R, n) -> (R,)
+        """`refined_self_clearance_m` of the bodies placed at q_rad, row by row in compiled
+        code (`native.refined_self_clearance_at_m`): the same numbers, without its
+        (pairs, S, S, 3) temporaries."""
+        return native.refined_self_clearance_at_m(self.self_bodies(margin_m), q_rad)
+
     def refined_self_clearance_m(
         self, placed: PlacedBodies, rows: IntArray, margin_m: float
     ) -> FloatArray:  # rows (R,) -> (R,)

@@ -21,7 +21,8 @@ steps (DLS, stopping at a tolerance, locked joints, bordered on a tangent) end w
 numpy steps do, to 1e-12. The smallest singular value (one-sided Jacobi) equals LAPACK's
 SVD to 1e-12, singular and near-singular Jacobians included, and the bounded search
 for the least over many rows finds exactly the least. GJK between placed hulls takes
-convex.py's numpy steps (1e-12) on the robots' own hulls. (The trace's compiled walk is
+convex.py's numpy steps (1e-12) on the robots' own hulls, and the refined self-clearance
+at joint values equals robot.py's numpy passes (1e-12). (The trace's compiled walk is
 pinned in tests/service/pipeline/connect/test_walk.py.)
 """
 
@@ -41,6 +42,7 @@ from service.manifest import (
     TaskSpec,
 )
 from service.models.chain import SerialChainKinematics
+from service.models.registry import load_model
 from service.models.sessions import OnnxKinematics, open_session
 from service.pipeline import native
 from service.pipeline.collision.convex import hull_support, separation_m
@@ -55,6 +57,7 @@ from tests.support.numpy_kernels import NumpyChainKinematics, NumpyStepsKinemati
 from tests.support.numpy_kernels import chain_frames as numpy_chain_frames
 from tests.support.numpy_kernels import dls_step as numpy_dls_step
 from tests.support.numpy_kernels import self_clearance_m as numpy_self_clearance_m
+from training.evaluate.targets import uniform_configurations
 
 MODELS = ["iiwa14-pose", "panda-pose", "planar3r-position"]
 URDF = {"iiwa14-pose": "iiwa14", "panda-pose": "panda", "planar3r-position": "planar3r"}
@@ -495,3 +498,23 @@ def test_hull_separation_refuses_hulls_and_rows_out_of_range() -> None:
             hulls, np.array([4, 4]), *pair, np.array([2]), one, np.zeros((1, 3)),
             np.zeros((1, 3)), np.zeros(1), 0.0, np.zeros(1, dtype=np.int64),
         )  # fmt: skip
+
+
+@pytest.mark.parametrize("model", COLLISION_MODELS)
+def test_refined_self_clearance_at_joint_values_is_the_numpy_passes(model: str) -> None:
+    """At configurations whose spheres come within the margin (uniform in the limits, both
+    margins the service uses), the compiled refined self-clearance equals robot.py's numpy
+    one on the placed bodies (hulls for the sphere pairs within the margin, each
+    configuration's deepest pair first) to 1e-12, and so says free exactly where it does;
+    some of them are free by the hulls and some are not."""
+    served = load_model(REPO_MODELS_DIR / model, threads=1)
+    robot = served.robot_spheres
+    assert robot is not None
+    q = uniform_configurations(served.limits, 3000, seed=3)
+    for margin in (0.0, 0.02):
+        near = q[robot.self_clearance_at_m(q) < margin]
+        expected = robot.refined_self_clearance_m(robot.place(near), np.arange(len(near)), margin)
+        compiled = robot.refined_self_clearance_at_m(near, margin)
+        np.testing.assert_allclose(compiled, expected, rtol=0, atol=1e-12)
+        assert ((compiled >= margin) == (expected >= margin)).all()
+        assert (compiled >= margin).any() and (compiled < margin).any()
