@@ -442,6 +442,19 @@ static void self_clearance_rows(const double *rotation, const double *origin, Py
     }
 }
 
+/* Each body's rotation (K, 3, 3) and origin (K, 3) from the chain's frames T (n + 1, 4, 4):
+ * body k moves with frame[k]. */
+static void body_frames(const double *T, const long long *frame, Py_ssize_t K, double *rotation,
+                        double *origin) {
+    for (Py_ssize_t k = 0; k < K; ++k) {
+        const double *F = T + 16 * frame[k];
+        for (int r = 0; r < 3; ++r) {
+            for (int c = 0; c < 3; ++c) rotation[9 * k + 3 * r + c] = F[4 * r + c];
+            origin[3 * k + r] = F[4 * r + 3];
+        }
+    }
+}
+
 /* self_clearance_rows at configurations q (B, n) instead of placed frames: per row the
  * chain's frames (frame_rows), each body's taken from frame[k], then the same clearance,
  * so the (B, n + 1, 4, 4) frames are never stored. `scratch` holds (n + 1) 16 + K 12 +
@@ -457,13 +470,7 @@ static void self_clearance_at_rows(const double *origin, const double *axis, Py_
     double *placed = origin_k + K * 3;
     for (Py_ssize_t b = 0; b < batch; ++b) {
         frame_rows(origin, axis, n, q + b * n, 1, T);
-        for (Py_ssize_t k = 0; k < K; ++k) {
-            const double *F = T + 16 * frame[k];
-            for (int r = 0; r < 3; ++r) {
-                for (int c = 0; c < 3; ++c) rotation[9 * k + 3 * r + c] = F[4 * r + c];
-                origin_k[3 * k + r] = F[4 * r + 3];
-            }
-        }
+        body_frames(T, frame, K, rotation, origin_k);
         self_clearance_rows(rotation, origin_k, 1, K, S, centre, radius, own, bound, bound_radius,
                             pair_a, pair_b, P, clearance + b, placed);
     }
@@ -1054,6 +1061,23 @@ static int crossings_on_fibre_row(const Planner *p, const double *q_from, const 
     return 1;
 }
 
+/* GJK between hull ha and hull hb (body * S + sphere) of the bodies placed by rotation
+ * (K, 3, 3) and origin (K, 3), started from their first vertices' difference, as
+ * robot.py's PlacedBodies.hull_separation starts it. */
+static double placed_hull_separation(const Planner *p, const double *rotation,
+                                     const double *origin, Py_ssize_t ha, Py_ssize_t hb) {
+    Py_ssize_t ka = ha / p->S, kb = hb / p->S;
+    const double *va = p->hulls + ha * p->V * 3, *vb = p->hulls + hb * p->V * 3;
+    const double *Ra = rotation + 9 * ka, *Rb = rotation + 9 * kb;
+    const double *ta = origin + 3 * ka, *tb = origin + 3 * kb;
+    double x0[3];
+    for (int r = 0; r < 3; ++r)
+        x0[r] = (Ra[3 * r] * va[0] + Ra[3 * r + 1] * va[1] + Ra[3 * r + 2] * va[2] + ta[r]) -
+                (Rb[3 * r] * vb[0] + Rb[3 * r + 1] * vb[1] + Rb[3 * r + 2] * vb[2] + tb[r]);
+    return hull_separation_row(va, p->hull_count[ha], Ra, ta, vb, p->hull_count[hb], Rb, tb, x0,
+                               p->hull_pad[ha] + p->hull_pad[hb], p->margin);
+}
+
 /* collision/check.py's `free` at q with self-collision only: the spheres' clearance (the
  * compiled self-clearance), and where it is under the margin, the refined pass of
  * robot.py's refined_self_clearance_m: every hull pair whose spheres are within the margin,
@@ -1063,13 +1087,7 @@ static int self_free_row(const Planner *p, const double *q, double *scratch) {
     double *T = scratch, *rotation = T + (n + 1) * 16, *origin = rotation + K * 9;
     double *placed = origin + K * 3, *bounds = placed + K * S * 3 + K * 3;
     frame_rows(p->joint_origin, p->joint_axis, n, q, 1, T);
-    for (Py_ssize_t k = 0; k < K; ++k) {
-        const double *F = T + 16 * p->frame[k];
-        for (int r = 0; r < 3; ++r) {
-            for (int c = 0; c < 3; ++c) rotation[9 * k + 3 * r + c] = F[4 * r + c];
-            origin[3 * k + r] = F[4 * r + 3];
-        }
-    }
+    body_frames(T, p->frame, K, rotation, origin);
     double clearance;
     self_clearance_rows(rotation, origin, 1, K, S, p->centre, p->radius, p->own, p->bound,
                         p->bound_radius, p->pair_a, p->pair_b, p->P, &clearance, placed);
@@ -1090,17 +1108,7 @@ static int self_free_row(const Planner *p, const double *q, double *scratch) {
                 double gap = distance_of(placed + (ka * S + i) * 3, placed + (kb * S + j) * 3, 3) -
                              (p->radius[ka * S + i] + p->radius[kb * S + j]);
                 if (gap >= p->margin) continue;
-                Py_ssize_t ha = ka * S + i, hb = kb * S + j;
-                const double *va = p->hulls + ha * p->V * 3, *vb = p->hulls + hb * p->V * 3;
-                const double *Ra = rotation + 9 * ka, *Rb = rotation + 9 * kb;
-                const double *ta = origin + 3 * ka, *tb = origin + 3 * kb;
-                double x0[3];
-                for (int r = 0; r < 3; ++r)
-                    x0[r] = (Ra[3 * r] * va[0] + Ra[3 * r + 1] * va[1] + Ra[3 * r + 2] * va[2] + ta[r]) -
-                            (Rb[3 * r] * vb[0] + Rb[3 * r + 1] * vb[1] + Rb[3 * r + 2] * vb[2] + tb[r]);
-                double bound = hull_separation_row(va, p->hull_count[ha], Ra, ta, vb,
-                                                   p->hull_count[hb], Rb, tb, x0,
-                                                   p->hull_pad[ha] + p->hull_pad[hb], p->margin);
+                double bound = placed_hull_separation(p, rotation, origin, ka * S + i, kb * S + j);
                 if (!((gap > bound ? gap : bound) >= p->margin)) return 0;
             }
     }
@@ -1119,12 +1127,8 @@ static double refined_self_clearance_row(const Planner *p, const double *q, doub
     double *T = scratch, *rotation = T + (n + 1) * 16, *origin = rotation + K * 9;
     double *placed = origin + K * 3, *bounds = placed + K * S * 3 + K * 3;
     frame_rows(p->joint_origin, p->joint_axis, n, q, 1, T);
+    body_frames(T, p->frame, K, rotation, origin);
     for (Py_ssize_t k = 0; k < K; ++k) {
-        const double *F = T + 16 * p->frame[k];
-        for (int r = 0; r < 3; ++r) {
-            for (int c = 0; c < 3; ++c) rotation[9 * k + 3 * r + c] = F[4 * r + c];
-            origin[3 * k + r] = F[4 * r + 3];
-        }
         place_spheres(rotation + 9 * k, origin + 3 * k, p->bound + 3 * k, 1, bounds + 3 * k);
         place_spheres(rotation + 9 * k, origin + 3 * k, p->centre + k * S * 3, p->own[k],
                       placed + k * S * 3);
@@ -1157,17 +1161,8 @@ static double refined_self_clearance_row(const Planner *p, const double *q, doub
         for (Py_ssize_t k = 0; k < count; ++k) {
             if ((pass == 0) != (k == deepest)) continue;
             double *c = candidates + 4 * k;
-            Py_ssize_t ha = (Py_ssize_t)c[1], hb = (Py_ssize_t)c[2], ka = ha / S, kb = hb / S;
-            const double *va = p->hulls + ha * p->V * 3, *vb = p->hulls + hb * p->V * 3;
-            const double *Ra = rotation + 9 * ka, *Rb = rotation + 9 * kb;
-            const double *ta = origin + 3 * ka, *tb = origin + 3 * kb;
-            double x0[3];
-            for (int r = 0; r < 3; ++r)
-                x0[r] = (Ra[3 * r] * va[0] + Ra[3 * r + 1] * va[1] + Ra[3 * r + 2] * va[2] + ta[r]) -
-                        (Rb[3 * r] * vb[0] + Rb[3 * r + 1] * vb[1] + Rb[3 * r + 2] * vb[2] + tb[r]);
-            double separation = hull_separation_row(va, p->hull_count[ha], Ra, ta, vb,
-                                                    p->hull_count[hb], Rb, tb, x0,
-                                                    p->hull_pad[ha] + p->hull_pad[hb], p->margin);
+            double separation =
+                placed_hull_separation(p, rotation, origin, (Py_ssize_t)c[1], (Py_ssize_t)c[2]);
             if (separation > c[3]) c[3] = separation;
         }
         if (pass == 0 && candidates[4 * deepest + 3] < p->margin) break; /* not free: the rest keep their gaps */
