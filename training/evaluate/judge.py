@@ -321,21 +321,26 @@ def served_candidate(
     incumbent: Defaults, candidate: Defaults, judgement: Judgement, proposal: str
 ) -> Defaults:
     """`candidate` as it serves once judged no worse than `incumbent`: the verdict in
-    reasons["judged"], and each reason of a changed field marked as set by it (the
-    measures it quoted kept after the mark). `proposal` says where the candidate came from."""
+    reasons["judged"], after the verdicts that set the incumbent (JUDGED_SEPARATOR,
+    earliest first), and each reason of a changed field marked, once, as set by a judged
+    candidate (the measures it quoted kept after the mark). `proposal` says where the
+    candidate came from."""
     if not judgement.no_worse:
         raise ValueError(f"a candidate judged worse does not serve: {judgement.summary()}")
     before, after = incumbent.model_dump(), candidate.model_dump()
+    mark = f"set by the judged candidate (reasons.{JUDGED}), not by this rule: "
     marked = {
-        key: f"set by the judged candidate (reasons.{JUDGED}), not by this rule: "
-        + incumbent.reasons.get(key, "no reason before")
+        key: reason if reason.startswith(mark) else mark + reason
         for field, keys in _REASONS_OF_FIELD.items()
         if before[field] != after[field]
         for key in keys
+        for reason in [incumbent.reasons.get(key, "no reason before")]
     }
     changed = _changes(incumbent, candidate)
     verdict = f"{proposal}, changing {changed}, serves: {judgement.summary()}"
-    reasons = {**incumbent.reasons, **marked, JUDGED: verdict}
+    earlier = incumbent.reasons.get(JUDGED)
+    verdicts = verdict if earlier is None else JUDGED_SEPARATOR.join([earlier, verdict])
+    reasons = {**incumbent.reasons, **marked, JUDGED: verdicts}
     return candidate.model_copy(update={"reasons": reasons})
 
 

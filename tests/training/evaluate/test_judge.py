@@ -164,13 +164,25 @@ def test_a_candidate_judged_no_worse_serves_marking_what_it_changed(
     assert {key: serving.reasons[key] for key in unchanged} == {
         key: served.reasons[key] for key in unchanged
     }
-    assert serving.reasons[judging.JUDGED] == (
+    # The verdicts that set the served defaults stay, before this one.
+    *earlier, verdict = serving.reasons[judging.JUDGED].split(judging.JUDGED_SEPARATOR)
+    assert earlier == served.reasons[judging.JUDGED].split(judging.JUDGED_SEPARATOR)
+    assert verdict == (
         f"the candidate X, changing correction_steps {served.correction_steps} -> 10, serves: "
         "no worse than the incumbent on 6 report targets (seed 7) and 2 near-singular ones "
         "against the exact SMMs"
     )
     with pytest.raises(ValueError, match="judged worse does not serve"):
         judging.served_candidate(served, candidate, replace(no_worse, worse=["count right"]), "X")
+    # A second judged change of the same field: the mark is not repeated, and the verdict
+    # that set the incumbent stays, before the new one.
+    again = judging.served_candidate(
+        serving, judging.candidate_defaults(serving, '{"correction_steps": 12}'), no_worse, "Y"
+    )
+    assert again.reasons["correction_steps"] == serving.reasons["correction_steps"]
+    *first, second = again.reasons[judging.JUDGED].split(judging.JUDGED_SEPARATOR)
+    assert judging.JUDGED_SEPARATOR.join(first) == serving.reasons[judging.JUDGED]
+    assert second.startswith("Y, changing correction_steps 10 -> 12, serves: no worse")
 
     # The CLI writes only a candidate judged no worse, into the model it judged.
     models = tmp_path / "models"
@@ -189,7 +201,7 @@ def test_a_candidate_judged_no_worse_serves_marking_what_it_changed(
     smm_train(["judge", *small, "--candidate", same])
     written = Manifest.model_validate_json(manifest.read_text()).defaults
     assert written.model_dump(exclude={"reasons"}) == served.model_dump(exclude={"reasons"})
-    assert written.reasons[judging.JUDGED].startswith(
+    assert written.reasons[judging.JUDGED].split(judging.JUDGED_SEPARATOR)[-1].startswith(
         f"the candidate {same} (smm-train judge --model planar3r-position "
         f"--candidate '{same}' --write), changing nothing, serves: no worse"
     )
