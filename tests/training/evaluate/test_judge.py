@@ -201,7 +201,8 @@ def test_a_candidate_judged_no_worse_serves_marking_what_it_changed(
     smm_train(["judge", *small, "--candidate", same])
     written = Manifest.model_validate_json(manifest.read_text()).defaults
     assert written.model_dump(exclude={"reasons"}) == served.model_dump(exclude={"reasons"})
-    assert written.reasons[judging.JUDGED].split(judging.JUDGED_SEPARATOR)[-1].startswith(
+    last_verdict = written.reasons[judging.JUDGED].split(judging.JUDGED_SEPARATOR)[-1]
+    assert last_verdict.startswith(
         f"the candidate {same} (smm-train judge --model planar3r-position "
         f"--candidate '{same}' --write), changing nothing, serves: no worse"
     )
