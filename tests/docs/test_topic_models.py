@@ -252,10 +252,10 @@ def test_what_models_md_says_of_particular_targets_holds() -> None:
     # iiwa14 pose: only target 177 miscounted, flagged; none of the others.
     assert set(wrong("iiwa14-pose")) == {177}
     assert report("iiwa14-pose")["methods"]["FM + DLS"]["regular_targets"]["count_right"] == 1
-    # iiwa14 position: lone samples split 13 and 178; 59 is the one merge; 177 flagged.
+    # iiwa14 position: a lone sample splits 178; 59 is the one merge; 177 flagged.
     position = wrong("iiwa14-position")
-    assert set(position) == {13, 59, 177, 178}
-    assert position[13]["splits"] == position[178]["splits"] == 1
+    assert set(position) == {59, 177, 178}
+    assert position[178]["splits"] == 1
     assert position[59]["merges"] == 1 and position[59]["splits"] == 0
     # Panda pose: every miscounted target is flagged (the others are all right).
     pose = report("panda-pose")["methods"]["FM + DLS"]["regular_targets"]
