@@ -388,9 +388,10 @@ def candidate_defaults(served: Defaults, candidate: str) -> Defaults:
         ) from error
     if not isinstance(update, dict):
         raise ValueError(f"--candidate: a JSON object, got {candidate!r}")
-    sampler = served.sampler.model_copy(update=update.pop("sampler", {}))
+    # Only the fields the served manifest sets, and the candidate's: what --write writes.
+    sampler = served.sampler.model_dump(exclude_unset=True) | update.pop("sampler", {})
     return Defaults.model_validate(
-        {**served.model_dump(), **update, "sampler": sampler.model_dump()}
+        {**served.model_dump(exclude_unset=True), **update, "sampler": sampler}
     )
 
 

@@ -201,6 +201,11 @@ def test_a_candidate_judged_no_worse_serves_marking_what_it_changed(
     smm_train(["judge", *small, "--candidate", same])
     written = Manifest.model_validate_json(manifest.read_text()).defaults
     assert written.model_dump(exclude={"reasons"}) == served.model_dump(exclude={"reasons"})
+    # Only what the manifest set and the candidate changed is written: no field that
+    # neither sets appears (the sampler's round_samples, say).
+    assert written.model_fields_set == served.model_fields_set
+    assert written.sampler.model_fields_set == served.sampler.model_fields_set
+    assert "round_samples" not in manifest.read_text()
     last_verdict = written.reasons[judging.JUDGED].split(judging.JUDGED_SEPARATOR)[-1]
     assert last_verdict.startswith(
         f"the candidate {same} (smm-train judge --model planar3r-position "
