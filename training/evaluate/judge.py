@@ -328,13 +328,11 @@ def served_candidate(
     if not judgement.no_worse:
         raise ValueError(f"a candidate judged worse does not serve: {judgement.summary()}")
     before, after = incumbent.model_dump(), candidate.model_dump()
-    mark = f"set by the judged candidate (reasons.{JUDGED}), not by this rule: "
     marked = {
-        key: reason if reason.startswith(mark) else mark + reason
+        key: _marked(incumbent.reasons.get(key, "no reason before"))
         for field, keys in _REASONS_OF_FIELD.items()
         if before[field] != after[field]
         for key in keys
-        for reason in [incumbent.reasons.get(key, "no reason before")]
     }
     changed = _changes(incumbent, candidate)
     verdict = f"{proposal}, changing {changed}, serves: {judgement.summary()}"
@@ -342,6 +340,12 @@ def served_candidate(
     verdicts = verdict if earlier is None else JUDGED_SEPARATOR.join([earlier, verdict])
     reasons = {**incumbent.reasons, **marked, JUDGED: verdicts}
     return candidate.model_copy(update={"reasons": reasons})
+
+
+def _marked(reason: str) -> str:
+    """`reason` marked as set by a judged candidate, once."""
+    mark = f"set by the judged candidate (reasons.{JUDGED}), not by this rule: "
+    return reason if reason.startswith(mark) else mark + reason
 
 
 def _changes(before: Defaults, after: Defaults) -> str:

@@ -66,23 +66,23 @@ class CollisionCheck:
             if placed is not None:
                 clearance[span] = self.scene.clearance_m(placed, robot, clearance[span])
             near = np.flatnonzero(clearance[span] < self.margin_m)  # the hulls decide
-            if len(near) and placed is None:  # itself alone: compiled, at joint values
+            if not len(near):
+                continue
+            if placed is None:  # itself alone: compiled, at joint values
                 refined = robot.refined_self_clearance_at_m(q[near], self.margin_m)
-                free = refined >= self.margin_m
-                clearance[span][near[free]] = refined[free]
-            elif len(near) and placed is not None:
-                rows = near
+            else:
                 refined = np.full(len(near), np.inf)
                 if self.self_checked:
-                    refined = robot.refined_self_clearance_m(placed, rows, self.margin_m)
+                    refined = robot.refined_self_clearance_m(placed, near, self.margin_m)
                 alive = refined >= self.margin_m  # not free on itself: no obstacle asked
                 refined[alive] = np.minimum(
                     refined[alive],
-                    self.scene.refined_clearance_m(placed, robot, rows[alive], self.margin_m),
+                    self.scene.refined_clearance_m(placed, robot, near[alive], self.margin_m),
                 )
-                # Free by the hulls: their bound; not free: the spheres' (a lower bound of
-                # the least distance over everything, where the refined passes stop early).
-                clearance[span][near[refined >= self.margin_m]] = refined[refined >= self.margin_m]
+            # Free by the hulls: their bound; not free: the spheres' (a lower bound of the
+            # least distance over everything, where the refined passes stop early).
+            free = refined >= self.margin_m
+            clearance[span][near[free]] = refined[free]
         return clearance
 
     def clearances_m(self, parts: list[FloatArray]) -> list[FloatArray]:
