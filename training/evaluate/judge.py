@@ -381,7 +381,8 @@ def paper_defaults(defaults: Defaults) -> Defaults:
 
 def candidate_defaults(served: Defaults, candidate: str) -> Defaults:
     """`candidate`: "paper" (`paper_defaults`), or a JSON object of the served defaults'
-    fields to change, its "sampler" merged into the served sampler."""
+    fields to change, each group of fields ("sampler", "connectivity") merged into the
+    served group."""
     if candidate == "paper":
         return paper_defaults(served)
     try:
@@ -393,10 +394,12 @@ def candidate_defaults(served: Defaults, candidate: str) -> Defaults:
     if not isinstance(update, dict):
         raise ValueError(f"--candidate: a JSON object, got {candidate!r}")
     # Only the fields the served manifest sets, and the candidate's: what --write writes.
-    sampler = served.sampler.model_dump(exclude_unset=True) | update.pop("sampler", {})
-    return Defaults.model_validate(
-        {**served.model_dump(exclude_unset=True), **update, "sampler": sampler}
-    )
+    fields = served.model_dump(exclude_unset=True)
+    for name, value in update.items():
+        group = fields.get(name)
+        merged = isinstance(group, dict) and isinstance(value, dict)
+        fields[name] = group | value if merged else value
+    return Defaults.model_validate(fields)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -128,6 +128,10 @@ def test_the_cli_judges_the_paper_configuration_or_a_json_change(
     changed = judging.candidate_defaults(served, '{"sampler": {"steps": 2}, "correction_steps": 4}')
     assert changed.sampler == served.sampler.model_copy(update={"steps": 2})
     assert changed.correction_steps == 4 and changed.damping == served.damping
+    # A group is merged into the served one, whichever it is.
+    finer = judging.candidate_defaults(served, '{"connectivity": {"path_spacing_rad": 0.03}}')
+    assert finer.connectivity == served.connectivity.model_copy(update={"path_spacing_rad": 0.03})
+    assert finer.sampler == served.sampler
     for bad in ("fast", "[1]"):
         with pytest.raises(ValueError, match="--candidate: "):
             judging.candidate_defaults(served, bad)
