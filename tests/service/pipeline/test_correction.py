@@ -1,14 +1,18 @@
 """correction: a DLS step follows its closed form and reduces the error; a converged sample
-takes no further step while the others take every one; bad samples are fenced."""
+takes no further step while the others take every one; bad samples are fenced; on a
+serial chain the compiled loop takes the numpy loop's steps bitwise."""
 
 import numpy as np
+import pytest
 
-from service.manifest import TaskSpec
-from service.models.registry import ServedModel
-from service.pipeline.correction import CONVERGED_ERROR, correct, dls_step
+from service.manifest import REPO_MODELS_DIR, TaskSpec
+from service.models.chain import SerialChainKinematics
+from service.models.registry import ServedModel, load_model
+from service.pipeline.correction import CHUNK_ROWS, CONVERGED_ERROR, correct, dls_step
 from service.pipeline.joint_space import JointLimits
 from service.pipeline.targets import Target
 from service.pipeline.types import KinematicsResult
+from tests.support.numpy_kernels import NumpyStepsKinematics
 from training.evaluate.references.planar3r import planar3r_jacobian, planar3r_position
 
 POSITION_2D = TaskSpec(name="position", position_axes=[0, 1], orientation=False)
@@ -151,3 +155,35 @@ def test_a_nan_from_the_kinematics_rejects_only_its_own_sample() -> None:
     assert np.all(np.isfinite(correction.position_error_m[[0, 2]]))
     healthy = correct(q[[0, 2]], target, POSITION_2D, closed_form_kinematics, 3, 1e-3, LIMITS)
     np.testing.assert_array_equal(correction.q_rad[[0, 2]], healthy.q_rad)
+
+
+@pytest.mark.parametrize("model_id", ["iiwa14-pose", "iiwa14-position", "planar3r-position"])
+def test_the_compiled_correction_is_the_numpy_steps_bitwise(model_id: str) -> None:
+    """Where the kinematics is a serial chain, every DLS step of a chunk of rows runs in one
+    compiled call (`native.newton`); it ends where `iterate`'s numpy loop does over the same
+    compiled kernels (the chain behind a plain callable), bitwise: every row, its error
+    and Jacobian, rows already converged, a non-finite sample, and rows over several
+    chunks."""
+    model = load_model(REPO_MODELS_DIR / model_id, threads=1)
+    manifest = model.manifest
+    task, limits = manifest.task, model.limits
+    chain = model.kinematics
+    assert isinstance(chain, SerialChainKinematics)
+    rng = np.random.default_rng(5)
+    q_target = rng.uniform(limits.lower_rad, limits.upper_rad)
+    fk = chain(q_target[None])
+    target = Target(
+        position_m=fk.position_m[0, task.position_axes],
+        rotation=fk.rotation[0] if task.orientation else None,
+        condition=np.zeros(1, np.float32),
+    )
+    q = q_target + rng.normal(0, 0.05, (CHUNK_ROWS + 300, limits.count))
+    q[3] = q_target  # on the fibre already: converged before the first step
+    q[11, 0] = np.nan
+    steps, damping = manifest.defaults.correction_steps, manifest.defaults.damping
+    compiled = correct(q, target, task, chain, steps, damping, limits)
+    through = correct(q, target, task, NumpyStepsKinematics(chain), steps, damping, limits)
+    for field in ("q_rad", "position_error_m", "orientation_error_rad", "jacobian"):
+        np.testing.assert_array_equal(getattr(compiled, field), getattr(through, field))
+    assert compiled.position_error_m[3] < 1e-12 and np.isinf(compiled.position_error_m[11])
+    assert np.median(compiled.position_error_m) < 1e-9
