@@ -1216,6 +1216,54 @@ static int walk_edge(const Planner *p, const double *q_from, const double *goal,
     return 0;
 }
 
+/* ---------------------------------------------------------------- the path a sample is on */
+
+/* q (K, n), points (P, n) of every path, before / after (P,) each point's neighbours along
+ * its path, nearest (K, k) rows of points: for each q the least joint-metric distance to
+ * the segments point-before and point-after of its k nearest points (differences wrapped
+ * on the periodic joints), as curves.segment_distance computes it, and the first nearest
+ * point that reaches it (-1 where no distance is finite). */
+static double segment_distance_row(const double *q, const double *a, const double *b,
+                                   const unsigned char *periodic, Py_ssize_t n) {
+    double along[64], offset[64], length2 = 0.0, dot = 0.0;
+    for (Py_ssize_t j = 0; j < n; ++j) {
+        along[j] = b[j] - a[j];
+        offset[j] = q[j] - a[j];
+        if (periodic[j]) along[j] = wrap_to_pi(along[j]), offset[j] = wrap_to_pi(offset[j]);
+        length2 += along[j] * along[j];
+        dot += offset[j] * along[j];
+    }
+    double fraction = dot / (length2 > 1e-300 ? length2 : 1e-300);
+    fraction = fraction < 0.0 ? 0.0 : (fraction > 1.0 ? 1.0 : fraction);
+    double total = 0.0;
+    for (Py_ssize_t j = 0; j < n; ++j) {
+        double d = offset[j] - fraction * along[j];
+        total += d * d;
+    }
+    return sqrt(total);
+}
+
+static void nearest_segment_rows(const double *q, const double *points, const long long *before,
+                                 const long long *after, const long long *nearest,
+                                 const unsigned char *periodic, Py_ssize_t K, Py_ssize_t k,
+                                 Py_ssize_t n, double *distance, long long *point) {
+    for (Py_ssize_t r = 0; r < K; ++r) {
+        const double *qr = q + r * n;
+        double best = INFINITY;
+        long long which = -1;
+        for (Py_ssize_t c = 0; c < k; ++c) {
+            long long i = nearest[r * k + c];
+            const double *a = points + i * n;
+            double d_before = segment_distance_row(qr, a, points + before[i] * n, periodic, n);
+            double d_after = segment_distance_row(qr, a, points + after[i] * n, periodic, n);
+            double d = d_after < d_before ? d_after : d_before;
+            if (d < best) best = d, which = i;
+        }
+        distance[r] = best;
+        point[r] = which;
+    }
+}
+
 /* ---------------------------------------------------------------- Python entry points */
 
 static PyObject *py_chain(PyObject *self, PyObject *args) {
@@ -1637,6 +1685,21 @@ static PyObject *py_walk_scratch(PyObject *self, PyObject *args) {
     return PyLong_FromSsize_t(planner_scratch(&p));
 }
 
+static PyObject *py_nearest_segment(PyObject *self, PyObject *args) {
+    Py_buffer q, points, before, after, nearest, periodic, distance, point;
+    Py_ssize_t K, k, n;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*nnnw*w*", &q, &points, &before, &after, &nearest,
+                          &periodic, &K, &k, &n, &distance, &point))
+        return NULL;
+    Py_BEGIN_ALLOW_THREADS
+    nearest_segment_rows(q.buf, points.buf, before.buf, after.buf, nearest.buf, periodic.buf, K,
+                         k, n, distance.buf, point.buf);
+    Py_END_ALLOW_THREADS
+    Py_buffer *all[] = {&q, &points, &before, &after, &nearest, &periodic, &distance, &point};
+    for (size_t i = 0; i < sizeof all / sizeof *all; ++i) PyBuffer_Release(all[i]);
+    Py_RETURN_NONE;
+}
+
 static PyMethodDef methods[] = {
     {"chain", py_chain, METH_VARARGS,
      "chain(fixed, tip, q, n, batch, position, rotation, jacobian): serial-chain FK and Jacobian."},
@@ -1681,6 +1744,9 @@ static PyMethodDef methods[] = {
     {"self_clearance_at", py_self_clearance_at, METH_VARARGS,
      "self_clearance_at(origin, axis, n, q, batch, frame, K, S, centre, radius, own, bound, "
      "bound_radius, pair_a, pair_b, P, clearance, scratch): self_clearance at joint values."},
+    {"nearest_segment", py_nearest_segment, METH_VARARGS,
+     "nearest_segment(q, points, before, after, nearest, periodic, K, k, n, distance, point): "
+     "the least distance to the path segments beside each row's nearest points."},
     {NULL, NULL, 0, NULL},
 };
 

@@ -797,3 +797,36 @@ def refined_self_clearance_at_m(
             np.empty(_native.walk_scratch(n, 1, count, spheres)),
         )  # fmt: skip
     return clearance
+
+
+def nearest_segment(
+    q_rad: FloatArray,  # (K, n)
+    points_rad: FloatArray,  # (P, n) every path's points
+    before: IntArray,  # (P,) each point's neighbours along its path (itself at an open end)
+    after: IntArray,  # (P,)
+    nearest: IntArray,  # (K, k) rows of points_rad, each row's candidates
+    periodic: BoolArray,  # (n,)
+) -> tuple[FloatArray, IntArray]:  # (K,) least distance, (K,) the point beside it
+    """For each configuration, the least joint-metric distance to the segments from each
+    candidate point to its neighbours along its path (curves.segment_distance, wrapped on
+    the periodic joints), and the first candidate that reaches it; +inf and -1 where no
+    distance is finite."""
+    count, n = q_rad.shape
+    k = nearest.shape[1] if nearest.ndim == 2 else 0
+    if n > MAX_JOINTS:
+        raise ValueError(f"{n} joints; the kernel takes at most {MAX_JOINTS}")
+    size = len(points_rad)
+    indices = (_int64(before, "before", (size,)), _int64(after, "after", (size,)))
+    picked = _int64(nearest, "nearest", (count, k))
+    if count and k and (picked.min() < 0 or picked.max() >= size):
+        raise ValueError(f"nearest must index the {size} points")
+    if size and (min(i.min() for i in indices) < 0 or max(i.max() for i in indices) >= size):
+        raise ValueError(f"before and after must index the {size} points")
+    distance, point = np.full(count, np.inf), np.full(count, -1, dtype=np.int64)
+    if count and k:
+        _native.nearest_segment(
+            _float64(q_rad, "q_rad", (count, n)), _float64(points_rad, "points_rad", (size, n)),
+            *indices, picked, np.ascontiguousarray(periodic, dtype=np.uint8), count, k, n,
+            distance, point,
+        )  # fmt: skip
+    return distance, point

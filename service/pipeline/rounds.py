@@ -11,7 +11,9 @@ within tolerance but outside the limits that no traced point comes near (a curve
 leave the limits and come back where no sample fell, as the one-shot trace from every
 sample within tolerance finds). Drawing stops after a round whose samples within
 tolerance all lie on curves already traced, or once num_samples are drawn.
-The connect stage then starts from these curves.
+The connect stage then starts from these curves and the path each accepted sample lies
+on, found round by round (found again for every sample only where a later round traced a
+new path, which may pass nearer to an earlier sample).
 
 The rule's miss rate, a component no round put a sample on, is measured against the exact
 SMMs by the judge (training/evaluate/judge.py), which decides the model's round size.
@@ -26,8 +28,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from service.manifest import ConnectivitySpec
-from service.pipeline.arrays import FloatArray
-from service.pipeline.connect import TracedCurves, extend_curves, trace_curves
+from service.pipeline.arrays import FloatArray, IntArray
+from service.pipeline.connect import (
+    Extension,
+    TracedCurves,
+    extend_curves,
+    on_curves,
+    trace_curves,
+)
 from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.space import FibreSpace
 from service.pipeline.types import Acceptance, Correction, Stage
@@ -40,7 +48,7 @@ class Drawn:
 
     correction: Correction  # (N,) over the rounds drawn
     acceptance: Acceptance  # (N,)
-    curves: TracedCurves
+    traced: Extension  # the curves, and the path each sample on the fibre lies on (K,)
     rounds: int
 
 
@@ -60,6 +68,8 @@ def draw_in_rounds(
     corrections: list[Correction] = []
     acceptances: list[Acceptance] = []
     curves: TracedCurves | None = None
+    owners: list[IntArray] = []  # each round's samples on the fibre: the path each lies on
+    owned_paths: list[int] = []  # how many paths there were when each round's was found
     drawn = 0
     while drawn < num_samples:
         size = min(round_samples, num_samples - drawn)
@@ -73,26 +83,35 @@ def draw_in_rounds(
         acceptances.append(acceptance)
         drawn += size
         q_accepted = correction.q_rad[acceptance.on_fibre]  # (K, n) collisions aside
+        first = curves is None
         with stage("connect"):
             if curves is None:
                 q_within = correction.q_rad[acceptance.within_tolerance]
-                curves = trace_curves(kinematic, q_within, q_accepted, spec, deadline).curves
-                continue
-            outside = acceptance.within_tolerance & ~acceptance.within_limits
-            q_outside = correction.q_rad[outside]  # (O, n) their curves may enter the limits
-            extension = extend_curves(curves, kinematic, q_accepted, spec, deadline, q_outside)
-            curves, strays = extension.curves, extension.strays
-        if (len(q_accepted) or len(q_outside)) and not strays:
+                extension = trace_curves(kinematic, q_within, q_accepted, spec, deadline)
+            else:
+                outside = acceptance.within_tolerance & ~acceptance.within_limits
+                q_outside = correction.q_rad[outside]  # (O, n) their curves may enter the limits
+                extension = extend_curves(curves, kinematic, q_accepted, spec, deadline, q_outside)
+            curves = extension.curves
+            owners.append(extension.owner)
+            owned_paths.append(len(curves.paths))
+        if not first and (len(q_accepted) or len(q_outside)) and not extension.strays:
             break
     assert curves is not None, "num_samples >= 1 draws a round"
+    correction = _concatenate_corrections(corrections)
+    on_fibre = np.concatenate([a.on_fibre for a in acceptances])
+    traced = Extension(curves, 0, np.concatenate(owners))  # (K,) paths of the samples on the fibre
+    if min(owned_paths) < len(curves.paths):  # a later round's path may pass nearer
+        with stage("connect"):
+            traced = on_curves(curves, kinematic.limits, correction.q_rad[on_fibre], spec)
     return Drawn(
-        correction=_concatenate_corrections(corrections),
+        correction=correction,
         acceptance=Acceptance(
             within_tolerance=np.concatenate([a.within_tolerance for a in acceptances]),
             within_limits=np.concatenate([a.within_limits for a in acceptances]),
             collision_free=np.concatenate([a.collision_free for a in acceptances]),
         ),
-        curves=curves,
+        traced=traced,
         rounds=len(corrections),
     )
 

@@ -23,7 +23,7 @@ import numpy as np
 from service.pipeline.arrays import FloatArray
 from service.pipeline.collision.check import CollisionCheck
 from service.pipeline.components import summarise_all
-from service.pipeline.connect import TracedCurves, connect
+from service.pipeline.connect import Extension, connect
 from service.pipeline.correction import correct
 from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.fibre import Fibre
@@ -208,13 +208,13 @@ def answer_accepted(
     acceptance: Acceptance,
     watch: Stopwatch,
     deadline: Deadline = NO_DEADLINE,
-    curves: TracedCurves | None = None,
+    traced: Extension | None = None,
 ) -> SmmResult:
-    """Stages 5-6 on corrected and accepted samples: connect (from `curves`, when the
-    rounds traced them), summarise."""
+    """Stages 5-6 on corrected and accepted samples: connect (from `traced`, when the
+    rounds traced the curves), summarise."""
     with watch.stage("connect"):
         spec = model.manifest.defaults.connectivity
-        connection = connect(space, correction, acceptance, spec, deadline, curves)
+        connection = connect(space, correction, acceptance, spec, deadline, traced)
     with watch.stage("summarise"):
         summaries = summarise_all(
             components=connection.components,
@@ -270,7 +270,7 @@ def answer(
         deadline=deadline,
     )
     return answer_accepted(
-        model, query, space, drawn.correction, drawn.acceptance, watch, deadline, drawn.curves
+        model, query, space, drawn.correction, drawn.acceptance, watch, deadline, drawn.traced
     )
 
 

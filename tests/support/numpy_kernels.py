@@ -1,8 +1,9 @@
 """The numpy kernels the compiled ones (service/pipeline/native.c) replaced, kept as the
 reference they are pinned to (tests/service/pipeline/test_native.py): the serial chain's
 FK and Jacobian (batch-last frames, cos and sin from tan(q / 2)), and the DLS step by
-LAPACK's batched solve; every URDF joint frame (Rodrigues' formula on whole columns) and
-the least sphere gap of self-collision (two passes over padded arrays).
+LAPACK's batched solve; every URDF joint frame (Rodrigues' formula on whole columns),
+the least sphere gap of self-collision (two passes over padded arrays) and the distance
+from samples to the path segments beside their nearest path points.
 """
 
 from __future__ import annotations
@@ -14,8 +15,9 @@ import numpy as np
 
 from service.manifest import ChainSpec
 from service.models.chain import SerialChainKinematics, _z_to_axis
-from service.pipeline.arrays import FloatArray
+from service.pipeline.arrays import BoolArray, FloatArray, IntArray
 from service.pipeline.collision.robot import PlacedBodies, RobotSpheres
+from service.pipeline.joint_space import joint_difference
 from service.pipeline.types import KinematicsResult
 
 CHUNK = 4096
@@ -237,3 +239,37 @@ class NumpyStepsKinematics:
 
     def __call__(self, q_rad: np.ndarray) -> KinematicsResult:
         return self.kinematics(q_rad)
+
+
+def nearest_segment(
+    q_rad: FloatArray,  # (K, n)
+    points_rad: FloatArray,  # (P, n)
+    before: IntArray,  # (P,)
+    after: IntArray,  # (P,)
+    nearest: IntArray,  # (K, k)
+    periodic: BoolArray,  # (n,)
+) -> tuple[FloatArray, IntArray]:  # (K,) least distance, (K,) the candidate point reaching it
+    """The least distance from each q to the segments candidate-before and candidate-after."""
+    a = points_rad[nearest]  # (K, k, n)
+    distance = np.minimum(
+        segment_distance(q_rad, a, points_rad[before[nearest]], periodic),
+        segment_distance(q_rad, a, points_rad[after[nearest]], periodic),
+    )  # (K, k)
+    best = np.argmin(distance, axis=1)
+    rows = np.arange(len(q_rad))
+    return distance[rows, best], nearest[rows, best]
+
+
+def segment_distance(
+    q_rad: FloatArray,  # (K, n)
+    a_rad: FloatArray,  # (K, k, n) segment starts
+    b_rad: FloatArray,  # (K, k, n) segment ends
+    periodic: BoolArray,
+) -> FloatArray:  # (K, k) joint-metric distance from each q to each segment a-b
+    along = joint_difference(b_rad, a_rad, periodic)  # (K, k, n)
+    offset = joint_difference(q_rad[:, None, :], a_rad, periodic)
+    length2 = np.einsum("kcn,kcn->kc", along, along)
+    fraction = np.clip(
+        np.einsum("kcn,kcn->kc", offset, along) / np.maximum(length2, 1e-300), 0.0, 1.0
+    )
+    return np.linalg.norm(offset - fraction[..., None] * along, axis=2)

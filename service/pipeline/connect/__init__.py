@@ -9,7 +9,13 @@ Code outside this package imports only the names below.
 """
 
 from service.pipeline.connect.coaxial import find_coaxial_sets
-from service.pipeline.connect.curves import TracedCurves, extend_curves, trace_curves
+from service.pipeline.connect.curves import (
+    Extension,
+    TracedCurves,
+    extend_curves,
+    on_curves,
+    trace_curves,
+)
 from service.pipeline.connect.local_planner import PlannerSettings, edges_on_fibre, walk_on_fibre
 from service.pipeline.connect.roadmap import RoadmapSettings, roadmap_labels
 from service.pipeline.connect.settings import (
@@ -25,6 +31,7 @@ from service.pipeline.connect.trace import TraceSettings, trace_fibre
 
 __all__ = [
     "Connection",
+    "Extension",
     "PlannerSettings",
     "RoadmapSettings",
     "SpliceSettings",
@@ -35,6 +42,7 @@ __all__ = [
     "edges_on_fibre",
     "extend_curves",
     "find_coaxial_sets",
+    "on_curves",
     "planner_settings",
     "roadmap_labels",
     "roadmap_settings",

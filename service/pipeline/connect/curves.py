@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from service.manifest import ConnectivitySpec
+from service.pipeline import native
 from service.pipeline.arrays import BoolArray, FloatArray, IntArray
 from service.pipeline.connect.settings import trace_settings
 from service.pipeline.connect.trace import TracedPiece, trace_fibre
@@ -60,6 +61,18 @@ def trace_curves(
     that none of them passes (`extend_curves`)."""
     curves = traced_paths(space, q_within_rad, spec, deadline)
     return extend_curves(curves, space, q_accepted_rad, spec, deadline)
+
+
+def on_curves(
+    curves: TracedCurves,
+    limits: JointLimits,
+    q_accepted_rad: FloatArray,  # (K, n)
+    spec: ConnectivitySpec,
+) -> Extension:
+    """The curves as they are, and the path each accepted sample lies on (`owner_path`);
+    no sample is traced."""
+    on_curve_rad = ON_CURVE_FRACTION * spec.path_spacing_rad
+    return Extension(curves, 0, owner_path(q_accepted_rad, curves.paths, limits, on_curve_rad))
 
 
 def extend_curves(
@@ -286,27 +299,7 @@ def owner_path(
     k = min(candidates, len(points))
     _, nearest = box.tree(points).query(box.points(q_rad), k=k)  # (K, k)
     nearest = nearest.reshape(len(q_rad), k)
-    distance = np.minimum(
-        segment_distance(q_rad, points[nearest], points[before[nearest]], limits),
-        segment_distance(q_rad, points[nearest], points[after[nearest]], limits),
-    )  # (K, k)
-    best = np.argmin(distance, axis=1)
-    rows = np.arange(len(q_rad))
-    on_path = distance[rows, best] <= within_rad
-    owner[on_path] = which[nearest[rows, best]][on_path]
+    distance, point = native.nearest_segment(q_rad, points, before, after, nearest, limits.periodic)
+    on_path = distance <= within_rad  # (K,)
+    owner[on_path] = which[point[on_path]]
     return owner
-
-
-def segment_distance(
-    q_rad: FloatArray,  # (K, n)
-    a_rad: FloatArray,  # (K, k, n) segment starts
-    b_rad: FloatArray,  # (K, k, n) segment ends
-    limits: JointLimits,
-) -> FloatArray:  # (K, k) joint-metric distance from each q to each segment a-b
-    along = limits.difference(b_rad, a_rad)  # (K, k, n)
-    offset = limits.difference(q_rad[:, None, :], a_rad)
-    length2 = np.einsum("kcn,kcn->kc", along, along)
-    fraction = np.clip(
-        np.einsum("kcn,kcn->kc", offset, along) / np.maximum(length2, 1e-300), 0.0, 1.0
-    )
-    return np.linalg.norm(offset - fraction[..., None] * along, axis=2)

@@ -32,8 +32,7 @@ from service.manifest import ConnectivitySpec
 from service.pipeline.arrays import IntArray
 from service.pipeline.connect.curves import (
     ON_CURVE_FRACTION,
-    TracedCurves,
-    extend_curves,
+    Extension,
     owner_path,
     trace_curves,
 )
@@ -66,12 +65,13 @@ def connect(
     acceptance: Acceptance,
     spec: ConnectivitySpec,
     deadline: Deadline = NO_DEADLINE,
-    curves: TracedCurves | None = None,
+    traced: Extension | None = None,
 ) -> Connection:
     """The accepted samples grouped into components decided on the fibre, walking only
     where `space` says a motion is valid (inside its limits, never across its coaxial
-    sets off the fibre). For r = 1, `curves` are curves already traced on the kinematic
-    space (while sampling in rounds); None: traced here from the samples."""
+    sets off the fibre). For r = 1, `traced` holds curves already traced on the kinematic
+    space (while sampling in rounds) and the path each sample on the fibre lies on; None:
+    traced here from the samples."""
     deadline.check("connect")
     accepted = np.flatnonzero(acceptance.accepted)  # (K,)
     redundancy = correction.q_rad.shape[1] - correction.jacobian.shape[1]
@@ -84,7 +84,7 @@ def connect(
     if redundancy == 1:
         kinematic = space.kinematic()
         found = _curve_components(
-            kinematic, correction, acceptance.kinematic(), spec, deadline, curves
+            kinematic, correction, acceptance.kinematic(), spec, deadline, traced
         )
         components, leftover = found.components, found.leftover
         complete, min_sigma = found.complete, min(min_sigma, found.min_singular_value)
@@ -122,21 +122,18 @@ def _curve_components(
     acceptance: Acceptance,
     spec: ConnectivitySpec,
     deadline: Deadline,
-    curves: TracedCurves | None,
+    traced: Extension | None,
 ) -> _Curves:
     """Every curve through the samples within tolerance traced whole and cut by the
-    limits (or `curves`, traced already, and those through accepted samples on none of
-    them), pieces the fibre joins spliced, and each accepted sample on the path it lies
-    on (or walks to)."""
+    limits (or `traced`, while sampling), pieces the fibre joins spliced, and each
+    accepted sample on the path it lies on (or walks to)."""
     accepted = np.flatnonzero(acceptance.accepted)  # (K,)
     q_accepted = correction.q_rad[accepted]
     limits = space.limits
-    if curves is None:
+    if traced is None:
         q_within = correction.q_rad[acceptance.within_tolerance]
-        extension = trace_curves(space, q_within, q_accepted, spec, deadline)
-    else:  # traced while sampling (rounds.py): only samples on none of them are traced
-        extension = extend_curves(curves, space, q_accepted, spec, deadline)
-    curves, owner = extension.curves, extension.owner
+        traced = trace_curves(space, q_within, q_accepted, spec, deadline)
+    curves, owner = traced.curves, traced.owner.copy()  # (K,) attached below
     paths, complete, sigma = curves.paths, curves.complete, curves.min_singular_value
     on_curve_rad = ON_CURVE_FRACTION * spec.path_spacing_rad
     # A piece that ends off the limits is where a front stopped or a cut went wrong:

@@ -21,9 +21,11 @@ steps (DLS, stopping at a tolerance, locked joints, bordered on a tangent) end w
 numpy steps do, to 1e-12. The smallest singular value (one-sided Jacobi) equals LAPACK's
 SVD to 1e-12, singular and near-singular Jacobians included, and the bounded search
 for the least over many rows finds exactly the least. GJK between placed hulls takes
-convex.py's numpy steps (1e-12) on the robots' own hulls, and the refined self-clearance
-at joint values equals robot.py's numpy passes (1e-12). (The trace's compiled walk is
-pinned in tests/service/pipeline/connect/test_walk.py.)
+convex.py's numpy steps (1e-12) on the robots' own hulls, the refined self-clearance
+at joint values equals robot.py's numpy passes (1e-12), and the least distance from
+samples to the path segments beside their candidate points equals the numpy segments'
+(1e-12) and, with every point a candidate, a brute force over every segment. (The
+trace's compiled walk is pinned in tests/service/pipeline/connect/test_walk.py.)
 """
 
 from __future__ import annotations
@@ -56,6 +58,8 @@ from tests.support.chains import pytorch_kinematics_answer
 from tests.support.numpy_kernels import NumpyChainKinematics, NumpyStepsKinematics
 from tests.support.numpy_kernels import chain_frames as numpy_chain_frames
 from tests.support.numpy_kernels import dls_step as numpy_dls_step
+from tests.support.numpy_kernels import nearest_segment as numpy_nearest_segment
+from tests.support.numpy_kernels import segment_distance as numpy_segment_distance
 from tests.support.numpy_kernels import self_clearance_m as numpy_self_clearance_m
 from training.evaluate.targets import uniform_configurations
 
@@ -518,3 +522,58 @@ def test_refined_self_clearance_at_joint_values_is_the_numpy_passes(model: str) 
         np.testing.assert_allclose(compiled, expected, rtol=0, atol=1e-12)
         assert ((compiled >= margin) == (expected >= margin)).all()
         assert (compiled >= margin).any() and (compiled < margin).any()
+
+
+@pytest.mark.parametrize(
+    "periodic", [[True, True, True], [False, True, False, False, True, False, False]]
+)
+def test_nearest_segment_is_the_numpy_segments_and_brute_force(periodic: list[bool]) -> None:
+    """Two paths (an open one and a loop) through joint space, samples beside and far from
+    them, periodic joints wrapped: the compiled least segment distance equals the numpy
+    segments' (1e-12) with the same candidate point, and with every point a candidate it
+    is the least over all segments by brute force."""
+    rng = np.random.default_rng(4)
+    n = len(periodic)
+    mask = np.array(periodic)
+    lengths, closed = [40, 25], [False, True]
+    walks = [np.cumsum(rng.normal(0, 0.05, (size, n)), axis=0) + rng.uniform(-3, 3, n)
+             for size in lengths]  # fmt: skip
+    points = np.where(mask, np.mod(np.concatenate(walks) + np.pi, 2 * np.pi) - np.pi,
+                      np.concatenate(walks))  # fmt: skip
+    first = np.array([0, lengths[0]])
+    last = first + np.array(lengths) - 1
+    before, after = np.arange(len(points)) - 1, np.arange(len(points)) + 1
+    before[first] = np.where(closed, last, first)
+    after[last] = np.where(closed, first, last)
+    q = points[rng.integers(0, len(points), 30)] + rng.normal(0, 0.02, (30, n))
+    q = np.concatenate([q, rng.uniform(-3, 3, (10, n))])  # far from both
+    nearest = np.argsort(rng.uniform(size=(len(q), len(points))), axis=1)[:, :4]
+    distance, point = native.nearest_segment(q, points, before, after, nearest, mask)
+    numpy_distance, numpy_point = numpy_nearest_segment(q, points, before, after, nearest, mask)
+    np.testing.assert_allclose(distance, numpy_distance, rtol=0, atol=1e-12)
+    assert point.tolist() == numpy_point.tolist()
+    every = np.tile(np.arange(len(points)), (len(q), 1))
+    least, _ = native.nearest_segment(q, points, before, after, every, mask)
+    a, b = points[:-1], points[1:]
+    segments = [(i, i + 1) for i in range(len(points) - 1) if i + 1 not in first]
+    segments.append((last[1], first[1]))  # the loop's closing segment
+    brute = np.full(len(q), np.inf)
+    for i, j in segments:
+        a, b = np.broadcast_to(points[i], q.shape), np.broadcast_to(points[j], q.shape)
+        d = numpy_segment_distance(q, a[:, None], b[:, None], mask)[:, 0]
+        brute = np.minimum(brute, d)
+    np.testing.assert_allclose(least, brute, rtol=0, atol=1e-12)
+    assert distance.min() >= 0 and (distance >= least - 1e-15).all()
+
+
+def test_nearest_segment_refuses_indices_out_of_range() -> None:
+    points = np.zeros((3, 2))
+    ends = np.array([0, 1, 2])
+    with pytest.raises(ValueError, match="nearest must index the 3 points"):
+        native.nearest_segment(
+            np.zeros((1, 2)), points, ends, ends, np.array([[3]]), np.zeros(2, bool)
+        )
+    with pytest.raises(ValueError, match="before and after must index the 3 points"):
+        native.nearest_segment(
+            np.zeros((1, 2)), points, np.array([0, 1, 5]), ends, np.array([[0]]), np.zeros(2, bool)
+        )

@@ -4,7 +4,9 @@ On the planar 3R at a target 0.5 m out (two loops, elbow up and down, by the clo
 of training/evaluate/references/planar3r.py), with rounds fed from the closed form: a
 second round on the loop the first traced stops the drawing; a second round with a
 sample on the other loop goes on, traces that loop, and stops after a third round on
-known loops; a round with no accepted sample never stops it; num_samples caps the rounds.
+known loops; a round with no accepted sample never stops it; num_samples caps the rounds;
+the path each sample lies on, found round by round, is the one it lies on among the
+final curves.
 Through the pipeline (the bundled planar 3R and iiwa14 pose models with a round size
 set): the answer counts the samples of the rounds drawn, a multiple of the round size;
 its components are the closed form's loops, each traced whole; the same seed gives the
@@ -22,6 +24,7 @@ import pytest
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
 from service.pipeline.batch import run_batch
+from service.pipeline.connect import on_curves
 from service.pipeline.rounds import draw_in_rounds
 from service.pipeline.run import collision_of, correct_samples, encode, run, space_of
 from service.pipeline.types import Query
@@ -74,7 +77,14 @@ def rounds_from(
         stage=lambda name: nullcontext(),
     )
     assert len(drawn.correction.q_rad) == sum(len(b) for b in batches[: drawn.rounds])
-    return drawn.rounds, len(drawn.curves.paths)
+    # The path each sample on the fibre lies on, found round by round, is the path it lies
+    # on among the final curves (a later round's new path found again for every sample).
+    q_on_fibre = drawn.correction.q_rad[drawn.acceptance.on_fibre]
+    spec = planar3r.manifest.defaults.connectivity
+    again = on_curves(drawn.traced.curves, space.limits, q_on_fibre, spec)
+    assert drawn.traced.owner.tolist() == again.owner.tolist()
+    assert (drawn.traced.owner >= 0).all()  # every closed-form sample lies on a traced loop
+    return drawn.rounds, len(drawn.traced.curves.paths)
 
 
 def test_a_round_on_the_traced_loop_stops_the_drawing(planar3r: ServedModel) -> None:
