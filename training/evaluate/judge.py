@@ -305,10 +305,14 @@ def unserved_reasons(swept: Defaults, incumbent: Defaults) -> dict[str, str]:
     }
 
 
-# The reasons (Defaults.reasons keys) that explain each field of the defaults.
+# The reasons (Defaults.reasons keys) that explain each field of the defaults (dotted keys;
+# a field not listed has its group's reason: sampler.steps, sampler.round_samples ->
+# "sampler").
 _REASONS_OF_FIELD: dict[str, tuple[str, ...]] = {
     "num_samples": ("num_samples",),
-    "sampler": ("sampler", "sampler_flow", "sampler_precision"),
+    "sampler": ("sampler",),
+    "sampler.flow": ("sampler_flow",),
+    "sampler.precision": ("sampler_precision",),
     "correction_steps": ("correction_steps",),
     "damping": ("damping",),
     "connectivity": ("connectivity",),
@@ -327,12 +331,13 @@ def served_candidate(
     candidate came from."""
     if not judgement.no_worse:
         raise ValueError(f"a candidate judged worse does not serve: {judgement.summary()}")
-    before, after = incumbent.model_dump(), candidate.model_dump()
+    before = _flat(incumbent.model_dump(exclude={"reasons"}))
+    after = _flat(candidate.model_dump(exclude={"reasons"}))
     marked = {
         key: _marked(incumbent.reasons.get(key, "no reason before"))
-        for field, keys in _REASONS_OF_FIELD.items()
+        for field in after
         if before[field] != after[field]
-        for key in keys
+        for key in _REASONS_OF_FIELD.get(field) or _REASONS_OF_FIELD[field.split(".")[0]]
     }
     changed = _changes(incumbent, candidate)
     verdict = f"{proposal}, changing {changed}, serves: {judgement.summary()}"

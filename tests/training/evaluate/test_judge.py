@@ -168,6 +168,20 @@ def test_a_candidate_judged_no_worse_serves_marking_what_it_changed(
     assert {key: serving.reasons[key] for key in unchanged} == {
         key: served.reasons[key] for key in unchanged
     }
+    # A field of a group marks the reason of that field, or else of its group, only.
+    rounds = judging.served_candidate(
+        served, judging.candidate_defaults(served, '{"sampler": {"round_samples": 64}}'),
+        no_worse, "Z",
+    )  # fmt: skip
+    assert {key for key in served.reasons if rounds.reasons[key] != served.reasons[key]} == {
+        "sampler", judging.JUDGED,
+    }  # fmt: skip
+    precision = judging.served_candidate(
+        served, judging.candidate_defaults(served, '{"sampler": {"precision": "float32"}}'),
+        no_worse, "P",
+    )  # fmt: skip
+    assert precision.reasons["sampler_precision"].startswith("set by the judged candidate")
+    assert precision.reasons["sampler"] == served.reasons["sampler"]
     # The verdicts that set the served defaults stay, before this one.
     *earlier, verdict = serving.reasons[judging.JUDGED].split(judging.JUDGED_SEPARATOR)
     assert earlier == served.reasons[judging.JUDGED].split(judging.JUDGED_SEPARATOR)
