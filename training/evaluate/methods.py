@@ -176,9 +176,11 @@ def served_target(
     result = run(model, query)
     none = np.zeros(0)
     components = [(c.configurations_rad, c.path) for c in result.components]
+    # The keep rate's denominator: the samples drawn (fewer than num_samples where the
+    # model draws in rounds and stops early).
     return _answered(
-        model, target.encoded, none, none, components, num_samples, stage_times_ms(result),
-        result.structure.near_singular,
+        model, target.encoded, none, none, components, result.counts.sampled,
+        stage_times_ms(result), result.structure.near_singular,
     )  # fmt: skip
 
 
@@ -208,7 +210,7 @@ def raw_samples_target(answer: MethodTarget) -> MethodTarget:
         returned_position_m=answer.raw_position_m,
         returned_orientation_rad=answer.raw_orientation_rad,
         labels=None,
-        sampled=answer.sampled,
+        sampled=len(answer.raw_position_m),
         time_ms=answer.stage_ms["sample"] if answer.stage_ms else float("nan"),
     )
 

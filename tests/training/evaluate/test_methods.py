@@ -72,7 +72,12 @@ def test_the_service_answer_is_exact_labelled_and_the_fm_row_is_its_raw_samples(
     planar3r: ServedModel,
 ) -> None:
     answer = flow_target(planar3r, Q_TARGET_RAD, 300, seed=0)
-    assert answer.sampled == 300 and len(answer.raw_position_m) == 300
+    # The keep rate's denominator is what the pipeline drew: the planar 3R draws rounds of
+    # 128 and stops after the second (both loops traced from the first); the FM row is
+    # the flow's num_samples raw samples.
+    rounds = planar3r.manifest.defaults.sampler.round_samples
+    assert rounds is not None and answer.sampled == 2 * rounds
+    assert len(answer.raw_position_m) == 300
     assert len(answer.returned) > 0 and answer.labels is not None
     assert len(answer.labels) == len(answer.returned) == len(answer.returned_position_m)
     assert answer.returned_position_m.max() <= planar3r.manifest.defaults.tolerance_position_m
