@@ -1,9 +1,15 @@
-"""components: ordering by reference or size, nearest member, and a covering capped subset."""
+"""components: ordering by reference or size, nearest member, a covering capped subset,
+and every component's mean in one pass equal to its own."""
 
 import numpy as np
 
 from service.pipeline.collision.check import CollisionCheck
-from service.pipeline.components import farthest_point_subset, joint_mean, summarise_all
+from service.pipeline.components import (
+    farthest_point_subset,
+    joint_mean,
+    segment_joint_mean,
+    summarise_all,
+)
 from service.pipeline.joint_space import JointLimits, joint_distance
 from service.pipeline.types import Component
 
@@ -62,3 +68,21 @@ def test_joint_mean_is_circular_on_periodic_joints() -> None:
     limits = JointLimits(np.full(2, -np.pi), np.full(2, np.pi), np.array([True, False]))
     mean = joint_mean(q, limits)
     assert abs(abs(mean[0]) - np.pi) < 1e-9 and mean[1] == 1.5
+
+
+def test_the_mean_of_each_segment_is_its_joint_mean_bitwise() -> None:
+    """Every component's mean in one pass over all rows equals `joint_mean` of its own rows,
+    bitwise (the summaries of many components do not depend on being computed together),
+    and numpy's plain and circular means to rounding."""
+    rng = np.random.default_rng(3)
+    limits = JointLimits(np.full(3, -np.pi), np.full(3, np.pi), np.array([True, False, True]))
+    size = np.array([1, 7, 30, 2, 113])
+    start = np.cumsum(size) - size
+    q = rng.uniform(-np.pi, np.pi, (size.sum(), 3))
+    means = segment_joint_mean(q, start, size, limits)
+    for index, (first, count) in enumerate(zip(start, size, strict=True)):
+        rows = q[first : first + count]
+        np.testing.assert_array_equal(means[index], joint_mean(rows, limits))
+        circular = np.arctan2(np.sin(rows).mean(axis=0), np.cos(rows).mean(axis=0))
+        expected = np.where(limits.periodic, circular, rows.mean(axis=0))
+        np.testing.assert_allclose(means[index], expected, rtol=0, atol=1e-14)
