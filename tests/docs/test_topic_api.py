@@ -41,7 +41,7 @@ def test_the_pages_are_what_the_blocks_write() -> None:
 
 
 @pytest.mark.parametrize(
-    "path", ["damping", "connectivity.trace_step_rad", "connectivity.path_spacing_rad"]
+    "path", ["damping", "connectivity.trace_step_rad"]
 )
 def test_a_default_shared_by_every_model_is_one_value(path: str) -> None:
     values = set()

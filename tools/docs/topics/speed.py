@@ -462,7 +462,8 @@ def speed_batch(*arguments: str) -> str:
 @block("speed-judged")
 def speed_judged(name: str) -> str:
     """docs/benchmark/judge-<name>.json side by side: the incumbent's and the candidate's
-    defaults (and model, where it differs) and truth figures, and the verdict."""
+    defaults (their connectivity settings where the two differ; the model, where it
+    differs) and truth figures, and the verdict."""
     if name not in sources.judged():
         raise FileNotFoundError(
             f"no docs/benchmark/judge-{name}.json; the records are: {sources.judged()}"
@@ -475,7 +476,13 @@ def speed_judged(name: str) -> str:
         words = sampler_words(sampler.get("flow", "base"), sampler["steps"], sampler["precision"])
         rounds = sampler.get("round_samples")
         drawn = f"N = {d['num_samples']}" + (f" in rounds of {rounds}" if rounds else "")
-        return f"{words}, {d['correction_steps']} DLS, {drawn}"
+        other = record["incumbent_defaults" if side == "candidate" else "candidate_defaults"]
+        connectivity = [
+            f", {key} {value}"
+            for key, value in d["connectivity"].items()
+            if other["connectivity"].get(key) != value
+        ]
+        return f"{words}, {d['correction_steps']} DLS, {drawn}" + "".join(connectivity)
 
     rows = [["defaults", defaults("incumbent"), defaults("candidate")]]
     if record.get("candidate_model"):
