@@ -78,18 +78,19 @@ class _End:
 def open_ends(paths: Sequence[ComponentPath], limits: JointLimits) -> list[_End]:
     """The ends of the open paths that are not on a joint limit: where a trace stopped."""
     lower_rad, upper_rad, limited = limits.lower_rad, limits.upper_rad, ~limits.periodic
-    ends = []
-    for index, path in enumerate(paths):
-        if path.closed or not len(path.q_rad):
-            continue
-        for last in (False, True):
-            q = path.q_rad[-1 if last else 0]
-            on_limit = limited & (
-                (np.abs(q - lower_rad) <= ON_LIMIT_RAD) | (np.abs(q - upper_rad) <= ON_LIMIT_RAD)
-            )
-            if not on_limit.any():
-                ends.append(_End(index, last))
-    return ends
+    ends = [
+        _End(index, last)
+        for index, path in enumerate(paths)
+        if not path.closed and len(path.q_rad)
+        for last in (False, True)
+    ]
+    if not ends:
+        return []
+    q = np.array([paths[e.path].q_rad[-1 if e.last else 0] for e in ends])  # (E, n)
+    on_limit = limited & (
+        (np.abs(q - lower_rad) <= ON_LIMIT_RAD) | (np.abs(q - upper_rad) <= ON_LIMIT_RAD)
+    )  # (E, n)
+    return [end for end, on in zip(ends, on_limit.any(axis=1).tolist(), strict=True) if not on]
 
 
 def splice_paths(
