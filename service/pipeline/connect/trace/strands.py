@@ -48,13 +48,17 @@ def closest_strands_rad(
     if not curves:
         return np.inf
     periodic = limits.periodic
+    points = np.concatenate([q for q, _ in curves])  # (P, n)
+    # Every step at once (across two curves' boundary too, left out below), each curve's
+    # arc the running sum of its own steps.
+    steps = np.linalg.norm(joint_difference(points[1:], points[:-1], periodic), axis=1)
     arc, length = [], []
+    start = 0
     for q, closed in curves:
-        steps = np.linalg.norm(joint_difference(q[1:], q[:-1], periodic), axis=1)
-        arc.append(np.concatenate([[0.0], np.cumsum(steps)]))
+        arc.append(np.concatenate([[0.0], np.cumsum(steps[start : start + len(q) - 1])]))
         closing = np.linalg.norm(joint_difference(q[0], q[-1], periodic)) if closed else 0.0
         length.append(arc[-1][-1] + float(closing))
-    points = np.concatenate([q for q, _ in curves])  # (P, n)
+        start += len(q)
     curve = np.concatenate([np.full(len(q), c) for c, (q, _) in enumerate(curves)])  # (P,)
     s = np.concatenate(arc)  # (P,) arc position along its curve
     total = np.asarray(length)[curve]  # (P,)
