@@ -194,12 +194,11 @@ def duplicate(
 ) -> bool:
     """The same piece traced twice (two chains over one curve): the same arc length, the
     same ends (open pieces) and, checked last, most points on the other."""
-    if not paths:
-        return False
-    arcs = np.array([p.arc_length_rad for p in paths])  # (P,)
-    alike = np.abs(arcs - path.arc_length_rad) <= max(0.01 * path.arc_length_rad, spacing_rad)
-    for index in np.flatnonzero(alike).tolist():
-        other = paths[index]
+    arc_rad = path.arc_length_rad
+    within_rad = max(0.01 * arc_rad, spacing_rad)
+    for other in paths:
+        if not abs(other.arc_length_rad - arc_rad) <= within_rad:  # (a NaN arc is not alike)
+            continue
         if other.closed != path.closed:
             continue
         if not path.closed:
@@ -288,10 +287,11 @@ def owner_path(
     if not paths or not len(q_rad):
         return owner
     points = np.concatenate([p.q_rad for p in paths])  # (P, n)
-    which = np.concatenate([np.full(len(p.q_rad), i) for i, p in enumerate(paths)])
+    size = np.array([len(p.q_rad) for p in paths])
+    which = np.repeat(np.arange(len(paths)), size)  # (P,) the path of each point
     before, after = np.arange(len(points)) - 1, np.arange(len(points)) + 1  # neighbours ...
-    first = np.cumsum([0] + [len(p.q_rad) for p in paths[:-1]])
-    last = first + np.array([len(p.q_rad) for p in paths]) - 1
+    first = np.cumsum(size) - size
+    last = first + size - 1
     closed = np.array([p.closed for p in paths])
     before[first] = np.where(closed, last, first)  # ... along each path (a loop wraps)
     after[last] = np.where(closed, first, last)

@@ -59,7 +59,7 @@ def closest_strands_rad(
         closing = np.linalg.norm(joint_difference(q[0], q[-1], periodic)) if closed else 0.0
         length.append(arc[-1][-1] + float(closing))
         start += len(q)
-    curve = np.concatenate([np.full(len(q), c) for c, (q, _) in enumerate(curves)])  # (P,)
+    curve = np.repeat(np.arange(len(curves)), [len(q) for q, _ in curves])  # (P,)
     s = np.concatenate(arc)  # (P,) arc position along its curve
     total = np.asarray(length)[curve]  # (P,)
     closed = np.array([closed for _, closed in curves])[curve]
