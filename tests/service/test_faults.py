@@ -81,11 +81,13 @@ def test_nan_from_the_network_is_contained_in_its_request(tmp_path: Path) -> Non
         assert faulty.status_code == 200
         answer = faulty.json()
         counts = answer["counts"]
-        assert counts["sampled"] == 1000
-        assert counts["rejected_tolerance"] >= 500  # the NaN rows (7/8 of them) are rejected
+        sampled = counts["sampled"]  # at most 1000: the planar 3R draws in rounds
+        assert 0 < sampled <= 1000
+        # The NaN rows (7/8 of them) are rejected.
+        assert counts["rejected_tolerance"] >= sampled // 2
         assert (
             counts["accepted"] + counts["rejected_tolerance"] + counts["rejected_joint_limits"]
-            == 1000
+            == sampled
         )
         # The few finite rows were corrected like any others: they must be exact.
         returned = [q for c in answer["components"] for q in c["configurations"]]

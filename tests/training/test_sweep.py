@@ -338,15 +338,17 @@ def test_the_sweep_chooses_by_the_rule_and_its_defaults_serve(
 
     defaults = Defaults.model_validate(swept.defaults.model_dump())
     assert defaults == swept.defaults
+    # The sweep sets the sampler it measured, keeping the served rounds (not swept).
+    rounds = {"round_samples": start.sampler.round_samples}
     assert (defaults.sampler, defaults.correction_steps, defaults.num_samples) == (
-        chosen.sampler,
+        chosen.sampler.model_copy(update=rounds),
         chosen.correction_steps,
         chosen.num_samples,
     )
     assert defaults.sampler.precision == {32: "float32", 8: "int8"}[chosen.flow_precision_bits]
     assert defaults.sampler.steps == (chosen.reflow_steps or chosen.sampler_steps)
-    assert start.connectivity == CONNECTIVITY_CURVES
-    assert defaults.connectivity == CONNECTIVITY_CURVES.model_copy(
+    # The served connectivity with the swept step (the trace's, r = 1); the rest is not swept.
+    assert defaults.connectivity == start.connectivity.model_copy(
         update={"trace_step_rad": chosen.connectivity_step_rad}
     )
     assert (defaults.damping, defaults.tolerance_position_m) == (start.damping, 1e-6)

@@ -197,13 +197,15 @@ def _time_grid(
 
 
 def _defaults(model: ServedModel, chosen: Setting, reasons: dict[str, str]) -> Defaults:
-    """The model's defaults with the swept values of `chosen` and the reasons so far."""
+    """The model's defaults with the swept values of `chosen` and the reasons so far; what
+    the sweep does not sweep (the sampler's rounds, the connectivity but its step) stays."""
     start = model.manifest.defaults
+    sampler = chosen.sampler.model_copy(update={"round_samples": start.sampler.round_samples})
     return Defaults.model_validate(
         {
             **start.model_dump(),
             "num_samples": chosen.num_samples,
-            "sampler": chosen.sampler.model_dump(),
+            "sampler": sampler.model_dump(),
             "correction_steps": chosen.correction_steps,
             "connectivity": connectivity_of(model, chosen).model_dump(),
             # A judge's verdict (training/evaluate/judge.py) was on the defaults

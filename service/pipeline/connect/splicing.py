@@ -29,7 +29,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from service.pipeline.arrays import FloatArray, IntArray
+from service.pipeline.arrays import BoolArray, FloatArray, IntArray
 from service.pipeline.connect.local_planner import PlannerSettings, walk_on_fibre
 from service.pipeline.correction import error_norms
 from service.pipeline.deadline import NO_DEADLINE, Deadline
@@ -87,10 +87,10 @@ def open_ends(paths: Sequence[ComponentPath], limits: JointLimits) -> list[_End]
     if not ends:
         return []
     q = np.array([paths[e.path].q_rad[-1 if e.last else 0] for e in ends])  # (E, n)
-    on_limit = limited & (
-        (np.abs(q - lower_rad) <= ON_LIMIT_RAD) | (np.abs(q - upper_rad) <= ON_LIMIT_RAD)
-    )  # (E, n)
-    return [end for end, on in zip(ends, on_limit.any(axis=1).tolist(), strict=True) if not on]
+    near = (np.abs(q - lower_rad) <= ON_LIMIT_RAD) | (np.abs(q - upper_rad) <= ON_LIMIT_RAD)
+    # (E,) some limited joint on a limit
+    touching: BoolArray = np.asarray(np.logical_and(limited, near).any(axis=1), dtype=bool)
+    return [end for end, on in zip(ends, touching.tolist(), strict=True) if not on]
 
 
 def splice_paths(

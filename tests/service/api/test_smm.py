@@ -49,10 +49,11 @@ def test_every_returned_configuration_reaches_the_target_and_is_counted(client: 
     assert error.max() <= 1e-6
     assert np.all(np.abs(q) <= np.pi)
     counts = answer["counts"]
-    assert counts["sampled"] == 1500
-    assert (
-        counts["accepted"] + counts["rejected_tolerance"] + counts["rejected_joint_limits"] == 1500
-    )
+    # At most num_samples drawn (the planar 3R draws in rounds and stops once a round
+    # finds no new curve), every one of them accounted for.
+    assert 0 < counts["sampled"] <= 1500
+    rejected = counts["rejected_tolerance"] + counts["rejected_joint_limits"]
+    assert counts["accepted"] + rejected == counts["sampled"]
     assert sum(c["size"] for c in answer["components"]) == counts["accepted"] == len(q)
     for component in answer["components"]:
         assert component["max_position_error"] <= 1e-6
@@ -101,7 +102,12 @@ def test_same_seed_same_answer_and_another_seed_another_sample(client: TestClien
 def test_tolerance_is_honoured(client: TestClient) -> None:
     loose = smm(client, tolerance={"position": 1e-2}).json()
     tight = smm(client, tolerance={"position": 1e-12}).json()
-    assert loose["counts"]["accepted"] >= tight["counts"]["accepted"]
+
+    # The share accepted (the rounds may draw more for the tight tolerance).
+    def rate(answer: dict) -> float:
+        return answer["counts"]["accepted"] / answer["counts"]["sampled"]
+
+    assert rate(loose) >= rate(tight) and tight["counts"]["rejected_tolerance"] > 0
     for component in tight["components"]:
         assert component["max_position_error"] <= 1e-12
 

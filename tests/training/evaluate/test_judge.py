@@ -169,11 +169,12 @@ def test_a_candidate_judged_no_worse_serves_marking_what_it_changed(
         key: served.reasons[key] for key in unchanged
     }
     # A field of a group marks the reason of that field, or else of its group, only.
+    unmarked = served.model_copy(update={"reasons": {**served.reasons, "sampler": "a rule"}})
     rounds = judging.served_candidate(
-        served, judging.candidate_defaults(served, '{"sampler": {"round_samples": 64}}'),
+        unmarked, judging.candidate_defaults(unmarked, '{"sampler": {"round_samples": 64}}'),
         no_worse, "Z",
     )  # fmt: skip
-    assert {key for key in served.reasons if rounds.reasons[key] != served.reasons[key]} == {
+    assert {key for key in unmarked.reasons if rounds.reasons[key] != unmarked.reasons[key]} == {
         "sampler", judging.JUDGED,
     }  # fmt: skip
     precision = judging.served_candidate(
@@ -220,10 +221,10 @@ def test_a_candidate_judged_no_worse_serves_marking_what_it_changed(
     written = Manifest.model_validate_json(manifest.read_text()).defaults
     assert written.model_dump(exclude={"reasons"}) == served.model_dump(exclude={"reasons"})
     # Only what the manifest set and the candidate changed is written: no field that
-    # neither sets appears (the sampler's round_samples, say).
+    # neither sets appears (a sampler field as null, say).
     assert written.model_fields_set == served.model_fields_set
     assert written.sampler.model_fields_set == served.sampler.model_fields_set
-    assert "round_samples" not in manifest.read_text()
+    assert None not in json.loads(manifest.read_text())["defaults"]["sampler"].values()
     last_verdict = written.reasons[judging.JUDGED].split(judging.JUDGED_SEPARATOR)[-1]
     assert last_verdict.startswith(
         f"the candidate {same} (smm-train judge --model planar3r-position "

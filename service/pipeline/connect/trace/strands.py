@@ -54,9 +54,9 @@ def closest_strands_rad(
     steps = np.linalg.norm(joint_difference(points[1:], points[:-1], periodic), axis=1)
     arc, length = [], []
     start = 0
-    for q, closed in curves:
+    for q, loop in curves:
         arc.append(np.concatenate([[0.0], np.cumsum(steps[start : start + len(q) - 1])]))
-        closing = np.linalg.norm(joint_difference(q[0], q[-1], periodic)) if closed else 0.0
+        closing = np.linalg.norm(joint_difference(q[0], q[-1], periodic)) if loop else 0.0
         length.append(arc[-1][-1] + float(closing))
         start += len(q)
     curve = np.repeat(np.arange(len(curves)), [len(q) for q, _ in curves])  # (P,)
