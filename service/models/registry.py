@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -65,6 +66,7 @@ class ServedModel:
     coaxial_sets: tuple[CoaxialSet, ...]  # where twin branches meet (connect/coaxial.py)
     robot_spheres: RobotSpheres | None  # collision.json's bodies; None without geometry
     version: str  # first 12 hex digits of the sha256 over the model's file digests
+    row_threads: int = 1  # a compiled call's rows split over this many (pipeline/rows.py)
 
     def network(self, sampler: SamplerSpec) -> OnnxVelocityField:
         """The flow network `sampler` evaluates (its `flow` and `precision`)."""
@@ -174,6 +176,8 @@ def load_model(model_dir: Path, threads: int) -> ServedModel:
         coaxial_sets=tuple(find_coaxial_sets(kinematics, limits)),
         robot_spheres=_load_spheres(model_dir, manifest),
         version=hashlib.sha256(combined.encode()).hexdigest()[:12],
+        # The network's threads (0: onnxruntime's default, every core) for the rows too.
+        row_threads=threads or os.cpu_count() or 1,
     )
 
 

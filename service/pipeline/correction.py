@@ -19,6 +19,7 @@ from service.pipeline.arrays import FloatArray, IntArray
 from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.joint_space import JointLimits
 from service.pipeline.rotations import rotation_error
+from service.pipeline.rows import over_rows
 from service.pipeline.targets import Target
 from service.pipeline.types import ChainKinematics, Correction, Kinematics, KinematicsResult
 
@@ -165,6 +166,7 @@ def correct(
     damping: float,
     limits: JointLimits,  # its periodic joints come back wrapped
     deadline: Deadline = NO_DEADLINE,
+    threads: int = 1,  # on a serial chain, the compiled steps' rows split over this many
 ) -> Correction:
     """Up to `steps` DLS steps on every finite sample (a sample stops once its |e| is at
     most CONVERGED_ERROR) and the remaining errors, measured where each sample ended.
@@ -190,15 +192,21 @@ def correct(
     q = q_rad[finite]
     if isinstance(kinematics, ChainKinematics):  # every step of a chunk's rows compiled
         rotation = target.rotation if task.orientation else None
-        error, jacobian = residual(q)
-        for rows in range(0, len(q), CHUNK_ROWS):
+        error = np.empty((len(q), m))
+        jacobian = np.empty((len(q), m, q.shape[1]))
+        for first in range(0, len(q), CHUNK_ROWS):
             deadline.check("correct")
-            chunk = slice(rows, rows + CHUNK_ROWS)
-            q[chunk], error[chunk], jacobian[chunk] = native.newton(
-                kinematics.fixed, kinematics.tip, task.position_axes, target.position_m,
-                rotation, q[chunk], error[chunk], jacobian[chunk], steps, damping,
-                until=CONVERGED_ERROR,
-            )  # fmt: skip
+            count = min(CHUNK_ROWS, len(q) - first)
+
+            def chunk(part: slice, first: int = first) -> None:  # rows of this chunk only
+                rows = slice(first + part.start, first + part.stop)
+                q[rows], error[rows], jacobian[rows] = native.newton(
+                    kinematics.fixed, kinematics.tip, task.position_axes, target.position_m,
+                    rotation, q[rows], *residual(q[rows]), steps, damping,
+                    until=CONVERGED_ERROR,
+                )  # fmt: skip
+
+            over_rows(chunk, count, threads)
     else:
 
         def step(jacobian: FloatArray, error: FloatArray, rows: IntArray | slice) -> FloatArray:

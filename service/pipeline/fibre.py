@@ -20,6 +20,7 @@ from service.manifest import TaskSpec
 from service.pipeline import native
 from service.pipeline.arrays import BoolArray, FloatArray, IntArray
 from service.pipeline.correction import Residual, dls_step, iterate, residual_of
+from service.pipeline.rows import over_rows
 from service.pipeline.targets import Target
 from service.pipeline.types import ChainKinematics, Kinematics
 
@@ -32,6 +33,7 @@ class Fibre:
     task: TaskSpec
     kinematics: Kinematics
     damping: float  # DLS damping of the projection steps (the correction's)
+    threads: int = 1  # the compiled Newton steps' rows split over this many (rows.py)
 
     def residual(self, q_rad: FloatArray) -> tuple[FloatArray, FloatArray]:
         """Task error e (B, m) and task Jacobian J (B, m, n) at q_rad (B, n)."""
@@ -102,18 +104,29 @@ def newton(
     Each step is one batched kinematics call over the rows still moving: every row with
     `until` None, else the rows whose |e| is above `until` (or not finite). With a serial
     chain's kinematics, the steps of every row run compiled instead (`native.newton`,
-    the same steps row by row; a DLS step needs damping above 0 there, which every
-    manifest's is, since a singular system has no pseudo-inverse fallback in it).
+    the same steps row by row, the rows split over `fibre.threads`; a DLS step needs
+    damping above 0 there, which every manifest's is, since a singular system has no
+    pseudo-inverse fallback in it).
     """
     kinematics = fibre.chain
     if kinematics is not None and (tangent is not None or fibre.damping > 0):
-        target, task = fibre.target, fibre.task
-        q, error, jacobian = native.newton(
-            kinematics.fixed, kinematics.tip, task.position_axes, target.position_m,
-            target.rotation if task.orientation else None,
-            start.q_rad, start.error, start.jacobian, iterations, fibre.damping, until,
-            locked, tangent,
-        )  # fmt: skip
+        chain, target, task = kinematics, fibre.target, fibre.task
+        per_row = locked is not None and np.ndim(locked) == 2
+
+        def chunk(rows: slice) -> tuple[FloatArray, FloatArray, FloatArray]:
+            return native.newton(
+                chain.fixed, chain.tip, task.position_axes, target.position_m,
+                target.rotation if task.orientation else None,
+                start.q_rad[rows], start.error[rows], start.jacobian[rows], iterations,
+                fibre.damping, until, locked[rows] if per_row and locked is not None else locked,
+                None if tangent is None else tangent[rows],
+            )  # fmt: skip
+
+        parts = over_rows(chunk, len(start.q_rad), fibre.threads)
+        if len(parts) == 1:
+            q, error, jacobian = parts[0]
+        else:
+            q, error, jacobian = (np.concatenate(part) for part in zip(*parts, strict=True))
         return Projection(q_rad=q, error=error, jacobian=jacobian)
 
     def step(jacobian: FloatArray, error: FloatArray, rows: IntArray | slice) -> FloatArray:

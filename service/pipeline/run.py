@@ -107,9 +107,12 @@ def sample(
 
 
 def fibre_of(model: SmmModel, target: Target) -> Fibre:
-    """The target's fibre, projected onto with the model's kinematics and DLS damping."""
+    """The target's fibre, projected onto with the model's kinematics and DLS damping, the
+    compiled steps' rows over the model's threads."""
     manifest = model.manifest
-    return Fibre(target, manifest.task, model.kinematics, manifest.defaults.damping)
+    return Fibre(
+        target, manifest.task, model.kinematics, manifest.defaults.damping, model.row_threads
+    )
 
 
 def collision_of(model: SmmModel, query: Query) -> CollisionCheck:
@@ -155,6 +158,7 @@ def correct_samples(
         damping=defaults.damping,
         limits=space.limits,
         deadline=deadline,
+        threads=model.row_threads,
     )
     return into_limits(model, space, correction, deadline)
 

@@ -88,7 +88,8 @@ class CoaxialSet:
 class SmmModel(Protocol):
     """What the pipeline needs of a served model: its manifest, flow and kinematics, its
     joint limits, the coaxial sets of its chain, and its bodies as spheres (None when its
-    URDF has no collision geometry); the last three made once, when the model is loaded."""
+    URDF has no collision geometry), made once when the model is loaded; and how many
+    threads a compiled call's rows may be split over (rows.py)."""
 
     @property
     def manifest(self) -> Manifest: ...
@@ -107,6 +108,9 @@ class SmmModel(Protocol):
 
     @property
     def robot_spheres(self) -> RobotSpheres | None: ...
+
+    @property
+    def row_threads(self) -> int: ...
 
 
 # -- in: one query -----------------------------------------------------------------------------

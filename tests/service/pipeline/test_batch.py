@@ -177,6 +177,10 @@ class SlowSecondTarget:
     def robot_spheres(self) -> RobotSpheres | None:
         return self.model.robot_spheres
 
+    @property
+    def row_threads(self) -> int:
+        return self.model.row_threads
+
 
 @pytest.mark.parametrize("threads", [1, 2])
 def test_a_deadline_mid_batch_returns_the_answers_before_it(
