@@ -123,6 +123,7 @@ def collision_of(model: SmmModel, query: Query) -> CollisionCheck:
         scene=query.scene,
         check_self=query.check_self,
         margin_m=query.margin_m,
+        threads=model.row_threads,
     )
 
 

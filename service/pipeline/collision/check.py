@@ -16,6 +16,7 @@ import numpy as np
 from service.pipeline.arrays import BoolArray, FloatArray
 from service.pipeline.collision.robot import RobotSpheres
 from service.pipeline.collision.scene import Scene
+from service.pipeline.rows import over_rows
 
 # Configurations placed per pass: the spheres' temporaries stay a few MB.
 CHUNK = 1024
@@ -30,6 +31,7 @@ class CollisionCheck:
     scene: Scene
     check_self: bool
     margin_m: float
+    threads: int = 1  # the compiled self-clearance's rows split over this many (rows.py)
 
     @classmethod
     def none(cls) -> CollisionCheck:
@@ -62,7 +64,7 @@ class CollisionCheck:
             # self-clearance and its refined pass place their own, row by row.
             placed = robot.place(q) if self.scene.obstacles else None
             if self.self_checked:
-                clearance[span] = robot.self_clearance_at_m(q)
+                clearance[span] = self._self_clearance_m(robot, q)
             if placed is not None:
                 clearance[span] = self.scene.clearance_m(placed, robot, clearance[span])
             near = np.flatnonzero(clearance[span] < self.margin_m)  # the hulls decide
@@ -84,6 +86,14 @@ class CollisionCheck:
             free = refined >= self.margin_m
             clearance[span][near[free]] = refined[free]
         return clearance
+
+    def _self_clearance_m(self, robot: RobotSpheres, q_rad: FloatArray) -> FloatArray:
+        """The robot's self-clearance at joint values (B,), the rows split over the threads."""
+
+        def of_rows(rows: slice) -> FloatArray:
+            return robot.self_clearance_at_m(q_rad[rows])
+
+        return np.concatenate(over_rows(of_rows, len(q_rad), self.threads))
 
     def clearances_m(self, parts: list[FloatArray]) -> list[FloatArray]:
         """`clearance_m` of several arrays (k_i, n) in one call (each call costs a few

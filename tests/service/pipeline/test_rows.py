@@ -1,7 +1,8 @@
 """rows: the chunks cover every row once, in order, none shorter than MIN_CHUNK_ROWS unless
 there is only one; a call over rows runs its chunks on helper threads and returns their
-results in the chunks' order; the compiled correction and Newton projection give the same
-numbers bitwise whatever the threads their rows are split over."""
+results in the chunks' order; the compiled correction, Newton projection and
+self-clearance give the same numbers bitwise whatever the threads their rows are split
+over."""
 
 from __future__ import annotations
 
@@ -13,6 +14,8 @@ import pytest
 
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
+from service.pipeline.collision.check import CollisionCheck
+from service.pipeline.collision.scene import Scene
 from service.pipeline.correction import correct
 from service.pipeline.fibre import project, unit_tangent
 from service.pipeline.rows import MIN_CHUNK_ROWS, chunks, over_rows
@@ -74,6 +77,20 @@ def test_the_compiled_steps_are_the_same_on_any_threads(
     split = dataclasses.replace(fibre, threads=threads)
     tangent = unit_tangent(fibre.residual(q)[1])
     for case in ({"iterations": 3, "tangent": tangent}, {"iterations": 4, "until": 1e-10}):
-        a, b = project(fibre, q, **case), project(split, q, **case)  # type: ignore[arg-type]
+        a, b = project(fibre, q, **case), project(split, q, **case)
         for x, y in ((a.q_rad, b.q_rad), (a.error, b.error), (a.jacobian, b.jacobian)):
             np.testing.assert_array_equal(x, y)
+
+
+def test_the_self_clearance_is_the_same_on_any_threads(iiwa14_pose: ServedModel) -> None:
+    model = iiwa14_pose
+    rng = np.random.default_rng(9)
+    q = rng.uniform(model.limits.lower_rad, model.limits.upper_rad, (700, model.limits.count))
+    checks = [
+        CollisionCheck(model.robot_spheres, Scene(), check_self=True, margin_m=0.01, threads=t)
+        for t in (1, 2, 4)
+    ]
+    one, *many = (check.clearance_m(q) for check in checks)
+    assert np.isfinite(one).all() and (one < 0.01).any()  # some rows go to the refined pass
+    for other in many:
+        np.testing.assert_array_equal(one, other)
