@@ -260,6 +260,16 @@ def models_table() -> str:
         if len(targets) == 1
         else "held-out targets"
     )
+    in_rounds = [
+        f"`{model_id}`"
+        for model_id in bundled_models()
+        if sources.manifest(model_id)["defaults"]["sampler"].get("round_samples")
+    ]
+    if in_rounds:
+        scope += (
+            f" (at most: {', '.join(in_rounds)} draws in rounds and stops after a round "
+            "that finds no new curve; its keep rate is over the samples drawn)"
+        )
     legend = (
         f"From each model's evaluation report (`docs/reports/<model>.md`): {scope}, "
         "against exact ground truth. Count right: the targets whose components match the "
