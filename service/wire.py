@@ -130,7 +130,10 @@ class SmmRequest(_Request):
     task: str = Field(examples=["position"])
     target: TargetIn
     num_samples: NumSamples | None = Field(
-        None, description="Flow samples to draw (default: the model's; 413 above the limit)."
+        None,
+        description="Flow samples to draw, at most (default: the model's; 413 above the "
+        "limit). A model that draws in rounds stops after a round that finds no new curve "
+        "(counts.sampled says how many it drew).",
     )
     seed: Seed = Field(0, description="The same seed gives the same answer.")
     tolerance: ToleranceIn = Field(default_factory=ToleranceIn)
