@@ -76,7 +76,13 @@ def test_the_compiled_steps_are_the_same_on_any_threads(
     fibre = fibre_of(model, target)
     split = dataclasses.replace(fibre, threads=threads)
     tangent = unit_tangent(fibre.residual(q)[1])
-    for case in ({"iterations": 3, "tangent": tangent}, {"iterations": 4, "until": 1e-10}):
+    locked = rng.random(q.shape) < 0.2  # (B, n) each row its own locked joints
+    cases = (
+        {"iterations": 3, "tangent": tangent},
+        {"iterations": 4, "until": 1e-10},
+        {"iterations": 3, "locked": locked},
+    )
+    for case in cases:
         a, b = project(fibre, q, **case), project(split, q, **case)
         for x, y in ((a.q_rad, b.q_rad), (a.error, b.error), (a.jacobian, b.jacobian)):
             np.testing.assert_array_equal(x, y)
