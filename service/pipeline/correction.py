@@ -15,7 +15,7 @@ import numpy as np
 
 from service.manifest import TaskSpec
 from service.pipeline import native
-from service.pipeline.arrays import FloatArray, IntArray
+from service.pipeline.arrays import BoolArray, FloatArray, IntArray
 from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.joint_space import JointLimits
 from service.pipeline.rotations import rotation_error
@@ -97,6 +97,40 @@ def residual_of(kinematics: Kinematics, target: Target, task: TaskSpec) -> Resid
         return task_error(kinematics(q_rad), target, task)
 
     return through
+
+
+def compiled_newton(
+    chain: ChainKinematics,
+    target: Target,
+    task: TaskSpec,
+    q_rad: FloatArray,  # (B, n) evaluated: error and jacobian are measured there
+    error: FloatArray,  # (B, m)
+    jacobian: FloatArray,  # (B, m, n)
+    iterations: int,
+    damping: float,
+    until: float | None = None,
+    locked: BoolArray | None = None,  # (B, n) or (n,) joints held fixed
+    tangent: FloatArray | None = None,  # (B, n) bordered steps (r = 1)
+    threads: int = 1,
+) -> tuple[FloatArray, FloatArray, FloatArray]:  # q (B, n), error (B, m), jacobian (B, m, n)
+    """`native.newton` on a serial chain's rows, split over `threads` (rows.py): the same
+    steps row by row, so the same numbers on any count."""
+    per_row = locked is not None and np.ndim(locked) == 2
+    rotation = target.rotation if task.orientation else None
+
+    def chunk(rows: slice) -> tuple[FloatArray, FloatArray, FloatArray]:
+        return native.newton(
+            chain.fixed, chain.tip, task.position_axes, target.position_m, rotation,
+            q_rad[rows], error[rows], jacobian[rows], iterations, damping, until,
+            locked[rows] if per_row and locked is not None else locked,
+            None if tangent is None else tangent[rows],
+        )  # fmt: skip
+
+    parts = over_rows(chunk, len(q_rad), threads)
+    if len(parts) == 1:
+        return parts[0]
+    q, e, j = (np.concatenate(part) for part in zip(*parts, strict=True))
+    return q, e, j
 
 
 # J (A, m, n), e (A, m) of the rows still moving, and which rows they are (an index (A,),
@@ -191,22 +225,14 @@ def correct(
     residual = residual_of(kinematics, target, task)
     q = q_rad[finite]
     if isinstance(kinematics, ChainKinematics):  # every step of a chunk's rows compiled
-        rotation = target.rotation if task.orientation else None
-        error = np.empty((len(q), m))
-        jacobian = np.empty((len(q), m, q.shape[1]))
+        error, jacobian = residual(q)
         for first in range(0, len(q), CHUNK_ROWS):
             deadline.check("correct")
-            count = min(CHUNK_ROWS, len(q) - first)
-
-            def chunk(part: slice, first: int = first) -> None:  # rows of this chunk only
-                rows = slice(first + part.start, first + part.stop)
-                q[rows], error[rows], jacobian[rows] = native.newton(
-                    kinematics.fixed, kinematics.tip, task.position_axes, target.position_m,
-                    rotation, q[rows], *residual(q[rows]), steps, damping,
-                    until=CONVERGED_ERROR,
-                )  # fmt: skip
-
-            over_rows(chunk, count, threads)
+            rows = slice(first, first + CHUNK_ROWS)
+            q[rows], error[rows], jacobian[rows] = compiled_newton(
+                kinematics, target, task, q[rows], error[rows], jacobian[rows], steps,
+                damping, until=CONVERGED_ERROR, threads=threads,
+            )  # fmt: skip
     else:
 
         def step(jacobian: FloatArray, error: FloatArray, rows: IntArray | slice) -> FloatArray:

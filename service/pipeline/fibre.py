@@ -19,8 +19,7 @@ import numpy as np
 from service.manifest import TaskSpec
 from service.pipeline import native
 from service.pipeline.arrays import BoolArray, FloatArray, IntArray
-from service.pipeline.correction import Residual, dls_step, iterate, residual_of
-from service.pipeline.rows import over_rows
+from service.pipeline.correction import Residual, compiled_newton, dls_step, iterate, residual_of
 from service.pipeline.targets import Target
 from service.pipeline.types import ChainKinematics, Kinematics
 
@@ -110,23 +109,10 @@ def newton(
     """
     kinematics = fibre.chain
     if kinematics is not None and (tangent is not None or fibre.damping > 0):
-        chain, target, task = kinematics, fibre.target, fibre.task
-        per_row = locked is not None and np.ndim(locked) == 2
-
-        def chunk(rows: slice) -> tuple[FloatArray, FloatArray, FloatArray]:
-            return native.newton(
-                chain.fixed, chain.tip, task.position_axes, target.position_m,
-                target.rotation if task.orientation else None,
-                start.q_rad[rows], start.error[rows], start.jacobian[rows], iterations,
-                fibre.damping, until, locked[rows] if per_row and locked is not None else locked,
-                None if tangent is None else tangent[rows],
-            )  # fmt: skip
-
-        parts = over_rows(chunk, len(start.q_rad), fibre.threads)
-        if len(parts) == 1:
-            q, error, jacobian = parts[0]
-        else:
-            q, error, jacobian = (np.concatenate(part) for part in zip(*parts, strict=True))
+        q, error, jacobian = compiled_newton(
+            kinematics, fibre.target, fibre.task, start.q_rad, start.error, start.jacobian,
+            iterations, fibre.damping, until, locked, tangent, fibre.threads,
+        )  # fmt: skip
         return Projection(q_rad=q, error=error, jacobian=jacobian)
 
     def step(jacobian: FloatArray, error: FloatArray, rows: IntArray | slice) -> FloatArray:

@@ -331,12 +331,9 @@ def served_candidate(
     candidate came from."""
     if not judgement.no_worse:
         raise ValueError(f"a candidate judged worse does not serve: {judgement.summary()}")
-    before = _flat(incumbent.model_dump(exclude={"reasons"}))
-    after = _flat(candidate.model_dump(exclude={"reasons"}))
     marked = {
         key: _marked(incumbent.reasons.get(key, "no reason before"))
-        for field in after
-        if before[field] != after[field]
+        for field in _changed(incumbent, candidate)
         for key in _REASONS_OF_FIELD.get(field) or _REASONS_OF_FIELD[field.split(".")[0]]
     }
     changed = _changes(incumbent, candidate)
@@ -353,12 +350,17 @@ def _marked(reason: str) -> str:
     return reason if reason.startswith(mark) else mark + reason
 
 
-def _changes(before: Defaults, after: Defaults) -> str:
-    """The changed values, "key old -> new" with dotted keys."""
+def _changed(before: Defaults, after: Defaults) -> dict[str, tuple[object, object]]:
+    """The changed values, by dotted key: (old, new)."""
     old = _flat(before.model_dump(exclude={"reasons"}))
     new = _flat(after.model_dump(exclude={"reasons"}))
-    changes = [f"{key} {old[key]} -> {new[key]}" for key in new if old[key] != new[key]]
-    return ", ".join(changes) or "nothing"
+    return {key: (old[key], new[key]) for key in new if old[key] != new[key]}
+
+
+def _changes(before: Defaults, after: Defaults) -> str:
+    """The changed values, "key old -> new" with dotted keys."""
+    changed = _changed(before, after).items()
+    return ", ".join(f"{key} {old} -> {new}" for key, (old, new) in changed) or "nothing"
 
 
 def _flat(values: dict[str, object], prefix: str = "") -> dict[str, object]:
