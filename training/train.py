@@ -75,11 +75,37 @@ class Optimisation:
 @dataclass
 class EpochCursor:
     """Where an epoch stands: the generator state its shuffle was drawn from, the batches
-    done and the sum of their losses."""
+    done and the sum of their losses.
+
+    During the epoch the sum runs on the training device (`running`, float64, so that it
+    adds exactly what `loss.item()` would have): reading a loss back every batch would
+    stall a GPU at each step. `settle()` brings it back before it is read.
+    """
 
     start_generator: torch.Tensor
     next_batch: int = 0
     loss_sum: float = 0.0
+    running: torch.Tensor | None = None  # () float64 on the device: loss_sum and the batches since
+
+    def add(self, loss: torch.Tensor) -> None:
+        if self.running is None:
+            self.running = torch.tensor(self.loss_sum, dtype=torch.float64, device=loss.device)
+        self.running += loss.detach()
+
+    def settle(self) -> float:
+        """The sum of the losses so far, as a number (one device read)."""
+        if self.running is not None:
+            self.loss_sum = float(self.running)
+            self.running = None
+        return self.loss_sum
+
+
+def to_device(tensor: torch.Tensor, device: torch.device) -> torch.Tensor:
+    """A CPU tensor on `device`; to a GPU through pinned memory without waiting for it, so
+    that drawing the noise on the CPU (the same draws on any device) stalls no step."""
+    if device.type == "cpu":
+        return tensor
+    return tensor.pin_memory().to(device, non_blocking=True)
 
 
 def train_one_epoch(
@@ -100,19 +126,20 @@ def train_one_epoch(
     batches = math.ceil(len(order) / step.batch_size)
     for batch in range(cursor.next_batch, batches):
         index = order[batch * step.batch_size : (batch + 1) * step.batch_size]
-        q_0 = torch.randn(len(index), pairs.q_1.shape[1], generator=step.generator).to(device)
-        t = step.times.sample(len(index), step.generator).to(device)
+        noise = torch.randn(len(index), pairs.q_1.shape[1], generator=step.generator)
+        q_0 = to_device(noise, device)
+        t = to_device(step.times.sample(len(index), step.generator), device)
         with torch.autocast(device.type, dtype=torch.bfloat16, enabled=step.autocast_bf16):
             loss = cfm_loss(network, pairs.q_1[index], pairs.condition[index], q_0, t)
         step.optimiser.step(loss)
         if step.ema is not None:
             step.ema.update(step.model)
-        cursor.loss_sum += loss.item()
+        cursor.add(loss)
         cursor.next_batch = batch + 1
         progress.update(1)
         if after_batch is not None and cursor.next_batch < batches:
             after_batch(cursor)
-    return cursor.loss_sum / batches
+    return cursor.settle() / batches
 
 
 @torch.no_grad()
@@ -246,6 +273,8 @@ class Checkpointer:
     def save(self, next_epoch: int, cursor: EpochCursor | None) -> None:
         if self.last_path is None:
             return
+        if cursor is not None:
+            cursor.settle()
         rank_generators, rank_loss_sums = None, None
         if self.processes.distributed:  # every process's generator and loss sum, to rank 0
             gathered = self.processes.gather(
