@@ -152,6 +152,12 @@ class SmmRequest(_Request):
         description="For a 1-D self-motion (redundancy 1), return each component's ordered "
         "`path`; false keeps answers small (`arc_length_rad` and `closed` stay).",
     )
+    include_roadmap: bool = Field(
+        False,
+        description="Return the roadmap of each component a roadmap decided (redundancy "
+        "above 1, and at redundancy 1 samples on no traced curve): its nodes and the edges "
+        "joining them, a graph a planner can move along.",
+    )
     obstacles: list[ObstacleIn] = Field(
         default_factory=list,
         max_length=MAX_OBSTACLES,
@@ -171,6 +177,23 @@ class CountsOut(BaseModel):
     rejected_joint_limits: int
     rejected_collision: int = Field(
         description="Within tolerance and the limits, but in collision (with the margin)."
+    )
+
+
+class RoadmapOut(BaseModel):
+    """How to move within a component of redundancy above 1."""
+
+    nodes: list[list[float]] = Field(
+        description="Configurations: the component's members first, in the order of "
+        "`configurations` when that is not capped, then the nodes the connect stage added "
+        "to join them. Every node is within tolerance, inside the limits and free of "
+        "collision (when checked)."
+    )
+    edges: list[list[int]] = Field(
+        description="Pairs [i, j] (i < j) of node indices joined by a motion checked on the "
+        "self-motion manifold: every step of it projected onto the fibre (within the "
+        "connectivity's projection tolerance, 1e-4), inside the limits and free of "
+        "collision. Any two nodes are joined by a path of edges."
     )
 
 
@@ -203,6 +226,11 @@ class ComponentOut(BaseModel):
         "curve, consecutive ones at most 0.05 rad apart, every one within tolerance, inside "
         "the limits and free of collision. Null for redundancy above 1 or when "
         "include_paths is false."
+    )
+    roadmap: RoadmapOut | None = Field(
+        None,
+        description="With include_roadmap: the component's roadmap, where a roadmap decided "
+        "it. Null otherwise (a traced 1-D component has its `path`).",
     )
     clearance_m: float | None = Field(
         description="The least distance, in metres, from the robot to the obstacles and to "
@@ -280,6 +308,7 @@ class BatchTargetIn(_Request):
         None, description="Default: the batch's."
     )
     include_paths: bool | None = Field(None, description="Default: the batch's.")
+    include_roadmap: bool | None = Field(None, description="Default: the batch's.")
 
 
 # The options a batch target may give for itself, in SmmRequest's names.
@@ -290,6 +319,7 @@ BATCH_TARGET_OPTIONS = (
     "reference_configuration",
     "max_configurations_per_component",
     "include_paths",
+    "include_roadmap",
 )
 
 
@@ -320,6 +350,7 @@ class SmmBatchRequest(_Request):
         None, description="As in POST /smm."
     )
     include_paths: bool = Field(True, description="As in POST /smm.")
+    include_roadmap: bool = Field(False, description="As in POST /smm.")
     obstacles: list[ObstacleIn] = Field(
         default_factory=list,
         max_length=MAX_OBSTACLES,

@@ -24,12 +24,13 @@ from service.observability.metrics import Metrics
 from service.pipeline.collision.scene import Obstacle
 from service.pipeline.deadline import Deadline
 from service.pipeline.run import collision_of, run
-from service.pipeline.types import ComponentSummary, Query, SmmResult
+from service.pipeline.types import ComponentRoadmap, ComponentSummary, Query, SmmResult
 from service.wire import (
     CollisionOut,
     ComponentOut,
     CountsOut,
     ObstacleIn,
+    RoadmapOut,
     SmmRequest,
     SmmResponse,
     StructureOut,
@@ -77,6 +78,7 @@ def query_for_model(body: SmmRequest, model: ServedModel) -> Query:
         reference_rad=body.reference_configuration,
         max_configurations_per_component=body.max_configurations_per_component,
         include_paths=body.include_paths,
+        include_roadmap=body.include_roadmap,
         obstacles=[_obstacle(i, o) for i, o in enumerate(body.obstacles)],
         check_self=body.collision.check_self,
         margin_m=body.collision.margin_m,
@@ -116,10 +118,15 @@ def _component_out(index: int, summary: ComponentSummary) -> ComponentOut:
         closed=None if summary.closed is None else bool(summary.closed),
         ends=None if summary.ends is None else list(summary.ends),
         path=None if summary.path is None else summary.path.q_rad.tolist(),
+        roadmap=None if summary.roadmap is None else _roadmap_out(summary.roadmap),
         clearance_m=_float_or_none(summary.clearance_m),
         safest_configuration=None if summary.safest_rad is None else summary.safest_rad.tolist(),
         safest_clearance_m=_float_or_none(summary.safest_clearance_m),
     )
+
+
+def _roadmap_out(roadmap: ComponentRoadmap) -> RoadmapOut:
+    return RoadmapOut.model_construct(nodes=roadmap.q_rad.tolist(), edges=roadmap.edges.tolist())
 
 
 def _float_or_none(value: float | None) -> float | None:

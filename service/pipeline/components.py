@@ -113,6 +113,7 @@ def summarise(
     max_configurations: int | None,
     include_path: bool,
     deadline: Deadline = NO_DEADLINE,
+    include_roadmap: bool = False,
 ) -> list[ComponentSummary]:
     """The response's view of each component; bounds, errors and the reference distance
     cover its samples and (r = 1) every point of its path. Each reduction runs once over
@@ -175,6 +176,7 @@ def summarise(
                 closed=None if path is None else path.closed,
                 ends=None if path is None or path.closed else path.ends,
                 path=path if include_path else None,
+                roadmap=component.roadmap if include_roadmap else None,
                 clearance_m=None if clearance is None else clearance[0],
                 safest_rad=None if clearance is None else clearance[1],
                 safest_clearance_m=None if clearance is None else clearance[2],
@@ -191,6 +193,7 @@ def summarise_all(
     max_configurations: int | None,
     include_paths: bool,
     deadline: Deadline = NO_DEADLINE,
+    include_roadmap: bool = False,
 ) -> list[ComponentSummary]:
     """Summaries ordered by distance to the reference when given, else by size (largest first,
     then the longest path)."""
@@ -198,7 +201,7 @@ def summarise_all(
         reference_rad = limits.wrap(reference_rad)
     summaries = summarise(
         measured(components, collision), limits, reference_rad, max_configurations,
-        include_paths, deadline,
+        include_paths, deadline, include_roadmap,
     )  # fmt: skip
     if reference_rad is not None:
         return sorted(summaries, key=lambda s: (s.distance_to_reference_rad, -s.size))

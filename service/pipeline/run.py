@@ -229,6 +229,7 @@ def answer_accepted(
             max_configurations=query.max_configurations_per_component,
             include_paths=query.include_paths,
             deadline=deadline,
+            include_roadmap=query.include_roadmap,
         )
 
     return SmmResult(

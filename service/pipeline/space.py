@@ -27,6 +27,7 @@ from service.pipeline import native
 from service.pipeline.acceptance import accept
 from service.pipeline.arrays import BoolArray, FloatArray
 from service.pipeline.collision.check import CollisionCheck
+from service.pipeline.correction import error_norms
 from service.pipeline.fibre import Fibre, project
 from service.pipeline.joint_space import JointLimits, wrap_to_pi
 from service.pipeline.types import Acceptance, CoaxialSet, Correction, Tolerance
@@ -77,6 +78,22 @@ class FibreSpace:
         free = acceptance.collision_free.copy()
         free[on_fibre] = self.collision.free(correction.q_rad[on_fibre])
         return replace(acceptance, collision_free=free)
+
+    def polish(
+        self, q_rad: FloatArray, iterations: int = 4
+    ) -> tuple[FloatArray, BoolArray]:  # (A, n) near the fibre -> (A, n), (A,)
+        """Newton steps from configurations near the fibre (a walk's, within its projection
+        tolerance) to the query's tolerance: the configurations (periodic joints wrapped)
+        and which of them are valid, as `accept` judges a corrected sample."""
+        projected = project(self.fibre, q_rad, iterations)
+        q = self.limits.wrap(projected.q_rad)
+        position_error_m, orientation_error_rad = error_norms(projected.error, self.fibre.task)
+        ok = self.tolerance.within(position_error_m, orientation_error_rad)
+        ok &= np.all(np.isfinite(q), axis=1)
+        if ok.any():
+            inside = np.flatnonzero(ok)
+            ok[inside] = self.valid(q[inside])
+        return q, ok
 
     def valid(self, q_rad: FloatArray) -> BoolArray:  # (A, n) on the fibre -> (A,)
         """Which configurations already on the fibre are inside the limits and free."""

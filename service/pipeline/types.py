@@ -16,7 +16,7 @@ import numpy as np
 
 from service.errors import RequestFieldError
 from service.manifest import Defaults, Manifest
-from service.pipeline.arrays import BoolArray, Float32Array, FloatArray
+from service.pipeline.arrays import BoolArray, Float32Array, FloatArray, IntArray
 from service.pipeline.collision.robot import RobotSpheres
 from service.pipeline.collision.scene import Obstacle, Scene
 from service.pipeline.joint_space import JointLimits
@@ -134,6 +134,7 @@ class Query:
     reference_rad: FloatArray | None  # (n,)
     max_configurations_per_component: int | None
     include_paths: bool  # r = 1: return each component's ordered path
+    include_roadmap: bool  # return the roadmap of each component the roadmap decided
     scene: Scene  # the request's obstacles, base frame
     check_self: bool  # self-collision asked for (checked where the model has bodies)
     margin_m: float  # the least clearance a valid configuration keeps
@@ -156,6 +157,7 @@ class Query:
         reference_rad: Sequence[float] | None = None,
         max_configurations_per_component: int | None = None,
         include_paths: bool = True,
+        include_roadmap: bool = False,
         obstacles: Sequence[Obstacle] = (),
         check_self: bool = True,
         margin_m: float = 0.0,
@@ -195,6 +197,7 @@ class Query:
             ),
             max_configurations_per_component=max_configurations_per_component,
             include_paths=include_paths,
+            include_roadmap=include_roadmap,
             scene=Scene(tuple(obstacles)),
             check_self=check_self,
             margin_m=margin_m,
@@ -275,11 +278,29 @@ class ComponentPath:
 
 
 @dataclass(frozen=True)
+class ComponentRoadmap:
+    """A component the roadmap decided, as a graph a planner can move along.
+
+    Nodes: the component's members, in their order, then the nodes the connect stage added
+    to join them (where steering walks ended, on coaxial sets); every node reaches the
+    target within the query's tolerance and is valid (inside the limits, free when
+    collisions are checked). Edges: node pairs joined by a motion the connect stage
+    checked on the fibre, every step projected within the connectivity's projection
+    tolerance and valid. The edges join any two nodes: the graph is connected.
+    """
+
+    q_rad: FloatArray  # (M, n) members first
+    edges: IntArray  # (E, 2) node pairs, the lower index first, each pair once
+
+
+@dataclass(frozen=True)
 class Component:
     """Stage 5 output: one connected component of the fibre within the limits (an SMM).
 
     `q_rad` holds the accepted samples on it (none for a 1-D component that only the
-    tracing found); `path` is the whole component in order (r = 1 only).
+    tracing found); `path` is the whole component in order (r = 1 only); `roadmap` the
+    graph that joined its members (components the roadmap decided: r > 1, and r = 1
+    samples on no traced curve).
     """
 
     q_rad: FloatArray  # (k, n) every accepted member
@@ -287,6 +308,7 @@ class Component:
     orientation_error_rad: FloatArray  # (k,)
     path: ComponentPath | None = None
     clearance_m: FloatArray | None = None  # (k,) the members', when already measured
+    roadmap: ComponentRoadmap | None = None
 
 
 @dataclass(frozen=True)
@@ -315,6 +337,7 @@ class ComponentSummary:
     closed: bool | None  # r = 1: a whole loop inside the limits
     ends: tuple[EndReason, EndReason] | None  # r = 1, open: why its first and last points end
     path: ComponentPath | None  # r = 1, when the query asked for paths
+    roadmap: ComponentRoadmap | None  # roadmap components, when the query asked for roadmaps
     clearance_m: float | None  # least distance to the robot itself and the obstacles along it
     safest_rad: FloatArray | None  # (n,) its configuration of greatest clearance
     safest_clearance_m: float | None  # that configuration's clearance

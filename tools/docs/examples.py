@@ -16,9 +16,10 @@ localhost:8000 and the ```json block that shows its answer:
 `python -m tools.docs --examples` sends each request to the service in process (the
 bundled models) and writes its answer into the json block, abbreviated by `abbreviate`:
 numbers to 4 decimals (4 significant digits below 1e-3; times to 0.1 ms), at most `components=K`
-components (2 unless the marker says) and `path=P` points of each path, the rest
-summarised in a string. `tests/docs/test_examples.py` runs every curl as written against a
-real server and checks that its answer agrees with the one shown.
+components (2 unless the marker says) and `path=P` entries of each path and of each
+roadmap's nodes and edges, the rest summarised in a string. `tests/docs/test_examples.py`
+runs every curl as written against a real server and checks that its answer agrees with
+the one shown.
 """
 
 from __future__ import annotations
@@ -113,6 +114,10 @@ def _number(x: float) -> float:
     return float(f"{x:.4g}")
 
 
+# The lists shown by their first `path=P` entries, and what the rest are called.
+LONG_LISTS = {"path": "points", "nodes": "nodes", "edges": "edges"}
+
+
 def abbreviate(answer: Any, components: int = 2, path_points: int = 2) -> Any:
     """`answer` as the docs show it: rounded numbers, the first components and path points."""
 
@@ -125,8 +130,9 @@ def abbreviate(answer: Any, components: int = 2, path_points: int = 2) -> Any:
             if key == "components" and len(value) > components:
                 shown = [walk(v) for v in value[:components]]
                 return [*shown, f"... {len(value)} components in all"]
-            if key == "path" and len(value) > path_points:
-                return [*[walk(v) for v in value[:path_points]], f"... {len(value)} points in all"]
+            if key in LONG_LISTS and len(value) > path_points:
+                shown = [walk(v) for v in value[:path_points]]
+                return [*shown, f"... {len(value)} {LONG_LISTS[key]} in all"]
             return [walk(v) for v in value]
         if key == "timings_ms":  # one run's times, to a tenth of a millisecond
             return {k: round(v, 1) for k, v in value.items()}

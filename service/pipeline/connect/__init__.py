@@ -17,7 +17,11 @@ from service.pipeline.connect.curves import (
     trace_curves,
 )
 from service.pipeline.connect.local_planner import PlannerSettings, edges_on_fibre, walk_on_fibre
-from service.pipeline.connect.roadmap import RoadmapSettings, roadmap_labels
+from service.pipeline.connect.roadmap import (
+    RoadmapComponents,
+    RoadmapSettings,
+    roadmap_components,
+)
 from service.pipeline.connect.settings import (
     planner_settings,
     roadmap_settings,
@@ -33,6 +37,7 @@ __all__ = [
     "Connection",
     "Extension",
     "PlannerSettings",
+    "RoadmapComponents",
     "RoadmapSettings",
     "SpliceSettings",
     "SteerSettings",
@@ -44,7 +49,7 @@ __all__ = [
     "find_coaxial_sets",
     "on_curves",
     "planner_settings",
-    "roadmap_labels",
+    "roadmap_components",
     "roadmap_settings",
     "splice_settings",
     "steer",

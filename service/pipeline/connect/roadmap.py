@@ -20,10 +20,13 @@ from both ends of each pair's nearest links; where a walk ends, the planner trie
 edge to its goal and to the nearest node of any other component. This joins the thin
 pieces the limits leave of a 4-D fibre, whose samples are far apart along a bent or
 limit-bounded way that no straight edge follows.
-The added nodes only carry connectivity: they are never returned.
-
 Components are the connected components of the graph of walked edges; a lone node is a
-component of its own.
+component of its own. Each component keeps its graph (`ComponentRoadmap`): its samples,
+then the nodes added to join them, each brought by Newton from the walks' projection
+tolerance to the query's (`FibreSpace.polish`), and the edges between them. An added node
+that the polish cannot make valid leaves the graph with its edges before the components
+are read off it, so that every node of a component's graph is exact and its edges join
+them all.
 """
 
 from __future__ import annotations
@@ -42,7 +45,7 @@ from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.fibre import project
 from service.pipeline.joint_space import JointBox, wrap_to_pi
 from service.pipeline.space import FibreSpace
-from service.pipeline.types import CoaxialSet
+from service.pipeline.types import CoaxialSet, ComponentRoadmap
 
 
 @dataclass(frozen=True)
@@ -66,26 +69,34 @@ class RoadmapSettings:
     steer_radius_rad: float = 6.0  # longest link between components that a walk follows
 
 
-def roadmap_labels(
+@dataclass(frozen=True)
+class RoadmapComponents:
+    """The samples' components and each component's graph."""
+
+    labels: IntArray  # (K,) component of each sample, 0..C-1, largest component first
+    graphs: list[ComponentRoadmap]  # (C,) by label: its samples in order, then added nodes
+
+
+def roadmap_components(
     space: FibreSpace,
     q_rad: FloatArray,  # (K, n) valid configurations
     planner: PlannerSettings,
     settings: RoadmapSettings,
     deadline: Deadline = NO_DEADLINE,
-) -> IntArray:  # (K,) component labels 0..C-1, largest component first
-    """Components of q_rad joined by edges checked on the fibre."""
-    num_nodes = len(q_rad)
-    if num_nodes == 0:
-        return np.zeros(0, dtype=np.int64)
+) -> RoadmapComponents:
+    """Components of q_rad joined by edges checked on the fibre, with their graphs."""
+    num_samples = len(q_rad)
+    if num_samples == 0:
+        return RoadmapComponents(np.zeros(0, dtype=np.int64), [])
     roadmap = Roadmap(space, q_rad, planner, deadline)
     roadmap.join_neighbours(settings)
     roadmap.bridge(settings)
-    apart = len(np.unique(roadmap.roots()[:num_nodes])) > 1
-    if apart and space.coaxial_sets and roadmap.add_coaxial_nodes(num_nodes, settings):
+    apart = len(np.unique(roadmap.roots()[:num_samples])) > 1
+    if apart and space.coaxial_sets and roadmap.add_coaxial_nodes(num_samples, settings):
         roadmap.bridge(settings)
-    if len(np.unique(roadmap.roots()[:num_nodes])) > 1:
+    if len(np.unique(roadmap.roots()[:num_samples])) > 1:
         roadmap.steer_between(settings)
-    return _ordered_labels(roadmap.roots()[:num_nodes])
+    return roadmap.finished(num_samples)
 
 
 @dataclass
@@ -127,6 +138,41 @@ class Roadmap:
         self._labels.flags.writeable = False
         self._applied = edges
         return self._labels
+
+    def finished(self, num_samples: int) -> RoadmapComponents:
+        """The components of the first `num_samples` nodes and their graphs, the added
+        nodes polished to the query's tolerance (those it cannot make valid left out with
+        their edges, and with them any added node no longer joined to a sample)."""
+        q = self.q_rad.copy()
+        kept = np.ones(len(q), dtype=bool)
+        if len(q) > num_samples:
+            q[num_samples:], kept[num_samples:] = self.space.polish(q[num_samples:])
+        a = np.concatenate([np.zeros(0, dtype=np.int64), *self.joined_from])
+        b = np.concatenate([np.zeros(0, dtype=np.int64), *self.joined_to])
+        edge = kept[a] & kept[b] & (a != b)
+        low, high = np.unique(np.stack([np.minimum(a, b), np.maximum(a, b)])[:, edge], axis=1)
+        # The same graph as the edges so far when every node was kept.
+        root = self.roots() if kept.all() else _components(len(q), [low], [high])
+        labels = _ordered_labels(root[:num_samples])  # (K,)
+        count = int(labels.max(initial=-1)) + 1
+        label_of_root = np.full(int(root.max(initial=-1)) + 1, -1)
+        label_of_root[root[:num_samples]] = labels
+        node_label = np.where(kept, label_of_root[root], -1)  # (N,) -1: joined to no sample
+        # Each component's nodes: its samples in order, then its added nodes in order.
+        order = np.lexsort((np.arange(len(q)) >= num_samples, node_label))
+        order = order[node_label[order] >= 0]  # (M,) grouped by component
+        starts = np.searchsorted(node_label[order], np.arange(count + 1))  # (C + 1,)
+        local = np.empty(len(q), dtype=np.int64)  # each node's index in its component
+        local[order] = np.arange(len(order)) - starts[node_label[order]]
+        edge_label = node_label[low]  # (E,) an edge joins two nodes of one component
+        graphs = [
+            ComponentRoadmap(
+                q_rad=q[order[starts[c] : starts[c + 1]]],
+                edges=np.stack([local[low[edge_label == c]], local[high[edge_label == c]]], axis=1),
+            )
+            for c in range(count)
+        ]
+        return RoadmapComponents(labels, graphs)
 
     def join(self, a: IntArray, b: IntArray) -> None:
         """Record edges known to lie on the fibre (not walked by the planner)."""

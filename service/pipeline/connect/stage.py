@@ -37,7 +37,7 @@ from service.pipeline.connect.curves import (
     trace_curves,
 )
 from service.pipeline.connect.free_pieces import free_pieces
-from service.pipeline.connect.roadmap import roadmap_labels
+from service.pipeline.connect.roadmap import roadmap_components
 from service.pipeline.connect.settings import planner_settings, roadmap_settings, splice_settings
 from service.pipeline.connect.splicing import attach_by_walk, open_ends, splice_paths
 from service.pipeline.connect.trace import MEET_FACTOR, closest_strands_rad
@@ -48,6 +48,7 @@ from service.pipeline.types import (
     Acceptance,
     Component,
     ComponentPath,
+    ComponentRoadmap,
     Correction,
     FibreStructure,
 )
@@ -94,9 +95,10 @@ def connect(
     if len(leftover):
         q_leftover = correction.q_rad[leftover]
         planner, roadmap = planner_settings(spec), roadmap_settings(spec)
-        labels = roadmap_labels(space, q_leftover, planner, roadmap, deadline)
-        for label in range(labels.max() + 1):
-            components.append(_component(correction, leftover[labels == label], None))
+        joined = roadmap_components(space, q_leftover, planner, roadmap, deadline)
+        for label, graph in enumerate(joined.graphs):
+            members = leftover[joined.labels == label]
+            components.append(_component(correction, members, None, graph))
     structure = FibreStructure(
         near_singular=(min_sigma < spec.singular_sigma) or not complete,
         min_singular_value=min_sigma if np.isfinite(min_sigma) else None,
@@ -161,10 +163,16 @@ def _curve_components(
     return _Curves(components, leftover, bool(complete), sigma)
 
 
-def _component(correction: Correction, members: IntArray, path: ComponentPath | None) -> Component:
+def _component(
+    correction: Correction,
+    members: IntArray,
+    path: ComponentPath | None,
+    roadmap: ComponentRoadmap | None = None,
+) -> Component:
     return Component(
         q_rad=correction.q_rad[members],
         position_error_m=correction.position_error_m[members],
         orientation_error_rad=correction.orientation_error_rad[members],
         path=path,
+        roadmap=roadmap,
     )

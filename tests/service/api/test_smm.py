@@ -223,7 +223,8 @@ def test_every_answer_validates_as_the_response_schema_to_the_same_bytes(
 ) -> None:
     """Components are built without validation (`model_construct`): each answer, with
     paths, a reference, collisions checked (iiwa14) or not and a position task of r = 4,
-    validates as `SmmResponse` and encodes again to the very bytes it was sent as."""
+    with its roadmaps or without, validates as `SmmResponse` and encodes again to the very
+    bytes it was sent as."""
     bodies: list[dict[str, Any]] = [
         {"robot": "planar3r", "task": "position", "target": {"position": [0.5, 0.0]},
          "reference_configuration": [0.1, 0.2, 0.3]},
@@ -232,6 +233,8 @@ def test_every_answer_validates_as_the_response_schema_to_the_same_bytes(
          "target": {"position": [0.4, 0.1, 0.6], "orientation": {"w": 0, "x": 0, "y": 1, "z": 0}}},
         {"robot": "iiwa14", "task": "position", "target": {"position": [0.4, 0.1, 0.6]},
          "num_samples": 300},
+        {"robot": "iiwa14", "task": "position", "target": {"position": [0.4, 0.1, 0.6]},
+         "num_samples": 300, "include_roadmap": True},
     ]  # fmt: skip
     for body in bodies:
         response = client.post("/smm", json=body)

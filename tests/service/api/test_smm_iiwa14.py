@@ -4,7 +4,8 @@ Every returned configuration is re-checked with the references' DH forward kinem
 (training/evaluate/references/iiwa14.py): it must reach the target within the tolerance
 and lie within the paper's joint limits, and every sample must be accounted for. Shape
 errors name the field; an unreachable target is `no_solution`; components are ordered by
-their distance to a reference configuration, each reporting its nearest member.
+their distance to a reference configuration, each reporting its nearest member; an r = 4
+component's roadmap is a connected graph of exact nodes.
 """
 
 from __future__ import annotations
@@ -14,6 +15,8 @@ from typing import Any
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial.transform import Rotation
 
 from tests.support.bundled import default_num_samples
@@ -139,3 +142,37 @@ def test_components_are_ordered_by_distance_to_the_reference(client: TestClient,
 def test_robots_lists_both_iiwa_tasks(client: TestClient) -> None:
     models = {(m["robot"], m["task"]) for m in client.get("/robots").json()["models"]}
     assert {("iiwa14", "pose"), ("iiwa14", "position")} <= models
+
+
+def test_include_roadmap_gives_each_r4_component_a_connected_graph_of_exact_nodes(
+    client: TestClient,
+) -> None:
+    """Position task (r = 4), include_roadmap: each component's roadmap starts with its
+    members in the order of `configurations`; every node reaches the target within 1e-6 m
+    by the DH table and lies inside the limits; the edges are distinct pairs i < j that
+    join every node (scipy's connected components: one). The same request without it
+    has no roadmaps and the same components. A pose answer (r = 1, traced) has none."""
+    for i, q_target in enumerate(held_out(3, seed=23)):
+        target = target_of(q_target[None], "position")
+        answer = smm(client, "position", target, seed=i, include_roadmap=True).json()
+        plain = smm(client, "position", target, seed=i).json()
+        assert [c["configurations"] for c in answer["components"]] == [
+            c["configurations"] for c in plain["components"]
+        ]
+        assert all(c["roadmap"] is None for c in plain["components"])
+        goal = iiwa14_pose(q_target[None])[0, :3, 3]
+        for component in answer["components"]:
+            nodes = np.array(component["roadmap"]["nodes"])
+            edges = np.array(component["roadmap"]["edges"], dtype=np.int64).reshape(-1, 2)
+            assert nodes[: component["size"]].tolist() == component["configurations"]
+            reached = iiwa14_pose(nodes)[:, :3, 3]
+            assert np.linalg.norm(reached - goal, axis=1).max() <= 1e-6
+            assert np.all(np.abs(nodes) <= LIMITS_RAD)
+            assert np.all(edges[:, 0] < edges[:, 1]) and edges.max(initial=0) < len(nodes)
+            assert len(np.unique(edges, axis=0)) == len(edges)
+            graph = coo_matrix(
+                (np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(len(nodes),) * 2
+            )
+            assert connected_components(graph, directed=False)[0] == 1
+    pose = smm(client, "pose", target_of(held_out(1, seed=5), "pose"), include_roadmap=True)
+    assert all(c["roadmap"] is None for c in pose.json()["components"])

@@ -5,7 +5,9 @@ with, stay two; two samples joined only through the shoulder set (q2 = 0, where 
 is all that moves the arm) are one component once the roadmap has its coaxial nodes or
 its steering walks, and two without either;
 and where the link lengths keep the fibre off the shoulder and elbow sets, no component
-holds both signs of q2 or of q4. The links tried between components left apart are, per
+holds both signs of q2 or of q4. Each component keeps its graph: an added node polished
+onto the fibre stays in it, one left invalid leaves with its edges. The links tried
+between components left apart are, per
 pair of components, the shortest of every node's nearest node in each other component
 (brute force on the joint metric), lone nodes included. The components kept up to date
 as edges and nodes come are scipy's over every edge so far."""
@@ -20,7 +22,7 @@ from scipy.sparse.csgraph import connected_components
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
 from service.pipeline.connect import planner_settings, roadmap_settings
-from service.pipeline.connect.roadmap import Roadmap, roadmap_labels
+from service.pipeline.connect.roadmap import Roadmap, roadmap_components
 from service.pipeline.deadline import NO_DEADLINE
 from service.pipeline.fibre import project
 from service.pipeline.joint_space import JointLimits, joint_distance
@@ -50,7 +52,7 @@ def test_a_random_walk_along_one_component_is_one_component(
     spec = iiwa14_position.manifest.defaults.connectivity
     limits = iiwa14_position.limits
     space = fibre_space(pose_fibre(iiwa14_position, q0), limits, ())
-    labels = roadmap_labels(space, nodes, planner_settings(spec), roadmap_settings(spec))
+    labels = roadmap_components(space, nodes, planner_settings(spec), roadmap_settings(spec)).labels
     assert set(labels.tolist()) == {0}
 
 
@@ -112,7 +114,9 @@ def test_samples_joined_only_through_the_shoulder_set_are_one_component(
     def labels(coaxial: tuple[CoaxialSet, ...], steer_pairs: int) -> list[int]:
         settings = replace(roadmap_settings(spec), steer_pairs=steer_pairs)
         space = fibre_space(fibre, limits, coaxial)
-        return roadmap_labels(space, np.stack([a, b]), planner_settings(spec), settings).tolist()
+        return roadmap_components(
+            space, np.stack([a, b]), planner_settings(spec), settings
+        ).labels.tolist()
 
     assert labels((), steer_pairs=0) == [0, 1]
     # ... but joined through the set's line of nodes, or by a walk steered along the fibre.
@@ -212,3 +216,40 @@ def test_the_components_kept_up_to_date_are_scipys_over_every_edge(
         )[1]  # fmt: skip
         assert roadmap.roots().tolist() == every.tolist()
     assert 1 < len(np.unique(roadmap.roots())) < len(roadmap.q_rad)
+
+
+def test_the_graphs_keep_polished_added_nodes_and_drop_the_ones_left_invalid(
+    iiwa14_position: ServedModel,
+) -> None:
+    """Two samples joined only through an added node: polished onto the fibre (from 1e-5
+    off, as a walk leaves it) the node stays, exact by the DH table, and both samples are
+    one component whose graph is [a, b, node] with edges a-node and b-node; left outside
+    the limits (no polish brings it back) the node leaves with its edges, and the samples
+    are two components of one node each."""
+    limits = iiwa14_position.limits
+    on_set = np.array([-0.3, 0.0, 0.4, 1.0, -0.5, 1.2, 0.0])
+    a = walk_holding(iiwa14_position, on_set, joint=1, to_rad=0.35)
+    b = walk_holding(iiwa14_position, on_set, joint=1, to_rad=-0.35)
+    spec = iiwa14_position.manifest.defaults.connectivity
+    space = fibre_space(pose_fibre(iiwa14_position, on_set), limits, ())
+    goal = iiwa14_pose(on_set[None])[0, :3, 3]
+
+    def finished(node: np.ndarray) -> tuple[np.ndarray, list[np.ndarray], list[np.ndarray]]:
+        roadmap = Roadmap(space, np.stack([a, b]), planner_settings(spec), NO_DEADLINE)
+        roadmap.q_rad = np.concatenate([roadmap.q_rad, node[None]])
+        roadmap.join(np.array([0, 2]), np.array([2, 1]))
+        done = roadmap.finished(num_samples=2)
+        return done.labels, [g.q_rad for g in done.graphs], [g.edges for g in done.graphs]
+
+    near = on_set + 1e-5 * np.array([1.0, -1.0, 0.5, 0.3, -0.2, 0.1, 0.4])
+    labels, nodes, edges = finished(near)
+    assert labels.tolist() == [0, 0] and len(nodes) == 1
+    np.testing.assert_array_equal(nodes[0][:2], np.stack([a, b]))
+    assert np.linalg.norm(iiwa14_pose(nodes[0][2:])[0, :3, 3] - goal) <= 1e-9
+    assert np.linalg.norm(nodes[0][2] - near) < 1e-4
+    assert edges[0].tolist() == [[0, 2], [1, 2]]
+    outside = on_set.copy()
+    outside[0] = limits.upper_rad[0] + 0.2
+    labels, nodes, edges = finished(outside)
+    assert labels.tolist() == [0, 1]
+    assert [len(q) for q in nodes] == [1, 1] and [len(e) for e in edges] == [0, 0]
