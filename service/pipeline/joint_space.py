@@ -147,6 +147,10 @@ class JointLimits:
         """(..., n) which joints lie outside their limits (a periodic joint never does)."""
         return ((q_rad < self.lower_rad) | (q_rad > self.upper_rad)) & ~self.periodic
 
+    def on_limit(self, q_rad: FloatArray) -> BoolArray:
+        """(..., n) which joints sit on a limit or beyond it (a periodic joint never does)."""
+        return ((q_rad <= self.lower_rad) | (q_rad >= self.upper_rad)) & ~self.periodic
+
     def clip(self, q_rad: FloatArray) -> FloatArray:
         """`q_rad` (..., n) with each limited joint clipped onto its limits."""
         return np.where(self.periodic, q_rad, np.clip(q_rad, self.lower_rad, self.upper_rad))

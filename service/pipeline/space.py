@@ -80,16 +80,31 @@ class FibreSpace:
         return replace(acceptance, collision_free=free)
 
     def polish(
-        self, q_rad: FloatArray, iterations: int = 4
+        self, q_rad: FloatArray, iterations: int = 4, max_move_rad: float = 0.01
     ) -> tuple[FloatArray, BoolArray]:  # (A, n) near the fibre -> (A, n), (A,)
         """Newton steps from configurations near the fibre (a walk's, within its projection
         tolerance) to the query's tolerance: the configurations (periodic joints wrapped)
-        and which of them are valid, as `accept` judges a corrected sample."""
-        projected = project(self.fibre, q_rad, iterations)
-        q = self.limits.wrap(projected.q_rad)
-        position_error_m, orientation_error_rad = error_norms(projected.error, self.fibre.task)
+        and which of them are valid, as `accept` judges a corrected sample, and moved at
+        most `max_move_rad` (a tenth of the shortest walk step: the motions checked to
+        the configuration still reach the polished one).
+
+        Walks slide along limit faces, so many such configurations hold a joint on a
+        limit, which a free Newton step pushes out: those joints are held, and a joint
+        that a step still takes out is put back on its limit and held for a second
+        pass."""
+        limits = self.limits
+        q = limits.wrap(q_rad)
+        projected = project(self.fibre, q, iterations, locked=limits.on_limit(q))
+        q, error = limits.wrap(projected.q_rad), projected.error  # (A, n), (A, m)
+        out = ~limits.contains(q)
+        if out.any():
+            again = limits.clip(q[out])
+            retried = project(self.fibre, again, iterations, locked=limits.on_limit(again))
+            q[out], error[out] = limits.wrap(retried.q_rad), retried.error
+        position_error_m, orientation_error_rad = error_norms(error, self.fibre.task)
         ok = self.tolerance.within(position_error_m, orientation_error_rad)
         ok &= np.all(np.isfinite(q), axis=1)
+        ok &= limits.distance(q, limits.wrap(q_rad)) <= max_move_rad
         if ok.any():
             inside = np.flatnonzero(ok)
             ok[inside] = self.valid(q[inside])

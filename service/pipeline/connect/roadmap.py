@@ -12,8 +12,9 @@ Where components are still apart and the chain has coaxial sets (coaxial.py: the
 shoulder, elbow or wrist alignments where twin branches meet), nodes are added on those
 sets: the samples of each component nearest a set are projected onto it (the aligning
 joint held at its angle), and from each such point the exact straight self-motion of
-the set is laid out as a line of nodes inside the limits, its consecutive nodes joined
-(the line lies on the fibre). The bridges then run again over the enlarged roadmap.
+the set is laid out as a line of nodes inside the limits, its consecutive valid nodes
+joined (the line lies on the fibre; a node in collision joins nothing). The bridges
+then run again over the enlarged roadmap.
 Between the components still apart, walks steered along the fibre (steering.py: toward
 a node of the other component in the tangent space, sliding along joint limits) start
 from both ends of each pair's nearest links; where a walk ends, the planner tries the
@@ -377,13 +378,18 @@ class Roadmap:
         if not lines:
             return False
         first = len(self.q_rad)
-        self.q_rad = np.concatenate([self.q_rad, *lines])
-        index = np.arange(first, len(self.q_rad))
-        ends = np.cumsum([len(line) for line in lines]) + first - 1  # each line's last node
-        step_ok = ~np.isin(index[:-1], ends)  # consecutive nodes of one line
-        self.join(index[:-1][step_ok], index[1:][step_ok])  # a line lies on the fibre
-        self.join(np.asarray(origins), np.asarray(on_line))  # each sample walked onto it
-        return True
+        nodes = np.concatenate(lines)  # (L, n) inside the limits
+        valid = self.space.valid(nodes)  # (L,) and free, where collisions are checked
+        index = first + np.cumsum(valid) - 1  # (L,) each valid node's index once added
+        self.q_rad = np.concatenate([self.q_rad, nodes[valid]])
+        ends = np.cumsum([len(line) for line in lines]) - 1  # (lines,) each line's last node
+        # Consecutive valid nodes of one line are joined: the line lies on the fibre.
+        along = np.flatnonzero(~np.isin(np.arange(len(nodes) - 1), ends) & valid[:-1] & valid[1:])
+        self.join(index[along], index[along + 1])
+        arrived = np.asarray(on_line) - first  # (O,) rows of `nodes`
+        reached = valid[arrived]  # each sample walked onto its line's node
+        self.join(np.asarray(origins)[reached], index[arrived[reached]])
+        return bool(valid.any())
 
     def _walk_onto_set(
         self, q_rad: FloatArray, coaxial_set: CoaxialSet, settings: RoadmapSettings

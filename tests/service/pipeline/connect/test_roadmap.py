@@ -223,9 +223,9 @@ def test_the_graphs_keep_polished_added_nodes_and_drop_the_ones_left_invalid(
 ) -> None:
     """Two samples joined only through an added node: polished onto the fibre (from 1e-5
     off, as a walk leaves it) the node stays, exact by the DH table, and both samples are
-    one component whose graph is [a, b, node] with edges a-node and b-node; left outside
-    the limits (no polish brings it back) the node leaves with its edges, and the samples
-    are two components of one node each."""
+    one component whose graph is [a, b, node] with edges a-node and b-node; 0.2 rad outside
+    the limits (farther than a polish may move a node) it leaves with its edges, and the
+    samples are two components of one node each."""
     limits = iiwa14_position.limits
     on_set = np.array([-0.3, 0.0, 0.4, 1.0, -0.5, 1.2, 0.0])
     a = walk_holding(iiwa14_position, on_set, joint=1, to_rad=0.35)
