@@ -19,7 +19,10 @@ arm itself; this script then
 3. for a 1-D component (r = 1), walks the component's ordered `path` from the point
    nearest to q to that configuration and reports the walk's length in the joint metric:
    the self-motion that keeps the end effector on the target while the arm moves there,
-   every point of it clear of the scene.
+   every point of it clear of the scene;
+4. asks the service for that motion itself (POST /smm/self-motion, from the point
+   nearest to q to the choice, in the same scene): exact configurations at most 0.05 rad
+   apart, which a controller can follow.
 
 Runs with the client's dependencies only (httpx, pydantic; no numpy):
 
@@ -43,9 +46,11 @@ from pathlib import Path
 from service.client import (
     CollisionIn,
     ComponentOut,
+    GoalIn,
     ObstacleIn,
     QuaternionIn,
     RobotOut,
+    SelfMotionRequest,
     SmmClient,
     SmmClientError,
     SmmRequest,
@@ -180,7 +185,7 @@ def choose(component: ComponentOut, components: int, robot: RobotOut, objective:
         source=source,
         clearance_m=component.clearance_m,
         safest_clearance_m=component.safest_clearance_m,
-        ends=component.ends,
+        ends=None if component.ends is None else list(component.ends),
         margin_rad=next(iter(chosen.values())),
         limiting_joint=next(iter(chosen)),
         margins_rad=chosen,
@@ -299,8 +304,38 @@ def main(argv: Sequence[str] | None = None) -> int:
         f"{answer.collision.margin_m} m; {answer.counts.rejected_collision} samples in collision"
     )
     print_choice(choice)
+    # The motion itself, from the component's point nearest q to the choice.
+    motion_request = SelfMotionRequest(
+        robot=request.robot,
+        task=request.task,
+        target=request.target,
+        start=nearest.nearest_to_reference or nearest.representative,
+        goal=GoalIn(configuration=choice.configuration),
+        num_samples=request.num_samples,
+        seed=request.seed,
+        obstacles=request.obstacles,
+        collision=request.collision,
+    )
+    try:
+        with SmmClient(args.url, api_key=args.api_key) as client:
+            motion = client.self_motion(motion_request)
+    except SmmClientError as error:
+        print(f"the service failed: {error}", file=sys.stderr)
+        return 1
+    if motion.status == "ok" and motion.path is not None:
+        print(
+            f"motion:  POST /smm/self-motion: {len(motion.path)} configurations at most 0.05 rad "
+            f"apart, {motion.length_rad:.4f} rad, from the point nearest q to the choice"
+        )
+    else:
+        print(f"motion:  {motion.status}: the choice is not on the start's component")
     if args.json is not None:
-        record = {"request": request.model_dump(mode="json"), "choice": asdict(choice)}
+        record = {
+            "request": request.model_dump(mode="json"),
+            "choice": asdict(choice),
+            "motion_request": motion_request.model_dump(mode="json", by_alias=True),
+            "motion": motion.model_dump(mode="json", include={"status", "path", "length_rad"}),
+        }
         args.json.write_text(json.dumps(record, indent=1))
     return 0
 

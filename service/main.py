@@ -13,7 +13,7 @@ from typing import Any
 import uvicorn
 from fastapi import FastAPI
 
-from service.api import health, metrics, robots, smm, smm_batch
+from service.api import health, metrics, robots, self_motion, smm, smm_batch
 from service.config import Settings
 from service.http.admission import Admission
 from service.http.auth import ApiKeyMiddleware
@@ -106,6 +106,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     install_exception_handlers(app)
     app.include_router(smm.router)
     app.include_router(smm_batch.router)
+    app.include_router(self_motion.router)
     app.include_router(robots.router)
     app.include_router(health.router)
     app.include_router(metrics.router)

@@ -289,6 +289,87 @@ class SmmResponse(BaseModel):
     )
 
 
+class GoalIn(_Request):
+    """Where a self-motion goes: exactly one of the fields."""
+
+    configuration: list[Finite] | None = Field(
+        None,
+        description="Joint angles in radians (model joint order): a configuration of the "
+        "start's component, brought onto the fibre as the start is.",
+    )
+    objective: Literal["max_limit_margin", "max_clearance"] | None = Field(
+        None,
+        description="max_limit_margin: the configuration of the start's component farthest "
+        "from the joint limits (the least over the joints of the distance to the nearer "
+        "limit); max_clearance: of greatest clearance from the obstacles and the robot "
+        "itself (collisions checked). Among the component's roadmap nodes (r > 1) or "
+        "path points (r = 1).",
+    )
+    nearest_to: list[Finite] | None = Field(
+        None,
+        description="Joint angles in radians: the configuration of the start's component "
+        "nearest them (joint metric), among its roadmap nodes or path points.",
+    )
+
+
+class SelfMotionRequest(_Request):
+    """A self-motion: from `start` to `goal`, staying on the target's self-motion manifold."""
+
+    robot: str = Field(examples=["iiwa14"])
+    task: str = Field(examples=["position"])
+    target: TargetIn
+    start: list[Finite] = Field(
+        description="Joint angles in radians (model joint order) where the motion starts: "
+        "within 0.1 rad (joint metric) of a configuration that reaches the target, inside "
+        "the limits and free of collision; brought onto it by Newton (422 otherwise)."
+    )
+    goal: GoalIn
+    num_samples: NumSamples | None = Field(None, description="As in POST /smm.")
+    seed: Seed = Field(0, description="As in POST /smm.")
+    tolerance: ToleranceIn = Field(default_factory=ToleranceIn)
+    obstacles: list[ObstacleIn] = Field(
+        default_factory=list,
+        max_length=MAX_OBSTACLES,
+        description="As in POST /smm: every path point is clear of each.",
+    )
+    collision: CollisionIn = Field(default_factory=lambda: CollisionIn.model_validate({}))
+
+
+class SelfMotionResponse(BaseModel):
+    robot: str
+    task: str
+    model: str = Field(description="<model-id>@<first 12 hex of the model files' digest>")
+    joint_names: list[str]
+    redundancy: int
+    status: Literal["ok", "not_connected"] = Field(
+        description="ok: `path` joins start and goal; not_connected: they lie on different "
+        "components (`start_component`, `goal_component`), which no self-motion joins."
+    )
+    start_component: int = Field(description="Index into `components` of the start's.")
+    goal_component: int = Field(description="Index into `components` of the goal's.")
+    path: list[list[float]] | None = Field(
+        description="ok: configurations from the start (brought onto the fibre) to the goal, "
+        "consecutive ones at most 0.05 rad apart (joint metric), every one within "
+        "tolerance, inside the limits and free of collision (where checked)."
+    )
+    length_rad: float | None = Field(description="The path's joint-metric length.")
+    objective_value: float | None = Field(
+        description="With an objective: its value at the goal (max_limit_margin: rad; "
+        "nearest_to: the distance in rad; max_clearance: m)."
+    )
+    roadmap: RoadmapOut | None = Field(
+        description="r > 1: the start component's roadmap, whose nodes the objective chose "
+        "from and whose edges the path follows; null for r = 1 (the path follows the "
+        "traced curve)."
+    )
+    components: list[ComponentOut] = Field(
+        description="The components of the answer the path lies in, as POST /smm describes "
+        "them (one configuration each, no paths or roadmaps)."
+    )
+    counts: CountsOut
+    timings_ms: dict[TimedSpan, float]
+
+
 class BatchTargetIn(_Request):
     """One target of a batch: the `target` of a POST /smm body, and any of that body's
     options to use for this target instead of the batch's."""

@@ -97,17 +97,21 @@ def _obstacle(index: int, obstacle: ObstacleIn) -> Obstacle:
     )
 
 
-def _component_out(index: int, summary: ComponentSummary) -> ComponentOut:
+def component_out(index: int, summary: ComponentSummary, lean: bool = False) -> ComponentOut:
     """The component as the wire has it, built without validation (`model_construct`): its
     arrays become lists of Python floats here, and validating a few thousand path floats
     again cost as much as encoding them. tests/service/api/test_smm.py checks that every
-    answer validates as `SmmResponse` to the same JSON."""
+    answer validates as `SmmResponse` to the same JSON. `lean`: its representative as its
+    one configuration, and no path or roadmap (the self-motion's answer)."""
     nearest = summary.nearest_to_reference_rad
+    configurations = summary.configurations_rad
+    if lean:
+        configurations = summary.representative_rad[None]
     return ComponentOut.model_construct(
         id=index,
         size=int(summary.size),
         representative=summary.representative_rad.tolist(),
-        configurations=summary.configurations_rad.tolist(),
+        configurations=configurations.tolist(),
         joint_min=summary.joint_min_rad.tolist(),
         joint_max=summary.joint_max_rad.tolist(),
         max_position_error=float(summary.max_position_error_m),
@@ -117,15 +121,15 @@ def _component_out(index: int, summary: ComponentSummary) -> ComponentOut:
         arc_length_rad=_float_or_none(summary.arc_length_rad),
         closed=None if summary.closed is None else bool(summary.closed),
         ends=None if summary.ends is None else list(summary.ends),
-        path=None if summary.path is None else summary.path.q_rad.tolist(),
-        roadmap=None if summary.roadmap is None else _roadmap_out(summary.roadmap),
+        path=None if summary.path is None or lean else summary.path.q_rad.tolist(),
+        roadmap=None if summary.roadmap is None or lean else roadmap_out(summary.roadmap),
         clearance_m=_float_or_none(summary.clearance_m),
         safest_configuration=None if summary.safest_rad is None else summary.safest_rad.tolist(),
         safest_clearance_m=_float_or_none(summary.safest_clearance_m),
     )
 
 
-def _roadmap_out(roadmap: ComponentRoadmap) -> RoadmapOut:
+def roadmap_out(roadmap: ComponentRoadmap) -> RoadmapOut:
     return RoadmapOut.model_construct(nodes=roadmap.q_rad.tolist(), edges=roadmap.edges.tolist())
 
 
@@ -143,7 +147,7 @@ def to_response(model: ServedModel, query: Query, result: SmmResult) -> SmmRespo
         redundancy=manifest.redundancy,
         status="ok" if result.components else "no_solution",
         counts=CountsOut(**vars(result.counts)),
-        components=[_component_out(i, s) for i, s in enumerate(result.components)],
+        components=[component_out(i, s) for i, s in enumerate(result.components)],
         structure=StructureOut(**vars(result.structure)),
         collision=_collision_out(model, query),
         timings_ms=result.timings.as_dict(),

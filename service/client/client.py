@@ -34,6 +34,8 @@ from service.wire import (
     ReadinessResponse,
     RobotOut,
     RobotsResponse,
+    SelfMotionRequest,
+    SelfMotionResponse,
     SmmBatchRequest,
     SmmBatchResponse,
     SmmRequest,
@@ -94,6 +96,13 @@ class SmmClient:
     ) -> SmmBatchResponse:
         """POST /smm/batch: many targets of one model in one request, answered in order."""
         return self._call("POST", "/smm/batch", SmmBatchResponse, request, timeout)
+
+    def self_motion(
+        self, request: SelfMotionRequest, *, timeout: float | None = None
+    ) -> SelfMotionResponse:
+        """POST /smm/self-motion: a path along the self-motion manifold from a start to a
+        goal configuration or objective, or the components that keep them apart."""
+        return self._call("POST", "/smm/self-motion", SelfMotionResponse, request, timeout)
 
     def robots(self) -> list[RobotOut]:
         """GET /robots: every served model with its manifest facts (joint names, limits,

@@ -6,7 +6,7 @@ that the generator's post-hook runs the project's ruff; `--fail-on-warning` fail
 ruff is missing or part of the document cannot be expressed) against the server's own
 /openapi.json. Then:
 
-- the served operation ids are the short ones (`smm`, `smm_batch`, `list_robots`,
+- the served operation ids are the short ones (`smm`, `smm_batch`, `self_motion`, `list_robots`,
   `healthz`, `readyz`, `metrics`) and name the generated modules, one per operation under
   its tag, each with sync, sync_detailed, asyncio and asyncio_detailed;
 - the generated package, imported here, calls the server: `list_robots` lists the served
@@ -49,6 +49,7 @@ PACKAGE = "smm_client"
 GENERATED_MODULES = {
     "smm/smm",
     "smm/smm_batch",
+    "smm/self_motion",
     "robots/list_robots",
     "health/healthz",
     "health/readyz",
@@ -160,7 +161,9 @@ def test_the_short_operation_ids_name_the_generated_modules(
 ) -> None:
     document = httpx.get(f"{server.url}/openapi.json").json()
     ids = [op["operationId"] for path in document["paths"].values() for op in path.values()]
-    assert sorted(ids) == ["healthz", "list_robots", "metrics", "readyz", "smm", "smm_batch"]
+    assert sorted(ids) == [
+        "healthz", "list_robots", "metrics", "readyz", "self_motion", "smm", "smm_batch",
+    ]  # fmt: skip
     api = generated / PACKAGE / "api"
     modules = {
         p.relative_to(api).with_suffix("").as_posix()

@@ -16,7 +16,9 @@ training/evaluate/references/iiwa14.py
 (1e-6 m, 1e-6 rad) and lies inside the limits; the walk starts at the path point
 nearest to the component's member nearest to q, ends at the chosen configuration, and its
 length is the sum of its steps, no shorter than the straight line between its ends and no
-longer than the component's arc length.
+longer than the component's arc length. The motion the example then asks for (POST
+/smm/self-motion) starts at that nearest point and ends at the choice, its points at most
+0.05 rad apart, exact by the DH table and clear of the scene by coal.
 """
 
 from __future__ import annotations
@@ -73,7 +75,7 @@ def run_planner(server: LocalServer, tmp_path: Path, *options: str) -> dict[str,
     )
     assert run.returncode == 0, run.stdout + run.stderr
     print(run.stdout)
-    for line in ("q now:", "service:", "scene:", "choice:", "walk:", "why:"):
+    for line in ("q now:", "service:", "scene:", "choice:", "walk:", "why:", "motion:"):
         assert line in run.stdout
     record: dict[str, Any] = json.loads(record_path.read_text())
     return record
@@ -109,6 +111,19 @@ def test_the_planner_picks_the_nearest_component_and_its_safest_configuration(
     assert nearest["clearance_m"] <= exact.min() + 1e-9
     pose = iiwa14_pose(chosen[None])[0]
     assert np.linalg.norm(pose[:3, 3] - np.array(request["target"]["position"])) < 1e-6
+
+    # The motion: from the point nearest q to the choice, exact, 0.05 rad apart, clear.
+    motion = record["motion"]
+    assert motion["status"] == "ok"
+    steps = np.array(motion["path"])
+    assert np.abs(steps[0] - np.array(record["motion_request"]["start"])).max() <= 1e-6
+    assert np.abs(steps[-1] - chosen).max() <= 1e-6
+    assert np.linalg.norm(np.diff(steps, axis=0), axis=1).max() <= 0.05
+    reached = iiwa14_pose(steps)
+    assert np.linalg.norm(reached[:, :3, 3] - pose[:3, 3], axis=1).max() <= 1e-6
+    goal_rotation = np.broadcast_to(pose[:3, :3], (len(steps), 3, 3))
+    assert rotation_angle_rad(reached[:, :3, :3], goal_rotation).max() <= 1e-6
+    assert coal.clearance_m(steps, obstacles).min() >= margin_m
 
 
 def test_the_planner_picks_the_nearest_component_and_its_largest_margin(

@@ -21,12 +21,12 @@ call per Newton iteration for every walk still going.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from service.pipeline import native
-from service.pipeline.arrays import BoolArray, FloatArray
+from service.pipeline.arrays import BoolArray, FloatArray, IntArray
 from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.fibre import evaluate, newton
 from service.pipeline.space import FibreSpace
@@ -45,10 +45,12 @@ class SteerSettings:
 
 @dataclass(frozen=True)
 class Steer:
-    """Where each walk ended, on the fibre and inside the limits, and whether it got to b."""
+    """Where each walk ended, on the fibre and inside the limits, whether it got to b, and
+    (when recorded) the points it stepped through, in order, its end included."""
 
     q_end_rad: FloatArray  # (E, n) joined to its start by a path on the fibre
     arrived: BoolArray  # (E,) within one step of b (b itself is then joined too)
+    points_rad: list[FloatArray] = field(default_factory=list)  # per walk (k_e, n) if recorded
 
 
 def steer(
@@ -57,13 +59,15 @@ def steer(
     q_to_rad: FloatArray,  # (E, n)
     settings: SteerSettings,
     deadline: Deadline = NO_DEADLINE,
+    record: bool = False,
 ) -> Steer:
-    """Walk every a toward its b on the fibre; the walks advance in lockstep."""
+    """Walk every a toward its b on the fibre; the walks advance in lockstep. `record`
+    keeps each walk's points (the numpy loop: the compiled walk keeps only its end)."""
     fibre, limits = space.fibre, space.limits
     lower_rad, upper_rad, periodic = limits.lower_rad, limits.upper_rad, limits.periodic
     num_walks = len(q_from_rad)
     goal = q_from_rad + limits.difference(q_to_rad, q_from_rad)  # (E, n) unwrapped
-    compiled = space.compiled()
+    compiled = None if record else space.compiled()
     if compiled is not None:  # the same walks, each whole in compiled code
         rules = native.SteerRules(
             settings.step_rad, settings.max_steps, settings.lambda_,
@@ -78,6 +82,7 @@ def steer(
     q, jacobian = state.q_rad.copy(), state.jacobian.copy()  # (E, n), (E, m, n)
     arrived = np.zeros(num_walks, dtype=bool)
     walking = np.ones(num_walks, dtype=bool)
+    steps: list[tuple[IntArray, FloatArray]] = []  # per step: which walks moved, to where
     best = np.linalg.norm(goal - q, axis=1)  # (E,) nearest to b so far
     since_best = np.zeros(num_walks, dtype=np.int64)  # steps since `best` last improved
     for _ in range(settings.max_steps):
@@ -115,13 +120,22 @@ def steer(
         good = index[ok]
         q[good] = q_new[ok]
         jacobian[good] = projected.jacobian[ok]
+        if record:
+            steps.append((good, q_new[ok]))
         now = np.linalg.norm(goal[good] - q[good], axis=1)
         improved = now < best[good] - settings.min_progress_rad
         best[good] = np.where(improved, now, best[good])
         since_best[good] = np.where(improved, 0, since_best[good] + 1)
         walking[good[since_best[good] >= settings.stall_steps]] = False
     arrived |= walking & (np.linalg.norm(goal - q, axis=1) <= settings.step_rad)
-    return Steer(q_end_rad=limits.wrap(q), arrived=arrived)
+    points: list[FloatArray] = []
+    if record:
+        walk = np.concatenate([np.zeros(0, dtype=np.int64), *(rows for rows, _ in steps)])
+        stepped = np.concatenate([np.zeros((0, q.shape[1])), *(qs for _, qs in steps)])
+        order = np.argsort(walk, kind="stable")  # each walk's points in step order
+        bounds = np.searchsorted(walk[order], np.arange(num_walks + 1))
+        points = [limits.wrap(stepped[order[bounds[w] : bounds[w + 1]]]) for w in range(num_walks)]
+    return Steer(q_end_rad=limits.wrap(q), arrived=arrived, points_rad=points)
 
 
 def tangent_direction(

@@ -175,6 +175,7 @@ def test_the_body_is_the_request_model_without_nulls_and_the_key_is_sent() -> No
         "seed": 0,
         "tolerance": {},
         "include_paths": True,
+        "include_roadmap": False,
         "obstacles": [],
         "collision": {"self": True, "margin_m": 0.0},
     }

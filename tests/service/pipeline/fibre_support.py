@@ -10,7 +10,7 @@ import numpy as np
 from service.models.chain import SerialChainKinematics
 from service.models.registry import ServedModel
 from service.pipeline.collision.check import CollisionCheck
-from service.pipeline.fibre import Fibre, project
+from service.pipeline.fibre import Fibre
 from service.pipeline.joint_space import JointLimits, joint_distance
 from service.pipeline.run import collision_of, correct_samples, encode, sample, space_of
 from service.pipeline.space import FibreSpace
@@ -19,6 +19,9 @@ from service.pipeline.types import CoaxialSet, Query, Tolerance
 from tests.support.numpy_kernels import NumpyStepsKinematics
 from training.evaluate.references.planar3r import closed_form_smm
 from training.evaluate.targets import uniform_configurations
+from training.evaluate.walks import null_space_walk, pose_fibre
+
+__all__ = ["null_space_walk", "pose_fibre"]  # known walks, shared with tools/
 
 TOLERANCE = Tolerance(position_m=1e-6, orientation_rad=1e-6)  # the bundled manifests' query default
 
@@ -57,52 +60,6 @@ def ordered_planar_loop(target_m: np.ndarray, every_rad: float) -> np.ndarray:
     steps = joint_distance(ordered[1:], ordered[:-1], periodic)
     arc = np.concatenate([[0.0], np.cumsum(steps)])
     return ordered[np.unique(np.searchsorted(arc, np.arange(0.0, arc[-1], every_rad)))]
-
-
-def pose_fibre(model: ServedModel, q_target: np.ndarray) -> Fibre:
-    """The fibre of the pose (or position) that q_target (n,) reaches."""
-    manifest = model.manifest
-    fk = model.kinematics(q_target[None])
-    rotation = fk.rotation[0] if manifest.task.orientation else None
-    target = Target(
-        position_m=fk.position_m[0, manifest.task.position_axes],
-        rotation=rotation,
-        condition=np.zeros(1, np.float32),
-    )
-    return Fibre(target=target, task=manifest.task, kinematics=model.kinematics, damping=1e-3)
-
-
-def null_space_walk(
-    model: ServedModel, q0: np.ndarray, steps: int, seed: int, held: int | None = None
-) -> np.ndarray:
-    """(k, n) configurations along a random walk on the fibre of q0's target: each step
-    0.05 rad along the null-space part of a slowly turning random direction, projected
-    back; a step that would leave the limits is not taken and the direction is redrawn.
-    With `held`, that joint keeps its value: the step lies in the null space of J's
-    other columns and the projection holds it."""
-    fibre = pose_fibre(model, q0)
-    limits = model.limits
-    rng = np.random.default_rng(seed)
-    n = len(q0)
-    free = np.arange(n) != (-1 if held is None else held)
-    locked = None if held is None else ~free[None]
-    walk = [q0]
-    heading = rng.normal(size=n)
-    for _ in range(steps):
-        q = walk[-1]
-        _, jacobian = fibre.residual(q[None])
-        heading = 0.9 * heading + 0.3 * rng.normal(size=n)
-        j_free, h_free = jacobian[0][:, free], heading[free]
-        d = np.zeros(n)
-        d[free] = h_free - np.linalg.pinv(j_free) @ (j_free @ h_free)  # tangent part
-        projected = project(fibre, (q + 0.05 * d / np.linalg.norm(d))[None], 4, locked=locked)
-        nxt = projected.q_rad[0]
-        inside = np.all((nxt >= limits.lower_rad) & (nxt <= limits.upper_rad))
-        if projected.error_norm[0] < 1e-10 and inside:
-            walk.append(nxt)
-        else:
-            heading = rng.normal(size=n)
-    return np.asarray(walk)
 
 
 @dataclass(frozen=True)
