@@ -11,11 +11,13 @@ refused (RequestFieldError naming the field). A goal may instead be an objective
 start's component: the node (r > 1) or path point (r = 1) farthest from the joint limits,
 nearest a given configuration, or of greatest clearance (collisions checked).
 
+The start and a goal configuration are added to the flow's samples (unless the model
+draws in rounds, which run until the curves are found), so the connect stage decides their
+components as any sample's: for r = 1 it traces the curve through each.
 r = 1: the component's path is the whole curve in order, at most the path spacing apart; the
 self-motion is its arc between the points nearest the start and the goal (the shorter way
 round a closed loop), the exact start and goal at its ends.
-r > 1: the start and the goal are samples of the answer, so the roadmap decides their
-components as any sample's, and its graph joins them: Dijkstra over the edges (joint-metric
+r > 1: the roadmap's graph joins the start and goal nodes: Dijkstra over the edges (joint-metric
 lengths), then shortcuts (from each node the farthest later node of the path that the
 projected local planner walks straight to), then each leg walked again in steps of
 `SPACING_RAD / stretch`, every step projected to the query's tolerance and checked as a
@@ -44,7 +46,15 @@ from service.pipeline.connect import (
 )
 from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.joint_space import JointLimits
-from service.pipeline.run import Stopwatch, answer, answer_in, encode, sample, space_of
+from service.pipeline.run import (
+    Stopwatch,
+    answer,
+    answer_in,
+    encode,
+    in_rounds,
+    sample,
+    space_of,
+)
 from service.pipeline.run import collision_of as collision_check_of
 from service.pipeline.space import FibreSpace
 from service.pipeline.types import Query, SmmModel, SmmResult
@@ -115,13 +125,15 @@ def self_motion(
             "max_clearance needs collisions checked: give obstacles or collision.self on a "
             f"model with collision geometry; or choose from {list(OBJECTIVES[:2])}",
         )
-    if model.manifest.redundancy == 1:
+    if in_rounds(model, query):  # r = 1, drawn until the curves are found
         result = answer(model, query, target, watch, deadline, space)
+    else:  # the start and goal among the samples: a curve or roadmap through each
+        extra = [start] if goal_q is None else [start, goal_q]
+        with watch.stage("sample"):
+            q_sampled = np.concatenate([sample(model, query, target, deadline), np.stack(extra)])
+        result = answer_in(model, query, space, q_sampled, watch, deadline)
+    if model.manifest.redundancy == 1:
         return _along_paths(space, result, start, goal, goal_q)
-    extra = [start] if goal_q is None else [start, goal_q]
-    with watch.stage("sample"):
-        q_sampled = np.concatenate([sample(model, query, target, deadline), np.stack(extra)])
-    result = answer_in(model, query, space, q_sampled, watch, deadline)
     return _on_roadmaps(space, model, result, start, goal, goal_q, deadline)
 
 
