@@ -3,8 +3,9 @@ held joints still (against an explicit null-space basis); on the iiwa14's positi
 walk steered from one end of a null-space random walk reaches the other end, every step
 exact by the DH table and inside the limits; walks between the elbow-up and elbow-down
 components, which no path joins, never arrive and never change the sign of q4; a walk
-whose straight way out is blocked by a joint limit slides along it to its goal; and the
-compiled walks take the numpy loop's steps on the iiwa14's and Panda's r = 4 fibres."""
+whose straight way out is blocked by a joint limit slides along it to its goal, and
+recorded it keeps the points where walks of each number of steps end; and the compiled
+walks take the numpy loop's steps on the iiwa14's and Panda's r = 4 fibres."""
 
 import numpy as np
 import pytest
@@ -131,6 +132,9 @@ def test_a_walk_slides_along_a_joint_limit_to_its_goal(iiwa14_position: ServedMo
     points = np.stack(_walk_points(limited, start, goal))
     assert np.all(points[:, 5] <= 0.9) and np.sum(points[:, 5] == 0.9) > len(points) // 2
     assert_on_fibre(points, q0)
+    # Recorded, the walk keeps the same points: each one where a walk of that many steps ends.
+    recorded = steer(limited, start[None], goal[None], SETTINGS, record=True).points_rad[0]
+    np.testing.assert_allclose(recorded, points[1:], rtol=0, atol=1e-12)
 
 
 @pytest.mark.parametrize("model", ["iiwa14-position", "panda-position"])
