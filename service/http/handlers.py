@@ -19,10 +19,14 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from service.config import Settings
 from service.errors import OverloadedError, RequestFieldError, RequestFieldErrors, SmmError
 from service.http.validation import explain
-from service.wire import SmmBatchRequest, SmmRequest
+from service.wire import SelfMotionRequest, SmmBatchRequest, SmmRequest
 
 # The request model of each route that takes a body: validation messages quote its schema.
-REQUEST_MODELS: dict[str, type[BaseModel]] = {"/smm": SmmRequest, "/smm/batch": SmmBatchRequest}
+REQUEST_MODELS: dict[str, type[BaseModel]] = {
+    "/smm": SmmRequest,
+    "/smm/batch": SmmBatchRequest,
+    "/smm/self-motion": SelfMotionRequest,
+}
 
 
 def _field_error(error: RequestFieldError) -> dict[str, object]:

@@ -7,7 +7,9 @@ from __future__ import annotations
 OPEN_PATHS = frozenset({"/healthz", "/readyz", "/metrics"})
 # Every documented path: metric labels for requests refused before routing (a test checks
 # the set against the OpenAPI document).
-API_PATHS = frozenset({"/smm", "/smm/batch", "/robots"}) | OPEN_PATHS
+API_PATHS = frozenset({"/smm", "/smm/batch", "/smm/self-motion", "/robots"}) | OPEN_PATHS
 # (method, path) of every route that reads a JSON body: the body limit and the content
 # type apply to these (a test checks the set against the OpenAPI document).
-JSON_BODY_ROUTES = frozenset({("POST", "/smm"), ("POST", "/smm/batch")})
+JSON_BODY_ROUTES = frozenset(
+    {("POST", "/smm"), ("POST", "/smm/batch"), ("POST", "/smm/self-motion")}
+)

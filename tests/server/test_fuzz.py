@@ -2,10 +2,10 @@
 
 Schemathesis generates requests from the server's own /openapi.json, schema-valid ones
 and schema-violating ones, for every documented operation, and sends them to a real
-uvicorn process (POST /smm/batch too, on a server that admits 4 targets of at most 200
-samples). Most of those stop at validation (a position of the wrong length for
-the model, say), so a second generator shapes bodies after each served model (from GET
-/robots) with arbitrary finite numbers everywhere, to drive the pipeline itself with
+uvicorn process (POST /smm/batch and POST /smm/self-motion too, on a server that admits
+4 targets of at most 200 samples). Most of those stop at validation (a position of the
+wrong length for the model, say), so a second generator shapes bodies after each served
+model (from GET /robots) with arbitrary finite numbers everywhere, to drive the pipeline itself with
 extreme targets, references and tolerances. Every response must be no 5xx, have a
 documented status, content type and headers, and match the documented schema; a
 schema-violating request must be refused with a 4xx. At least 500 generated requests
@@ -41,6 +41,8 @@ MIN_REQUESTS = 500
 EXAMPLES = {GenerationMode.POSITIVE: 450, GenerationMode.NEGATIVE: 250}
 # POST /smm/batch: its targets go through POST /smm's checks, so fewer examples suffice.
 BATCH_EXAMPLES = {GenerationMode.POSITIVE: 100, GenerationMode.NEGATIVE: 60}
+# POST /smm/self-motion: POST /smm's body and checks, with a start and a goal.
+SELF_MOTION_EXAMPLES = {GenerationMode.POSITIVE: 60, GenerationMode.NEGATIVE: 40}
 OTHER_OPERATION_EXAMPLES = 10
 MODEL_SHAPED_EXAMPLES = 150
 MODEL_SHAPED_BATCH_EXAMPLES = 30
@@ -138,6 +140,8 @@ def test_generated_requests_get_no_5xx_and_documented_answers(server: LocalServe
         fuzz(smm, mode, examples)
     for mode, examples in BATCH_EXAMPLES.items():
         fuzz(schema["/smm/batch"]["POST"], mode, examples)
+    for mode, examples in SELF_MOTION_EXAMPLES.items():
+        fuzz(schema["/smm/self-motion"]["POST"], mode, examples)
     for path in ("/robots", "/healthz", "/readyz", "/metrics"):
         fuzz(schema[path]["GET"], GenerationMode.POSITIVE, OTHER_OPERATION_EXAMPLES)
 
