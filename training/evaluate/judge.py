@@ -35,8 +35,9 @@ against the exact SMMs on 220.
 `--candidate-model-dir <dir>` judges another trained network of the same robot and task
 (`smm-train train --models-dir`, a narrower one, say) against the served one, at its own
 defaults or, with `--candidate`, at the served defaults so changed (`'{}'`: as they are,
-so only the network differs). It serves by replacing the model directory, which the
-judge does not do.
+so only the network differs). With `--write`, a candidate judged no worse serves: its
+directory replaces the model's (copied beside it, then renamed), with the defaults it was
+judged at and the verdict in their reasons (`replace_model_directory`).
 
     smm-train judge --model iiwa14-pose --candidate paper --num-samples 1000
     smm-train judge --model planar3r-position \
@@ -49,6 +50,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -442,11 +444,6 @@ def run_command(args: argparse.Namespace, parser: argparse.ArgumentParser) -> No
         parser.error("give --candidate, --candidate-model-dir or both")
     if args.write and args.num_samples is not None:
         parser.error("--write serves the candidate as given: leave out --num-samples")
-    if args.write and args.candidate_model_dir is not None:
-        parser.error(
-            "--write changes the served defaults; a candidate network serves by replacing "
-            f"{args.models_dir / args.model} with its directory"
-        )
     model_dir = args.models_dir / args.model
     model = load_model(model_dir, threads=args.threads)
     incumbent = model.manifest.defaults
@@ -486,9 +483,28 @@ def run_command(args: argparse.Namespace, parser: argparse.ArgumentParser) -> No
     if args.write:
         if not judgement.no_worse:
             raise SystemExit(f"not written: {judgement.summary()}")
-        proposal = (
-            f"the candidate {args.candidate} (smm-train judge --model "
-            f"{args.model} --candidate '{args.candidate}' --write)"
-        )
-        write_defaults(model_dir, served_candidate(incumbent, candidate, judgement, proposal))
+        base, what = incumbent, f"the candidate {args.candidate}"
+        command = f"smm-train judge --model {args.model}"
+        if candidate_model is not None:  # the candidate network serves in the model's place
+            command += f" --candidate-model-dir {args.candidate_model_dir}"
+            base, what = candidate_model.manifest.defaults, "the candidate network"
+            if args.candidate is not None:
+                what += f" with {args.candidate}"
+            replace_model_directory(model_dir, args.candidate_model_dir)
+        if args.candidate is not None:
+            command += f" --candidate '{args.candidate}'"
+        proposal = f"{what} ({command} --write)"
+        write_defaults(model_dir, served_candidate(base, candidate, judgement, proposal))
         print(f"written to {model_dir / MANIFEST_FILE}", flush=True)
+
+
+def replace_model_directory(model_dir: Path, candidate_dir: Path) -> None:
+    """`model_dir`'s files replaced by `candidate_dir`'s (a copy beside it, then renamed)."""
+    staging = model_dir.with_name(f".{model_dir.name}.staging")
+    shutil.rmtree(staging, ignore_errors=True)
+    shutil.copytree(candidate_dir, staging)
+    retired = model_dir.with_name(f".{model_dir.name}.retired")
+    shutil.rmtree(retired, ignore_errors=True)
+    model_dir.rename(retired)
+    staging.rename(model_dir)
+    shutil.rmtree(retired)

@@ -17,8 +17,9 @@
   its own defaults, or at the served ones changed by `--candidate`, against the served
   network: the served network itself is no worse,
   with equal figures; a network whose velocity drives every sample to one point is worse
-  on count right; a model of another robot is refused, naming the field; the CLI takes
-  the directory and will not `--write` it.
+  on count right; a model of another robot is refused, naming the field; with `--write`
+  the CLI puts a candidate judged no worse in the model's place (its files, the verdict
+  in its reasons) and leaves the model as it was for one judged worse.
 - A candidate judged no worse serves with the verdict in its reasons and each reason of a
   field it changed marked as set by it; one judged worse cannot. `--write` writes only a
   candidate judged no worse, into the manifest of the model it judged.
@@ -274,6 +275,24 @@ def test_a_candidate_network_is_judged_at_its_own_defaults(
     assert any(w.startswith("count right") for w in record["worse"])
     with pytest.raises(SystemExit):  # neither a candidate nor a network
         smm_train(["judge", *small])
+    # --write: a candidate network judged worse leaves the model as it was ...
+    candidate = tmp_path / "candidate" / "planar3r-position"
+    for part in ("planar3r-position", "robots"):
+        shutil.copytree(models / part, candidate.parent / part)
+    (candidate / "manifest.json").write_text(
+        (candidate / "manifest.json").read_text().replace('"seed": 42', '"seed": 43')
+    )  # a manifest this directory's own, to tell the two apart
+    served_manifest = (models / "planar3r-position" / "manifest.json").read_text()
     with pytest.raises(SystemExit):
-        smm_train(["judge", *small, "--candidate-model-dir", str(models / "planar3r-position"),
-                      "--write"])  # fmt: skip
+        smm_train(["judge", *small, "--models-dir", str(models), "--candidate-model-dir",
+                   str(candidate), "--candidate", '{"num_samples": 1}', "--write"])  # fmt: skip
+    assert (models / "planar3r-position" / "manifest.json").read_text() == served_manifest
+    # ... and one judged no worse takes its place, with the verdict in its reasons.
+    smm_train(["judge", *small, "--models-dir", str(models), "--candidate-model-dir",
+               str(candidate), "--write"])  # fmt: skip
+    written = json.loads((models / "planar3r-position" / "manifest.json").read_text())
+    assert written["training"]["config"]["seed"] == 43
+    assert f"--candidate-model-dir {candidate} --write" in written["defaults"]["reasons"]["judged"]
+    for name in ("flow.onnx", "chain.json", "kinematics.onnx"):
+        assert (models / "planar3r-position" / name).read_bytes() == (candidate / name).read_bytes()
+    assert not list(models.glob(".planar3r-position.*"))
