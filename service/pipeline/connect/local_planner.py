@@ -125,11 +125,20 @@ def walk_on_fibre(
             steps.append((index[ok], q_new[ok]))
     if not record:
         return Walks(reached, [])
-    edge = np.concatenate([np.zeros(0, dtype=np.int64), *(rows for rows, _ in steps)])
-    points = np.concatenate([np.zeros((0, q.shape[1])), *(qs for _, qs in steps)])
-    order = np.argsort(edge, kind="stable")  # each edge's points in step order
-    bounds = np.searchsorted(edge[order], np.arange(num_edges + 1))
-    return Walks(reached, [points[order[bounds[e] : bounds[e + 1]]] for e in range(num_edges)])
+    return Walks(reached, points_per_walk(steps, num_edges, q.shape[1]))
+
+
+def points_per_walk(
+    steps: list[tuple[IntArray, FloatArray]],  # per lockstep step: which walks moved, to where
+    num_walks: int,
+    n: int,
+) -> list[FloatArray]:  # per walk (k_w, n), in step order
+    """The points of lockstep walks, walk by walk."""
+    walk = np.concatenate([np.zeros(0, dtype=np.int64), *(rows for rows, _ in steps)])
+    points = np.concatenate([np.zeros((0, n)), *(qs for _, qs in steps)])
+    order = np.argsort(walk, kind="stable")  # each walk's points in step order
+    bounds = np.searchsorted(walk[order], np.arange(num_walks + 1))
+    return [points[order[bounds[w] : bounds[w + 1]]] for w in range(num_walks)]
 
 
 def _compiled_walks(

@@ -27,6 +27,7 @@ import numpy as np
 
 from service.pipeline import native
 from service.pipeline.arrays import BoolArray, FloatArray, IntArray
+from service.pipeline.connect.local_planner import points_per_walk
 from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.fibre import evaluate, newton
 from service.pipeline.space import FibreSpace
@@ -130,11 +131,7 @@ def steer(
     arrived |= walking & (np.linalg.norm(goal - q, axis=1) <= settings.step_rad)
     points: list[FloatArray] = []
     if record:
-        walk = np.concatenate([np.zeros(0, dtype=np.int64), *(rows for rows, _ in steps)])
-        stepped = np.concatenate([np.zeros((0, q.shape[1])), *(qs for _, qs in steps)])
-        order = np.argsort(walk, kind="stable")  # each walk's points in step order
-        bounds = np.searchsorted(walk[order], np.arange(num_walks + 1))
-        points = [limits.wrap(stepped[order[bounds[w] : bounds[w + 1]]]) for w in range(num_walks)]
+        points = [limits.wrap(p) for p in points_per_walk(steps, num_walks, q.shape[1])]
     return Steer(q_end_rad=limits.wrap(q), arrived=arrived, points_rad=points)
 
 
