@@ -22,7 +22,6 @@ from __future__ import annotations
 import argparse
 import json
 import time
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -90,7 +89,7 @@ def main() -> None:
         motion = self_motion(model, query, walk[0], Goal(configuration_rad=walk[-1]))
         motion_ms.append((time.perf_counter() - started) * 1e3)
         started = time.perf_counter()
-        run(model, replace(query))
+        run(model, query)
         plain_ms.append((time.perf_counter() - started) * 1e3)
         row: dict[str, Any] = {"chord_rad": float(np.linalg.norm(walk[-1] - walk[0]))}
         row["configuration"] = path_check(motion, goal_m, np.stack([walk[0], walk[-1]]))

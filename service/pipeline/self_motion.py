@@ -159,6 +159,21 @@ def _nearest(points_rad: FloatArray, q_rad: FloatArray, limits: JointLimits) -> 
     return index, float(distance[index])
 
 
+def _nearest_on(
+    points_rad: list[FloatArray | None],  # per component (k_c, n), None where it has none
+    q_rad: FloatArray,  # (n,)
+    limits: JointLimits,
+) -> tuple[int, int, float]:
+    """(component, row, distance) of the row nearest q_rad over every component's points."""
+    best = (-1, -1, np.inf)
+    for c, points in enumerate(points_rad):
+        if points is not None and len(points):
+            index, distance = _nearest(points, q_rad, limits)
+            if distance < best[2]:
+                best = (c, index, distance)
+    return best
+
+
 def _objective_index(
     points_rad: FloatArray,  # (P, n) candidates on the start's component
     goal: Goal,
@@ -199,15 +214,11 @@ def _along_paths(
     limits = space.limits
     components = result.components
 
+    paths = [None if c.path is None else c.path.q_rad for c in components]
+
     def locate(q: FloatArray, field: tuple[str, ...]) -> tuple[int, int]:
         """(component, path point) nearest q; refused where no path passes within a spacing."""
-        best = (-1, -1, np.inf)
-        for c, component in enumerate(components):
-            if component.path is None or not len(component.path.q_rad):
-                continue
-            index, distance = _nearest(component.path.q_rad, q, limits)
-            if distance < best[2]:
-                best = (c, index, distance)
+        best = _nearest_on(paths, q, limits)
         if best[2] > SPACING_RAD:
             raise RequestFieldError(
                 ("body", *field),
@@ -271,16 +282,12 @@ def _on_roadmaps(
     limits = space.limits
     components = result.components
 
+    members = [None if c.roadmap is None else c.roadmap.q_rad[: c.size] for c in components]
+
     def locate(q: FloatArray) -> tuple[int, int]:
-        """(component, node) of the sample that q became: the nearest node of any roadmap."""
-        best = (-1, -1, np.inf)
-        for c, component in enumerate(components):
-            if component.roadmap is None or not len(component.roadmap.q_rad):
-                continue
-            index, distance = _nearest(component.roadmap.q_rad[: component.size], q, limits)
-            if distance < best[2]:
-                best = (c, index, distance)
-        return best[0], best[1]
+        """(component, node) of the sample that q became: the nearest member of any roadmap."""
+        component, node, _ = _nearest_on(members, q, limits)
+        return component, node
 
     start_component, start_node = locate(start)
     roadmap = components[start_component].roadmap
