@@ -18,7 +18,8 @@ from service.errors import RequestFieldError
 from service.http.openapi import operation_id
 from service.models.registry import ServedModel
 from service.pipeline.deadline import Deadline
-from service.pipeline.self_motion import Goal, SelfMotion, self_motion
+from service.pipeline.run import collision_of
+from service.pipeline.self_motion import OBJECTIVES, Goal, SelfMotion, self_motion
 from service.pipeline.types import Query
 from service.wire import (
     CountsOut,
@@ -77,6 +78,12 @@ def to_self_motion(
         )
     request = SmmRequest.model_validate(body.model_dump(include=set(SHARED), by_alias=True))
     query = to_query(request, model, max_num_samples)
+    if goal.objective == "max_clearance" and not collision_of(model, query).active:
+        raise RequestFieldError(
+            ("body", "goal", "objective"),
+            "max_clearance needs collisions checked: give obstacles or collision.self on a "
+            f"model with collision geometry; or choose from {list(OBJECTIVES[:2])}",
+        )
     return query, np.asarray(body.start, dtype=np.float64), goal
 
 

@@ -119,12 +119,6 @@ def self_motion(
         goal_q = None
         if goal.configuration_rad is not None:
             goal_q = on_fibre(space, goal.configuration_rad, ("goal", "configuration"))
-    if goal.objective == "max_clearance" and not space.collision.active:
-        raise RequestFieldError(
-            ("body", "goal", "objective"),
-            "max_clearance needs collisions checked: give obstacles or collision.self on a "
-            f"model with collision geometry; or choose from {list(OBJECTIVES[:2])}",
-        )
     if in_rounds(model, query):  # r = 1, drawn until the curves are found
         result = answer(model, query, target, watch, deadline, space)
     else:  # the start and goal among the samples: a curve or roadmap through each
@@ -180,7 +174,8 @@ def _objective_index(
     limits: JointLimits,
     clearance_m: FloatArray | None,  # (P,) where measured
 ) -> tuple[int, float]:
-    """The candidate that best meets the goal's objective, and its value there."""
+    """The candidate that best meets the goal's objective, and its value there
+    (max_clearance needs the clearances: the route refuses it where nothing is checked)."""
     if goal.objective == "max_limit_margin":
         margin = limit_margin_rad(points_rad, limits)
         best = int(np.argmax(margin))
