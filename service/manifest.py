@@ -55,7 +55,12 @@ class JointSpec(_Strict):
         return len(self.names)
 
 
-TaskName = Literal["position", "pose"]
+TaskName = Literal["position", "pose", "axis"]
+# The end-effector axis the axis task points when its robot file names none: z, the
+# approach axis of a flange or tool frame (ROS REP 103's convention for tools).
+DEFAULT_TOOL_AXIS = (0.0, 0.0, 1.0)
+# A tool axis is normalised when its norm is within this of 1, refused otherwise.
+TOOL_AXIS_NORM_TOLERANCE = 1e-6
 
 
 class TaskSpec(_Strict):
@@ -63,23 +68,41 @@ class TaskSpec(_Strict):
 
     position_axes: base-frame axes of the end-effector position that are
     constrained ([0, 1] for a planar arm, [0, 1, 2] in space); orientation:
-    whether the full orientation is constrained as well (the pose task).
+    whether the full orientation is constrained as well (the pose task);
+    tool_axis: the axis task's unit vector fixed in the end-effector frame, whose
+    direction in the base frame is constrained while the rotation about it is free
+    (drilling, welding, suction, spraying: 2 task coordinates, not 3).
     """
 
     name: TaskName
     position_axes: list[int]
     orientation: bool
+    tool_axis: list[float] | None = Field(
+        default=None,
+        description="axis task only: the tool axis in the end-effector frame (unit)",
+    )
+
+    @model_validator(mode="after")
+    def _one_orientation(self) -> TaskSpec:
+        if (self.name == "axis") != (self.tool_axis is not None):
+            raise ValueError("task: tool_axis is given for the axis task and only for it")
+        if self.orientation and self.tool_axis is not None:
+            raise ValueError("task: orientation (pose) and tool_axis (axis) exclude each other")
+        if self.tool_axis is not None:
+            norm = math.hypot(*self.tool_axis)
+            if len(self.tool_axis) != 3 or not abs(norm - 1.0) <= TOOL_AXIS_NORM_TOLERANCE:
+                raise ValueError(f"task: tool_axis must be 3 values of norm 1: {self.tool_axis}")
+        return self
+
+    @property
+    def orientation_rows(self) -> int:
+        """The task coordinates of the orientation: 3 (pose), 2 (axis) or 0 (position)."""
+        return 3 if self.orientation else 2 if self.tool_axis is not None else 0
 
     @property
     def dimension(self) -> int:
         """m, the number of task coordinates."""
-        return len(self.jacobian_rows)
-
-    @property
-    def jacobian_rows(self) -> list[int]:
-        """The geometric Jacobian's rows (of 6) the task constrains, in task order: the
-        position axes, then (pose task) the three angular rows."""
-        return [*self.position_axes, *([3, 4, 5] if self.orientation else [])]
+        return len(self.position_axes) + self.orientation_rows
 
 
 class AffineNormalisation(_Strict):

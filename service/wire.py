@@ -63,7 +63,15 @@ class TargetIn(_Request):
         examples=[[0.5, 0.0]],
     )
     orientation: QuaternionIn | None = Field(
-        None, description="Required for the pose task, refused for the position task."
+        None, description="Required for the pose task, refused for the others."
+    )
+    axis: list[Finite] | None = Field(
+        None,
+        min_length=3,
+        max_length=3,
+        description="Axis task only (required there, refused for the others): the direction, "
+        "base frame, unit, that the tool axis points along; the rotation about it is free.",
+        examples=[[0.0, 0.0, -1.0]],
     )
 
 
@@ -73,8 +81,9 @@ class ToleranceIn(_Request):
     )
     orientation: Annotated[float, Field(gt=0.0, le=3.14, allow_inf_nan=False)] | None = Field(
         None,
-        description="Largest accepted orientation error in radians (pose task only; default: "
-        "the model's).",
+        description="Largest accepted orientation error in radians: the rotation angle for the "
+        "pose task, the angle between the tool axis and target.axis for the axis task "
+        "(refused for the position task; default: the model's).",
     )
 
 
@@ -502,6 +511,11 @@ class RobotOut(BaseModel):
     redundancy: int
     target_position_length: int
     orientation: bool
+    tool_axis: list[float] | None = Field(
+        None,
+        description="Axis task only: the tool axis, a unit vector in the end-effector frame, "
+        "that target.axis sets the direction of (the rotation about it is free).",
+    )
     collision_geometry: bool = Field(
         description="The model has collision geometry: its answers can be checked for "
         "self-collision and against a request's obstacles."

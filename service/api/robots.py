@@ -26,6 +26,7 @@ def describe(model: ServedModel) -> RobotOut:
         redundancy=manifest.redundancy,
         target_position_length=len(manifest.task.position_axes),
         orientation=manifest.task.orientation,
+        tool_axis=manifest.task.tool_axis,
         collision_geometry=model.robot_spheres is not None,
         defaults=manifest.defaults.model_dump(),
         training=manifest.training.model_dump(exclude={"config"}),

@@ -71,6 +71,7 @@ def query_for_model(body: SmmRequest, model: ServedModel) -> Query:
         model.manifest,
         position_m=body.target.position,
         orientation_wxyz=None if orientation is None else orientation.wxyz(),
+        axis=None if body.target.axis is None else tuple(body.target.axis),  # type: ignore[arg-type]
         num_samples=body.num_samples,
         seed=body.seed,
         tolerance_position_m=body.tolerance.position,

@@ -1,7 +1,8 @@
 """Stage 3: correct samples onto the fibre with damped-least-squares (DLS) steps, in float64.
 
 dq = J^T (J J^T + lambda^2 I)^-1 e, where e is the task error: the constrained
-position axes, then (pose task) the base-frame rotation vector log(R* R^T). `iterate` is
+position axes, then the base-frame rotation vector log(R* R^T) (pose task) or the tool
+axis's angle to its target as a 2-vector (axis task, `rotations.axis_error`). `iterate` is
 the loop (rows that have converged take no further step), shared with the connect
 stage's Newton projections (fibre.py); on a serial chain the same steps run whole in
 compiled code (`native.newton`, the same kernels row by row: the same numbers bitwise).
@@ -18,9 +19,10 @@ from service.pipeline import native
 from service.pipeline.arrays import BoolArray, FloatArray, IntArray
 from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.joint_space import JointLimits
-from service.pipeline.rotations import rotation_error
+from service.pipeline.native import AxisTarget
+from service.pipeline.rotations import axis_error, rotation_error
 from service.pipeline.rows import over_rows
-from service.pipeline.targets import Target
+from service.pipeline.targets import Target, kernel_orientation
 from service.pipeline.types import ChainKinematics, Correction, Kinematics, KinematicsResult
 
 
@@ -44,20 +46,45 @@ def task_error(
 ) -> tuple[FloatArray, FloatArray]:
     """Task error e (B, m) = target - current and the task Jacobian (B, m, n).
 
-    The Jacobian's rows are the constrained position axes, then (pose task) the angular
-    rows; when those are all of the geometric Jacobian's rows in order (the full pose),
-    it is `fk.jacobian` itself, not a copy.
+    The Jacobian's rows are the constrained position axes, then the orientation's: the
+    angular rows (pose task; when those are all of the geometric Jacobian's rows in order,
+    it is `fk.jacobian` itself, not a copy) or the axis task's two (`axis_error`).
     """
     axes = task.position_axes
     m_p = len(axes)
-    rotation = target.rotation if task.orientation else None  # (3, 3)
-    rows = task.jacobian_rows
+    orientation = kernel_orientation(task, target)
+    if isinstance(orientation, AxisTarget):
+        error_axis, jacobian_axis = axis_error(
+            orientation.frame, fk.rotation, fk.jacobian[:, 3:, :]
+        )  # (B, 2), (B, 2, n)
+        position_error = target.position_m[None, :] - fk.position_m[:, axes]
+        jacobian = np.concatenate([fk.jacobian[:, axes, :], jacobian_axis], axis=1)
+        return np.concatenate([position_error, error_axis], axis=1), jacobian
+    rows = [*axes, *([3, 4, 5] if orientation is not None else [])]
     jacobian = fk.jacobian if rows == list(range(6)) else fk.jacobian[:, rows, :]  # (B, m, n)
     error = np.empty((len(fk.position_m), len(rows)))  # (B, m)
     error[:, :m_p] = target.position_m[None, :] - fk.position_m[:, axes]
-    if rotation is not None:
-        error[:, m_p:] = rotation_error(rotation, fk.rotation)
+    if orientation is not None:
+        error[:, m_p:] = rotation_error(orientation, fk.rotation)
     return error, jacobian
+
+
+def jacobian_on_fibre(fk: KinematicsResult, task: TaskSpec) -> FloatArray:  # (B, m, n)
+    """The task Jacobian of each configuration on its own fibre (the target it reaches):
+    the position axes' rows, then the angular rows (pose) or (axis) the angular rows
+    projected onto the plane normal to the tool axis, in an orthonormal basis of it. Its
+    singular values are the task map's at those configurations."""
+    axes = task.position_axes
+    angular = fk.jacobian[:, 3:, :]  # (B, 3, n)
+    if task.tool_axis is None:
+        rows = [*axes, *([3, 4, 5] if task.orientation else [])]
+        return fk.jacobian[:, rows, :]
+    a = fk.rotation @ np.asarray(task.tool_axis)  # (B, 3)
+    least = np.eye(3)[np.argmin(np.abs(a), axis=1)]  # (B, 3)
+    b1 = np.cross(a, least)
+    b1 /= np.linalg.norm(b1, axis=1, keepdims=True)
+    basis = np.stack([b1, np.cross(a, b1)], axis=1)  # (B, 2, 3)
+    return np.concatenate([fk.jacobian[:, axes, :], basis @ angular], axis=1)
 
 
 def task_error_norms(
@@ -68,10 +95,11 @@ def task_error_norms(
 
 
 def error_norms(error: FloatArray, task: TaskSpec) -> tuple[FloatArray, FloatArray]:
-    """|position part| (B,) in m and |rotation part| (B,) in rad of task errors (B, m)."""
+    """|position part| (B,) in m and |orientation part| (B,) in rad of task errors (B, m):
+    the rotation angle (pose) or the axis angle (axis)."""
     m_p = len(task.position_axes)
     position_error_m = np.linalg.norm(error[:, :m_p], axis=1)
-    if not task.orientation:
+    if not task.orientation_rows:
         return position_error_m, np.zeros(len(error))
     return position_error_m, np.linalg.norm(error[:, m_p:], axis=1)
 
@@ -86,7 +114,7 @@ def residual_of(kinematics: Kinematics, target: Target, task: TaskSpec) -> Resid
     if isinstance(kinematics, ChainKinematics):
         fixed, tip = kinematics.fixed, kinematics.tip
         axes, position = task.position_axes, target.position_m
-        rotation = target.rotation if task.orientation else None
+        rotation = kernel_orientation(task, target)
 
         def compiled(q_rad: FloatArray) -> tuple[FloatArray, FloatArray]:
             return native.task_residual(fixed, tip, q_rad, axes, position, rotation)
@@ -116,7 +144,7 @@ def compiled_newton(
     """`native.newton` on a serial chain's rows, split over `threads` (rows.py): the same
     steps row by row, so the same numbers on any count."""
     per_row = locked is not None and np.ndim(locked) == 2
-    rotation = target.rotation if task.orientation else None
+    rotation = kernel_orientation(task, target)
 
     def chunk(rows: slice) -> tuple[FloatArray, FloatArray, FloatArray]:
         return native.newton(
@@ -214,7 +242,7 @@ def correct(
     finite = np.all(np.isfinite(q_rad), axis=1)  # (N,)
     position_error_m = np.full(num_samples, np.inf)
     orientation_error_rad = (
-        np.where(finite, 0.0, np.inf) if task.orientation else np.zeros(num_samples)
+        np.where(finite, 0.0, np.inf) if task.orientation_rows else np.zeros(num_samples)
     )
     q_out = np.full_like(q_rad, np.nan)
     m = task.dimension

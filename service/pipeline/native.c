@@ -138,9 +138,47 @@ static void rotation_error_rows(const double *target, const double *rotation, Py
 
 /* ---------------------------------------------------------------- task residual */
 
+/* The axis task's two rows (rotations.axis_error): F holds rows b1, b2 (orthonormal, b1 x
+ * b2 = the target axis a*) and u, the tool axis in the end-effector frame; with a = R u
+ * and s_k = b_k . a, e = -(theta / sin theta) s (|e| = theta, the angle from a to a*; pi
+ * where a is opposite a*) and J's row k is (a x b_k) . z_i from the angular rows. */
+static void axis_rows(const double *F, const double *R, const double *full, Py_ssize_t n,
+                      double *e, double *J) {
+    double a[3], target[3], s[2], normal[2][3];
+    for (int r = 0; r < 3; ++r) a[r] = R[3 * r] * F[6] + R[3 * r + 1] * F[7] + R[3 * r + 2] * F[8];
+    target[0] = F[1] * F[5] - F[2] * F[4];
+    target[1] = F[2] * F[3] - F[0] * F[5];
+    target[2] = F[0] * F[4] - F[1] * F[3];
+    for (int k = 0; k < 2; ++k) {
+        const double *b = F + 3 * k;
+        s[k] = b[0] * a[0] + b[1] * a[1] + b[2] * a[2];
+        normal[k][0] = a[1] * b[2] - a[2] * b[1];
+        normal[k][1] = a[2] * b[0] - a[0] * b[2];
+        normal[k][2] = a[0] * b[1] - a[1] * b[0];
+    }
+    double sine = sqrt(s[0] * s[0] + s[1] * s[1]);
+    double cosine = a[0] * target[0] + a[1] * target[1] + a[2] * target[2];
+    if (sine > 1e-8) {
+        double scale = atan2(sine, cosine) / sine;
+        e[0] = -scale * s[0];
+        e[1] = -scale * s[1];
+    } else if (cosine < 0.0) {
+        e[0] = 3.14159265358979323846;
+        e[1] = 0.0;
+    } else {
+        e[0] = -s[0];
+        e[1] = -s[1];
+    }
+    for (int k = 0; k < 2; ++k)
+        for (Py_ssize_t i = 0; i < n; ++i)
+            J[k * n + i] = normal[k][0] * full[3 * n + i] + normal[k][1] * full[4 * n + i] +
+                           normal[k][2] * full[5 * n + i];
+}
+
 /* The chain kinematics (chain_rows) and the task error in one pass per row: error (B, m) =
- * the constrained position axes of target - p, then (pose task) log(R* R^T); jacobian
- * (B, m, n) = the geometric Jacobian's rows `rows` (m of them, the position axes first). */
+ * the constrained position axes of target - p, then the orientation rows: (pose task, 3)
+ * log(R* R^T) with the geometric Jacobian's rows `rows`, or (axis task, 2) axis_rows with
+ * target_rotation holding its frame; jacobian (B, m, n), the position axes' rows first. */
 static void residual_rows(const double *fixed, const double *tip, Py_ssize_t n, const double *q,
                           Py_ssize_t batch, const long long *rows, Py_ssize_t m,
                           Py_ssize_t m_position, const double *target_position,
@@ -151,6 +189,12 @@ static void residual_rows(const double *fixed, const double *tip, Py_ssize_t n, 
         double *e = error + b * m, *J = jacobian + b * m * n;
         for (Py_ssize_t i = 0; i < m_position; ++i)
             e[i] = target_position[i] - position[rows[i]];
+        if (target_rotation != NULL && m - m_position == 2) {
+            axis_rows(target_rotation, rotation, full, n, e + m_position, J + m_position * n);
+            for (Py_ssize_t r = 0; r < m_position; ++r)
+                memcpy(J + r * n, full + rows[r] * n, n * sizeof(double));
+            continue;
+        }
         if (target_rotation != NULL) rotation_error_rows(target_rotation, rotation, 1, e + m_position);
         for (Py_ssize_t r = 0; r < m; ++r) memcpy(J + r * n, full + rows[r] * n, n * sizeof(double));
     }

@@ -312,32 +312,53 @@ def bordered_solve(
     return x
 
 
+@dataclass(frozen=True)
+class AxisTarget:
+    """The axis task's orientation target as the kernels take it: `rotations.axis_frame`'s
+    rows b1, b2 (spanning the plane normal to the target axis) and u (the tool axis in
+    the end-effector frame); its 2 task rows are `rotations.axis_error`'s."""
+
+    frame: FloatArray  # (3, 3)
+
+
+# The orientation part of a target as the kernels take it: R* (3, 3) for a pose, an
+# AxisTarget for the axis task, None for a position task.
+OrientationTarget = FloatArray | AxisTarget | None
+
+
+def _orientation(target: OrientationTarget) -> tuple[list[int], FloatArray]:
+    """The geometric Jacobian's rows the orientation part reads (the angular ones: 3 for a
+    pose, the 2 rows' count for an axis) and the (3, 3) matrix the kernel is given."""
+    if target is None:
+        return [], np.eye(3)
+    if isinstance(target, AxisTarget):
+        return [3, 4], _float64(target.frame, "axis frame", (3, 3))
+    return [3, 4, 5], _float64(target, "target_rotation", (3, 3))
+
+
 def task_residual(
     fixed: FloatArray,  # (n, 4, 4) as `chain_kinematics`
     tip: FloatArray,  # (4, 4)
     q_rad: FloatArray,  # (B, n)
     position_axes: list[int],  # the constrained base-frame axes of the position
     target_position_m: FloatArray,  # (len(position_axes),)
-    target_rotation: FloatArray | None,  # (3, 3) for a pose task, None for a position task
+    target_rotation: OrientationTarget,  # R* (3, 3), an AxisTarget, or None (position)
 ) -> tuple[FloatArray, FloatArray]:  # error (B, m), jacobian (B, m, n)
     """The task error e = target - current (the position axes, then log(R* R^T) for a
-    pose) and the task Jacobian (those rows of the geometric one) in one pass: what
+    pose or `rotations.axis_error` for an axis) and the task Jacobian (those rows of the
+    geometric one, or the axis rows made from the angular ones) in one pass: what
     `correction.task_error` makes of `chain_kinematics`, without the intermediate arrays."""
     n = len(fixed)
     if not 0 < n <= MAX_JOINTS:
         raise ValueError(f"a chain of {n} joints; the kernel takes 1 to {MAX_JOINTS}")
-    rows = [*position_axes, *([3, 4, 5] if target_rotation is not None else [])]
+    orientation_rows, rotation = _orientation(target_rotation)
+    rows = [*position_axes, *orientation_rows]
     m, m_position = len(rows), len(position_axes)
     if not 0 < m <= MAX_TASK_DIMENSION or not set(position_axes) <= {0, 1, 2}:
         raise ValueError(f"position axes {position_axes}: a subset of 0, 1, 2")
     batch = len(q_rad)
     q = _float64(q_rad, "q_rad", (batch, n))
     target_position = _float64(target_position_m, "target_position_m", (m_position,))
-    rotation = (
-        np.eye(3)
-        if target_rotation is None
-        else _float64(target_rotation, "target_rotation", (3, 3))
-    )
     error = np.empty((batch, m))
     jacobian = np.empty((batch, m, n))
     if batch:
@@ -354,7 +375,7 @@ def newton(
     tip: FloatArray,  # (4, 4)
     position_axes: list[int],
     target_position_m: FloatArray,  # (len(position_axes),)
-    target_rotation: FloatArray | None,  # (3, 3) or None, as `task_residual`
+    target_rotation: OrientationTarget,  # as `task_residual`
     q_rad: FloatArray,  # (B, n) evaluated: error and jacobian are measured there
     error: FloatArray,  # (B, m)
     jacobian: FloatArray,  # (B, m, n)
@@ -370,7 +391,8 @@ def newton(
     once |e| <= until (a NaN |e| never does); a step entry that is not finite makes its
     joint NaN. The inputs are not changed."""
     n = len(fixed)
-    rows = [*position_axes, *([3, 4, 5] if target_rotation is not None else [])]
+    orientation_rows, rotation = _orientation(target_rotation)
+    rows = [*position_axes, *orientation_rows]
     m, m_position = len(rows), len(position_axes)
     if not 0 < n <= MAX_JOINTS or not 0 < m <= MAX_TASK_DIMENSION:
         raise ValueError(f"a task of {m} rows on {n} joints; the kernel takes 1 to 6 on 1 to 64")
@@ -388,11 +410,6 @@ def newton(
         else np.ascontiguousarray(np.broadcast_to(locked, (batch, n)), dtype=np.uint8)
     )
     border = np.zeros(1) if tangent is None else _float64(tangent, "tangent", (batch, n))
-    rotation = (
-        np.eye(3)
-        if target_rotation is None
-        else _float64(target_rotation, "target_rotation", (3, 3))
-    )
     if batch and iterations > 0:
         _native.newton(
             _float64(fixed, "fixed", (n, 4, 4)), _float64(tip, "tip", (4, 4)), n,
@@ -460,7 +477,7 @@ def walk(
     tip: FloatArray,  # (4, 4)
     position_axes: list[int],
     target_position_m: FloatArray,
-    target_rotation: FloatArray | None,  # as `task_residual`
+    target_rotation: OrientationTarget,  # as `task_residual`
     q_rad: FloatArray,  # (F, n) front ends, evaluated
     tangent: FloatArray,  # (F, n) their directions of travel
     jacobian: FloatArray,  # (F, n - 1, n) at the ends
@@ -473,7 +490,8 @@ def walk(
     takes them (its numpy loop is the reference this is pinned to), compiled. The output
     rows grow as needed: the walk pauses when a step might not fit and goes on."""
     n = len(fixed)
-    rows = [*position_axes, *([3, 4, 5] if target_rotation is not None else [])]
+    orientation_rows, rotation = _orientation(target_rotation)
+    rows = [*position_axes, *orientation_rows]
     m, m_position = len(rows), len(position_axes)
     if not 0 < n <= MAX_JOINTS or m != n - 1:
         raise ValueError(
@@ -486,11 +504,6 @@ def walk(
     step = np.full(fronts, rules.step_rad)
     alive = np.ones(fronts, dtype=np.uint8)
     partner = np.full(fronts, -1, dtype=np.int64)
-    rotation = (
-        np.eye(3)
-        if target_rotation is None
-        else _float64(target_rotation, "target_rotation", (3, 3))
-    )
     constants = (
         _float64(fixed, "fixed", (n, 4, 4)), _float64(tip, "tip", (4, 4)), n,
         np.array(rows, dtype=np.int64), m, m_position,
@@ -566,7 +579,7 @@ class CompiledSpace:
     tip: FloatArray  # (4, 4)
     position_axes: list[int]
     target_position_m: FloatArray
-    target_rotation: FloatArray | None  # as `task_residual`
+    target_rotation: OrientationTarget  # as `task_residual`
     damping: float  # the DLS steps' (above 0)
     lower_rad: FloatArray  # (n,)
     upper_rad: FloatArray  # (n,)
@@ -579,7 +592,8 @@ class CompiledSpace:
         """The C arguments every walk takes, checked, and (n, m, m_position, orientation,
         sets, check_self, K, S, P, V) for its sizes."""
         n = len(self.fixed)
-        rows = [*self.position_axes, *([3, 4, 5] if self.target_rotation is not None else [])]
+        orientation_rows, rotation = _orientation(self.target_rotation)
+        rows = [*self.position_axes, *orientation_rows]
         m, m_position = len(rows), len(self.position_axes)
         if not 0 < n <= MAX_JOINTS or not 0 < m <= MAX_TASK_DIMENSION:
             raise ValueError(
@@ -591,11 +605,6 @@ class CompiledSpace:
         joints = _int64(self.set_joint, "set_joint", (sets,))
         if sets and (joints.min() < 0 or joints.max() >= n):
             raise ValueError(f"coaxial set joints must lie in 0 to {n - 1}")
-        rotation = (
-            np.eye(3)
-            if self.target_rotation is None
-            else _float64(self.target_rotation, "target_rotation", (3, 3))
-        )
         chain = (
             _float64(self.fixed, "fixed", (n, 4, 4)), _float64(self.tip, "tip", (4, 4)),
             np.array(rows, dtype=np.int64),

@@ -1,4 +1,5 @@
-"""Rotations: unit quaternions with named fields, rotation logarithm, 6-D representation."""
+"""Rotations: unit quaternions with named fields, rotation logarithm, 6-D representation,
+and the axis task's error (the angle between a tool axis and its target direction)."""
 
 from __future__ import annotations
 
@@ -15,6 +16,12 @@ def quaternion_to_matrix(w: float, x: float, y: float, z: float) -> FloatArray:
     """Rotation matrix (3, 3) of the unit quaternion w + xi + yj + zk (normalised here)."""
     # scipy orders quaternions scalar-last; the named fields make the order explicit.
     return np.asarray(Rotation.from_quat([x, y, z, w]).as_matrix(), dtype=np.float64)
+
+
+def matrix_to_quaternion(rotation: FloatArray) -> tuple[float, float, float, float]:
+    """The unit quaternion (w, x, y, z) of a rotation matrix (3, 3), scalar first."""
+    x, y, z, w = Rotation.from_matrix(rotation).as_quat()
+    return (float(w), float(x), float(y), float(z))
 
 
 def rotation_log(rotation: FloatArray) -> FloatArray:
@@ -77,3 +84,50 @@ def _log(matrix: FloatArray) -> FloatArray:  # (B, 9) -> (B, 3)
 def rotation_6d(rotation: FloatArray) -> FloatArray:
     """Continuous 6-D representation (B, 6) of rotations (B, 3, 3): the first two columns."""
     return np.concatenate([rotation[..., :, 0], rotation[..., :, 1]], axis=-1)
+
+
+def axis_frame(axis: FloatArray, tool_axis: FloatArray) -> FloatArray:  # (3,), (3,) -> (3, 3)
+    """The axis task's target as the kernels take it: rows b1, b2, u.
+
+    b1, b2 are unit, orthogonal to the target axis a* (unit) and b1 x b2 = a*; u is the
+    tool axis in the end-effector frame. b1 is a* crossed with the base axis least
+    aligned with a*, so the frame is a fixed function of a*."""
+    least = np.zeros(3)
+    least[int(np.argmin(np.abs(axis)))] = 1.0
+    b1 = np.cross(axis, least)
+    b1 /= np.linalg.norm(b1)
+    return np.stack([b1, np.cross(axis, b1), np.asarray(tool_axis, dtype=np.float64)])
+
+
+def axis_error(
+    frame: FloatArray,  # (3, 3) rows b1, b2, u as `axis_frame`
+    rotation: FloatArray,  # (B, 3, 3) end-effector rotations
+    angular_jacobian: FloatArray,  # (B, 3, n) the geometric Jacobian's angular rows
+) -> tuple[FloatArray, FloatArray]:  # e (B, 2), J (B, 2, n)
+    """The axis task's error e = target - current and its Jacobian (the compiled
+    kernel's `residual_rows` computes the same).
+
+    With a = R u the tool axis in the base frame and s = (b1 . a, b2 . a), the current
+    value is s (0 on the fibre) and e = -(theta / sin theta) s, where theta =
+    atan2(|s|, a . a*) is the angle between a and a*: |e| is that angle, pi where a is
+    opposite a* (s = 0 there too, but no answer). J's row k is (a x b_k) . z_i per joint
+    i, the derivative of b_k . a (a turns by z_i x a per radian of joint i)."""
+    # Every sum is written out in the compiled kernel's order, so the two agree to the
+    # last bit of arctan2 (numpy's and the C library's may differ there).
+    b1, b2, u = frame
+    target = np.cross(b1, b2)
+    a = rotation[:, :, 0] * u[0] + rotation[:, :, 1] * u[1] + rotation[:, :, 2] * u[2]  # (B, 3)
+    s = np.stack([a[:, 0] * b[0] + a[:, 1] * b[1] + a[:, 2] * b[2] for b in (b1, b2)], axis=1)
+    sin = np.sqrt(s[:, 0] * s[:, 0] + s[:, 1] * s[:, 1])  # (B,)
+    cos = a[:, 0] * target[0] + a[:, 1] * target[1] + a[:, 2] * target[2]
+    theta = np.arctan2(sin, cos)
+    scale = np.where(sin > 1e-8, theta / np.where(sin > 1e-8, sin, 1.0), 1.0)
+    error = -scale[:, None] * s
+    error[(sin <= 1e-8) & (cos < 0.0)] = [np.pi, 0.0]
+    normal = np.cross(a[:, None, :], np.stack([b1, b2])[None])  # (B, 2, 3): a x b_k
+    jacobian = (
+        normal[:, :, 0, None] * angular_jacobian[:, None, 0, :]
+        + normal[:, :, 1, None] * angular_jacobian[:, None, 1, :]
+        + normal[:, :, 2, None] * angular_jacobian[:, None, 2, :]
+    )  # (B, 2, n)
+    return error, jacobian

@@ -80,6 +80,7 @@ def encode(model: SmmModel, query: Query) -> Target:
         condition=model.manifest.condition,
         position_m=query.position_m,
         orientation_wxyz=query.orientation_wxyz,
+        axis=query.axis,
     )
 
 

@@ -30,6 +30,7 @@ from service.pipeline.collision.check import CollisionCheck
 from service.pipeline.correction import error_norms
 from service.pipeline.fibre import Fibre, project
 from service.pipeline.joint_space import JointLimits, wrap_to_pi
+from service.pipeline.targets import kernel_orientation
 from service.pipeline.types import Acceptance, CoaxialSet, Correction, Tolerance
 
 
@@ -62,7 +63,7 @@ class FibreSpace:
         target = fibre.target
         return native.CompiledSpace(
             chain.fixed, chain.tip, fibre.task.position_axes, target.position_m,
-            target.rotation if fibre.task.orientation else None, fibre.damping,
+            kernel_orientation(fibre.task, target), fibre.damping,
             limits.lower_rad, limits.upper_rad, limits.periodic,
             np.array([c.joint for c in self.coaxial_sets], dtype=np.int64),
             np.array([c.angle_rad for c in self.coaxial_sets]), bodies,

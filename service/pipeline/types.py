@@ -127,6 +127,7 @@ class Query:
 
     position_m: list[float]  # (m_p,) the task's constrained position axes
     orientation_wxyz: tuple[float, float, float, float] | None  # pose task only
+    axis: tuple[float, float, float] | None  # axis task only: the tool axis's direction
     num_samples: int
     seed: int
     tolerance_position_m: float
@@ -150,6 +151,7 @@ class Query:
         *,
         position_m: Sequence[float],
         orientation_wxyz: tuple[float, float, float, float] | None = None,
+        axis: tuple[float, float, float] | None = None,
         num_samples: int | None = None,
         seed: int = 0,
         tolerance_position_m: float | None = None,
@@ -165,11 +167,11 @@ class Query:
         """Check the request's shape against the model (RequestFieldError names the field)
         and fill every option left as None from the model's defaults."""
         task, defaults = manifest.task, manifest.defaults
-        validate_target(task, list(position_m), orientation_wxyz)
-        if tolerance_orientation_rad is not None and not task.orientation:
+        validate_target(task, list(position_m), orientation_wxyz, axis)
+        if tolerance_orientation_rad is not None and not task.orientation_rows:
             raise RequestFieldError(
                 ("body", "tolerance", "orientation"),
-                "tolerance.orientation applies only to the pose task",
+                "tolerance.orientation applies only to the pose and axis tasks",
             )
         if reference_rad is not None and len(reference_rad) != manifest.joints.count:
             raise RequestFieldError(
@@ -180,6 +182,7 @@ class Query:
         return cls(
             position_m=list(position_m),
             orientation_wxyz=orientation_wxyz,
+            axis=axis,
             num_samples=defaults.num_samples if num_samples is None else num_samples,
             seed=seed,
             tolerance_position_m=(
@@ -212,7 +215,7 @@ class Tolerance:
     """The largest task error an answer's configuration may have (the query's)."""
 
     position_m: float
-    orientation_rad: float  # a position task's orientation errors are 0
+    orientation_rad: float  # the axis angle for the axis task; a position task's errors are 0
 
     @classmethod
     def of(cls, defaults: Defaults) -> Tolerance:

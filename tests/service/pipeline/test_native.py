@@ -1,31 +1,32 @@
-"""native: the compiled kernels answer as the numpy kernels, pytorch-kinematics and scipy do.
-
-Chain kinematics: for every bundled arm's chain.json, at configurations uniform over
+"""native: the compiled kernels answer as the numpy kernels, pytorch-kinematics and scipy
+do.  Chain kinematics: for every bundled arm's chain.json, at configurations uniform over
 several turns, the compiled kernel equals the numpy kernel it replaced
 (tests/support/numpy_kernels.py) and pytorch-kinematics (FK and Jacobian of the URDF, what
 kinematics.onnx is exported from) to 1e-12. Rotation error: log(R* R^T) equals scipy's
-rotation vector at every angle up to pi (both sides of the 150-degree switch) to 1e-12,
-and a non-rotation is NaN in its own row. DLS step: on the arms' own Jacobians (pose and
-position rows) it equals the numpy step (LAPACK's solve) to 1e-12 relative to the step,
-and the closed form J^T (J J^T + d^2 I)^-1 e; a singular system with zero damping takes
-the pseudo-inverse's step and a non-finite row is NaN in its own row. Wrong shapes and
-sizes beyond the kernels' fixed bounds are refused with the valid range named. URDF joint
-frames equal the numpy frames (Rodrigues on whole columns) and end, times the tip, at the
-chain kinematics' end effector. Self-clearance of the iiwa14's and Panda's spheres equals
-the numpy two-pass minimum and a brute force over every sphere pair, and the same at
-joint values (each row placing its own frames) bitwise. The bordered solve
-[J; t^T] x = b of the trace's corrector and tangent equals LAPACK's, NaN where singular.
-The task residual (FK and task error in one pass) equals `task_error` of the chain kernel
-bitwise and of kinematics.onnx to 1e-12, for pose and position tasks. The compiled Newton
+rotation vector at every angle up to pi (both sides of the 150-degree switch) to 1e-12, and
+a non-rotation is NaN in its own row. DLS step: on the arms' own Jacobians (pose and
+position rows) it equals the numpy step (LAPACK's solve) to 1e-12 relative to the step, and
+the closed form J^T (J J^T + d^2 I)^-1 e; a singular system with zero damping takes the
+pseudo-inverse's step and a non-finite row is NaN in its own row. Wrong shapes and sizes
+beyond the kernels' fixed bounds are refused with the valid range named. URDF joint frames
+equal the numpy frames (Rodrigues on whole columns) and end, times the tip, at the chain
+kinematics' end effector. Self-clearance of the iiwa14's and Panda's spheres equals the
+numpy two-pass minimum and a brute force over every sphere pair, and the same at joint
+values (each row placing its own frames) bitwise. The bordered solve [J; t^T] x = b of the
+trace's corrector and tangent equals LAPACK's, NaN where singular. The task residual (FK and
+task error in one pass) equals `task_error` of the chain kernel bitwise and of
+kinematics.onnx to 1e-12, for pose and position tasks; for the axis task its two rows equal
+the numpy ones to 1e-12, their norm is the angle between the tool axis and its target (pi
+when opposite), and their Jacobian is -de/dq by central differences. The compiled Newton
 steps (DLS, stopping at a tolerance, locked joints, bordered on a tangent) end where the
-numpy steps do, to 1e-12. The smallest singular value (one-sided Jacobi) equals LAPACK's
-SVD to 1e-12, singular and near-singular Jacobians included, and the bounded search
-for the least over many rows finds exactly the least. GJK between placed hulls takes
-convex.py's numpy steps (1e-12) on the robots' own hulls, the refined self-clearance
-at joint values equals robot.py's numpy passes (1e-12), and the least distance from
-samples to the path segments beside their candidate points equals the numpy segments'
-(1e-12) and, with every point a candidate, a brute force over every segment. (The
-trace's compiled walk is pinned in tests/service/pipeline/connect/test_walk.py.)
+numpy steps do, to 1e-12. The smallest singular value (one-sided Jacobi) equals LAPACK's SVD
+to 1e-12, singular and near-singular Jacobians included, and the bounded search for the
+least over many rows finds exactly the least. GJK between placed hulls takes convex.py's
+numpy steps (1e-12) on the robots' own hulls, the refined self-clearance at joint values
+equals robot.py's numpy passes (1e-12), and the least distance from samples to the path
+segments beside their candidate points equals the numpy segments' (1e-12) and, with every
+point a candidate, a brute force over every segment. (The trace's compiled walk is pinned in
+tests/service/pipeline/connect/test_walk.py.)
 """
 
 from __future__ import annotations
@@ -53,7 +54,7 @@ from service.pipeline.collision.robot import RobotSpheres
 from service.pipeline.correction import residual_of, task_error
 from service.pipeline.fibre import Fibre, project, unit_tangent
 from service.pipeline.rotations import rotation_log
-from service.pipeline.targets import Target
+from service.pipeline.targets import Target, kernel_orientation
 from tests.support.chains import pytorch_kinematics_answer
 from tests.support.numpy_kernels import NumpyChainKinematics, NumpyStepsKinematics
 from tests.support.numpy_kernels import chain_frames as numpy_chain_frames
@@ -397,6 +398,92 @@ def test_newton_takes_the_numpy_steps(model: str) -> None:
         assert np.all(np.isnan(a.q_rad[7])) and np.all(np.isfinite(np.delete(a.q_rad, 7, 0)))
         moved = np.linalg.norm(a.error, axis=1) < np.linalg.norm(compiled.residual(q)[0], axis=1)
         assert moved.mean() > 0.9
+
+
+TILTED_TOOL = [0.6, 0.0, 0.8]  # a tool axis off every joint's, so all joints turn it
+
+
+def axis_target(kinematics: SerialChainKinematics, q_target: np.ndarray) -> Target:
+    """The axis target the configuration (n,) reaches with TILTED_TOOL."""
+    fk = kinematics(q_target[None])
+    return Target(
+        position_m=fk.position_m[0],
+        rotation=None,
+        condition=np.zeros(1, np.float32),
+        axis=fk.rotation[0] @ np.array(TILTED_TOOL),
+    )
+
+
+AXIS_TASK = TaskSpec(name="axis", position_axes=[0, 1, 2], orientation=False, tool_axis=TILTED_TOOL)
+
+
+def test_axis_residual_is_the_numpy_error_the_angle_and_its_derivative() -> None:
+    """The axis task's two rows, compiled, equal `rotations.axis_error` (numpy) to 1e-12
+    at configurations over several turns; |e| is the angle between the tool axis and the
+    target axis (arccos of their dot product), pi where they are opposite; the Jacobian
+    is the derivative of the current value, -de/dq by central differences, on the fibre."""
+    kinematics = chain("iiwa14-pose")
+    target = axis_target(kinematics, turns(7, 1, seed=30)[0])
+    orientation = kernel_orientation(AXIS_TASK, target)
+    assert isinstance(orientation, native.AxisTarget)
+    q = turns(7, 500, seed=31)
+    error, jacobian = native.task_residual(
+        kinematics.fixed, kinematics.tip, q, [0, 1, 2], target.position_m, orientation
+    )
+    expected_error, expected_jacobian = task_error(kinematics(q), target, AXIS_TASK)
+    np.testing.assert_allclose(error, expected_error, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(jacobian, expected_jacobian, rtol=0, atol=1e-12)
+    assert target.axis is not None
+    tool = kinematics(q).rotation @ np.array(TILTED_TOOL)  # (B, 3)
+    angle = np.arccos(np.clip(tool @ target.axis, -1.0, 1.0))
+    np.testing.assert_allclose(np.linalg.norm(error[:, 3:], axis=1), angle, rtol=0, atol=1e-7)
+    # On the fibre: from the target configuration, Newton onto it from nearby rows.
+    fibre = Fibre(target, AXIS_TASK, kinematics, damping=1e-3)
+    near = turns(7, 1, seed=30) + np.random.default_rng(32).normal(scale=0.05, size=(20, 7))
+    on = project(fibre, near, iterations=20).q_rad
+    assert np.abs(fibre.residual(on)[0]).max() < 1e-12
+    step = 1e-6
+    for i in range(7):
+        dq = np.zeros(7)
+        dq[i] = step
+        forward, backward = fibre.residual(on + dq)[0], fibre.residual(on - dq)[0]
+        derivative = -(forward - backward) / (2 * step)  # e = target - current
+        np.testing.assert_allclose(fibre.residual(on)[1][:, :, i], derivative, atol=1e-8)
+    # Opposite: the error is pi, not the 0 that the two projections alone would give.
+    flipped = Target(target.position_m, None, target.condition, -target.axis)
+    on_error = native.task_residual(
+        kinematics.fixed, kinematics.tip, on, [0, 1, 2], target.position_m,
+        kernel_orientation(AXIS_TASK, flipped),
+    )[0]  # fmt: skip
+    np.testing.assert_allclose(np.linalg.norm(on_error[:, 3:], axis=1), np.pi, atol=1e-6)
+
+
+def test_newton_takes_the_numpy_steps_on_the_axis_task() -> None:
+    """The compiled Newton on the axis task's rows (DLS, stopping at `until`, a locked
+    joint, held exactly) ends where the numpy steps do, to 1e-12, and lands on the fibre.
+    (numpy's arctan2 and the C library's differ in the last bit, so the axis rows agree
+    to an ulp, not bitwise; each row locks one joint, since with more J can lose rank,
+    J J^T + d^2 I then has condition ~1/d^2 = 1e6, and the ulps grow past 1e-12.)"""
+    kinematics = chain("iiwa14-pose")
+    q_target = turns(7, 1, seed=33)
+    target = axis_target(kinematics, q_target[0])
+    compiled = Fibre(target, AXIS_TASK, kinematics, damping=1e-3)
+    through = Fibre(target, AXIS_TASK, NumpyStepsKinematics(kinematics), damping=1e-3)
+    q = q_target + np.random.default_rng(34).normal(scale=0.05, size=(200, 7))
+    locked = np.eye(7, dtype=bool)[np.random.default_rng(35).integers(0, 7, 200)]
+    cases: list[dict[str, object]] = [
+        {"iterations": 4},
+        {"iterations": 8, "until": 1e-10},
+        {"iterations": 5, "locked": locked},
+    ]
+    for case in cases:
+        a = project(compiled, q, **case)  # type: ignore[arg-type]
+        b = project(through, q, **case)  # type: ignore[arg-type]
+        for x, y in ((a.q_rad, b.q_rad), (a.error, b.error), (a.jacobian, b.jacobian)):
+            np.testing.assert_allclose(x, y, rtol=0, atol=1e-12)
+    held = project(compiled, q, iterations=5, locked=locked).q_rad
+    np.testing.assert_array_equal(held[locked], q[locked])
+    assert np.abs(project(compiled, q, iterations=10).error).max() < 1e-12
 
 
 def test_smallest_singular_values_equal_lapack() -> None:

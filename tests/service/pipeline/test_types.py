@@ -74,7 +74,7 @@ def test_given_options_are_kept_and_the_reference_becomes_an_array() -> None:
             PLANAR,
             {"position_m": [0.5, 0.0], "tolerance_orientation_rad": 0.01},
             ("body", "tolerance", "orientation"),
-            "tolerance.orientation applies only to the pose task",
+            "tolerance.orientation applies only to the pose and axis tasks",
         ),
         (
             PLANAR,

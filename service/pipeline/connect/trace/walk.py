@@ -14,6 +14,7 @@ from service.pipeline.connect.trace.points import Curve, Evaluated, TraceSetting
 from service.pipeline.connect.trace.strands import chain as chain_fronts
 from service.pipeline.deadline import Deadline
 from service.pipeline.fibre import Fibre, project, smallest_singular_value, unit_tangent
+from service.pipeline.targets import kernel_orientation
 
 # sigma_min(J) below which two meeting fronts may be on twin curves (the iiwa's elbow
 # twins at q4 = +-0.015, 0.03 rad apart, have sigma_min ~ 0.006; on regular pose targets
@@ -52,7 +53,7 @@ def walk_fronts(
         target = fibre.target
         walked = native.walk(
             chain.fixed, chain.tip, fibre.task.position_axes, target.position_m,
-            target.rotation if fibre.task.orientation else None, q, tangent, jacobian,
+            kernel_orientation(fibre.task, target), q, tangent, jacobian,
             native.WalkRules(
                 step_rad=settings.step_rad,
                 corrector_iterations=settings.corrector_iterations,
