@@ -60,6 +60,7 @@ import numpy as np
 from service.manifest import MANIFEST_FILE, REPO_MODELS_DIR, Defaults
 from service.models.registry import ServedModel, load_model
 from service.pipeline.arrays import FloatArray
+from service.pipeline.correction import jacobian_on_fibre
 from service.pipeline.joint_space import JointLimits
 from training.defaults import write_defaults
 from training.evaluate.methods import MethodTarget, served_target
@@ -72,7 +73,7 @@ from training.evaluate.metrics import (
 from training.evaluate.quality import PAPER_SAMPLER
 from training.evaluate.served import serving
 from training.evaluate.targets import uniform_configurations
-from training.evaluate.truth import REFERENCES, Truth, ground_truth
+from training.evaluate.truth import AXIS_REFERENCES, REFERENCES, Truth, ground_truth
 
 # The evaluation report's targets (training/evaluate/report.py).
 REPORT_SEED = 7
@@ -104,7 +105,7 @@ def near_singular_for(targets: int) -> int:
 
 def robot_has_ground_truth(robot: str) -> bool:
     """Whether `robot` has an exact reference to judge against."""
-    return robot == "planar3r" or robot in REFERENCES
+    return robot == "planar3r" or robot in REFERENCES or robot in AXIS_REFERENCES
 
 
 def has_ground_truth(model: ServedModel) -> bool:
@@ -169,7 +170,7 @@ def near_singular_configurations(
     manifest = model.manifest
     limits = JointLimits.of(manifest.joints)
     q = uniform_configurations(limits, NEAR_SINGULAR_DRAWS * count, seed)
-    jacobian = model.kinematics(q).jacobian[:, manifest.task.jacobian_rows]  # (D, m, n)
+    jacobian = jacobian_on_fibre(model.kinematics(q), manifest.task)  # (D, m, n)
     smallest = np.linalg.svd(jacobian, compute_uv=False)[:, -1]  # (D,)
     return q[np.argsort(smallest)[:count]]
 

@@ -89,12 +89,18 @@ def counted_components(truth: Truth) -> BoolArray:
 
 def exact_labels(returned: FloatArray, truth: Truth) -> np.ndarray:
     """(K,) the exact component of each returned configuration: that of its nearest exact
-    label point on the membership joints (iiwa: no periodic joint, Euclidean;
+    label point on the membership joints (the joint metric: Euclidean where no joint is
+    periodic, the iiwa's and the Panda's;
     `Truth.labelling`: every node of the 4-D reference, the points otherwise)."""
     if not len(returned):
         return np.zeros(0, int)
     points, component = truth.labelling()
-    nearest = cKDTree(points).query(returned[:, : truth.membership_joints])[1]
+    query = returned[:, : truth.membership_joints]
+    if truth.periodic is not None and truth.periodic.any():
+        box = JointBox.covering(np.concatenate([points, query]), truth.periodic, margin_rad=10.0)
+        nearest = box.tree(points).query(box.points(query))[1]
+    else:
+        nearest = cKDTree(points).query(query)[1]
     return np.asarray(component[nearest])
 
 
@@ -194,7 +200,7 @@ def summarise(
     if not answers:
         return {}
     manifest = model.manifest
-    reach, pose = manifest.reach_m, manifest.task.orientation
+    reach, pose = manifest.reach_m, bool(manifest.task.orientation_rows)
     one_dimensional = manifest.joints.count - manifest.task.dimension == 1
     limits = JointLimits.of(manifest.joints)
     cat = np.concatenate

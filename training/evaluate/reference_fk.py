@@ -2,10 +2,12 @@
 
 The service measures its answers with its own kinematics (the URDF's chain, the exported
 kinematics.onnx); the report's `reference_fk` block checks them again with code that
-shares nothing with either: the planar 3R's closed form and the iiwa's and the Panda's DH
-tables (training/evaluate/references, numpy float64). The target is the reference FK of
+shares nothing with either: the planar 3R's closed form, the iiwa's and the Panda's DH
+tables and, for the UR5, example-robot-data's URDF read by references/urdf_chain.py
+(training/evaluate/references, numpy float64). The target is the reference FK of
 the target configuration, and each returned configuration (accepted samples and path
-points) must reach it within the served tolerances.
+points) must reach it within the served tolerances: the position, and the rotation
+angle (pose) or the tool axis's angle to the target's (axis).
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ import numpy as np
 
 from service.models.registry import ServedModel
 from training.evaluate.methods import MethodTarget
-from training.evaluate.references import iiwa14, panda
+from training.evaluate.references import axis, iiwa14, panda
 from training.evaluate.references.planar3r import planar3r_position
 from training.evaluate.references.rotations import rotation_angle_rad
 
@@ -34,6 +36,7 @@ REFERENCE_POSES: dict[str, Callable[[np.ndarray], np.ndarray]] = {
     "planar3r": _planar_pose,
     "iiwa14": iiwa14.dh_pose,
     "panda": panda.dh_pose,
+    "ur5": lambda q_rad: axis.ur5_chain().pose(q_rad),
 }
 
 
@@ -57,13 +60,19 @@ def reference_fk_check(
     poses = REFERENCE_POSES.get(model.manifest.robot)
     if poses is None:
         return None
-    orientation = model.manifest.task.orientation
+    task = model.manifest.task
+    orientation = bool(task.orientation_rows)
     position_errors, orientation_errors = [np.zeros(0)], [np.zeros(0)]
     for q_target, answer in zip(q_targets, answers, strict=True):
         target = poses(q_target[None])[0]
         reached = poses(answer.returned)
         position_errors.append(np.linalg.norm(reached[:, :3, 3] - target[:3, 3], axis=1))
-        if orientation and len(reached):
+        if task.tool_axis is not None and len(reached):
+            tool = np.asarray(task.tool_axis)
+            a, goal = reached[:, :3, :3] @ tool, target[:3, :3] @ tool  # (P, 3), (3,)
+            sine = np.linalg.norm(np.cross(a, goal), axis=1)
+            orientation_errors.append(np.arctan2(sine, a @ goal))
+        elif orientation and len(reached):
             rotations = np.broadcast_to(target[:3, :3], reached[:, :3, :3].shape)
             orientation_errors.append(rotation_angle_rad(reached[:, :3, :3], rotations))
     defaults = model.manifest.defaults

@@ -11,7 +11,7 @@ from typing import Protocol
 import numpy as np
 
 from service.pipeline.types import SmmModel
-from training.evaluate.references import iiwa14, panda
+from training.evaluate.references import axis, iiwa14, panda
 from training.evaluate.references.iiwa14 import MIN_SHARE, PositionSmm
 from training.evaluate.references.planar3r import closed_form_smm, expected_component_count
 
@@ -36,6 +36,8 @@ class Truth:
     # point (the 4-D reference's every node, denser than `points`), else of `points`.
     label_points: np.ndarray | None = None  # (L, membership_joints)
     label_component: np.ndarray | None = None  # (L,)
+    # Joints compared on the circle when labelling (the UR5's: each turns a full circle).
+    periodic: np.ndarray | None = None  # (membership_joints,)
 
     def labelling(self) -> tuple[np.ndarray, np.ndarray]:
         """The points (on the membership joints) and components that label configurations."""
@@ -68,8 +70,15 @@ REFERENCES = {
 }
 
 
+# The axis task's references (training/evaluate/references/axis.py), by robot: position,
+# target axis, tool axis, limits -> the exact SMM (r = 1 for the UR5, 2 for the iiwa14).
+AXIS_REFERENCES: dict[str, Callable[..., axis.AxisSmm]] = {
+    "ur5": lambda p, a, u, lower, upper: axis.ur5_axis_smm(p, a, u),
+    "iiwa14": axis.iiwa14_axis_smm,
+}
+
 # The evaluation package each reference imports when it runs (training/evaluate/packages.py).
-REFERENCE_PACKAGES: dict[str, str] = {"panda": "eaik"}
+REFERENCE_PACKAGES: dict[str, str] = {"panda": "eaik", "ur5": "eaik"}
 
 
 def ground_truth(model: SmmModel, q_target: np.ndarray, seed: int) -> Truth:
@@ -81,6 +90,9 @@ def ground_truth(model: SmmModel, q_target: np.ndarray, seed: int) -> Truth:
         components = closed_form_smm(position[:2], phi_step_rad=0.002)
         count = expected_component_count(float(np.linalg.norm(position[:2])))
         return Truth(points=np.concatenate(components), count=count)
+    task = model.manifest.task
+    if task.tool_axis is not None:
+        return _axis_truth(model, position, rotation @ np.asarray(task.tool_axis))
     if robot not in REFERENCES:
         known = ", ".join(sorted([*REFERENCES, "planar3r"]))
         raise ValueError(f"no exact reference for robot {robot!r}; references: {known}")
@@ -105,4 +117,31 @@ def ground_truth(model: SmmModel, q_target: np.ndarray, seed: int) -> Truth:
         points=fibre.q_rad, count=fibre.count, point_component=fibre.component,
         size=fibre.share, size_edges=SHARE_BUCKETS, membership_joints=6,
         label_points=fibre.node_q6_rad, label_component=fibre.node_component,
+    )  # fmt: skip
+
+
+def _axis_truth(model: SmmModel, position_m: np.ndarray, axis_direction: np.ndarray) -> Truth:
+    """The axis task's exact SMM: 1-D components sized by arc length, 2-D by share (those
+    of at least MIN_SHARE counted, as for the 4-D fibre)."""
+    manifest = model.manifest
+    robot = manifest.robot
+    if robot not in AXIS_REFERENCES:
+        known = ", ".join(sorted(AXIS_REFERENCES))
+        raise ValueError(f"no exact axis-task reference for robot {robot!r}; references: {known}")
+    assert manifest.task.tool_axis is not None
+    exact = AXIS_REFERENCES[robot](
+        position_m, axis_direction, np.asarray(manifest.task.tool_axis),
+        np.asarray(manifest.joints.lower_rad), np.asarray(manifest.joints.upper_rad),
+    )  # fmt: skip
+    n = manifest.joints.count
+    periodic = np.asarray(manifest.joints.periodic, bool)
+    if manifest.redundancy == 1:
+        return Truth(
+            points=exact.q_rad, count=exact.count, point_component=exact.component,
+            size=exact.size, membership_joints=n, periodic=periodic,
+        )  # fmt: skip
+    return Truth(
+        points=exact.q_rad, count=int((exact.size >= MIN_SHARE).sum()),
+        point_component=exact.component, size=exact.size, size_edges=SHARE_BUCKETS,
+        membership_joints=n, periodic=periodic,
     )  # fmt: skip

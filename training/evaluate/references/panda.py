@@ -31,13 +31,13 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from training.evaluate.packages import requiring
 from training.evaluate.references.iiwa14 import MIN_SHARE, PositionSmm
+from training.evaluate.references.sweep import Sweep, swept, traced_paths
 
 # Franka's modified DH table (frame i from i - 1: Rx(alpha) Tx(a) Rz(q) Tz(d)).
 A_M = np.array([0.0, 0.0, 0.0, 0.0825, -0.0825, 0.0, 0.088])
@@ -99,12 +99,6 @@ def within_limits(q_rad: np.ndarray) -> np.ndarray:
     return np.all((q_rad >= LOWER_RAD) & (q_rad <= UPPER_RAD), axis=-1)
 
 
-def _angle_gap(q_a: np.ndarray, q_b: np.ndarray) -> np.ndarray:
-    """(..., 7) q_b - q_a, each joint wrapped to (-pi, pi]: the unconstrained fibre lives
-    on the torus, and a curve that crosses a wrap (always outside the limits) stays one."""
-    return np.pi - np.mod(np.pi - (q_b - q_a), TWO_PI)
-
-
 _ZERO_POSE_FRAMES = joint_frames(np.zeros((1, 7)))[0]  # (8, 4, 4) what eaik is built from
 
 
@@ -134,23 +128,6 @@ class ReferenceComponent:
     closed: bool  # a loop inside the limits (the last point joins the first)
 
 
-@dataclass
-class _Sweep:
-    """Exact slices of the unconstrained fibre at q7 values and the links between their
-    points: nodes are (slice, row); each node has at most two links."""
-
-    pose: np.ndarray  # (4, 4)
-    q7_rad: list[float]
-    slices: list[np.ndarray]  # each (k, 7)
-    links: list[tuple[int, int, int, int]]  # (slice a, row a, slice b, row b)
-    fill: dict[tuple[int, int, int, int], np.ndarray]  # straight points along a link
-
-    def add(self, q7_rad: float) -> int:
-        self.q7_rad.append(q7_rad)
-        self.slices.append(solve_locked_q7(self.pose, q7_rad))
-        return len(self.slices) - 1
-
-
 def pose_smm(
     position_m: np.ndarray,
     rotation: np.ndarray,
@@ -174,114 +151,16 @@ def pose_smm(
     """
     pose = np.eye(4)
     pose[:3, :3], pose[:3, 3] = rotation, position_m
-    sweep = _Sweep(pose, [], [], [], {})
-    grid = [sweep.add(q7) for q7 in np.linspace(LOWER_RAD[6], UPPER_RAD[6], q7_steps)]
-    pending = list(itertools.pairwise(grid))
-    while pending:
-        a, b = pending.pop()
-        if not _link(sweep, a, b, max_step_rad, sweep.q7_rad[b] - sweep.q7_rad[a] < min_width_rad):
-            middle = sweep.add(0.5 * (sweep.q7_rad[a] + sweep.q7_rad[b]))
-            pending += [(a, middle), (middle, b)]
+    sweep = swept(
+        lambda q7: solve_locked_q7(pose, q7), to_chart,
+        np.linspace(LOWER_RAD[6], UPPER_RAD[6], q7_steps), max_step_rad, min_width_rad,
+    )  # fmt: skip
     return _components(sweep)
 
 
-def _link(sweep: _Sweep, a: int, b: int, max_step_rad: float, forced: bool) -> bool:
-    """Link slice a's points to slice b's if that is unambiguous (or `forced`); False when
-    the interval must be bisected."""
-    q_a, q_b = sweep.slices[a], sweep.slices[b]
-    gap = np.linalg.norm(_angle_gap(q_a[:, None], q_b[None]), axis=-1)  # (ka, kb)
-    if not forced:
-        if len(q_a) != len(q_b):
-            return False
-        if not len(q_a):
-            return True
-        # Each point's nearest in the other slice, both ways the same, short, and clearly
-        # nearer than any rival.
-        cols = np.argmin(gap, axis=1)
-        rows = np.arange(len(q_a))
-        matched = gap[rows, cols]
-        ranked = np.sort(gap, axis=1)[:, 1] if len(q_b) > 1 else np.full(len(q_a), np.inf)
-        rival = np.sort(gap, axis=0)[1] if len(q_a) > 1 else np.full(len(q_b), np.inf)
-        if (
-            np.any(np.argmin(gap, axis=0)[cols] != rows)
-            or np.any(matched > max_step_rad)
-            or np.any(matched > 0.5 * np.minimum(ranked, rival[cols]))
-        ):
-            return False
-        sweep.links += [
-            (a, row, b, col) for row, col in zip(rows.tolist(), cols.tolist(), strict=True)
-        ]
-        return True
-    rows, cols = linear_sum_assignment(gap)
-    for row, col in zip(rows.tolist(), cols.tolist(), strict=True):
-        _add_link(sweep, (a, row, b, col), max_step_rad)
-    # Forced with unequal counts: a fold. The points left over pair up nearest first.
-    side, left = (a, np.setdiff1d(np.arange(len(q_a)), rows)) if len(q_a) > len(q_b) else (
-        b, np.setdiff1d(np.arange(len(q_b)), cols))  # fmt: skip
-    left_q = sweep.slices[side][left]
-    while len(left) >= 2:
-        distance = np.linalg.norm(_angle_gap(left_q[0], left_q[1:]), axis=-1)
-        partner = 1 + int(np.argmin(distance))
-        _add_link(sweep, (side, int(left[0]), side, int(left[partner])), max_step_rad)
-        keep = np.ones(len(left), bool)
-        keep[[0, partner]] = False
-        left, left_q = left[keep], left_q[keep]
-    return True
-
-
-def _add_link(sweep: _Sweep, link: tuple[int, int, int, int], max_step_rad: float) -> None:
-    """Record a link; one longer than `max_step_rad` gets straight points in between."""
-    sweep.links.append(link)
-    start = sweep.slices[link[0]][link[1]]
-    step = _angle_gap(start, sweep.slices[link[2]][link[3]])
-    count = int(np.ceil(np.linalg.norm(step) / max_step_rad))
-    if count > 1:
-        fraction = np.arange(1, count)[:, None] / count
-        sweep.fill[link] = to_chart(start + fraction * step)
-
-
-def _components(sweep: _Sweep) -> list[ReferenceComponent]:
+def _components(sweep: Sweep) -> list[ReferenceComponent]:
     """Trace the linked points into paths and loops, then cut them by the limits."""
-    offset = np.cumsum([0] + [len(s) for s in sweep.slices])
-    nodes = np.concatenate(sweep.slices) if offset[-1] else np.zeros((0, 7))  # (N, 7)
-    neighbours: list[list[tuple[int, np.ndarray]]] = [[] for _ in range(len(nodes))]
-    for link in sweep.links:
-        i, j = int(offset[link[0]] + link[1]), int(offset[link[2]] + link[3])
-        between = sweep.fill.get(link, np.zeros((0, 7)))
-        neighbours[i].append((j, between))
-        neighbours[j].append((i, between[::-1]))
-    seen = np.zeros(len(nodes), bool)
-    components: list[ReferenceComponent] = []
-    for start in sorted(range(len(nodes)), key=lambda i: len(neighbours[i]) != 1):
-        if seen[start]:
-            continue
-        path, closed = _trace(start, nodes, neighbours, seen)
-        components += _cut_by_limits(path, closed)
-    return components
-
-
-def _trace(
-    start: int,
-    nodes: np.ndarray,
-    neighbours: list[list[tuple[int, np.ndarray]]],
-    seen: np.ndarray,
-) -> tuple[np.ndarray, bool]:
-    """(k, 7) the points from `start` along its links in order, and whether they loop."""
-    rows = [nodes[[start]]]
-    seen[start] = True
-    current, count = start, 1
-    while True:
-        ahead = [(n, between) for n, between in neighbours[current] if not seen[n]]
-        if not ahead:
-            # Back at the start through another link than the first one: a loop.
-            closing = [between for n, between in neighbours[current] if n == start]
-            if count >= 3 and closing:
-                return np.concatenate([*rows, closing[0]]), True
-            return np.concatenate(rows), False
-        current, between = ahead[0]
-        rows += [between, nodes[[current]]]
-        seen[current] = True
-        count += 1
+    return [c for path, closed in traced_paths(sweep) for c in _cut_by_limits(path, closed)]
 
 
 def _cut_by_limits(path: np.ndarray, closed: bool) -> list[ReferenceComponent]:
