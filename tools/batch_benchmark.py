@@ -26,8 +26,8 @@ import numpy as np
 from service.config import Settings
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
+from service.pipeline.targets import fields_reached
 from tools.local_server import LocalServer
-from training.evaluate.served import orientation_wxyz
 from training.evaluate.targets import uniform_configurations
 from training.machine import Machine
 
@@ -39,11 +39,7 @@ def target_of(model: ServedModel, q_rad: np.ndarray) -> dict[str, Any]:
     """The request's `target` reached by the configuration `q_rad` (n,): its FK."""
     manifest = model.manifest
     fk = model.kinematics(q_rad[None])
-    target: dict[str, Any] = {"position": fk.position_m[0, manifest.task.position_axes].tolist()}
-    if manifest.task.orientation:
-        w, x, y, z = orientation_wxyz(fk.rotation[0])
-        target["orientation"] = {"w": w, "x": x, "y": y, "z": z}
-    return target
+    return fields_reached(manifest.task, fk.position_m[0], fk.rotation[0]).wire()
 
 
 def without_timings(answer: dict[str, Any]) -> dict[str, Any]:

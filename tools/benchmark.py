@@ -63,6 +63,7 @@ from service.config import Settings
 from service.manifest import REPO_MODELS_DIR, Manifest
 from service.models.registry import ServedModel, load_model
 from service.pipeline.joint_space import JointLimits
+from service.pipeline.targets import fields_reached
 from tools.batch_benchmark import batch_against_singles
 from tools.connect_profile import profile_connect
 from tools.connect_profile import summarise as summarise_connect
@@ -92,7 +93,7 @@ from training.evaluate.judge import (
 from training.evaluate.methods import MethodTarget, restart_target, served_target, ssik_target
 from training.evaluate.metrics import median_stage_ms, p95_stage_ms
 from training.evaluate.references.ssik_charts import supported as ssik_supports
-from training.evaluate.served import orientation_wxyz, serving, with_defaults
+from training.evaluate.served import serving, with_defaults
 from training.evaluate.targets import uniform_configurations
 from training.evaluate.truth import ground_truth
 from training.kinematics import load_chain
@@ -212,12 +213,7 @@ def over_http(
     bodies = []
     for i, q in enumerate(q_targets):
         fk = model.kinematics(q[None])
-        target: dict[str, object] = {
-            "position": fk.position_m[0, manifest.task.position_axes].tolist()
-        }
-        if manifest.task.orientation:
-            w, x, y, z = orientation_wxyz(fk.rotation[0])
-            target["orientation"] = {"w": w, "x": x, "y": y, "z": z}
+        target = fields_reached(manifest.task, fk.position_m[0], fk.rotation[0]).wire()
         bodies.append(
             {"robot": manifest.robot, "task": manifest.task.name, "target": target,
              "num_samples": num_samples, "seed": i}

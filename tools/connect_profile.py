@@ -30,8 +30,8 @@ from service.pipeline import native
 from service.pipeline.arrays import FloatArray
 from service.pipeline.connect import connect
 from service.pipeline.run import collision_of, correct_samples, encode, sample, space_of
+from service.pipeline.targets import fields_reached
 from service.pipeline.types import Query
-from training.evaluate.served import orientation_wxyz
 from training.evaluate.targets import uniform_configurations
 
 
@@ -83,12 +83,12 @@ def profile_connect(
     rows: list[dict[str, float]] = []
     for i, q in enumerate(q_targets):
         fk = model.kinematics(q[None])
+        fields = fields_reached(manifest.task, fk.position_m[0], fk.rotation[0])
         query = Query.for_model(
             manifest,
-            position_m=fk.position_m[0, manifest.task.position_axes].tolist(),
-            orientation_wxyz=orientation_wxyz(fk.rotation[0])
-            if manifest.task.orientation
-            else None,
+            position_m=fields.position_m,
+            orientation_wxyz=fields.orientation_wxyz,
+            axis=fields.axis,
             num_samples=num_samples,
             seed=i,
         )

@@ -35,11 +35,11 @@ from urllib.parse import urlparse
 
 import httpx
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from service.manifest import KINEMATICS_FILE, MANIFEST_FILE, REPO_MODELS_DIR, Manifest
 from service.models.sessions import OnnxKinematics, open_session
 from service.pipeline.joint_space import JointLimits
+from service.pipeline.targets import fields_reached
 from tools.local_server import LocalServer
 from training.checkout import git_commit
 from training.machine import Machine, cpu_model
@@ -69,16 +69,10 @@ def reachable_targets(manifest: Manifest, count: int, seed: int) -> list[dict[st
         open_session(REPO_MODELS_DIR / manifest.model_id / KINEMATICS_FILE, threads=1)
     )
     fk = kinematics(q)
-    targets = []
-    for i in range(count):
-        target: dict[str, Any] = {
-            "position": fk.position_m[i, manifest.task.position_axes].tolist()
-        }
-        if manifest.task.orientation:
-            x, y, z, w = Rotation.from_matrix(fk.rotation[i]).as_quat()
-            target["orientation"] = {"w": w, "x": x, "y": y, "z": z}
-        targets.append(target)
-    return targets
+    return [
+        fields_reached(manifest.task, fk.position_m[i], fk.rotation[i]).wire()
+        for i in range(count)
+    ]
 
 
 def request_bodies(seed: int) -> dict[str, list[dict[str, Any]]]:

@@ -1,6 +1,9 @@
-"""Self-motion paths on the iiwa14 position (r = 4), against known self-motions, and their cost.
+"""Self-motion paths on the iiwa14 position (r = 4) or axis (r = 2) task, against known
+self-motions, and their cost.
 
     python -m tools.self_motion_check --pairs 100 --out docs/benchmark/self-motion.json
+    python -m tools.self_motion_check --model iiwa14-axis --pairs 100 \
+        --out docs/benchmark/self-motion-iiwa14-axis.json
 
 Pairs: from a configuration uniform in 0.8 x the limits (seed 20261127), a random walk
 on its target's fibre (`training.evaluate.walks.null_space_walk`: 0.05 rad steps along the
@@ -10,7 +13,8 @@ them. Each pair is asked in process (`self_motion`, the model's default num_samp
 self-collision as POST /smm checks it by default, seed = the pair's index) for the goal
 configuration and for max_limit_margin, and each path is checked by the DH table
 (training/evaluate/references/iiwa14.py, no service code): every point within 1e-6 m of
-the target and inside the limits, consecutive points at most 0.05 rad apart, the ends
+the target (and, on the axis task, its flange z axis within 1e-6 rad of the target's) and
+inside the limits, consecutive points at most 0.05 rad apart, the ends
 within 1e-6 rad of start and goal; max_limit_margin's end at least the best margin of the
 start component's roadmap nodes. The cost: the median wall time of the configuration
 request against a plain `run` of the same query, interleaved pair by pair on this
@@ -45,19 +49,36 @@ def margin_rad(q_rad: np.ndarray) -> np.ndarray:
     return np.min(LIMITS_RAD - np.abs(q_rad), axis=-1)
 
 
-def path_check(motion: SelfMotion, goal_m: np.ndarray, ends: np.ndarray | None) -> dict[str, Any]:
-    """The independent figures of one answer's path (None where it has none)."""
+MODELS = ("iiwa14-position", "iiwa14-axis")
+
+
+def path_check(
+    motion: SelfMotion, goal: np.ndarray, ends: np.ndarray | None, axis: bool
+) -> dict[str, Any]:
+    """The independent figures of one answer's path (None where it has none): goal is the
+    target's DH pose (4, 4); with `axis`, its z axis is checked too."""
     if motion.path_rad is None:
         return {"ok": False, "status": motion.status}
     path = motion.path_rad
-    error_m = float(np.linalg.norm(dh_pose(path)[:, :3, 3] - goal_m, axis=1).max())
+    reached = dh_pose(path)
+    error_m = float(np.linalg.norm(reached[:, :3, 3] - goal[:3, 3], axis=1).max())
+    angle_rad = 0.0
+    if axis:
+        tool = reached[:, :3, 2]
+        sine = np.linalg.norm(np.cross(tool, goal[:3, 2]), axis=1)
+        angle_rad = float(np.arctan2(sine, tool @ goal[:3, 2]).max())
     spacing = float(np.linalg.norm(np.diff(path, axis=0), axis=1).max()) if len(path) > 1 else 0.0
     inside = bool(np.all(np.abs(path) <= LIMITS_RAD))
     end_gap = 0.0 if ends is None else float(np.abs(path[[0, -1]] - ends).max())
     return {
-        "ok": error_m <= 1e-6 and spacing <= SPACING_RAD and inside and end_gap <= 1e-6,
+        "ok": error_m <= 1e-6
+        and angle_rad <= 1e-6
+        and spacing <= SPACING_RAD
+        and inside
+        and end_gap <= 1e-6,
         "status": motion.status,
         "max_position_error_m": error_m,
+        "max_axis_angle_rad": angle_rad,
         "max_spacing_rad": spacing,
         "inside_limits": inside,
         "max_end_gap_rad": end_gap,
@@ -68,12 +89,14 @@ def path_check(motion: SelfMotion, goal_m: np.ndarray, ends: np.ndarray | None) 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--model", choices=MODELS, default=MODELS[0])
     parser.add_argument("--pairs", type=int, default=100)
     parser.add_argument("--min-chord", type=float, default=1.5, help="rad between the ends")
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args()
     machine = Machine.now()
-    model = load_model(REPO_MODELS_DIR / "iiwa14-position", threads=0)
+    model = load_model(REPO_MODELS_DIR / args.model, threads=0)
+    axis = model.manifest.task.tool_axis is not None
     rng = np.random.default_rng(SEED)
     rows: list[dict[str, Any]] = []
     motion_ms: list[float] = []
@@ -83,8 +106,12 @@ def main() -> None:
         while np.linalg.norm(walk[-1] - walk[0]) < args.min_chord:
             q0 = rng.uniform(-0.8 * LIMITS_RAD, 0.8 * LIMITS_RAD)
             walk = null_space_walk(model, q0, steps=160, seed=index)
-        goal_m = dh_pose(q0[None])[0, :3, 3]
-        query = Query.for_model(model.manifest, position_m=goal_m.tolist(), seed=index)
+        goal = dh_pose(q0[None])[0]
+        x, y, z = (float(v) for v in goal[:3, 2])
+        direction = (x, y, z) if axis else None
+        query = Query.for_model(
+            model.manifest, position_m=goal[:3, 3].tolist(), axis=direction, seed=index
+        )
         started = time.perf_counter()
         motion = self_motion(model, query, walk[0], Goal(configuration_rad=walk[-1]))
         motion_ms.append((time.perf_counter() - started) * 1e3)
@@ -92,9 +119,9 @@ def main() -> None:
         run(model, query)
         plain_ms.append((time.perf_counter() - started) * 1e3)
         row: dict[str, Any] = {"chord_rad": float(np.linalg.norm(walk[-1] - walk[0]))}
-        row["configuration"] = path_check(motion, goal_m, np.stack([walk[0], walk[-1]]))
+        row["configuration"] = path_check(motion, goal, np.stack([walk[0], walk[-1]]), axis)
         best = self_motion(model, query, walk[0], Goal(objective="max_limit_margin"))
-        margin = path_check(best, goal_m, None)
+        margin = path_check(best, goal, None, axis)
         if best.path_rad is not None:
             roadmap = best.result.components[best.start_component].roadmap
             assert roadmap is not None
@@ -108,7 +135,7 @@ def main() -> None:
         print(index, json.dumps(row["configuration"]), flush=True)
     ok = [r["configuration"]["ok"] for r in rows]
     result = {
-        "model": "iiwa14-position",
+        "model": args.model,
         "pairs": args.pairs,
         "min_chord_rad": args.min_chord,
         "ok_pairs": int(np.sum(ok)),
@@ -117,6 +144,7 @@ def main() -> None:
         "max_position_error_m": max(
             r["configuration"].get("max_position_error_m", 0.0) for r in rows
         ),
+        "max_axis_angle_rad": max(r["configuration"].get("max_axis_angle_rad", 0.0) for r in rows),
         "max_spacing_rad": max(r["configuration"].get("max_spacing_rad", 0.0) for r in rows),
         "median_chord_rad": float(np.median([r["chord_rad"] for r in rows])),
         "median_length_rad": float(
@@ -126,7 +154,7 @@ def main() -> None:
         "plain_median_ms": float(np.median(plain_ms)),
         "cost_ratio": float(np.median(motion_ms) / np.median(plain_ms)),
         "rows": rows,
-        "command": "python -m tools.self_motion_check --pairs "
+        "command": f"python -m tools.self_motion_check --model {args.model} --pairs "
         f"{args.pairs} --min-chord {args.min_chord}",
         "machine": machine.ended().as_json(),
     }

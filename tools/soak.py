@@ -211,7 +211,7 @@ def bad_calls(bodies: dict[str, list[dict[str, Any]]]) -> list[Call]:
         bad("not-json", b'{"robot": "' + robot.encode() + b'", "target": ', 422),
         bad("empty-body", b"", 422),
         bad("json-array-body", b"[1, 2]", 422),
-        bad("unknown-robot", _json({**body, "robot": "ur5"}), 404),
+        bad("unknown-robot", _json({**body, "robot": "ur10"}), 404),
         bad("unknown-task", _json({**body, "task": "no-such-task"}), 404),
         bad("position-one-value", _json({**body, "target": {"position": [0.5]}}), 422),
         bad("nan-position", _json({**body, "target": {"position": [math.nan, 0.0]}}), 422),
@@ -227,7 +227,7 @@ def bad_calls(bodies: dict[str, list[dict[str, Any]]]) -> list[Call]:
             422,
             "/smm/batch",
         ),
-        bad("batch-unknown-robot", _json({**batch, "robot": "ur5"}), 404, "/smm/batch"),
+        bad("batch-unknown-robot", _json({**batch, "robot": "ur10"}), 404, "/smm/batch"),
         bad(
             "batch-too-many-targets",
             _json({**batch, "targets": [{"target": target}] * 65}),

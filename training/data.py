@@ -100,7 +100,7 @@ def condition_features_of(fk: ForwardKinematics, task: TaskSpec, q: torch.Tensor
     """Raw condition features (N, c) of configurations q (N, n) float64 for `task`."""
     position, rotation = end_effector_poses(fk, q)
     return condition_features(
-        task, position[:, task.position_axes], rotation if task.orientation else None
+        task, position[:, task.position_axes], rotation if task.orientation_rows else None
     )
 
 

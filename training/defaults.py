@@ -71,7 +71,7 @@ DAMPING_REASON = "the paper's lambda = 1e-3 (seed Table 4)"
 
 
 def tolerance_reason(task: TaskSpec) -> str:
-    if task.orientation:
+    if task.orientation_rows:
         return "micrometre- and microradian-exact answers for planners (DESIGN.md)"
     return "micrometre-exact answers for planners (DESIGN.md)"
 

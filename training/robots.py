@@ -24,7 +24,7 @@ from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from service.manifest import REPO_MODELS_DIR, TaskName, TaskSpec
+from service.manifest import DEFAULT_TOOL_AXIS, REPO_MODELS_DIR, TaskName, TaskSpec
 from training.collision.geometry import mesh_references
 from training.urdf import (
     ROBOT_NAME_PATTERN,
@@ -55,6 +55,10 @@ class TaskAxes(_Strict):
 
     position_axes: list[int]
     orientation: bool
+    tool_axis: list[float] | None = Field(
+        default=None,
+        description="axis task: the tool axis, a unit vector in the end-effector frame (default z)",
+    )
 
 
 class RobotSpec(_Strict):
@@ -74,8 +78,14 @@ class RobotSpec(_Strict):
     def task(self, name: str) -> TaskSpec:
         for task_name, axes in self.tasks.items():
             if task_name == name:
+                tool_axis = axes.tool_axis
+                if task_name == "axis" and tool_axis is None:
+                    tool_axis = list(DEFAULT_TOOL_AXIS)
                 return TaskSpec(
-                    name=task_name, position_axes=axes.position_axes, orientation=axes.orientation
+                    name=task_name,
+                    position_axes=axes.position_axes,
+                    orientation=axes.orientation,
+                    tool_axis=tool_axis,
                 )
         raise ValueError(
             f"unknown task {name!r} for robot {self.name!r}; choose from {sorted(self.tasks)}"
@@ -147,7 +157,9 @@ def register_urdf(
     for spatial in SPATIAL_TASKS.values():
         if spatial.dimension < len(chain.movable_joint_names):
             tasks[spatial.name] = TaskAxes(
-                position_axes=spatial.position_axes, orientation=spatial.orientation
+                position_axes=spatial.position_axes,
+                orientation=spatial.orientation,
+                tool_axis=spatial.tool_axis,
             )
     digest = hashlib.sha256(urdf_text.encode()).hexdigest()
     spec = RobotSpec(

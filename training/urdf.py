@@ -19,7 +19,7 @@ import re
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 
-from service.manifest import TaskSpec
+from service.manifest import DEFAULT_TOOL_AXIS, TaskSpec
 
 MOVABLE_TYPES = ("revolute", "continuous")
 SUPPORTED_TYPES = (*MOVABLE_TYPES, "fixed")
@@ -29,6 +29,9 @@ SUPPORTED_TYPES = (*MOVABLE_TYPES, "fixed")
 SPATIAL_TASKS: dict[str, TaskSpec] = {
     "pose": TaskSpec(name="pose", position_axes=[0, 1, 2], orientation=True),
     "position": TaskSpec(name="position", position_axes=[0, 1, 2], orientation=False),
+    "axis": TaskSpec(
+        name="axis", position_axes=[0, 1, 2], orientation=False, tool_axis=list(DEFAULT_TOOL_AXIS)
+    ),
 }
 
 # Robot names become file names (models/robots/<name>.json) and model ids (<name>-<task>).

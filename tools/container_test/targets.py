@@ -1,7 +1,7 @@
 """A request per bundled model, made from a known configuration, and how to check its
 answer by a forward kinematics independent of the image: the references of
 training/evaluate/references/ (the planar 3R's closed form, the iiwa14's DH table, the
-Panda's URDF read in float64), none of which the service computes with."""
+Panda's and the UR5's URDFs read in float64), none of which the service computes with."""
 
 from __future__ import annotations
 
@@ -65,14 +65,19 @@ def spatial_target(
     pose: Callable[[np.ndarray], np.ndarray],  # (B, n) -> (B, 4, 4), the independent FK
     lower_rad: np.ndarray,  # (n,)
     upper_rad: np.ndarray,  # (n,)
+    periodic: bool = False,  # every joint turns a full circle: distances wrap
 ) -> Target:
-    """A spatial arm's target made from q_source, checked by its independent FK `pose`."""
+    """A spatial arm's target made from q_source, checked by its independent FK `pose`
+    (the axis task's tool axis: the end effector's z, as both bundled axis models have)."""
     goal = pose(q_source[None])[0]  # (4, 4)
     target: dict[str, Any] = {"position": goal[:3, 3].tolist()}
     tolerance = {"position": 1e-6}
     if task == "pose":
         x, y, z, w = Rotation.from_matrix(goal[:3, :3]).as_quat()
         target["orientation"] = {"w": w, "x": x, "y": y, "z": z}
+        tolerance["orientation"] = 1e-6
+    if task == "axis":
+        target["axis"] = goal[:3, 2].tolist()
         tolerance["orientation"] = 1e-6
 
     def check(q: np.ndarray) -> dict[str, float]:
@@ -83,6 +88,10 @@ def spatial_target(
             errors["orientation"] = float(
                 rotation_angle_rad(reached[:, :3, :3], goal_rotation).max()
             )
+        if task == "axis":
+            tool = reached[:, :3, 2]  # (B, 3)
+            sine = np.linalg.norm(np.cross(tool, goal[:3, 2]), axis=1)
+            errors["orientation"] = float(np.arctan2(sine, tool @ goal[:3, 2]).max())
         return errors
 
     body = {
@@ -100,7 +109,11 @@ def spatial_target(
         within_limits=lambda q: np.all(
             (q >= lower_rad - 1e-12) & (q <= upper_rad + 1e-12), axis=-1
         ),
-        distance=lambda q, r: np.linalg.norm(q - r, axis=-1),  # limited joints: no wrap
+        distance=(
+            (lambda q, r: np.linalg.norm(np.angle(np.exp(1j * (q - r))), axis=-1))
+            if periodic
+            else (lambda q, r: np.linalg.norm(q - r, axis=-1))  # limited joints: no wrap
+        ),
     )
 
 
@@ -120,6 +133,16 @@ def panda_target(task: str) -> Target:
     return spatial_target("panda", task, q_source, chain.pose, chain.lower, chain.upper)
 
 
+def ur5_target() -> Target:
+    """The UR5's axis task checked by example-robot-data's URDF read in float64; every
+    UR5 joint turns a full circle (its limits span 2 pi or more)."""
+    chain = read_chain(ROOT / "models" / "robots" / "ur5.urdf", "tool0", "base_link")
+    q_source = np.array([0.3, -1.2, 1.6, -1.97, -1.57, 0.0])
+    return spatial_target(
+        "ur5", "axis", q_source, chain.pose, chain.lower, chain.upper, periodic=True
+    )
+
+
 # Every bundled model needs an entry here: a model without an independent check fails.
 TARGETS: dict[str, Callable[[], Target]] = {
     "planar3r-position": planar3r_target,
@@ -127,6 +150,8 @@ TARGETS: dict[str, Callable[[], Target]] = {
     "iiwa14-position": lambda: iiwa14_target("position"),
     "panda-pose": lambda: panda_target("pose"),
     "panda-position": lambda: panda_target("position"),
+    "iiwa14-axis": lambda: iiwa14_target("axis"),
+    "ur5-axis": ur5_target,
 }
 
 
@@ -138,6 +163,8 @@ NEAREST_BOUND_RAD = {
     "iiwa14-position": 1.5,
     "panda-pose": 0.3,
     "panda-position": 1.5,
+    "iiwa14-axis": 0.8,  # 2-D: between the 1-D and 4-D bounds
+    "ur5-axis": 0.3,
 }
 
 

@@ -26,12 +26,18 @@ from service.pipeline.correction import task_error, task_error_norms
 from service.pipeline.joint_space import JointLimits, joint_distance
 from service.pipeline.run import into_limits, run, space_of
 from service.pipeline.sampling import sample_configurations
-from service.pipeline.targets import Target, encode_target
+from service.pipeline.targets import (
+    Target,
+    TargetFields,
+    encode_target,
+    fields_reached,
+    target_reached,
+)
 from service.pipeline.types import ComponentPath, Correction, Query, Tolerance
 from training.evaluate.baselines.ode import trace_smm
 from training.evaluate.baselines.restart_dls import random_restart_dls
 from training.evaluate.references.ssik_charts import chart_components
-from training.evaluate.served import orientation_wxyz, stage_times_ms
+from training.evaluate.served import stage_times_ms
 
 
 @dataclass
@@ -168,7 +174,8 @@ def served_target(
     manifest = model.manifest
     target = _target_of(model, q_target)
     query = Query.for_model(
-        manifest, position_m=target.position, orientation_wxyz=target.wxyz,
+        manifest, position_m=target.fields.position_m,
+        orientation_wxyz=target.fields.orientation_wxyz, axis=target.fields.axis,
         num_samples=num_samples, seed=seed, include_paths=True, check_self=False,
     )  # fmt: skip
     # The kinematic fibre, as the exact references trace it: collisions aside (the
@@ -188,17 +195,18 @@ def served_target(
 class _Asked:
     """A target as a client sends it."""
 
-    position: list[float]
-    wxyz: tuple[float, float, float, float] | None
+    fields: TargetFields
     encoded: Target  # as the pipeline encodes it
 
 
 def _target_of(model: ServedModel, q_target: np.ndarray) -> _Asked:
     manifest = model.manifest
     fk = model.kinematics(q_target[None])
-    position = fk.position_m[0, manifest.task.position_axes].tolist()
-    wxyz = orientation_wxyz(fk.rotation[0]) if manifest.task.orientation else None
-    return _Asked(position, wxyz, encode_target(manifest.task, manifest.condition, position, wxyz))
+    fields = fields_reached(manifest.task, fk.position_m[0], fk.rotation[0])
+    encoded = encode_target(
+        manifest.task, manifest.condition, fields.position_m, fields.orientation_wxyz, fields.axis
+    )
+    return _Asked(fields, encoded)
 
 
 def raw_samples_target(answer: MethodTarget) -> MethodTarget:
@@ -216,12 +224,10 @@ def raw_samples_target(answer: MethodTarget) -> MethodTarget:
 
 
 def reference_target(model: ServedModel, q_target: np.ndarray) -> tuple[Target, np.ndarray]:
-    """The target made by q_target (task axes; rotation for a pose task) and its 3-D position."""
-    task = model.manifest.task
+    """The target made by q_target (task axes; rotation for a pose task, the tool axis's
+    direction for an axis task) and its 3-D position."""
     fk = model.kinematics(q_target[None])
-    rotation = fk.rotation[0] if task.orientation else None
-    target = Target(fk.position_m[0, task.position_axes], rotation, np.zeros(1, np.float32))
-    return target, fk.position_m[0]
+    return target_reached(model.manifest.task, fk.position_m[0], fk.rotation[0]), fk.position_m[0]
 
 
 def restart_target(

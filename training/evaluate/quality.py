@@ -28,9 +28,8 @@ from service.pipeline.correction import task_error_norms
 from service.pipeline.joint_space import JointLimits
 from service.pipeline.run import correct_samples, space_of
 from service.pipeline.sampling import sample_configurations
-from service.pipeline.targets import encode_target
+from service.pipeline.targets import encode_target, fields_reached
 from service.pipeline.types import Tolerance
-from training.evaluate.served import orientation_wxyz
 from training.evaluate.targets import held_out_targets
 
 PAPER_SAMPLER = SamplerSpec(method="euler", steps=100, time_power=1.0)
@@ -103,11 +102,9 @@ def measure_quality(
     errors: list[list[tuple[np.ndarray, np.ndarray]]] = [[] for _ in samplers]
     kept, solved = 0, 0
     for i in range(num_targets):
+        fields = fields_reached(task, targets.position_m[i], targets.rotation[i])
         target = encode_target(
-            task,
-            manifest.condition,
-            targets.position_m[i, task.position_axes].tolist(),
-            orientation_wxyz(targets.rotation[i]) if task.orientation else None,
+            task, manifest.condition, fields.position_m, fields.orientation_wxyz, fields.axis
         )
         for sampler, sampler_errors in zip(samplers, errors, strict=True):
             q_raw = sample_configurations(
@@ -133,7 +130,7 @@ def measure_quality(
             np.stack([p for p, _ in sampler_errors]),
             np.stack([o for _, o in sampler_errors]),
             manifest.reach_m,
-            task.orientation,
+            bool(task.orientation_rows),
         )
         for sampler, sampler_errors in zip(samplers, errors, strict=True)
     ]

@@ -71,6 +71,9 @@ from training.robots import robot_spec
 REPORTS_DIR = Path(__file__).resolve().parents[2] / "docs" / "reports"
 
 
+RESTARTS = "random-restart DLS"
+
+
 def build_report(
     model: ServedModel, num_targets: int, seed: int, num_samples: int, fourier_dir: Path = RUN_DIR
 ) -> dict[str, object]:
@@ -85,10 +88,18 @@ def build_report(
     one_dimensional = manifest.joints.count - manifest.task.dimension == 1
     truths = [ground_truth(model, q, seed + i) for i, q in enumerate(q_targets)]
     flow_target(model, q_targets[0], 10, seed=0)  # warm-up: onnxruntime's first-call cost
-    methods: dict[str, list[MethodTarget]] = {"FM + DLS": [], "FM": [], "random-restart DLS": []}
+    methods: dict[str, list[MethodTarget]] = {"FM + DLS": [], "FM": []}
+    skipped: dict[str, str] = {}
+    restarts = manifest.task.tool_axis is None
+    if restarts:
+        methods[RESTARTS] = []
+    else:
+        skipped[RESTARTS] = (
+            "pytorch-kinematics' PseudoInverseIK constrains a whole pose or a position, not "
+            "a tool axis with its rotation free"
+        )
     if one_dimensional:
         methods["ODE"] = []
-    skipped: dict[str, str] = {}
     fourier: FourierModel | None = None
     try:
         fourier = load_for(manifest, fourier_dir)
@@ -101,7 +112,8 @@ def build_report(
         answer = flow_target(model, q, num_samples, seed=i)
         methods["FM + DLS"].append(answer)
         methods["FM"].append(raw_samples_target(answer))
-        methods["random-restart DLS"].append(restart_target(model, chain, q, num_samples, seed=i))
+        if restarts:
+            methods[RESTARTS].append(restart_target(model, chain, q, num_samples, seed=i))
         if one_dimensional:
             methods["ODE"].append(ode_target(model, q))
         if fourier is not None:

@@ -6,11 +6,11 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from service.manifest import Defaults
 from service.models.registry import ServedModel
 from service.pipeline.arrays import FloatArray
+from service.pipeline.rotations import matrix_to_quaternion
 from service.pipeline.types import SmmResult
 
 
@@ -42,5 +42,4 @@ def stage_times_ms(result: SmmResult) -> dict[str, float]:
 
 def orientation_wxyz(rotation: FloatArray) -> tuple[float, float, float, float]:
     """The unit quaternion {w, x, y, z} of a rotation matrix (3, 3), as a request sends it."""
-    x, y, z, w = Rotation.from_matrix(rotation).as_quat()
-    return (float(w), float(x), float(y), float(z))
+    return matrix_to_quaternion(rotation)

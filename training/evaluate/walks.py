@@ -11,19 +11,14 @@ import numpy as np
 
 from service.models.registry import ServedModel
 from service.pipeline.fibre import Fibre, project
-from service.pipeline.targets import Target
+from service.pipeline.targets import target_reached
 
 
 def pose_fibre(model: ServedModel, q_target: np.ndarray) -> Fibre:
     """The fibre of the pose (or position) that q_target (n,) reaches."""
     manifest = model.manifest
     fk = model.kinematics(q_target[None])
-    rotation = fk.rotation[0] if manifest.task.orientation else None
-    target = Target(
-        position_m=fk.position_m[0, manifest.task.position_axes],
-        rotation=rotation,
-        condition=np.zeros(1, np.float32),
-    )
+    target = target_reached(manifest.task, fk.position_m[0], fk.rotation[0])
     return Fibre(target=target, task=manifest.task, kinematics=model.kinematics, damping=1e-3)
 
 

@@ -19,11 +19,11 @@ from service.pipeline.correction import task_error_norms
 from service.pipeline.joint_space import JointBox, JointLimits
 from service.pipeline.run import run
 from service.pipeline.sampling import sample_configurations
-from service.pipeline.targets import encode_target
+from service.pipeline.targets import TargetFields, encode_target, fields_reached
 from service.pipeline.types import Query, SmmResult
 from training.evaluate.metrics import median_stage_ms
 from training.evaluate.quality import summarise_raw
-from training.evaluate.served import orientation_wxyz, stage_times_ms, with_defaults
+from training.evaluate.served import stage_times_ms, with_defaults
 from training.evaluate.targets import held_out_targets
 from training.sweep.plan import JOINT_DLS_AXES, Axis, Setting, connectivity_step_field
 
@@ -251,18 +251,14 @@ def summarise(answers: Sequence[TargetAgreement]) -> Measures:
 class SweepTargets:
     """The sweep's targets as the query's arguments."""
 
-    position_m: list[list[float]]  # T x (m_p,)
-    orientation_wxyz: list[tuple[float, float, float, float] | None]  # T
+    fields: list[TargetFields]  # T
 
 
 def sweep_targets(model: ServedModel, count: int, seed: int) -> SweepTargets:
     task = model.manifest.task
     drawn = held_out_targets(model, count, seed)
     return SweepTargets(
-        position_m=[drawn.position_m[i, task.position_axes].tolist() for i in range(count)],
-        orientation_wxyz=[
-            orientation_wxyz(drawn.rotation[i]) if task.orientation else None for i in range(count)
-        ],
+        fields=[fields_reached(task, drawn.position_m[i], drawn.rotation[i]) for i in range(count)]
     )
 
 
@@ -278,8 +274,9 @@ def answer(
     )
     query = Query.for_model(
         candidate.manifest,
-        position_m=targets.position_m[i],
-        orientation_wxyz=targets.orientation_wxyz[i],
+        position_m=targets.fields[i].position_m,
+        orientation_wxyz=targets.fields[i].orientation_wxyz,
+        axis=targets.fields[i].axis,
         seed=seed,
         check_self=False,  # the sweep weighs settings against the kinematic reference
     )
@@ -302,10 +299,10 @@ def raw_error(
     task = manifest.task
     limits = JointLimits.of(manifest.joints)
     errors = []
-    for i, (position, wxyz) in enumerate(
-        zip(targets.position_m, targets.orientation_wxyz, strict=True)
-    ):
-        target = encode_target(task, manifest.condition, position, wxyz)
+    for i, fields in enumerate(targets.fields):
+        target = encode_target(
+            task, manifest.condition, fields.position_m, fields.orientation_wxyz, fields.axis
+        )
         q_raw = sample_configurations(
             velocity=model.network(sampler),
             condition=target.condition,
@@ -318,7 +315,7 @@ def raw_error(
         errors.append(task_error_norms(model.kinematics(q_raw), target, task))
     raw = summarise_raw(
         sampler, np.stack([p for p, _ in errors]), np.stack([o for _, o in errors]),
-        manifest.reach_m, task.orientation,
+        manifest.reach_m, bool(task.orientation_rows),
     )  # fmt: skip
     e_pct = raw.position_error_pct_reach_mean
     if raw.orientation_error_pct_mean is not None:

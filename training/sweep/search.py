@@ -119,8 +119,9 @@ def sweep_defaults(
     start_s = time.perf_counter()
     periodic = np.asarray(manifest.joints.periodic, dtype=bool)
     drawn = sweep_targets(model, targets, seed)
-    run(model, Query.for_model(manifest, position_m=drawn.position_m[0],
-                               orientation_wxyz=drawn.orientation_wxyz[0],
+    first = drawn.fields[0]
+    run(model, Query.for_model(manifest, position_m=first.position_m,
+                               orientation_wxyz=first.orientation_wxyz, axis=first.axis,
                                check_self=False))  # fmt: skip
     # warm-up above: onnxruntime's first-call allocations stay out of the timings.
     reference = plan.reference_setting(redundancy)

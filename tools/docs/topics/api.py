@@ -14,6 +14,7 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
+from service.manifest import TaskSpec
 from tools.docs import sources
 from tools.docs.blocks import block
 from tools.docs.sources import ROOT, manifest, model_ids
@@ -35,10 +36,8 @@ def number(value: Any) -> str:
 
 
 def redundancy(data: dict[str, Any]) -> int:
-    """n - m of a manifest: joints less constrained axes (3 more for an orientation)."""
-    task = data["task"]
-    constrained = len(task["position_axes"]) + (3 if task["orientation"] else 0)
-    return len(data["joints"]["names"]) - constrained
+    """n - m of a manifest: joints less the task's coordinates (`TaskSpec.dimension`)."""
+    return len(data["joints"]["names"]) - TaskSpec.model_validate(data["task"]).dimension
 
 
 @block("defaults")
@@ -63,21 +62,22 @@ def defaults_table(*arguments: str) -> str:
     if arguments:
         raise TypeError(f"defaults-table takes no arguments, got {list(arguments)}")
     rows = [
-        "| model | joints | r | `target.position` | `target.orientation` | `num_samples` "
-        "| `tolerance.position` (m) | `tolerance.orientation` (rad) |",
-        "|---|---|---|---|---|---|---|---|",
+        "| model | joints | r | `target.position` | `target.orientation` | `target.axis` "
+        "| `num_samples` | `tolerance.position` (m) | `tolerance.orientation` (rad) |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for model_id in model_ids():
         data = manifest(model_id)
-        task, default = data["task"], data["defaults"]
-        axes = ", ".join(AXIS_NAMES[a] for a in task["position_axes"])
-        orientation = "required" if task["orientation"] else "refused"
+        task, default = TaskSpec.model_validate(data["task"]), data["defaults"]
+        axes = ", ".join(AXIS_NAMES[a] for a in task.position_axes)
+        orientation = "required" if task.orientation else "refused"
+        axis = "refused" if task.tool_axis is None else f"required (tool axis {task.tool_axis})"
         tolerance_orientation = (
-            number(default["tolerance_orientation_rad"]) if task["orientation"] else "refused"
+            number(default["tolerance_orientation_rad"]) if task.orientation_rows else "refused"
         )
         rows.append(
             f"| `{model_id}` | {len(data['joints']['names'])} | {redundancy(data)} "
-            f"| {axes} | {orientation} | {default['num_samples']} "
+            f"| {axes} | {orientation} | {axis} | {default['num_samples']} "
             f"| {number(default['tolerance_position_m'])} | {tolerance_orientation} |"
         )
     return "\n".join(rows)

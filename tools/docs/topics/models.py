@@ -30,6 +30,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
+from service.manifest import TaskSpec
 from tools.docs import sources
 from tools.docs.blocks import block
 from training.evaluate.paper import PAPER_TABLE_2
@@ -47,7 +48,7 @@ METHODS = {
 # Rows over every raw point (the flow's samples, the ODE's trace, the Fourier prediction):
 # their errors are the raw ones (as training/evaluate/rendering.py reports them).
 RAW_ROWS = ("FM", "ODE", "Fourier (realtime-smm)")
-ROBOT_ORDER = ("planar3r", "iiwa14", "panda")  # simplest first; others after, by name
+ROBOT_ORDER = ("planar3r", "iiwa14", "panda", "ur5")  # simplest first; others after, by name
 
 
 # --- reading a figure by its path ---------------------------------------------------------
@@ -184,17 +185,18 @@ def _table(header: list[str], rows: list[list[str]]) -> str:
 
 
 def task_words(manifest: dict[str, Any]) -> str:
-    """The task in words: `position (x, y)`, `position (x, y, z)` or `pose`."""
-    task = manifest["task"]
-    axes = ", ".join("xyz"[i] for i in task["position_axes"])
-    return "pose" if task["orientation"] else f"position ({axes})"
+    """The task in words: `position (x, y)`, `position (x, y, z)`, `pose` or `axis (tool
+    axis [0.0, 0.0, 1.0])`."""
+    task = TaskSpec.model_validate(manifest["task"])
+    axes = ", ".join("xyz"[i] for i in task.position_axes)
+    if task.tool_axis is not None:
+        return f"position ({axes}) and tool axis {task.tool_axis}"
+    return "pose" if task.orientation else f"position ({axes})"
 
 
 def redundancy(manifest: dict[str, Any]) -> int:
     """r = n - m: joints less the task's dimension."""
-    task = manifest["task"]
-    m = len(task["position_axes"]) + (3 if task["orientation"] else 0)
-    return len(manifest["joints"]["names"]) - m
+    return len(manifest["joints"]["names"]) - TaskSpec.model_validate(manifest["task"]).dimension
 
 
 def recall(method: dict[str, Any], component_size: str) -> float | None:

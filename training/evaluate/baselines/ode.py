@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from service.manifest import TaskSpec
+from service.pipeline.correction import jacobian_on_fibre
 from service.pipeline.joint_space import joint_distance, wrap_periodic
 from service.pipeline.types import FloatArray, Kinematics
 
@@ -38,9 +39,7 @@ _B5 = (37 / 378, 0.0, 250 / 621, 125 / 594, 0.0, 512 / 1771)
 
 def task_jacobian(kinematics: Kinematics, q_rad: FloatArray, task: TaskSpec) -> FloatArray:
     """(m, n) Jacobian of the task's constrained rows at one configuration (n,)."""
-    jacobian = kinematics(q_rad[None]).jacobian[0]  # (6, n)
-    rows = list(task.position_axes) + ([3, 4, 5] if task.orientation else [])
-    return jacobian[rows]
+    return jacobian_on_fibre(kinematics(q_rad[None]), task)[0]
 
 
 def null_tangent(jacobian: FloatArray, previous: FloatArray) -> FloatArray:
