@@ -73,7 +73,7 @@ def test_an_unknown_default_lists_the_keys_and_an_unknown_model_the_models() -> 
     with pytest.raises(KeyError, match="trace_step_rad"):
         api.defaults("connectivity.trace_step")
     with pytest.raises(FileNotFoundError, match="planar3r-position"):
-        api.defaults("damping", "ur5-position")
+        api.defaults("damping", "ur10-position")
 
 
 def table_rows(markdown: str) -> dict[str, list[str]]:

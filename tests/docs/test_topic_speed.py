@@ -327,7 +327,7 @@ def test_the_replica_example_rounds_the_pods_up() -> None:
     pods = math.ceil(100 * t_ms("iiwa14-pose") / 1000 / (cores * target))
     assert text.endswith(f"= **{pods} pods**") and f"({cores:g} x {target:g})" in text
     with pytest.raises(KeyError, match=r"there are: \['iiwa14-pose'"):
-        run_block("replicas-example", ["ur5", "10"])
+        run_block("replicas-example", ["ur10", "10"])
 
 
 def test_model_default_is_the_manifests_value() -> None:
@@ -340,7 +340,7 @@ def test_model_default_is_the_manifests_value() -> None:
         "model-default", ["connectivity.delta_rad", "iiwa14-position"]
     ) == "{:.3g}".format(manifest("iiwa14-position")["defaults"]["connectivity"]["delta_rad"])
     with pytest.raises(KeyError, match="the models are: "):
-        run_block("model-default", ["num_samples", "ur5"])
+        run_block("model-default", ["num_samples", "ur10"])
 
 
 # -- the load test -------------------------------------------------------------------

@@ -137,9 +137,9 @@ def test_a_422_carries_the_servers_field_and_message(client: SmmClient) -> None:
 
 def test_a_404_lists_what_is_served(client: SmmClient) -> None:
     with pytest.raises(SmmHTTPError) as raised:
-        client.smm(PLANAR.model_copy(update={"robot": "ur5"}))
+        client.smm(PLANAR.model_copy(update={"robot": "ur10"}))
     assert raised.value.status_code == 404
-    assert "ur5" in raised.value.detail and "iiwa14" in raised.value.detail
+    assert "ur10" in raised.value.detail and "iiwa14" in raised.value.detail
 
 
 def test_a_wrong_key_gets_the_servers_401_unretried(keyed: LocalServer) -> None:

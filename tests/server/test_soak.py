@@ -32,7 +32,7 @@ def requests() -> list[tuple[str, Any]]:
     cycle += [
         ("json", {**PLANAR, "target": {"position": [5.0, 0.0]}}),  # no_solution
         ("json", {**PLANAR, "target": {"position": [0.5]}}),  # 422
-        ("json", {**PLANAR, "robot": "ur5"}),  # 404
+        ("json", {**PLANAR, "robot": "ur10"}),  # 404
         ("raw", b'{"robot": "planar3r", "target": '),  # 422, not JSON
         ("json", {**PLANAR, "reference_configuration": [0.0] * 20000}),  # 413
     ]

@@ -179,7 +179,7 @@ def catalogue(max_num_samples: int, max_body_bytes: int) -> list[BadInput]:
             "unknown-target-field",
             422,
             "target.orientaton",
-            "only the fields position, orientation",
+            "only the fields position, orientation, axis",
             pose(target={"position": [0.5, 0.1, 0.6], "orientaton": POSE["target"]["orientation"]}),
         ),
         BadInput(
@@ -201,6 +201,31 @@ def catalogue(max_num_samples: int, max_body_bytes: int) -> list[BadInput]:
                     "orientation": {"w": 1.0, "x": 0.0, "y": 0.0, "z": 0.0},
                 }
             ),
+        ),
+        BadInput(
+            "axis-on-pose-task",
+            422,
+            "target.axis",
+            "use task 'axis'",
+            pose(target={**POSE["target"], "axis": [0.0, 0.0, 1.0]}),
+        ),
+        BadInput(
+            "axis-missing-on-axis-task",
+            422,
+            "target.axis",
+            "a unit vector [x, y, z], base frame",
+            {"robot": "ur5", "task": "axis", "target": {"position": [0.4, 0.1, 0.3]}},
+        ),
+        BadInput(
+            "zero-axis",
+            422,
+            "target.axis",
+            "must be a unit vector (norm within 0.01 of 1, normalised then)",
+            {
+                "robot": "ur5",
+                "task": "axis",
+                "target": {"position": [0.4, 0.1, 0.3], "axis": [0.0, 0.0, 0.0]},
+            },
         ),
         BadInput(
             "orientation-missing-on-pose-task",
@@ -234,7 +259,7 @@ def catalogue(max_num_samples: int, max_body_bytes: int) -> list[BadInput]:
             "orientation-tolerance-on-position-task",
             422,
             "tolerance.orientation",
-            "only to the pose task",
+            "only to the pose and axis tasks",
             planar(tolerance={"orientation": 1e-3}),
         ),
         # Numbers out of range.
@@ -331,7 +356,7 @@ def catalogue(max_num_samples: int, max_body_bytes: int) -> list[BadInput]:
             "target-not-an-object",
             422,
             "target",
-            "an object with fields position, orientation",
+            "an object with fields position, orientation, axis",
             planar(target=[0.5, 0.0]),
         ),
         # The scene.
@@ -399,7 +424,7 @@ def catalogue(max_num_samples: int, max_body_bytes: int) -> list[BadInput]:
             pose(collision={"margin": 0.1}),
         ),
         # Unknown model (a path-like name is just an unknown name: no field becomes a path).
-        BadInput("unknown-robot", 404, "robot", served_robots_message(), planar(robot="ur5")),
+        BadInput("unknown-robot", 404, "robot", served_robots_message(), planar(robot="ur10")),
         BadInput("unknown-task", 404, "task", "served tasks: position", planar(task="pose")),
         BadInput(
             "path-like-robot",

@@ -46,7 +46,8 @@ COSTS = UnitCosts(evaluation_s=15e-6, training_sample_s=60e-6)
 )
 def test_every_bundled_command_gets_the_full_work_after_training(model_dir: Path) -> None:
     command = Manifest.model_validate_json((model_dir / MANIFEST_FILE).read_bytes()).training
-    args = parse_args(shlex.split(command.command)[1:])
+    words = shlex.split(command.command)[1:]  # after smm-train; older records lack `train`
+    args = parse_args(words[1:] if words[:1] == ["train"] else words)
     config = config_from_args(args, args.robot)
     assert config == config_from_args(args, args.robot, scale=False)
     assert config.samples * config.epochs >= FULL_BUDGET_SAMPLE_EPOCHS

@@ -62,8 +62,8 @@ def test_the_bundled_robots_keep_their_tasks_and_the_papers_architectures() -> N
 
 
 def test_an_unknown_robot_lists_the_robot_files() -> None:
-    with pytest.raises(ValueError, match=r"unknown robot 'ur5'.*choose from \[.*'iiwa14'.*\]"):
-        robot_spec("ur5")
+    with pytest.raises(ValueError, match=r"unknown robot 'ur10'.*choose from \[.*'iiwa14'.*\]"):
+        robot_spec("ur10")
     with pytest.raises(ValueError, match=r"unknown robot '\.\./robots/iiwa14'"):
         robot_spec("../robots/iiwa14")
 
@@ -97,8 +97,10 @@ def test_nothing_is_written_for_an_arm_that_cannot_be_trained(tmp_path: Path) ->
     models = tmp_path / "models"
     with pytest.raises(ValueError, match=r"n = 4 joints .* m = 6"):
         register_urdf(urdf, "tool", "pose", models, base_link="base")
+    with pytest.raises(ValueError, match=r"n = 4 joints .* the 'axis' task m = 5"):
+        register_urdf(urdf, "tool", "axis", models, base_link="base")
     with pytest.raises(
-        ValueError, match=r"unknown task 'orient'; choose from \['pose', 'position'\]"
+        ValueError, match=r"unknown task 'orient'; choose from \['axis', 'pose', 'position'\]"
     ):
         register_urdf(urdf, "tool", "orient", models, base_link="base")
     with pytest.raises(ValueError, match=r"joint 'cart' .* is 'floating'"):

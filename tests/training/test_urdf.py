@@ -118,7 +118,7 @@ def test_a_task_without_redundancy_says_n_and_m(tmp_path: Path) -> None:
 
 def test_an_unknown_task_lists_the_tasks() -> None:
     with pytest.raises(
-        ValueError, match=r"unknown task 'orientation'; choose from \['pose', 'position'\]"
+        ValueError, match=r"unknown task 'orientation'; choose from \['axis', 'pose', 'position'\]"
     ):
         task_for_urdf("orientation")
 

@@ -150,7 +150,11 @@ def detail_locations(response: Any) -> list[list[Any]]:
         ({"num_samples": 0}, ["body", "num_samples"], "greater than or equal to 1"),
         ({"num_samples": "10"}, ["body", "num_samples"], "valid integer"),
         ({"tolerance": {"position": -1}}, ["body", "tolerance", "position"], "greater than 0"),
-        ({"tolerance": {"orientation": 1e-3}}, ["body", "tolerance", "orientation"], "pose task"),
+        (
+            {"tolerance": {"orientation": 1e-3}},
+            ["body", "tolerance", "orientation"],
+            "pose and axis tasks",
+        ),
         ({"reference_configuration": [0, 0]}, ["body", "reference_configuration"], "3 values"),
         ({"num_sample": 10}, ["body", "num_sample"], "Extra inputs are not permitted"),
         (
@@ -180,9 +184,9 @@ def test_missing_top_level_field_and_nan_get_422(client: TestClient) -> None:
 
 
 def test_unknown_robot_or_task_is_404_listing_what_is_served(client: TestClient) -> None:
-    response = smm(client, robot="ur5")
+    response = smm(client, robot="ur10")
     assert response.status_code == 404
-    assert response.json()["detail"] == f"unknown robot 'ur5'; {served_robots_message()}"
+    assert response.json()["detail"] == f"unknown robot 'ur10'; {served_robots_message()}"
     response = smm(client, task="pose")
     assert response.status_code == 404
     assert response.json()["detail"] == (

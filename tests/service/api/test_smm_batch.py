@@ -230,9 +230,9 @@ def test_over_the_limits_is_413(client: TestClient) -> None:
 
 def test_an_unknown_robot_or_task_is_404_listing_what_is_served(client: TestClient) -> None:
     targets = [{"target": {"position": [0.5, 0.0]}}]
-    response = client.post("/smm/batch", json={"robot": "ur5", "task": "pose", "targets": targets})
+    response = client.post("/smm/batch", json={"robot": "ur10", "task": "pose", "targets": targets})
     assert response.status_code == 404
-    assert response.json()["detail"] == f"unknown robot 'ur5'; {served_robots_message()}"
+    assert response.json()["detail"] == f"unknown robot 'ur10'; {served_robots_message()}"
     response = batch(client, targets, task="pose")
     assert response.status_code == 404
     assert response.json()["detail"] == (

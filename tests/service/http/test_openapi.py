@@ -11,7 +11,7 @@ def test_served_names_are_enums_and_errors_are_documented(client: TestClient) ->
     spec = client.get("/openapi.json").json()
     request = spec["components"]["schemas"]["SmmRequest"]["properties"]
     assert request["robot"]["enum"] == bundled_robots()
-    assert request["task"]["enum"] == ["pose", "position"]
+    assert request["task"]["enum"] == ["axis", "pose", "position"]
     smm = spec["paths"]["/smm"]["post"]["responses"]
     assert set(smm) == {"200", "400", "401", "404", "413", "415", "422", "503", "504"}
     assert "Retry-After" in smm["503"]["headers"]

@@ -38,7 +38,7 @@ def test_bundled_models_verify_and_are_keyed_by_robot_and_task() -> None:
     model = registry.get("planar3r", "position")
     assert model.reference.startswith("planar3r-position@") and len(model.version) == 12
     with pytest.raises(UnknownModelError, match=r"served robots: .*planar3r"):
-        registry.get("ur5", "position")
+        registry.get("ur10", "position")
     with pytest.raises(UnknownModelError, match="served tasks: position"):
         registry.get("planar3r", "pose")
 

@@ -79,7 +79,7 @@ def test_metrics_count_what_was_served(client: TestClient) -> None:
     except KeyError:
         served_before = 0.0
     answer = client.post("/smm", json=BODY).json()
-    client.post("/smm", json={**BODY, "robot": "ur5"})  # a 404: no model label
+    client.post("/smm", json={**BODY, "robot": "ur10"})  # a 404: no model label
     after = client.get("/metrics")
     assert after.headers["content-type"].startswith("text/plain")
     text = after.text
