@@ -327,8 +327,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             f"motion:  POST /smm/self-motion: {len(motion.path)} configurations at most 0.05 rad "
             f"apart, {motion.length_rad:.4f} rad, from the point nearest q to the choice"
         )
-    else:
+    elif motion.status == "not_connected":
         print(f"motion:  {motion.status}: the choice is not on the start's component")
+    else:
+        print(f"motion:  {motion.status}: no motion at 0.05 rad along the component's roadmap")
     if args.json is not None:
         record = {
             "request": request.model_dump(mode="json"),

@@ -350,9 +350,12 @@ class SelfMotionResponse(BaseModel):
     model: str = Field(description="<model-id>@<first 12 hex of the model files' digest>")
     joint_names: list[str]
     redundancy: int
-    status: Literal["ok", "not_connected"] = Field(
+    status: Literal["ok", "not_connected", "no_path"] = Field(
         description="ok: `path` joins start and goal; not_connected: they lie on different "
-        "components (`start_component`, `goal_component`), which no self-motion joins."
+        "components (`start_component`, `goal_component`), which no self-motion joins; "
+        "no_path (r > 1): one component, but no motion at the path's spacing and tolerance "
+        "was found along its roadmap (an edge the connect stage walked at its coarser step, "
+        "next to a singular set)."
     )
     start_component: int = Field(description="Index into `components` of the start's.")
     goal_component: int = Field(description="Index into `components` of the goal's.")

@@ -23,7 +23,9 @@ projected local planner walks straight to), then each leg walked again in steps 
 `SPACING_RAD / stretch`, every step projected to the query's tolerance and checked as a
 motion of the space; a leg that the straight walk cannot follow (a steered edge sliding
 along a limit face) is walked by the steer instead, and an edge neither follows is left
-out and the search runs again.
+out and the search runs again. Where the edges left no longer join start and goal, the
+answer is `no_path`: the connect stage walked some edge at its coarser step (and 1e-4),
+next to a singular set where the fibre turns faster than the path's spacing follows.
 """
 
 from __future__ import annotations
@@ -70,6 +72,10 @@ STRETCH = 2.0
 # Searches on the roadmap, each without the edges the one before could not walk.
 MAX_SEARCHES = 4
 
+# ok: a path; not_connected: start and goal on different components; no_path: one
+# component, but no walk at the path's spacing and tolerance follows its roadmap (an edge
+# the connect stage walked at its coarser step and tolerance, next to a singular set).
+SelfMotionStatus = Literal["ok", "not_connected", "no_path"]
 Objective = Literal["max_limit_margin", "nearest_to", "max_clearance"]
 OBJECTIVES: tuple[Objective, ...] = ("max_limit_margin", "nearest_to", "max_clearance")
 
@@ -87,7 +93,7 @@ class Goal:
 class SelfMotion:
     """The answer: a path from start to goal, or the components they lie on apart."""
 
-    status: Literal["ok", "not_connected"]
+    status: SelfMotionStatus
     path_rad: FloatArray | None  # (P, n) start first, goal last, at most SPACING_RAD apart
     length_rad: float | None  # joint-metric length of the path
     objective_value: float | None  # the objective's value at the goal (rad or m)
@@ -305,6 +311,10 @@ def _on_roadmaps(
     points = _roadmap_path(
         space, roadmap.q_rad, roadmap.edges, start_node, goal_node, planner, deadline
     )
+    if points is None:
+        return SelfMotion(
+            "no_path", None, None, objective_value, start_component, goal_component, result
+        )
     points[0], points[-1] = start, goal_q
     return SelfMotion(
         "ok", points, _path_length(points, limits), objective_value,
@@ -320,13 +330,17 @@ def _roadmap_path(
     goal: int,
     planner: PlannerSettings,
     deadline: Deadline,
-) -> FloatArray:  # (P, n) from nodes[start] to nodes[goal]
-    """Dijkstra over the edges, shortcuts, then each leg walked finely (module docstring)."""
+) -> FloatArray | None:  # (P, n) from nodes[start] to nodes[goal]
+    """Dijkstra over the edges, shortcuts, then each leg walked finely (module docstring);
+    None where the edges left after the failed ones no longer join start and goal, or
+    MAX_SEARCHES searches found no walkable route."""
     if start == goal:
         return nodes[[start]].copy()
     usable = np.ones(len(edges), dtype=bool)
     for _ in range(MAX_SEARCHES):
         route = _shortest(nodes, edges[usable], start, goal, space.limits)
+        if route is None:
+            return None
         legs = _shortcut(space, nodes, route, planner, deadline)
         walked, failed = _walk_legs(space, nodes, legs, deadline)
         if failed:  # a shortcut the fine walk cannot follow: its route's edges instead
@@ -336,7 +350,7 @@ def _roadmap_path(
             return walked
         unwalkable = {(min(a, b), max(a, b)) for a, b in failed}
         usable &= ~np.array([(min(a, b), max(a, b)) in unwalkable for a, b in edges.tolist()])
-    raise RuntimeError(f"no walkable route on a connected roadmap in {MAX_SEARCHES} searches")
+    return None
 
 
 def _expand(
@@ -356,8 +370,9 @@ def _expand(
 
 def _shortest(
     nodes: FloatArray, edges: IntArray, start: int, goal: int, limits: JointLimits
-) -> list[int]:
-    """Node indices of the shortest route (joint-metric edge lengths) from start to goal."""
+) -> list[int] | None:
+    """Node indices of the shortest route (joint-metric edge lengths) from start to goal;
+    None where the edges do not join them."""
     length = limits.distance(nodes[edges[:, 0]], nodes[edges[:, 1]]) + 1e-12
     graph = coo_matrix((length, (edges[:, 0], edges[:, 1])), shape=(len(nodes), len(nodes)))
     _, previous = dijkstra(graph.tocsr(), directed=False, indices=start, return_predecessors=True)
@@ -365,7 +380,7 @@ def _shortest(
     while route[-1] != start:
         before = int(previous[route[-1]])
         if before < 0:
-            raise RuntimeError("start and goal of one component are not joined")  # pragma: no cover
+            return None
         route.append(before)
     return route[::-1]
 

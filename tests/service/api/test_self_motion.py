@@ -5,8 +5,9 @@ radians) get status ok and a path whose every point reaches the target within 1e
 DH table, lies inside the limits, is at most 0.05 rad from the next, and whose ends are the
 start and the goal; max_limit_margin ends at the best margin of the returned roadmap's nodes
 (by the reference limits); two configurations on the elbow-up and elbow-down components are
-not_connected. r = 1 (planar 3R): the path runs along the closed-form loop. Bad bodies get
-422 naming the field.
+not_connected, and a route over a roadmap edge that joins them finds no walk (no_path).
+r = 1 (planar 3R): the path runs along the closed-form loop. Bad bodies get 422 naming the
+field.
 """
 
 from __future__ import annotations
@@ -19,6 +20,12 @@ from fastapi.testclient import TestClient
 
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
+from service.pipeline.collision.check import CollisionCheck
+from service.pipeline.connect import planner_settings
+from service.pipeline.deadline import NO_DEADLINE
+from service.pipeline.run import encode, space_of
+from service.pipeline.self_motion import _roadmap_path
+from service.pipeline.types import Query
 from training.evaluate.references.iiwa14 import LIMITS_RAD
 from training.evaluate.references.iiwa14 import dh_pose as iiwa14_pose
 from training.evaluate.references.planar3r import closed_form_smm, planar3r_position
@@ -104,6 +111,26 @@ def test_start_and_goal_on_elbow_up_and_down_are_not_connected(client: TestClien
     components = answer["components"]
     assert components[answer["start_component"]]["representative"][3] > 0
     assert components[answer["goal_component"]]["representative"][3] < 0
+
+
+def test_a_roadmap_edge_no_fine_walk_follows_gives_no_route(
+    client: TestClient, iiwa14_position: ServedModel
+) -> None:
+    """The route search over a roadmap (`_roadmap_path`) whose one edge joins the elbow-up
+    and elbow-down components (which no motion on the fibre joins: the elbow's sign parts
+    them) finds no walkable route and says so (None, answered as `no_path`), not an error."""
+    position = [0.544, 0.136, 0.734]
+    listed = client.post(
+        "/smm", json={"robot": "iiwa14", "task": "position", "target": {"position": position}}
+    ).json()["components"]
+    up = next(c["representative"] for c in listed if c["representative"][3] > 0)
+    down = next(c["representative"] for c in listed if c["representative"][3] < 0)
+    model = iiwa14_position
+    query = Query.for_model(model.manifest, position_m=position)
+    space = space_of(model, encode(model, query), query.tolerance, CollisionCheck.none())
+    planner = planner_settings(model.manifest.defaults.connectivity)
+    nodes, edges = np.array([up, down]), np.array([[0, 1]])
+    assert _roadmap_path(space, nodes, edges, 0, 1, planner, NO_DEADLINE) is None
 
 
 def test_planar_self_motion_runs_along_the_closed_form_loop(client: TestClient) -> None:
