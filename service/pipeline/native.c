@@ -1218,7 +1218,8 @@ static double refined_self_clearance_row(const Planner *p, const double *q, doub
 
 /* One edge: from q_from toward goal (unwrapped), steps of delta projected onto the fibre,
  * each a valid motion (converged, inside the limits, no jump, nearer the goal, no detour,
- * no unreached coaxial crossing, free) until within delta of the goal: 1 reached, 0 not,
+ * no unreached coaxial crossing, free) until within delta of the goal, and the last hop
+ * to it crossing no coaxial set the fibre does not reach: 1 reached, 0 not,
  * -1 the deadline passed. The steps' points go to `path` (count of them) when given. */
 static int walk_edge(const Planner *p, const double *q_from, const double *goal, double chord,
                      double *path, Py_ssize_t *count, double *work) {
@@ -1231,7 +1232,10 @@ static int walk_edge(const Planner *p, const double *q_from, const double *goal,
     *count = 0;
     for (Py_ssize_t step = 0; step < p->max_steps; ++step) {
         double distance = distance_of(goal, q, n);
-        if (distance <= p->delta) return 1;
+        /* The last hop, under delta, is taken as it is, but not across a coaxial set the
+         * fibre does not reach (samples either side of a singular set it keeps apart). */
+        if (distance <= p->delta)
+            return !p->sets || crossings_on_fibre_row(p, q, goal, guess, e2, J2, scratch);
         if (p->expires_at_s < INFINITY && monotonic_s() > p->expires_at_s) return -1;
         for (Py_ssize_t k = 0; k < n; ++k) q_new[k] = q[k] + p->delta * (goal[k] - q[k]) / distance;
         project_row(p, q_new, e, J, p->iterations, -1, NULL, scratch);

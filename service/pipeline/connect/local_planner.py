@@ -8,10 +8,12 @@ limited joint never crosses its +-pi seam), project the step onto the fibre with
 the projection converged, stayed inside the limits and did not jump, a step no longer
 than lambda x delta and none across a coaxial set where the fibre does not reach it),
 made progress toward b and the path so far is no longer than lambda x the chord. The
-edge holds when b is reached. A failed edge is evidence that a and b lie on different
-components, so candidate edges may be long without merging what is separate. All edges
-advance in lockstep: one batched kinematics call per Newton iteration for every edge
-still walking.
+edge holds when b is within delta and the last hop to it crosses no coaxial set where the
+fibre does not reach it (OMPL takes the last hop as it is: next to a singular set that
+the fibre never reaches, two samples either side of it are closer than the step). A
+failed edge is evidence that a and b lie on different components, so candidate edges may
+be long without merging what is separate. All edges advance in lockstep: one batched
+kinematics call per Newton iteration for every edge still walking.
 """
 
 from __future__ import annotations
@@ -93,9 +95,12 @@ def walk_on_fibre(
     for _ in range(max_steps):
         remaining = goal - q  # (E, n)
         distance = np.linalg.norm(remaining, axis=1)
-        arrived = walking & (distance <= delta)
-        reached |= arrived
-        walking &= ~arrived
+        arrived = np.flatnonzero(walking & (distance <= delta))
+        walking[arrived] = False
+        if space.coaxial_sets and len(arrived):  # the last hop, across no unreached set
+            tolerance = settings.projection_tolerance
+            arrived = arrived[space.crossings_on_fibre(q[arrived], goal[arrived], tolerance)]
+        reached[arrived] = True
         if not walking.any():
             break
         deadline.check("connect")
