@@ -39,7 +39,7 @@ from scipy.sparse.csgraph import connected_components
 
 from service.pipeline.joint_space import JointBox, wrap_to_pi
 from training.evaluate.packages import requiring
-from training.evaluate.references import ssik_charts
+from training.evaluate.references import iiwa14, ssik_charts
 from training.evaluate.references.rotations import rodrigues
 from training.evaluate.references.sweep import angle_gap, swept, traced_paths
 from training.evaluate.references.urdf_chain import UrdfChain, read_chain
@@ -106,9 +106,12 @@ def axis_smm(
     periodic: np.ndarray,  # (n,) joints compared on the circle
     join_rad: float,
     psi_steps: int = PSI_STEPS,
+    apart: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
 ) -> AxisSmm:
     """The 2-D components of the union over psi of `exact_slice`'s pieces (see the
-    module), each sized by its share of the points."""
+    module), each sized by its share of the points. `apart` (P, n), (P, n) -> (P,) marks
+    pairs of points that are never joined however near (on branches the fibre keeps
+    apart)."""
     psi = np.linspace(-np.pi, np.pi, psi_steps, endpoint=False)
     slices = [exact_slice(pose) for pose in poses_about(position_m, axis, tool_axis, psi)]
     sizes = [len(s.q_rad) for s in slices]
@@ -129,6 +132,8 @@ def axis_smm(
             continue
         distance, nearest = box.tree(following.q_rad).query(box.points(current.q_rad))
         near = distance <= join_rad
+        if apart is not None:
+            near &= ~apart(current.q_rad, following.q_rad[nearest])
         rows.append(current.piece[near] + offset[k])
         cols.append(following.piece[nearest[near]] + offset[(k + 1) % len(slices)])
     count = int(offset[-1])
@@ -228,9 +233,32 @@ def iiwa14_axis_smm(
     grid step. Where the tool axis is joint 7's (the bundled model's), a point of one
     slice is its neighbour's with q7 moved by the step, so its nearest point in the
     neighbour is at most sqrt(step^2 + (spacing / 2)^2) away (0.056 rad), well inside;
-    two pieces closer than the join (0.092 rad) at a limit are counted as one."""
+    two pieces closer than the join (0.092 rad) at a limit are counted as one.
+
+    With that tool axis the wrist centre W = p - 0.126 a* is fixed, so |q4| is fixed by
+    |SW| and q2 never reaches 0 unless W is on the base's z axis: the elbow twins (q4 of
+    either sign) and the shoulder twins (q2 of either sign) meet only where the fibre
+    reaches q4 = 0 or q2 = 0. Near those sets the twins pass closer than the join, so
+    points of opposite sign in q4 (or q2) are never joined unless |q4| (or W's distance
+    from the z axis) is under 1e-9 for this target."""
     join_rad = SPACING_RAD + 2 * np.pi / psi_steps
+    apart = None
+    if np.allclose(tool_axis, [0.0, 0.0, 1.0]):
+        wrist = position_m - iiwa14.WRIST_TO_EE_M * np.asarray(axis)
+        shoulder_to_wrist = np.linalg.norm(wrist - iiwa14.SHOULDER_M)
+        reach = iiwa14.UPPER_ARM_M + iiwa14.FOREARM_M
+        split_q4 = reach - shoulder_to_wrist > 1e-9
+        split_q2 = np.hypot(wrist[0], wrist[1]) > 1e-9
+
+        def apart(q_a: np.ndarray, q_b: np.ndarray) -> np.ndarray:
+            opposite = np.zeros(len(q_a), dtype=bool)
+            if split_q4:
+                opposite |= np.sign(q_a[:, 3]) != np.sign(q_b[:, 3])
+            if split_q2:
+                opposite |= np.sign(q_a[:, 1]) != np.sign(q_b[:, 1])
+            return opposite
+
     return axis_smm(
         lambda pose: iiwa14_slice(pose, lower_rad, upper_rad),
-        position_m, axis, tool_axis, np.zeros(7, bool), join_rad, psi_steps,
+        position_m, axis, tool_axis, np.zeros(7, bool), join_rad, psi_steps, apart,
     )  # fmt: skip
