@@ -1075,6 +1075,12 @@ static void project_row(const Planner *p, double *q, double *e, double *J, Py_ss
                 lock >= 0 ? locked : NULL, NULL, scratch);
 }
 
+/* The fibre reaches a coaxial set where Newton, the aligning joint held on it, gets this
+ * near (space.py's SET_REACH_TOLERANCE): the answers' tolerance, not the walks' coarser
+ * 1e-4, which counts as reached a set the fibre misses by less (an iiwa elbow 0.04 rad
+ * from straight on a fibre whose |q4| is fixed). */
+#define SET_REACH_TOLERANCE 1e-6
+
 /* Whether the step q_from -> q_to crosses no coaxial set, or crosses one where the fibre
  * reaches it. */
 static int crossings_on_fibre_row(const Planner *p, const double *q_from, const double *q_to,
@@ -1099,7 +1105,8 @@ static int crossings_on_fibre_row(const Planner *p, const double *q_from, const 
         project_row(p, guess, e, J, p->set_iterations, j, locked, scratch);
         double error = 0.0;
         for (Py_ssize_t k = 0; k < p->m; ++k) error += e[k] * e[k];
-        if (!(sqrt(error) <= p->tolerance && distance_of(guess, start, n) <= sqrt(step_norm)))
+        double reach = p->tolerance < SET_REACH_TOLERANCE ? p->tolerance : SET_REACH_TOLERANCE;
+        if (!(sqrt(error) <= reach && distance_of(guess, start, n) <= sqrt(step_norm)))
             return 0;
     }
     return 1;

@@ -33,6 +33,12 @@ from service.pipeline.joint_space import JointLimits, wrap_to_pi
 from service.pipeline.targets import kernel_orientation
 from service.pipeline.types import Acceptance, CoaxialSet, Correction, Tolerance
 
+# The fibre reaches a coaxial set where Newton, the aligning joint held on it, gets this
+# near: the answers' tolerance, not the walks' coarser 1e-4, which counts as reached a set
+# the fibre misses by less (an iiwa elbow 0.04 rad from straight on a fibre whose |q4| is
+# fixed: its elbow twins would join). native.c's SET_REACH_TOLERANCE is the same.
+SET_REACH_TOLERANCE = 1e-6
+
 
 @dataclass(frozen=True)
 class FibreSpace:
@@ -179,6 +185,7 @@ class FibreSpace:
             locked[:, j] = True
             on_set = project(self.fibre, guess, iterations, locked=locked)
             moved = np.linalg.norm(on_set.q_rad - guess, axis=1)
-            reached = (on_set.error_norm <= tolerance) & (moved <= np.linalg.norm(step, axis=1))
+            reach = min(tolerance, SET_REACH_TOLERANCE)
+            reached = (on_set.error_norm <= reach) & (moved <= np.linalg.norm(step, axis=1))
             ok[crossing] &= reached
         return ok

@@ -236,27 +236,20 @@ def iiwa14_axis_smm(
     two pieces closer than the join (0.092 rad) at a limit are counted as one.
 
     With that tool axis the wrist centre W = p - 0.126 a* is fixed, so |q4| is fixed by
-    |SW| and q2 never reaches 0 unless W is on the base's z axis: the elbow twins (q4 of
-    either sign) and the shoulder twins (q2 of either sign) meet only where the fibre
-    reaches q4 = 0 or q2 = 0. Near those sets the twins pass closer than the join, so
-    points of opposite sign in q4 (or q2) are never joined unless |q4| (or W's distance
-    from the z axis) is under 1e-9 for this target."""
+    |SW|: the elbow twins (q4 of either sign) meet only where the fibre reaches q4 = 0,
+    the arm straight (|SW| = 0.82 m). Near that set the twins pass within the join of
+    neighbouring poses, so points of opposite sign in q4 are never joined unless |SW|
+    is within 1e-9 m of 0.82 m. (The shoulder twins meet where the elbow passes over the
+    base axis, q2 = 0, which many targets reach: they are joined as any pieces are.)"""
     join_rad = SPACING_RAD + 2 * np.pi / psi_steps
     apart = None
     if np.allclose(tool_axis, [0.0, 0.0, 1.0]):
         wrist = position_m - iiwa14.WRIST_TO_EE_M * np.asarray(axis)
         shoulder_to_wrist = np.linalg.norm(wrist - iiwa14.SHOULDER_M)
-        reach = iiwa14.UPPER_ARM_M + iiwa14.FOREARM_M
-        split_q4 = reach - shoulder_to_wrist > 1e-9
-        split_q2 = np.hypot(wrist[0], wrist[1]) > 1e-9
+        if iiwa14.UPPER_ARM_M + iiwa14.FOREARM_M - shoulder_to_wrist > 1e-9:
 
-        def apart(q_a: np.ndarray, q_b: np.ndarray) -> np.ndarray:
-            opposite = np.zeros(len(q_a), dtype=bool)
-            if split_q4:
-                opposite |= np.sign(q_a[:, 3]) != np.sign(q_b[:, 3])
-            if split_q2:
-                opposite |= np.sign(q_a[:, 1]) != np.sign(q_b[:, 1])
-            return opposite
+            def apart(q_a: np.ndarray, q_b: np.ndarray) -> np.ndarray:
+                return np.asarray(np.sign(q_a[:, 3]) != np.sign(q_b[:, 3]))
 
     return axis_smm(
         lambda pose: iiwa14_slice(pose, lower_rad, upper_rad),
