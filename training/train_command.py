@@ -129,7 +129,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "disable_collisions are the pairs the collision model never checks (without it "
         "they are sampled as MoveIt's setup assistant does)",
     )
-    parser.add_argument("--task", required=True, help="task name: position or pose")
+    parser.add_argument(
+        "--task",
+        required=True,
+        help="task name: position, pose or axis (a tool axis's direction, its rotation free)",
+    )
     _add_config_arguments(parser)
     _add_run_arguments(parser)
 

@@ -89,16 +89,21 @@ def test_the_defaults_table_has_each_model_as_its_manifest_says() -> None:
     data = manifests()
     assert set(rows) == set(data)
     for model_id, manifest in data.items():
-        joints, r, axes, orientation, samples, tolerance, tolerance_rotation = rows[model_id]
+        joints, r, axes, orientation, axis, samples, tolerance, tolerance_rotation = rows[
+            model_id
+        ]
         task, defaults = manifest["task"], manifest["defaults"]
+        tool_axis = task.get("tool_axis")
         n = len(manifest["joints"]["names"])
-        m = len(task["position_axes"]) + 3 * task["orientation"]
+        # m: the position axes, 3 for a whole orientation, 2 for a tool axis's direction.
+        m = len(task["position_axes"]) + 3 * task["orientation"] + 2 * (tool_axis is not None)
         assert (int(joints), int(r)) == (n, n - m)
         assert axes.split(", ") == ["xyz"[a] for a in task["position_axes"]]
         assert orientation == ("required" if task["orientation"] else "refused")
+        assert axis == ("refused" if tool_axis is None else f"required (tool axis {tool_axis})")
         assert int(samples) == defaults["num_samples"]
         assert float(tolerance) == defaults["tolerance_position_m"]
-        if task["orientation"]:
+        if task["orientation"] or tool_axis is not None:
             assert float(tolerance_rotation) == defaults["tolerance_orientation_rad"]
         else:
             assert tolerance_rotation == "refused"

@@ -263,12 +263,14 @@ def test_what_models_md_says_of_particular_targets_holds() -> None:
     # Panda pose: every miscounted target is flagged (the others are all right).
     pose = report("panda-pose")["methods"]["FM + DLS"]["regular_targets"]
     assert pose["count_right"] == 1 and 31 in wrong("panda-pose")
-    # The service's answers inside the limits; every held-out target answered.
+    # The service's answers inside the limits; every held-out target answered but some of
+    # the iiwa14 axis task's.
     for model_id in MODEL_IDS:
         served = report(model_id)["methods"]["FM + DLS"]
         assert served["limit_violations"] == 0
         assert served.get("path_points_outside_limits", 0) == 0
-        assert manifest(model_id)["quality"]["targets_with_solution"] == 1.0
+        answered = manifest(model_id)["quality"]["targets_with_solution"]
+        assert (answered < 1.0) == (model_id == "iiwa14-axis"), model_id
     # 4-D coverage p95 is about a radian for every method.
     for model_id in ("iiwa14-position", "panda-position"):
         for method in report(model_id)["methods"].values():

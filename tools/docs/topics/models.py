@@ -201,13 +201,14 @@ def redundancy(manifest: dict[str, Any]) -> int:
 
 def recall(method: dict[str, Any], component_size: str) -> float | None:
     """The fraction of exact components found, over the components the evaluation counts:
-    every one on a 1-D SMM (sized by arc length), those of at least 1 % of a 4-D fibre
-    (sized by share); None where the reference does not label components (planar 3R)."""
+    every one on a 1-D SMM (sized by arc length), those of at least 1 % of a 2-D or 4-D
+    fibre (sized by share); None where the reference does not label components (planar 3R)."""
     bins = method.get("recall_by_size")
     if bins is None:
         return None
     if component_size.startswith("share"):
         bins = [b for b in bins if float(b["size"].split("-")[0]) >= MIN_SHARE]
+    bins = [b for b in bins if b["components"]]  # an empty size bin has no recall
     total = sum(b["components"] for b in bins)
     return sum(b["components"] * b["recall"] for b in bins) / total
 
@@ -275,7 +276,7 @@ def models_table() -> str:
     legend = (
         f"From each model's evaluation report (`docs/reports/<model>.md`): {scope}, "
         "against exact ground truth. Count right: the targets whose components match the "
-        "exact ones (no split, no merge). Recall: the exact components found (for r = 4 "
+        "exact ones (no split, no merge). Recall: the exact components found (for r = 2 and 4 "
         'those of at least 1 % of the fibre; the planar reference has no labels, so "-"). '
         "Coverage p95: 95 % of the exact SMM's points lie this close (joint metric) to a "
         "returned configuration. Keep rate: the share of samples made exact and kept. Time: "
@@ -450,7 +451,8 @@ def models_components() -> str:
 @block("models-recall")
 def models_recall() -> str:
     """Exact components found by the service and by random-restart DLS, by size (arc length
-    on a 1-D SMM, share of the fibre on a 4-D one), from every report that labels them."""
+    on a 1-D SMM, share of the fibre on a 2-D or 4-D one), from every report that labels
+    them; a size with no exact component has no row."""
     rows = []
     for model_id in bundled_models():
         report = sources.report(model_id)
@@ -460,6 +462,8 @@ def models_recall() -> str:
         restart = report["methods"].get("random-restart DLS", {}).get("recall_by_size")
         share = report["component_size"].startswith("share")
         for i, size in enumerate(served):
+            if not size["components"]:  # no exact component of this size: no row
+                continue
             span = size_words(size["size"], share)
             restart_found = _pct(restart[i]["recall"]) if restart else "-"
             rows.append([f"`{model_id}`", span, f"{size['components']:,}",
