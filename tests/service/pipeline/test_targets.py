@@ -90,4 +90,4 @@ def test_an_axis_task_names_one_unit_tool_axis() -> None:
         {"name": "axis", "orientation": True, "tool_axis": [0.0, 0.0, 1.0]},
     ):
         with pytest.raises(ValueError, match="tool_axis"):
-            TaskSpec(position_axes=[0, 1, 2], **fields)  # type: ignore[arg-type]
+            TaskSpec(position_axes=[0, 1, 2], **fields)
