@@ -262,7 +262,10 @@ def benchmark_model(
         if base is not None:
             served[BASE] = base
         served[PAPER] = paper
-        runs = interleaved(served, model, q_targets, n)
+        # Random-restart DLS (pytorch-kinematics' IK) constrains a whole pose or a position,
+        # never a tool axis with its rotation free: an axis model has no restart row.
+        restart_model = None if manifest.task.tool_axis is not None else model
+        runs = interleaved(served, restart_model, q_targets, n)
         row: dict[str, object] = {
             name: {**run.times(), "figures": figures(model, run.answers, truths)}
             for name, run in runs.items()
