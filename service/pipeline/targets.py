@@ -156,14 +156,9 @@ def validate_target(
                 ("body", "target", "orientation"),
                 "target.orientation (a unit quaternion {w, x, y, z}) is required for the pose task",
             )
-        with np.errstate(over="ignore"):  # a norm past float range is inf: refused below
-            norm = float(np.linalg.norm(orientation_wxyz))
-        if not abs(norm - 1.0) <= QUATERNION_NORM_TOLERANCE:
-            raise RequestFieldError(
-                ("body", "target", "orientation"),
-                f"target.orientation must be a unit quaternion (norm within "
-                f"{QUATERNION_NORM_TOLERANCE} of 1, normalised then), got norm {norm:.6g}",
-            )
+        _require_unit(
+            "orientation", "a unit quaternion", orientation_wxyz, QUATERNION_NORM_TOLERANCE
+        )
     elif orientation_wxyz is not None:
         raise RequestFieldError(
             ("body", "target", "orientation"),
@@ -176,19 +171,24 @@ def validate_target(
                 ("body", "target", "axis"),
                 "target.axis (a unit vector [x, y, z], base frame) is required for the axis task",
             )
-        with np.errstate(over="ignore"):
-            norm = float(np.linalg.norm(axis))
-        if not abs(norm - 1.0) <= AXIS_NORM_TOLERANCE:
-            raise RequestFieldError(
-                ("body", "target", "axis"),
-                f"target.axis must be a unit vector (norm within {AXIS_NORM_TOLERANCE} of 1, "
-                f"normalised then), got norm {norm:.6g}",
-            )
+        _require_unit("axis", "a unit vector", axis, AXIS_NORM_TOLERANCE)
     elif axis is not None:
         raise RequestFieldError(
             ("body", "target", "axis"),
             f"target.axis is not allowed for the {task.name} task; use task 'axis' to "
             "constrain the tool axis alone",
+        )
+
+
+def _require_unit(field: str, kind: str, value: tuple[float, ...], tolerance: float) -> None:
+    """RequestFieldError naming target.<field> unless its norm is within `tolerance` of 1."""
+    with np.errstate(over="ignore"):  # a norm past float range is inf: refused below
+        norm = float(np.linalg.norm(value))
+    if not abs(norm - 1.0) <= tolerance:
+        raise RequestFieldError(
+            ("body", "target", field),
+            f"target.{field} must be {kind} (norm within {tolerance} of 1, normalised then), "
+            f"got norm {norm:.6g}",
         )
 
 
