@@ -20,7 +20,7 @@ from service.pipeline.arrays import BoolArray, FloatArray, IntArray
 from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.joint_space import JointLimits
 from service.pipeline.native import AxisTarget
-from service.pipeline.rotations import axis_error, rotation_error
+from service.pipeline.rotations import axis_error, normal_basis, rotation_error
 from service.pipeline.rows import over_rows
 from service.pipeline.targets import Target, kernel_orientation
 from service.pipeline.types import ChainKinematics, Correction, Kinematics, KinematicsResult
@@ -79,11 +79,7 @@ def jacobian_on_fibre(fk: KinematicsResult, task: TaskSpec) -> FloatArray:  # (B
     if task.tool_axis is None:
         rows = [*axes, *([3, 4, 5] if task.orientation else [])]
         return fk.jacobian[:, rows, :]
-    a = fk.rotation @ np.asarray(task.tool_axis)  # (B, 3)
-    least = np.eye(3)[np.argmin(np.abs(a), axis=1)]  # (B, 3)
-    b1 = np.cross(a, least)
-    b1 /= np.linalg.norm(b1, axis=1, keepdims=True)
-    basis = np.stack([b1, np.cross(a, b1)], axis=1)  # (B, 2, 3)
+    basis = normal_basis(fk.rotation @ np.asarray(task.tool_axis))  # (B, 2, 3)
     return np.concatenate([fk.jacobian[:, axes, :], basis @ angular], axis=1)
 
 

@@ -92,11 +92,17 @@ def axis_frame(axis: FloatArray, tool_axis: FloatArray) -> FloatArray:  # (3,), 
     b1, b2 are unit, orthogonal to the target axis a* (unit) and b1 x b2 = a*; u is the
     tool axis in the end-effector frame. b1 is a* crossed with the base axis least
     aligned with a*, so the frame is a fixed function of a*."""
-    least = np.zeros(3)
-    least[int(np.argmin(np.abs(axis)))] = 1.0
+    b1, b2 = normal_basis(np.asarray(axis, dtype=np.float64)[None])[0]
+    return np.stack([b1, b2, np.asarray(tool_axis, dtype=np.float64)])
+
+
+def normal_basis(axis: FloatArray) -> FloatArray:  # (B, 3) unit -> (B, 2, 3)
+    """Per row, b1, b2 unit, orthogonal to the axis and b1 x b2 = the axis: b1 is the axis
+    crossed with the base axis least aligned with it."""
+    least = np.eye(3)[np.argmin(np.abs(axis), axis=1)]  # (B, 3)
     b1 = np.cross(axis, least)
-    b1 /= np.linalg.norm(b1)
-    return np.stack([b1, np.cross(axis, b1), np.asarray(tool_axis, dtype=np.float64)])
+    b1 /= np.linalg.norm(b1, axis=1, keepdims=True)
+    return np.stack([b1, np.cross(axis, b1)], axis=1)
 
 
 def axis_error(
