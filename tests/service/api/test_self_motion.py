@@ -95,15 +95,25 @@ def test_max_limit_margin_ends_at_the_best_node_of_the_roadmap(
     assert margin(path[-1]) >= margin(q0)  # the start is a node too
 
 
-def test_start_and_goal_on_elbow_up_and_down_are_not_connected(client: TestClient) -> None:
-    # The end effector is kept 0.82 +- 0.126 m from the shoulder with the elbow straight,
-    # farther than this target's 0.674 m: the elbow's sign (q4) parts the components.
-    position = [0.544, 0.136, 0.734]
+# The end effector is kept 0.82 +- 0.126 m from the shoulder with the elbow straight,
+# farther than this target's 0.674 m: the elbow's sign (q4) parts the components.
+ELBOW_TARGET_M = [0.544, 0.136, 0.734]
+
+
+def elbow_up_and_down(client: TestClient) -> tuple[list[float], list[float]]:
+    """A component representative with q4 > 0 and one with q4 < 0 at ELBOW_TARGET_M."""
     listed = client.post(
-        "/smm", json={"robot": "iiwa14", "task": "position", "target": {"position": position}}
+        "/smm",
+        json={"robot": "iiwa14", "task": "position", "target": {"position": ELBOW_TARGET_M}},
     ).json()["components"]
     up = next(c["representative"] for c in listed if c["representative"][3] > 0)
     down = next(c["representative"] for c in listed if c["representative"][3] < 0)
+    return up, down
+
+
+def test_start_and_goal_on_elbow_up_and_down_are_not_connected(client: TestClient) -> None:
+    position = ELBOW_TARGET_M
+    up, down = elbow_up_and_down(client)
     body = {"start": up, "goal": {"configuration": down}}
     answer = motion(client, "iiwa14", "position", position, **body).json()
     assert answer["status"] == "not_connected" and answer["path"] is None
@@ -119,12 +129,8 @@ def test_a_roadmap_edge_no_fine_walk_follows_gives_no_route(
     """The route search over a roadmap (`_roadmap_path`) whose one edge joins the elbow-up
     and elbow-down components (which no motion on the fibre joins: the elbow's sign parts
     them) finds no walkable route and says so (None, answered as `no_path`), not an error."""
-    position = [0.544, 0.136, 0.734]
-    listed = client.post(
-        "/smm", json={"robot": "iiwa14", "task": "position", "target": {"position": position}}
-    ).json()["components"]
-    up = next(c["representative"] for c in listed if c["representative"][3] > 0)
-    down = next(c["representative"] for c in listed if c["representative"][3] < 0)
+    position = ELBOW_TARGET_M
+    up, down = elbow_up_and_down(client)
     model = iiwa14_position
     query = Query.for_model(model.manifest, position_m=position)
     space = space_of(model, encode(model, query), query.tolerance, CollisionCheck.none())
