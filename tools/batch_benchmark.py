@@ -3,7 +3,8 @@
     python -m tools.batch_benchmark --model iiwa14-pose --targets 64 --num-samples 1000
 
 Over HTTP, as a planner would ask (`smm-serve` as a real uvicorn process on 127.0.0.1,
-`tools.local_server.LocalServer`, like tools/benchmark.py's `over_http`): the targets are
+`tools.local_server.LocalServer`, asked through the project's client `service.client`,
+like tools/benchmark.py's `over_http`): the targets are
 the FK of configurations uniform in the joint limits (the evaluation's held-out targets,
 seed 7), target i with seed i. Each round sends the K single requests one after another,
 then the one batch; the client's wall time of each, median over the rounds, and their
@@ -20,13 +21,14 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
-import httpx
 import numpy as np
 
+from service.client import RetryPolicy, SmmClient
 from service.config import Settings
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
 from service.pipeline.targets import fields_reached
+from service.wire import SmmBatchRequest, SmmBatchResponse, SmmRequest, SmmResponse
 from tools.local_server import LocalServer
 from training.evaluate.targets import uniform_configurations
 from training.machine import Machine
@@ -42,19 +44,19 @@ def target_of(model: ServedModel, q_rad: np.ndarray) -> dict[str, Any]:
     return fields_reached(manifest.task, fk.position_m[0], fk.rotation[0]).wire()
 
 
-def without_timings(answer: dict[str, Any]) -> dict[str, Any]:
-    return {key: value for key, value in answer.items() if key != "timings_ms"}
+def without_timings(answer: SmmResponse) -> SmmResponse:
+    return answer.model_copy(update={"timings_ms": {}})
 
 
-def mismatched_targets(batch: dict[str, Any], singles: Sequence[dict[str, Any]]) -> list[int]:
+def mismatched_targets(batch: SmmBatchResponse, singles: Sequence[SmmResponse]) -> list[int]:
     """Indices whose batch answer differs from the single answer (timings aside)."""
-    results = batch["results"]
+    results = batch.results
     if len(results) != len(singles):
         return list(range(max(len(results), len(singles))))
     return [
         i
         for i, (result, answer) in enumerate(zip(results, singles, strict=True))
-        if result["answer"] is None or without_timings(result["answer"]) != without_timings(answer)
+        if result.answer is None or without_timings(result.answer) != without_timings(answer)
     ]
 
 
@@ -79,9 +81,12 @@ def batch_against_singles(
     manifest = model.manifest
     targets = [target_of(model, q) for q in q_targets]
     common = {"robot": manifest.robot, "task": manifest.task.name, "num_samples": num_samples}
-    singles = [{**common, "target": t, "seed": i} for i, t in enumerate(targets)]
+    singles = [
+        SmmRequest.model_validate({**common, "target": t, "seed": i}) for i, t in enumerate(targets)
+    ]
     batch_targets = [{"target": t, "seed": i} for i, t in enumerate(targets)]
-    batch = {**common, "targets": batch_targets}
+    batch_body = {**common, "targets": batch_targets}
+    batch = SmmBatchRequest.model_validate(batch_body)
     own = server is None
     if server is None:
         server = LocalServer(
@@ -89,34 +94,28 @@ def batch_against_singles(
             max_batch_samples=max(len(targets) * num_samples, 1),
             max_num_samples=max(num_samples, Settings().max_num_samples),
             request_deadline_s=TIMEOUT_S,
-            max_body_bytes=max(65_536, 2 * len(json.dumps(batch))),
+            max_body_bytes=max(65_536, 2 * len(json.dumps(batch_body))),
             **server_settings,
         ).start()
     singles_ms: list[float] = []
     batch_ms: list[float] = []
     mismatched: set[int] = set()
-    server_timings: list[dict[str, float]] = []
+    server_timings: list[dict[str, float]] = []  # the batch's, by span
     try:
-        with httpx.Client(base_url=server.url, timeout=TIMEOUT_S) as client:
-            client.post("/smm", json=singles[0]).raise_for_status()  # warm-up
-            warm = client.post("/smm/batch", json={**common, "targets": batch_targets[:2]})
-            warm.raise_for_status()
+        no_retries = RetryPolicy(max_attempts=1)
+        with SmmClient(server.url, timeout=TIMEOUT_S, retry=no_retries) as client:
+            client.smm(singles[0])  # warm-up
+            client.smm_batch(batch.model_copy(update={"targets": batch.targets[:2]}))
             for r in range(rounds):
                 progress(f"{manifest.model_id}: round {r + 1} of {rounds}")
                 start = time.perf_counter()
-                single_answers = []
-                for body in singles:
-                    response = client.post("/smm", json=body)
-                    response.raise_for_status()
-                    single_answers.append(response.json())
+                single_answers = [client.smm(request) for request in singles]
                 singles_ms.append((time.perf_counter() - start) * 1e3)
                 start = time.perf_counter()
-                response = client.post("/smm/batch", json=batch)
-                response.raise_for_status()
-                answer = response.json()
+                answer = client.smm_batch(batch)
                 batch_ms.append((time.perf_counter() - start) * 1e3)
                 mismatched.update(mismatched_targets(answer, single_answers))
-                server_timings.append(answer["timings_ms"])
+                server_timings.append({str(span): ms for span, ms in answer.timings_ms.items()})
     finally:
         if own:
             server.stop()

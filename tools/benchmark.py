@@ -56,14 +56,15 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-import httpx
 import numpy as np
 
+from service.client import RetryPolicy, SmmClient
 from service.config import Settings
 from service.manifest import REPO_MODELS_DIR, Manifest
 from service.models.registry import ServedModel, load_model
 from service.pipeline.joint_space import JointLimits
 from service.pipeline.targets import fields_reached
+from service.wire import SmmRequest
 from tools.batch_benchmark import batch_against_singles
 from tools.connect_profile import profile_connect
 from tools.connect_profile import summarise as summarise_connect
@@ -208,25 +209,29 @@ class RestartMatch:
 def over_http(
     server: LocalServer, model: ServedModel, q_targets: np.ndarray, num_samples: int
 ) -> dict[str, float]:
-    """Client wall time per answer, one request at a time, and the server's own total."""
+    """Client wall time per answer, one request at a time, and the server's own total.
+
+    The client is the project's (`service.client.SmmClient`, retries off): a wall time
+    ends with the answer parsed into its typed model, as a Python planner gets it."""
     manifest = model.manifest
-    bodies = []
+    requests = []
     for i, q in enumerate(q_targets):
         fk = model.kinematics(q[None])
         target = fields_reached(manifest.task, fk.position_m[0], fk.rotation[0]).wire()
-        bodies.append(
-            {"robot": manifest.robot, "task": manifest.task.name, "target": target,
-             "num_samples": num_samples, "seed": i}
+        requests.append(
+            SmmRequest.model_validate(
+                {"robot": manifest.robot, "task": manifest.task.name, "target": target,
+                 "num_samples": num_samples, "seed": i}
+            )
         )  # fmt: skip
     wall, server_total = [], []
-    with httpx.Client(base_url=server.url, timeout=120.0) as client:
-        client.post("/smm", json=bodies[0]).raise_for_status()  # warm-up
-        for body in bodies:
+    with SmmClient(server.url, timeout=120.0, retry=RetryPolicy(max_attempts=1)) as client:
+        client.smm(requests[0])  # warm-up
+        for request in requests:
             start = time.perf_counter()
-            response = client.post("/smm", json=body)
+            answer = client.smm(request)
             wall.append((time.perf_counter() - start) * 1e3)
-            response.raise_for_status()
-            server_total.append(float(response.json()["timings_ms"]["total"]))
+            server_total.append(float(answer.timings_ms["total"]))
     return {
         "median_ms": float(np.median(wall)),
         "p95_ms": float(np.percentile(wall, 95)),

@@ -11,9 +11,17 @@ from __future__ import annotations
 import numpy as np
 from fastapi import APIRouter, Request, Response
 
+from service.api.answers import (
+    Fields,
+    component_fields,
+    counts_fields,
+    encode,
+    model_fields,
+    roadmap_fields,
+)
 from service.api.deps import AdmissionDep, MetricsDep, RegistryDep, SettingsDep
 from service.api.schemas import error_responses
-from service.api.smm import component_out, compute_in_slot, roadmap_out, to_query
+from service.api.smm import compute_in_slot, to_query
 from service.errors import RequestFieldError
 from service.http.openapi import operation_id
 from service.models.registry import ServedModel
@@ -21,13 +29,7 @@ from service.pipeline.deadline import Deadline
 from service.pipeline.run import collision_of
 from service.pipeline.self_motion import OBJECTIVES, Goal, SelfMotion, self_motion
 from service.pipeline.types import Query
-from service.wire import (
-    CountsOut,
-    GoalIn,
-    SelfMotionRequest,
-    SelfMotionResponse,
-    SmmRequest,
-)
+from service.wire import GoalIn, SelfMotionRequest, SelfMotionResponse, SmmRequest
 
 router = APIRouter(prefix="/smm", tags=["smm"], generate_unique_id_function=operation_id)
 
@@ -92,30 +94,27 @@ def answer(
 ) -> tuple[bytes, SelfMotion]:
     """The self-motion and its JSON (in a worker thread: both are CPU work)."""
     motion = self_motion(model, query, start, goal, deadline)
-    return to_response(model, motion).model_dump_json().encode(), motion
+    return encode(self_motion_fields(model, motion)), motion
 
 
-def to_response(model: ServedModel, motion: SelfMotion) -> SelfMotionResponse:
-    manifest, result = model.manifest, motion.result
-    path = motion.path_rad
+def self_motion_fields(model: ServedModel, motion: SelfMotion) -> Fields:
+    """The self-motion's answer as `SelfMotionResponse`, field for field
+    (service/api/answers.py): each component lean (its representative, no path)."""
+    result, path = motion.result, motion.path_rad
     roadmap = result.components[motion.start_component].roadmap
-    return SelfMotionResponse(
-        robot=manifest.robot,
-        task=manifest.task.name,
-        model=model.reference,
-        joint_names=manifest.joints.names,
-        redundancy=manifest.redundancy,
-        status=motion.status,
-        start_component=motion.start_component,
-        goal_component=motion.goal_component,
-        path=None if path is None else path.tolist(),
-        length_rad=motion.length_rad,
-        objective_value=motion.objective_value,
-        roadmap=None if roadmap is None else roadmap_out(roadmap),
-        components=[component_out(i, s, lean=True) for i, s in enumerate(result.components)],
-        counts=CountsOut(**vars(result.counts)),
-        timings_ms=result.timings.as_dict(),
-    )
+    return {
+        **model_fields(model),
+        "status": motion.status,
+        "start_component": motion.start_component,
+        "goal_component": motion.goal_component,
+        "path": None if path is None else np.ascontiguousarray(path, np.float64),
+        "length_rad": motion.length_rad,
+        "objective_value": motion.objective_value,
+        "roadmap": None if roadmap is None else roadmap_fields(roadmap),
+        "components": [component_fields(i, s, lean=True) for i, s in enumerate(result.components)],
+        "counts": counts_fields(result.counts),
+        "timings_ms": result.timings.as_dict(),
+    }
 
 
 @router.post(

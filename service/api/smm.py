@@ -9,6 +9,14 @@ from typing import TypeVar
 from fastapi import APIRouter, Request, Response
 from starlette.concurrency import run_in_threadpool
 
+from service.api.answers import (
+    Fields,
+    component_fields,
+    counts_fields,
+    encode,
+    model_fields,
+    structure_fields,
+)
 from service.api.deps import AdmissionDep, MetricsDep, RegistryDep, SettingsDep
 from service.api.schemas import error_responses
 from service.errors import (
@@ -24,17 +32,8 @@ from service.observability.metrics import Metrics
 from service.pipeline.collision.scene import Obstacle
 from service.pipeline.deadline import Deadline
 from service.pipeline.run import collision_of, run
-from service.pipeline.types import ComponentRoadmap, ComponentSummary, Query, SmmResult
-from service.wire import (
-    CollisionOut,
-    ComponentOut,
-    CountsOut,
-    ObstacleIn,
-    RoadmapOut,
-    SmmRequest,
-    SmmResponse,
-    StructureOut,
-)
+from service.pipeline.types import Query, SmmResult
+from service.wire import ObstacleIn, SmmRequest, SmmResponse
 
 Computed = TypeVar("Computed")
 
@@ -98,76 +97,32 @@ def _obstacle(index: int, obstacle: ObstacleIn) -> Obstacle:
     )
 
 
-def component_out(index: int, summary: ComponentSummary, lean: bool = False) -> ComponentOut:
-    """The component as the wire has it, built without validation (`model_construct`): its
-    arrays become lists of Python floats here, and validating a few thousand path floats
-    again cost as much as encoding them. tests/service/api/test_smm.py checks that every
-    answer validates as `SmmResponse` to the same JSON. `lean`: its representative as its
-    one configuration, and no path or roadmap (the self-motion's answer)."""
-    nearest = summary.nearest_to_reference_rad
-    configurations = summary.configurations_rad
-    if lean:
-        configurations = summary.representative_rad[None]
-    return ComponentOut.model_construct(
-        id=index,
-        size=int(summary.size),
-        representative=summary.representative_rad.tolist(),
-        configurations=configurations.tolist(),
-        joint_min=summary.joint_min_rad.tolist(),
-        joint_max=summary.joint_max_rad.tolist(),
-        max_position_error=float(summary.max_position_error_m),
-        max_orientation_error=float(summary.max_orientation_error_rad),
-        distance_to_reference=_float_or_none(summary.distance_to_reference_rad),
-        nearest_to_reference=None if nearest is None else nearest.tolist(),
-        arc_length_rad=_float_or_none(summary.arc_length_rad),
-        closed=None if summary.closed is None else bool(summary.closed),
-        ends=None if summary.ends is None else list(summary.ends),
-        path=None if summary.path is None or lean else summary.path.q_rad.tolist(),
-        roadmap=None if summary.roadmap is None or lean else roadmap_out(summary.roadmap),
-        clearance_m=_float_or_none(summary.clearance_m),
-        safest_configuration=None if summary.safest_rad is None else summary.safest_rad.tolist(),
-        safest_clearance_m=_float_or_none(summary.safest_clearance_m),
-    )
+def smm_fields(model: ServedModel, query: Query, result: SmmResult) -> Fields:
+    """The answer as `SmmResponse`, field for field (service/api/answers.py)."""
+    return {
+        **model_fields(model),
+        "status": "ok" if result.components else "no_solution",
+        "counts": counts_fields(result.counts),
+        "components": [component_fields(i, s) for i, s in enumerate(result.components)],
+        "structure": structure_fields(result.structure),
+        "collision": _collision_fields(model, query),
+        "timings_ms": result.timings.as_dict(),
+    }
 
 
-def roadmap_out(roadmap: ComponentRoadmap) -> RoadmapOut:
-    return RoadmapOut.model_construct(nodes=roadmap.q_rad.tolist(), edges=roadmap.edges.tolist())
-
-
-def _float_or_none(value: float | None) -> float | None:
-    return None if value is None else float(value)
-
-
-def to_response(model: ServedModel, query: Query, result: SmmResult) -> SmmResponse:
-    manifest = model.manifest
-    return SmmResponse(
-        robot=manifest.robot,
-        task=manifest.task.name,
-        model=model.reference,
-        joint_names=manifest.joints.names,
-        redundancy=manifest.redundancy,
-        status="ok" if result.components else "no_solution",
-        counts=CountsOut(**vars(result.counts)),
-        components=[component_out(i, s) for i, s in enumerate(result.components)],
-        structure=StructureOut(**vars(result.structure)),
-        collision=_collision_out(model, query),
-        timings_ms=result.timings.as_dict(),
-    )
-
-
-def _collision_out(model: ServedModel, query: Query) -> CollisionOut:
+def _collision_fields(model: ServedModel, query: Query) -> Fields:
     check = collision_of(model, query)
-    return CollisionOut(
-        self_checked=check.self_checked,
-        obstacles=len(query.scene.obstacles),
-        margin_m=query.margin_m,
-    )
+    return {
+        "self_checked": check.self_checked,
+        "obstacles": len(query.scene.obstacles),
+        "margin_m": query.margin_m,
+    }
 
 
 def answer(model: ServedModel, query: Query, deadline: Deadline) -> tuple[bytes, SmmResult]:
     """Run the pipeline and encode the JSON answer (in a worker thread: both are CPU work)."""
     result = run(model, query, deadline)
-    return to_response(model, query, result).model_dump_json().encode(), result
+    return encode(smm_fields(model, query, result)), result
 
 
 async def compute_in_slot(

@@ -10,9 +10,10 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Request, Response
 
+from service.api.answers import Fields, encode, model_fields
 from service.api.deps import AdmissionDep, MetricsDep, RegistryDep, SettingsDep
 from service.api.schemas import error_responses
-from service.api.smm import compute_in_slot, query_for_model, to_response
+from service.api.smm import compute_in_slot, query_for_model, smm_fields
 from service.config import Settings
 from service.errors import (
     LimitExceededError,
@@ -24,7 +25,7 @@ from service.models.registry import ServedModel
 from service.pipeline.batch import BatchResult, run_batch
 from service.pipeline.deadline import Deadline
 from service.pipeline.types import STAGES, Query, TimedSpan
-from service.wire import BatchItemOut, SmmBatchRequest, SmmBatchResponse
+from service.wire import SmmBatchRequest, SmmBatchResponse
 
 router = APIRouter(prefix="/smm", tags=["smm"], generate_unique_id_function=operation_id)
 
@@ -76,31 +77,26 @@ def to_queries(body: SmmBatchRequest, model: ServedModel, settings: Settings) ->
     return queries
 
 
-def to_batch_response(
-    model: ServedModel, queries: list[Query], batch: BatchResult
-) -> SmmBatchResponse:
-    manifest = model.manifest
-    results = []
+def batch_fields(model: ServedModel, queries: list[Query], batch: BatchResult) -> Fields:
+    """The batch's answer as `SmmBatchResponse`, field for field (service/api/answers.py):
+    each answered target's `smm_fields`, the rest marked deadline_exceeded."""
+    results: list[Fields] = []
     for index, query in enumerate(queries):
         if index < len(batch.results):
-            answer = to_response(model, query, batch.results[index])
-            results.append(BatchItemOut(index=index, status=answer.status, answer=answer))
+            answer = smm_fields(model, query, batch.results[index])
+            results.append({"index": index, "status": answer["status"], "answer": answer})
         else:
-            results.append(BatchItemOut(index=index, status="deadline_exceeded", answer=None))
+            results.append({"index": index, "status": "deadline_exceeded", "answer": None})
     timings: dict[TimedSpan, float] = {
         stage: sum(r.timings.stage_ms.get(stage, 0.0) for r in batch.results) for stage in STAGES
     }
     timings["total"] = batch.total_ms
-    return SmmBatchResponse(
-        robot=manifest.robot,
-        task=manifest.task.name,
-        model=model.reference,
-        joint_names=manifest.joints.names,
-        redundancy=manifest.redundancy,
-        status="complete" if batch.complete else "partial",
-        results=results,
-        timings_ms=timings,
-    )
+    return {
+        **model_fields(model),
+        "status": "complete" if batch.complete else "partial",
+        "results": results,
+        "timings_ms": timings,
+    }
 
 
 def answer_batch(
@@ -112,8 +108,7 @@ def answer_batch(
     batch = run_batch(model, queries, deadline, threads)
     if batch.deadline_error is not None and not batch.results:
         raise batch.deadline_error
-    response = to_batch_response(model, queries, batch)
-    return response.model_dump_json().encode(), batch
+    return encode(batch_fields(model, queries, batch)), batch
 
 
 @router.post(

@@ -4,10 +4,15 @@ answer is caught by index."""
 
 from __future__ import annotations
 
-import copy
+from collections.abc import Sequence
 from typing import Any
 
+from service.api.answers import encode
+from service.api.smm import smm_fields
 from service.models.registry import ServedModel
+from service.pipeline.run import run
+from service.pipeline.types import Query
+from service.wire import SmmBatchResponse, SmmResponse
 from tools.batch_benchmark import batch_against_singles, mismatched_targets
 from training.evaluate.targets import uniform_configurations
 
@@ -28,16 +33,24 @@ def test_batch_against_singles_times_both_and_finds_the_answers_identical(
     assert result["model"].startswith("planar3r-position@")
 
 
-def test_a_batch_answer_that_differs_from_its_single_is_named() -> None:
-    answer: dict[str, Any] = {
-        "status": "ok",
-        "components": [{"size": 3}],
-        "timings_ms": {"total": 1.0},
-    }
-    singles = [answer, {**answer, "timings_ms": {"total": 2.0}}]
-    batch: dict[str, Any] = {"results": [{"answer": copy.deepcopy(a)} for a in singles]}
-    assert mismatched_targets(batch, singles) == []  # timings aside
-    batch["results"][1]["answer"]["components"][0]["size"] = 4
-    assert mismatched_targets(batch, singles) == [1]
-    batch["results"][0]["answer"] = None  # not answered (deadline)
-    assert mismatched_targets(batch, singles) == [0, 1]
+def test_a_batch_answer_that_differs_from_its_single_is_named(planar3r: ServedModel) -> None:
+    query = Query.for_model(planar3r.manifest, position_m=[0.5, 0.0], num_samples=100)
+    fields = smm_fields(planar3r, query, run(planar3r, query))
+    answer = SmmResponse.model_validate_json(encode(fields))
+    singles = [answer, answer.model_copy(update={"timings_ms": {"total": 2.0}})]
+
+    def batch_of(answers: Sequence[dict[str, Any] | None]) -> SmmBatchResponse:
+        results = [
+            {"index": i, "status": "ok" if a else "deadline_exceeded", "answer": a}
+            for i, a in enumerate(answers)
+        ]
+        head = {k: v for k, v in fields.items() if k not in ("status", "counts", "components")}
+        return SmmBatchResponse.model_validate_json(
+            encode({**head, "status": "complete", "results": results})
+        )
+
+    dumped = [a.model_dump(mode="json") for a in singles]
+    assert mismatched_targets(batch_of(dumped), singles) == []  # timings aside
+    dumped[1]["components"][0]["size"] += 1
+    assert mismatched_targets(batch_of(dumped), singles) == [1]
+    assert mismatched_targets(batch_of([None, dumped[1]]), singles) == [0, 1]  # 0 not answered

@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from service.wire import SmmResponse
 from tests.support.bundled import served_robots_message
 from training.evaluate.references.planar3r import planar3r_position
 
@@ -220,29 +219,3 @@ def test_paths_come_ordered_and_include_paths_false_leaves_them_out(client: Test
         assert {k: v for k, v in without.items() if k != "path"} == {
             k: v for k, v in with_path.items() if k != "path"
         }
-
-
-def test_every_answer_validates_as_the_response_schema_to_the_same_bytes(
-    client: TestClient,
-) -> None:
-    """Components are built without validation (`model_construct`): each answer, with
-    paths, a reference, collisions checked (iiwa14) or not and a position task of r = 4,
-    with its roadmaps or without, validates as `SmmResponse` and encodes again to the very
-    bytes it was sent as."""
-    bodies: list[dict[str, Any]] = [
-        {"robot": "planar3r", "task": "position", "target": {"position": [0.5, 0.0]},
-         "reference_configuration": [0.1, 0.2, 0.3]},
-        {"robot": "planar3r", "task": "position", "target": {"position": [9.0, 0.0]}},
-        {"robot": "iiwa14", "task": "pose",
-         "target": {"position": [0.4, 0.1, 0.6], "orientation": {"w": 0, "x": 0, "y": 1, "z": 0}}},
-        {"robot": "iiwa14", "task": "position", "target": {"position": [0.4, 0.1, 0.6]},
-         "num_samples": 300},
-        {"robot": "iiwa14", "task": "position", "target": {"position": [0.4, 0.1, 0.6]},
-         "num_samples": 300, "include_roadmap": True},
-    ]  # fmt: skip
-    for body in bodies:
-        response = client.post("/smm", json=body)
-        assert response.status_code == 200, response.text
-        again = SmmResponse.model_validate_json(response.content).model_dump_json().encode()
-        assert again == response.content
-    assert response.json()["components"]  # the last (r = 4) answer has some

@@ -12,12 +12,14 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
-from service.api.smm_batch import to_batch_response
+from service.api.answers import encode
+from service.api.smm_batch import batch_fields
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel
 from service.pipeline.batch import BatchResult, run_batch
 from service.pipeline.deadline import Deadline
 from service.pipeline.types import Query
+from service.wire import SmmBatchResponse
 from tests.support.app import make_client
 from tests.support.bundled import bundled_robots, served_robots_message
 
@@ -248,7 +250,7 @@ def test_a_batch_cut_by_the_deadline_marks_the_targets_left(planar3r: ServedMode
     expired = Deadline(budget_s=1.0, expires_at_s=0.0)
     stopped = run_batch(planar3r, queries[1:], expired).deadline_error
     cut = BatchResult(answered.results, stopped, answered.total_ms)
-    response = to_batch_response(planar3r, queries, cut)
+    response = SmmBatchResponse.model_validate_json(encode(batch_fields(planar3r, queries, cut)))
     assert response.status == "partial"
     assert [(r.index, r.status) for r in response.results] == [(0, "ok"), (1, "deadline_exceeded")]
     assert response.results[1].answer is None
