@@ -35,5 +35,5 @@ def describe(model: ServedModel) -> RobotOut:
 
 
 @router.get("", response_model=RobotsResponse, responses=error_responses(401, 503))
-def list_robots(registry: RegistryDep) -> RobotsResponse:
+async def list_robots(registry: RegistryDep) -> RobotsResponse:
     return RobotsResponse(models=[describe(m) for m in registry.all()])
