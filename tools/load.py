@@ -70,8 +70,7 @@ def reachable_targets(manifest: Manifest, count: int, seed: int) -> list[dict[st
     )
     fk = kinematics(q)
     return [
-        fields_reached(manifest.task, fk.position_m[i], fk.rotation[i]).wire()
-        for i in range(count)
+        fields_reached(manifest.task, fk.position_m[i], fk.rotation[i]).wire() for i in range(count)
     ]
 
 

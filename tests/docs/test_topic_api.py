@@ -40,9 +40,7 @@ def test_the_pages_are_what_the_blocks_write() -> None:
         assert render_page(text) == text, f"{page}: run python -m tools.docs"
 
 
-@pytest.mark.parametrize(
-    "path", ["damping", "connectivity.trace_step_rad"]
-)
+@pytest.mark.parametrize("path", ["damping", "connectivity.trace_step_rad"])
 def test_a_default_shared_by_every_model_is_one_value(path: str) -> None:
     values = set()
     for data in manifests().values():
@@ -89,9 +87,7 @@ def test_the_defaults_table_has_each_model_as_its_manifest_says() -> None:
     data = manifests()
     assert set(rows) == set(data)
     for model_id, manifest in data.items():
-        joints, r, axes, orientation, axis, samples, tolerance, tolerance_rotation = rows[
-            model_id
-        ]
+        joints, r, axes, orientation, axis, samples, tolerance, tolerance_rotation = rows[model_id]
         task, defaults = manifest["task"], manifest["defaults"]
         tool_axis = task.get("tool_axis")
         n = len(manifest["joints"]["names"])

@@ -18,6 +18,7 @@ from tools.container_test.targets import TARGETS, bundled_models, check_answer
 API_KEY = secrets.token_hex(16)
 MAX_NUM_SAMPLES = 2000
 
+
 def run_http_checks(
     url: str, key: dict[str, str], checks: Checks, figures: dict[str, Any]
 ) -> list[str]:

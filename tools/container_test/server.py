@@ -18,6 +18,7 @@ from tools.container_test.buildah import tail
 
 STARTUP_TIMEOUT_S = 120.0
 
+
 def descendants(pid: int) -> list[int]:
     """Every process below `pid`, from /proc."""
     children: dict[int, list[int]] = {}

@@ -139,6 +139,5 @@ def check_access_log(log_path: Path, request_ids: list[str], checks: Checks) -> 
         twice_or_never = [i for i in request_ids if logged.count(i) != 1]
         assert not twice_or_never, f"request ids not logged exactly once: {twice_or_never}"
         note["detail"] = (
-            f"{len(request_ids)} requests, each logged once under its X-Request-ID; "
-            "0 uvicorn lines"
+            f"{len(request_ids)} requests, each logged once under its X-Request-ID; 0 uvicorn lines"
         )

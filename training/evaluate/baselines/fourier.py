@@ -320,9 +320,7 @@ def fourier_targets(
     )  # fmt: skip
     start = time.perf_counter()
     task, steps = manifest.task, defaults.correction_steps
-    correction = correct(
-        smm.q_rad, target, task, model.kinematics, steps, defaults.damping, limits
-    )
+    correction = correct(smm.q_rad, target, task, model.kinematics, steps, defaults.damping, limits)
     corrected_s = time.perf_counter()
     kept = accept(correction, Tolerance.of(defaults), limits).accepted
     accepted_s = time.perf_counter()

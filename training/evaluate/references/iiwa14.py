@@ -453,9 +453,7 @@ def _contact_links(
     numbered from `num_nodes` on."""
     edges = []
     extra = [np.zeros((0, 6))]
-    for coordinates, near, on_set, exact in _contact_coordinates(
-        points6, contact_rad, position_m
-    ):
+    for coordinates, near, on_set, exact in _contact_coordinates(points6, contact_rad, position_m):
         # Nodes within contact_rad of each other, near the set, are one component only
         # where the fibre really reaches the set: each is linked to the exact points of
         # the set within contact_rad (set points are extra graph nodes, joined along
