@@ -71,7 +71,7 @@ def test_bench_reads_a_figure_by_its_path_with_short_configuration_names() -> No
 
 
 def test_bench_names_the_valid_choices() -> None:
-    with pytest.raises(KeyError, match=r"there are: \['iiwa14-pose'"):
+    with pytest.raises(KeyError, match=r"there are: \[.*'iiwa14-pose'"):
         run_block("bench", ["models.no-such-model.sizes"])
     with pytest.raises(FileNotFoundError, match=r"there are: .*'benchmark'"):
         run_block("bench", ["targets", "report=no-such-report"])
@@ -100,7 +100,8 @@ def test_the_speed_table_is_the_reports_medians_at_n_1000() -> None:
         assert cells[3].endswith(f": {other['median_ms']:.1f}")
         x = paper["median_ms"] / service["median_ms"]
         assert cells[4] == f"{paper['median_ms']:.1f} ({x:.1f}x)"
-        assert cells[5] == f"{row[RESTART]['median_ms']:.1f}"
+        restart = row.get(RESTART)  # none for an axis task (no restart IK leaves it free)
+        assert cells[5] == ("-" if restart is None else f"{restart['median_ms']:.1f}")
         charts = row.get(SSIK)
         assert cells[6] == (
             "-"
@@ -256,7 +257,7 @@ def test_the_verdicts_are_the_reports_judged_reasons_without_their_dicts() -> No
         "near-singular ones against the exact SMMs"
     )
     assert "recall 0.996 vs 0.998" in run_block("speed-verdicts", ["iiwa14-pose"])
-    with pytest.raises(KeyError, match=r"there are: \['iiwa14-pose'"):
+    with pytest.raises(KeyError, match=r"there are: \[.*'iiwa14-pose'"):
         run_block("speed-verdicts", ["kuka"])
 
 
@@ -326,7 +327,7 @@ def test_the_replica_example_rounds_the_pods_up() -> None:
     text = run_block("replicas-example", ["iiwa14-pose", "100"])
     pods = math.ceil(100 * t_ms("iiwa14-pose") / 1000 / (cores * target))
     assert text.endswith(f"= **{pods} pods**") and f"({cores:g} x {target:g})" in text
-    with pytest.raises(KeyError, match=r"there are: \['iiwa14-pose'"):
+    with pytest.raises(KeyError, match=r"there are: \[.*'iiwa14-pose'"):
         run_block("replicas-example", ["ur10", "10"])
 
 
