@@ -142,8 +142,14 @@ def test_the_compiled_walks_take_the_numpy_loops_steps(model: str) -> None:
     """Walks between configurations of r = 4 fibres, self-collision checked and the coaxial
     sets crossed as the service checks them: the compiled walks (`native.steer_walk`, taken
     for a serial chain without obstacles) end where the numpy loop's do (the same fibre
-    behind a plain callable), to 1e-12, and arrive alike; an expired deadline stops them
-    with the connect stage named."""
+    behind a plain callable), to 1e-10, and arrive alike; an expired deadline stops them
+    with the connect stage named.
+
+    1e-10, not the single kernels' 1e-12: a walk is up to 100 steps, each projected until
+    |e| is under 1e-4 rather than to convergence, so the last bits where C and numpy's
+    LAPACK round differently are carried from step to step to the walk's end (measured:
+    at most 1.1e-12 rad on a 2-core Intel Xeon, under 1e-12 on an AMD EPYC). A walk that
+    took a different step would end orders of magnitude farther off."""
     served = load_model(REPO_MODELS_DIR / model, threads=1)
     rng = np.random.default_rng(41)
     arrived_any = stopped_any = False
@@ -153,7 +159,7 @@ def test_the_compiled_walks_take_the_numpy_loops_steps(model: str) -> None:
         compiled = steer(space, nodes[a], nodes[b], SETTINGS)
         reference = steer(through, nodes[a], nodes[b], SETTINGS)
         assert compiled.arrived.tolist() == reference.arrived.tolist()
-        np.testing.assert_allclose(compiled.q_end_rad, reference.q_end_rad, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(compiled.q_end_rad, reference.q_end_rad, rtol=0, atol=1e-10)
         arrived_any |= bool(compiled.arrived.any())
         stopped_any |= bool((~compiled.arrived).any())
     assert arrived_any and stopped_any
