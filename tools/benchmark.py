@@ -63,9 +63,8 @@ from service.config import Settings
 from service.manifest import REPO_MODELS_DIR, Manifest
 from service.models.registry import ServedModel, load_model
 from service.pipeline.joint_space import JointLimits
-from service.pipeline.targets import fields_reached
 from service.wire import SmmRequest
-from tools.batch_benchmark import batch_against_singles
+from tools.batch_benchmark import batch_against_singles, target_of
 from tools.connect_profile import profile_connect
 from tools.connect_profile import summarise as summarise_connect
 from tools.goals import (
@@ -216,8 +215,7 @@ def over_http(
     manifest = model.manifest
     requests = []
     for i, q in enumerate(q_targets):
-        fk = model.kinematics(q[None])
-        target = fields_reached(manifest.task, fk.position_m[0], fk.rotation[0]).wire()
+        target = target_of(model, q)
         requests.append(
             SmmRequest.model_validate(
                 {"robot": manifest.robot, "task": manifest.task.name, "target": target,

@@ -47,28 +47,28 @@ def component_fields(index: int, summary: ComponentSummary, lean: bool = False) 
     return {
         "id": index,
         "size": int(summary.size),
-        "representative": _array(summary.representative_rad),
-        "configurations": _array(configurations),
-        "joint_min": _array(summary.joint_min_rad),
-        "joint_max": _array(summary.joint_max_rad),
+        "representative": floats(summary.representative_rad),
+        "configurations": floats(configurations),
+        "joint_min": floats(summary.joint_min_rad),
+        "joint_max": floats(summary.joint_max_rad),
         "max_position_error": float(summary.max_position_error_m),
         "max_orientation_error": float(summary.max_orientation_error_rad),
         "distance_to_reference": _float_or_none(summary.distance_to_reference_rad),
-        "nearest_to_reference": _array_or_none(summary.nearest_to_reference_rad),
+        "nearest_to_reference": floats_or_none(summary.nearest_to_reference_rad),
         "arc_length_rad": _float_or_none(summary.arc_length_rad),
         "closed": None if summary.closed is None else bool(summary.closed),
         "ends": None if summary.ends is None else list(summary.ends),
-        "path": None if summary.path is None or lean else _array(summary.path.q_rad),
+        "path": None if summary.path is None or lean else floats(summary.path.q_rad),
         "roadmap": None if summary.roadmap is None or lean else roadmap_fields(summary.roadmap),
         "clearance_m": _float_or_none(summary.clearance_m),
-        "safest_configuration": _array_or_none(summary.safest_rad),
+        "safest_configuration": floats_or_none(summary.safest_rad),
         "safest_clearance_m": _float_or_none(summary.safest_clearance_m),
     }
 
 
 def roadmap_fields(roadmap: ComponentRoadmap) -> Fields:
     """A roadmap as `RoadmapOut`."""
-    return {"nodes": _array(roadmap.q_rad), "edges": np.ascontiguousarray(roadmap.edges, np.int64)}
+    return {"nodes": floats(roadmap.q_rad), "edges": np.ascontiguousarray(roadmap.edges, np.int64)}
 
 
 def counts_fields(counts: SampleCounts) -> Fields:
@@ -97,12 +97,13 @@ def model_fields(model: ServedModel) -> Fields:
     }
 
 
-def _array(values: np.ndarray) -> np.ndarray:
+def floats(values: np.ndarray) -> np.ndarray:
+    """An array as orjson encodes it: C-contiguous float64."""
     return np.ascontiguousarray(values, dtype=np.float64)
 
 
-def _array_or_none(values: np.ndarray | None) -> np.ndarray | None:
-    return None if values is None else _array(values)
+def floats_or_none(values: np.ndarray | None) -> np.ndarray | None:
+    return None if values is None else floats(values)
 
 
 def _float_or_none(value: float | None) -> float | None:

@@ -16,6 +16,7 @@ from service.api.answers import (
     component_fields,
     counts_fields,
     encode,
+    floats_or_none,
     model_fields,
     roadmap_fields,
 )
@@ -107,7 +108,7 @@ def self_motion_fields(model: ServedModel, motion: SelfMotion) -> Fields:
         "status": motion.status,
         "start_component": motion.start_component,
         "goal_component": motion.goal_component,
-        "path": None if path is None else np.ascontiguousarray(path, np.float64),
+        "path": floats_or_none(path),
         "length_rad": motion.length_rad,
         "objective_value": motion.objective_value,
         "roadmap": None if roadmap is None else roadmap_fields(roadmap),

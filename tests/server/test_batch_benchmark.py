@@ -4,12 +4,11 @@ answer is caught by index."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from typing import Any
-
 from service.api.answers import encode
 from service.api.smm import smm_fields
+from service.api.smm_batch import batch_fields
 from service.models.registry import ServedModel
+from service.pipeline.batch import BatchResult
 from service.pipeline.run import run
 from service.pipeline.types import Query
 from service.wire import SmmBatchResponse, SmmResponse
@@ -35,22 +34,16 @@ def test_batch_against_singles_times_both_and_finds_the_answers_identical(
 
 def test_a_batch_answer_that_differs_from_its_single_is_named(planar3r: ServedModel) -> None:
     query = Query.for_model(planar3r.manifest, position_m=[0.5, 0.0], num_samples=100)
-    fields = smm_fields(planar3r, query, run(planar3r, query))
-    answer = SmmResponse.model_validate_json(encode(fields))
+    result = run(planar3r, query)
+    answer = SmmResponse.model_validate_json(encode(smm_fields(planar3r, query, result)))
     singles = [answer, answer.model_copy(update={"timings_ms": {"total": 2.0}})]
-
-    def batch_of(answers: Sequence[dict[str, Any] | None]) -> SmmBatchResponse:
-        results = [
-            {"index": i, "status": "ok" if a else "deadline_exceeded", "answer": a}
-            for i, a in enumerate(answers)
-        ]
-        head = {k: v for k, v in fields.items() if k not in ("status", "counts", "components")}
-        return SmmBatchResponse.model_validate_json(
-            encode({**head, "status": "complete", "results": results})
-        )
-
-    dumped = [a.model_dump(mode="json") for a in singles]
-    assert mismatched_targets(batch_of(dumped), singles) == []  # timings aside
-    dumped[1]["components"][0]["size"] += 1
-    assert mismatched_targets(batch_of(dumped), singles) == [1]
-    assert mismatched_targets(batch_of([None, dumped[1]]), singles) == [0, 1]  # 0 not answered
+    fields = batch_fields(planar3r, [query, query], BatchResult([result, result], None, 1.0))
+    batch = SmmBatchResponse.model_validate_json(encode(fields))
+    assert mismatched_targets(batch, singles) == []  # timings aside
+    changed = batch.model_copy(deep=True)
+    changed_answer = changed.results[1].answer
+    assert changed_answer is not None
+    changed_answer.components[0].size += 1
+    assert mismatched_targets(changed, singles) == [1]
+    changed.results[0].answer = None  # not answered (deadline)
+    assert mismatched_targets(changed, singles) == [0, 1]
