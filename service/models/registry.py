@@ -167,7 +167,7 @@ def load_model(model_dir: Path, threads: int) -> ServedModel:
     return ServedModel(
         manifest=manifest,
         networks={
-            name: OnnxVelocityField(open_session(model_dir / name, threads))
+            name: OnnxVelocityField.open(model_dir / name, threads)
             for name in FLOW_FILES.values()
             if name in manifest.files
         },

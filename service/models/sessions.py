@@ -6,6 +6,9 @@ kinematics.onnx: q (B, n) f64 -> position (B, 3), rotation (B, 3, 3), jacobian (
 
 from __future__ import annotations
 
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -41,9 +44,70 @@ def open_session(path: Path, threads: int) -> ort.InferenceSession:
     return ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
 
 
+# A flow call of at least this many rows runs on the session's threads, a smaller one on
+# one thread. A worker that does not spin must be woken for every call, which costs more
+# than it saves on a small call. Measured on a 2-core Intel Xeon (`python -m
+# tools.onnx_threads`): the 512-wide int8 networks (iiwa14, Panda) run faster on one
+# thread up to 384 rows (iiwa14 pose at 128 rows 0.49 against 0.73 ms) and on two from 512
+# (at 1000 rows 2.99 against 4.23 ms); the 256-wide planar 3R network gains from two only
+# from about 700 rows, but it is drawn in rounds of 128. A row's velocity is the same to
+# the bit on either (tests/service/models/test_sessions.py).
+PARALLEL_MIN_ROWS = 512
+
+
+class CallsInFlight:
+    """How many flow calls run at this moment in the process: a call that starts while
+    another runs takes one thread, since the cores are already shared (two requests at
+    once, a batch's worker threads)."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._count = 0
+
+    @contextmanager
+    def entered(self) -> Iterator[int]:
+        """Counts the caller in while the block runs; yields how many others ran."""
+        with self._lock:
+            others = self._count
+            self._count += 1
+        try:
+            yield others
+        finally:
+            with self._lock:
+                self._count -= 1
+
+
+FLOW_CALLS = CallsInFlight()
+
+
 class OnnxVelocityField:
-    def __init__(self, session: ort.InferenceSession) -> None:
-        self._session = session
+    """The flow network, on `parallel` (the session with the process's threads) for a call
+    of at least `parallel_min_rows` rows made while no other runs, else on `serial` (one
+    thread; the same session when `parallel` has one)."""
+
+    def __init__(
+        self,
+        parallel: ort.InferenceSession,
+        serial: ort.InferenceSession | None = None,
+        parallel_min_rows: int = PARALLEL_MIN_ROWS,
+    ) -> None:
+        self._parallel = parallel
+        self._serial = parallel if serial is None else serial
+        self._parallel_min_rows = parallel_min_rows
+
+    @classmethod
+    def open(cls, path: Path, threads: int) -> OnnxVelocityField:
+        """The network at `path` with `threads` intra-op threads for large calls (0: every
+        core), and a one-thread session beside it unless `threads` is 1."""
+        parallel = open_session(path, threads)
+        serial = None if threads == 1 else open_session(path, 1)
+        return cls(parallel, serial)
+
+    def session_for(self, rows: int, others_in_flight: int) -> ort.InferenceSession:
+        """The session a call of `rows` rows runs on while `others_in_flight` others run."""
+        if rows >= self._parallel_min_rows and others_in_flight == 0:
+            return self._parallel
+        return self._serial
 
     def __call__(
         self,
@@ -52,7 +116,9 @@ class OnnxVelocityField:
         condition: Float32Array,  # (B, c)
     ) -> Float32Array:  # (B, n)
         feeds = dict(zip(FLOW_INPUTS, (q_t, t, condition), strict=True))
-        (velocity,) = self._session.run([FLOW_OUTPUT], feeds)
+        with FLOW_CALLS.entered() as others:
+            session = self.session_for(len(q_t), others)
+            (velocity,) = session.run([FLOW_OUTPUT], feeds)
         return np.asarray(velocity, dtype=np.float32)
 
 

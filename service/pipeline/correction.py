@@ -23,7 +23,13 @@ from service.pipeline.native import AxisTarget
 from service.pipeline.rotations import axis_error, normal_basis, rotation_error
 from service.pipeline.rows import over_rows
 from service.pipeline.targets import Target, kernel_orientation
-from service.pipeline.types import ChainKinematics, Correction, Kinematics, KinematicsResult
+from service.pipeline.types import (
+    ChainKinematics,
+    Correction,
+    Kinematics,
+    KinematicsResult,
+    chain_of,
+)
 
 
 def dls_step(
@@ -107,8 +113,9 @@ Residual = Callable[[FloatArray], tuple[FloatArray, FloatArray]]
 def residual_of(kinematics: Kinematics, target: Target, task: TaskSpec) -> Residual:
     """q -> (e, J) of `task_error`: in one compiled pass (`native.task_residual`) where the
     kinematics is a serial chain the kernels evaluate, else through the kinematics."""
-    if isinstance(kinematics, ChainKinematics):
-        fixed, tip = kinematics.fixed, kinematics.tip
+    chain = chain_of(kinematics)
+    if chain is not None:
+        fixed, tip = chain.fixed, chain.tip
         axes, position = task.position_axes, target.position_m
         rotation = kernel_orientation(task, target)
 
@@ -248,13 +255,14 @@ def correct(
 
     residual = residual_of(kinematics, target, task)
     q = q_rad[finite]
-    if isinstance(kinematics, ChainKinematics):  # every step of a chunk's rows compiled
+    chain = chain_of(kinematics)
+    if chain is not None:  # every step of a chunk's rows compiled
         error, jacobian = residual(q)
         for first in range(0, len(q), CHUNK_ROWS):
             deadline.check("correct")
             rows = slice(first, first + CHUNK_ROWS)
             q[rows], error[rows], jacobian[rows] = compiled_newton(
-                kinematics, target, task, q[rows], error[rows], jacobian[rows], steps,
+                chain, target, task, q[rows], error[rows], jacobian[rows], steps,
                 damping, until=CONVERGED_ERROR, threads=threads,
             )  # fmt: skip
     else:

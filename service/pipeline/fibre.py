@@ -21,7 +21,7 @@ from service.pipeline import native
 from service.pipeline.arrays import BoolArray, FloatArray, IntArray
 from service.pipeline.correction import Residual, compiled_newton, dls_step, iterate, residual_of
 from service.pipeline.targets import Target
-from service.pipeline.types import ChainKinematics, Kinematics
+from service.pipeline.types import ChainKinematics, Kinematics, chain_of
 
 
 @dataclass(frozen=True)
@@ -44,10 +44,8 @@ class Fibre:
 
     @cached_property
     def chain(self) -> ChainKinematics | None:
-        """The kinematics, where the compiled kernels evaluate it themselves (checked once:
-        a Protocol's isinstance costs tens of microseconds)."""
-        kinematics = self.kinematics
-        return kinematics if isinstance(kinematics, ChainKinematics) else None
+        """The kinematics, where the compiled kernels evaluate it themselves."""
+        return chain_of(self.kinematics)
 
 
 @dataclass(frozen=True)

@@ -37,7 +37,8 @@ def free_pieces(
     cuts: list[list[tuple[IntArray, ComponentPath]] | None] = []  # its path's free runs
     for component, member_clearance in zip(components, of_members, strict=True):
         free = member_clearance >= margin_m
-        kept.append(_members(replace(component, clearance_m=member_clearance), free))
+        measured = replace(component, clearance_m=member_clearance)
+        kept.append(measured if free.all() else _members(measured, free))
         path = component.path
         cuts.append(None if path is None else _cut(space, path, next(of_paths)))
     owners = _nearest_pieces(space, kept, cuts, spacing_rad)
@@ -156,6 +157,8 @@ def _assign(
 ) -> list[Component]:
     """Components of the pieces, each with the free members `owner` gives it (-1: an
     island of its own, since no checked motion joins it to a piece)."""
+    if len(cut) == 1 and np.all(owner == 0):  # the usual case: one free piece has them all
+        return [replace(members, path=cut[0][1])]
     components = [
         replace(_members(members, owner == index), path=piece)
         for index, (_, piece) in enumerate(cut)

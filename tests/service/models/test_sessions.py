@@ -1,18 +1,34 @@
 """kinematics.onnx (planar 3R): FK equals the closed form, Jacobian equals finite differences;
-every session is opened with the threads asked and with workers that do not spin; the
-flow network (float32 and int8) gives the same velocities on one thread and on two.
+every session is opened with the threads asked and with workers that do not spin; every
+bundled flow network gives the same velocities on one thread and on two, and a call runs
+on every thread only when it is large and no other runs.
 
 The session is opened on the bundled model's kinematics.onnx directly: the registry serves
 its chain.json kernel (tests/service/models/test_chain.py), and kinematics.onnx is what
 that kernel is checked against at load and what models without chain.json are served by.
 """
 
+import json
+
 import numpy as np
 import pytest
 
-from service.manifest import FLOW_FILE, FLOW_INT8_FILE, KINEMATICS_FILE
-from service.models.sessions import OnnxKinematics, OnnxVelocityField, open_session
+from service.manifest import (
+    FLOW_FILES,
+    FLOW_INT8_FILE,
+    KINEMATICS_FILE,
+    MANIFEST_FILE,
+    REPO_MODELS_DIR,
+)
+from service.models.sessions import (
+    PARALLEL_MIN_ROWS,
+    CallsInFlight,
+    OnnxKinematics,
+    OnnxVelocityField,
+    open_session,
+)
 from tests.support.app import PLANAR3R_DIR
+from tests.support.bundled import bundled_model_ids
 from training.evaluate.references.planar3r import planar3r_jacobian, planar3r_position
 
 
@@ -58,19 +74,55 @@ def test_sessions_take_the_threads_asked_and_do_not_spin() -> None:
         assert options.get_session_config_entry(f"session.{pool}.allow_spinning") == "0"
 
 
-@pytest.mark.parametrize("flow_file", [FLOW_FILE, FLOW_INT8_FILE])
-def test_the_flow_gives_the_same_velocities_on_one_thread_and_on_two(flow_file: str) -> None:
-    """The service runs the flow on the process's cores (Settings): a request's answer must
-    not depend on how many, or the benchmark's figures would not be the served ones."""
+def _bundled_flows() -> list[tuple[str, str]]:
+    """(model id, flow file) for every flow network a bundled manifest lists."""
+    flows = []
+    for model_id in bundled_model_ids():
+        files = json.loads((REPO_MODELS_DIR / model_id / MANIFEST_FILE).read_text())["files"]
+        flows += [(model_id, name) for name in FLOW_FILES.values() if name in files]
+    return flows
+
+
+@pytest.mark.parametrize(("model_id", "flow_file"), _bundled_flows())
+def test_the_flow_gives_the_same_velocities_on_one_thread_and_on_two(
+    model_id: str, flow_file: str
+) -> None:
+    """The service runs a large flow call on the process's cores and a small one, or one
+    made while another runs, on one thread (`OnnxVelocityField.session_for`): a request's
+    answer must depend on neither, or it would change with the load and the benchmark's
+    figures would not be the served ones."""
+    path = REPO_MODELS_DIR / model_id / flow_file
+    one, two = (open_session(path, threads=threads) for threads in (1, 2))
+    n, c = (one.get_inputs()[k].shape[1] for k in (0, 2))
     rng = np.random.default_rng(2)
-    batch = 1000
-    inputs = {
-        "q_t": rng.standard_normal((batch, 3)).astype(np.float32),
-        "t": rng.uniform(0, 1, (batch, 1)).astype(np.float32),
-        "condition": rng.standard_normal((batch, 2)).astype(np.float32),
-    }
-    one, two = (
-        OnnxVelocityField(open_session(PLANAR3R_DIR / flow_file, threads=threads))
-        for threads in (1, 2)
-    )
-    np.testing.assert_array_equal(one(**inputs), two(**inputs))
+    for batch in (100, PARALLEL_MIN_ROWS, 1000):
+        inputs = {
+            "q_t": rng.standard_normal((batch, n)).astype(np.float32),
+            "t": rng.uniform(0, 1, (batch, 1)).astype(np.float32),
+            "condition": rng.standard_normal((batch, c)).astype(np.float32),
+        }
+        (v_one,), (v_two,) = (s.run(["velocity"], inputs) for s in (one, two))
+        np.testing.assert_array_equal(v_one, v_two)
+
+
+def test_a_flow_call_runs_on_every_thread_only_when_large_and_alone() -> None:
+    path = PLANAR3R_DIR / FLOW_INT8_FILE
+    flow = OnnxVelocityField.open(path, threads=2)
+    parallel, serial = (flow.session_for(PARALLEL_MIN_ROWS, 0), flow.session_for(1, 0))
+    assert parallel.get_session_options().intra_op_num_threads == 2
+    assert serial.get_session_options().intra_op_num_threads == 1
+    assert flow.session_for(PARALLEL_MIN_ROWS - 1, 0) is serial
+    assert flow.session_for(10 * PARALLEL_MIN_ROWS, 1) is serial  # another call runs
+    alone = OnnxVelocityField.open(path, threads=1)
+    assert alone.session_for(10 * PARALLEL_MIN_ROWS, 0) is alone.session_for(1, 0)
+
+
+def test_flow_calls_in_flight_are_counted_while_they_run() -> None:
+    calls = CallsInFlight()
+    with calls.entered() as first:
+        with calls.entered() as second:
+            assert (first, second) == (0, 1)
+        with calls.entered() as third:
+            assert third == 1
+    with calls.entered() as again:
+        assert again == 0

@@ -1,5 +1,6 @@
 """types: Query.for_model checks a request against its model once and fills the model's
-defaults; StageTimings reports every stage in pipeline order, then the total."""
+defaults; StageTimings reports every stage in pipeline order, then the total; chain_of
+tells a serial chain the compiled kernels evaluate as the Protocol does."""
 
 from __future__ import annotations
 
@@ -7,8 +8,17 @@ import numpy as np
 import pytest
 
 from service.errors import RequestFieldError
-from service.manifest import MANIFEST_FILE, REPO_MODELS_DIR, Manifest
-from service.pipeline.types import STAGES, TIMED_SPANS, Query, StageTimings
+from service.manifest import CHAIN_FILE, KINEMATICS_FILE, MANIFEST_FILE, REPO_MODELS_DIR, Manifest
+from service.models.chain import SerialChainKinematics
+from service.models.sessions import OnnxKinematics, open_session
+from service.pipeline.types import (
+    STAGES,
+    TIMED_SPANS,
+    ChainKinematics,
+    Query,
+    StageTimings,
+    chain_of,
+)
 
 
 def manifest_of(model_id: str) -> Manifest:
@@ -105,3 +115,13 @@ def test_stage_timings_list_every_stage_in_order_then_the_total() -> None:
     spans = timings.as_dict()
     assert tuple(spans) == TIMED_SPANS == (*STAGES, "total")
     assert list(spans.values()) == [1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 22.0]
+
+
+def test_chain_of_tells_a_serial_chain_as_the_protocol_does() -> None:
+    """`chain_of` stands in for isinstance(k, ChainKinematics): the compiled kernels take
+    the served chain.json kinematics, and kinematics.onnx goes through the network."""
+    model_dir = REPO_MODELS_DIR / "iiwa14-pose"
+    chain = SerialChainKinematics.from_file(model_dir / CHAIN_FILE)
+    onnx = OnnxKinematics(open_session(model_dir / KINEMATICS_FILE, threads=1))
+    assert chain_of(chain) is chain and isinstance(chain, ChainKinematics)
+    assert chain_of(onnx) is None and not isinstance(onnx, ChainKinematics)

@@ -1,0 +1,115 @@
+"""Time of one flow network call on one onnxruntime thread against the service's threads.
+
+    python -m tools.onnx_threads                       # every bundled model's served network
+    python -m tools.onnx_threads --models planar3r-position --rows 128 512 1000
+
+Each model's served flow network (its manifest's sampler) is opened twice as the service
+opens it (workers that do not spin): with one intra-op thread, and with the threads the
+service gives a session on this machine (`Settings`). At each row count the two take
+turns, a block of calls each per round, so a load that comes and goes falls on both
+alike. Prints the median time per call of each, which is faster, and whether the service
+runs that row count on every thread (`sessions.PARALLEL_MIN_ROWS`). Compare figures only
+within one run (the CPU differs between machines).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import numpy as np
+import onnxruntime as ort
+
+from service.config import Settings
+from service.manifest import MANIFEST_FILE, REPO_MODELS_DIR, Manifest
+from service.models.sessions import FLOW_INPUTS, PARALLEL_MIN_ROWS, open_session
+from training.machine import cpu_model
+
+DEFAULT_ROWS = (64, 128, 256, 384, 512, 640, 768, 1000, 2000)
+
+
+def block_ms(session: ort.InferenceSession, feeds: dict[str, np.ndarray], calls: int) -> float:
+    """Mean time of one call over a block of `calls` calls, in ms."""
+    start = time.perf_counter()
+    for _ in range(calls):
+        session.run(None, feeds)
+    return (time.perf_counter() - start) / calls * 1e3
+
+
+def feeds_of(session: ort.InferenceSession, rows: int, rng: np.random.Generator) -> dict:
+    """Inputs like a sampler's: q_t ~ N(0, I), t ~ U(0, 1), condition ~ U(-1, 1)."""
+    n, c = (session.get_inputs()[k].shape[1] for k in (0, 2))
+    values = (
+        rng.standard_normal((rows, n)),
+        rng.uniform(0.0, 1.0, (rows, 1)),
+        rng.uniform(-1.0, 1.0, (rows, c)),
+    )
+    return {name: v.astype(np.float32) for name, v in zip(FLOW_INPUTS, values, strict=True)}
+
+
+def measure(model_id: str, rows: list[int], threads: int, rounds: int, calls: int) -> list[dict]:
+    manifest = Manifest.model_validate_json(
+        (REPO_MODELS_DIR / model_id / MANIFEST_FILE).read_text()
+    )
+    path = REPO_MODELS_DIR / model_id / manifest.defaults.sampler.file
+    one, many = open_session(path, 1), open_session(path, threads)
+    rng = np.random.default_rng(0)
+    results = []
+    for count in rows:
+        feeds = feeds_of(one, count, rng)
+        for session in (one, many):
+            block_ms(session, feeds, 3)  # warm
+        times: dict[str, list[float]] = {"one": [], "many": []}
+        for _ in range(rounds):
+            times["one"].append(block_ms(one, feeds, calls))
+            times["many"].append(block_ms(many, feeds, calls))
+        one_ms, many_ms = (float(np.median(times[k])) for k in ("one", "many"))
+        results.append(
+            {
+                "model": model_id,
+                "network": manifest.defaults.sampler.file,
+                "rows": count,
+                "one_thread_ms": one_ms,
+                "service_threads_ms": many_ms,
+                "served_on_every_thread": count >= PARALLEL_MIN_ROWS,
+            }
+        )
+    return results
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    model_ids = sorted(p.parent.name for p in REPO_MODELS_DIR.glob(f"*/{MANIFEST_FILE}"))
+    parser.add_argument("--models", nargs="+", choices=model_ids, default=model_ids)
+    parser.add_argument("--rows", nargs="+", type=int, default=list(DEFAULT_ROWS))
+    parser.add_argument("--rounds", type=int, default=15)
+    parser.add_argument("--calls", type=int, default=10, help="calls per block")
+    parser.add_argument("--json", help="write the figures here too")
+    args = parser.parse_args()
+    threads = Settings().onnx_threads_per_session
+    results = [
+        row
+        for model_id in args.models
+        for row in measure(model_id, args.rows, threads, args.rounds, args.calls)
+    ]
+    print(f"{cpu_model()}; service threads per session: {threads}; the service runs a call")
+    print(f"of at least {PARALLEL_MIN_ROWS} rows on every thread, a smaller one on one\n")
+    print(f"| model | network | rows | 1 thread ms | {threads} threads ms | faster | served on |")
+    print("|---|---|---|---|---|---|---|")
+    for r in results:
+        faster = "1" if r["one_thread_ms"] <= r["service_threads_ms"] else str(threads)
+        served = threads if r["served_on_every_thread"] else 1
+        print(
+            f"| {r['model']} | {r['network']} | {r['rows']} | {r['one_thread_ms']:.3f} | "
+            f"{r['service_threads_ms']:.3f} | {faster} | {served} |"
+        )
+    if args.json:
+        with open(args.json, "w") as handle:
+            json.dump(
+                {"cpu": cpu_model(), "threads": threads, "results": results}, handle, indent=1
+            )
+
+
+if __name__ == "__main__":
+    main()
