@@ -16,7 +16,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from service.manifest import JointSpec
-from service.pipeline.arrays import BoolArray, FloatArray, IntArray
+from service.pipeline.arrays import BoolArray, FloatArray
 
 TWO_PI = 2.0 * np.pi
 
@@ -84,21 +84,6 @@ class JointBox:
         if not self.periodic.any():
             return cKDTree(self.points(q_rad))
         return cKDTree(self.points(q_rad), boxsize=self.box_rad)
-
-    def grouped_points(self, q_rad: FloatArray, group: IntArray, apart: float) -> FloatArray:
-        """`points` (N, n + 1) with one more coordinate, group (N,) x `apart`: points of
-        different groups are at least `apart` away from each other."""
-        return np.concatenate([self.points(q_rad), (group * apart)[:, None]], axis=1)
-
-    def grouped_tree(self, q_rad: FloatArray, group: IntArray, apart: float) -> cKDTree:
-        """`tree` over `grouped_points`: with `apart` more than any joint-metric distance in
-        the box, a query's nearest point is of its own group whenever that group has any,
-        at the distance `tree` gives."""
-        points = self.grouped_points(q_rad, group, apart)
-        if not self.periodic.any():
-            return cKDTree(points)
-        extent = (float(group.max(initial=0)) + 2.0) * apart  # the extra coordinate never wraps
-        return cKDTree(points, boxsize=np.append(self.box_rad, extent))
 
 
 @dataclass(frozen=True)

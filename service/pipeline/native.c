@@ -1319,6 +1319,31 @@ static void nearest_segment_rows(const double *q, const double *points, const lo
     }
 }
 
+/* For each query row, the nearest point of its own group (joint metric, wrapped on the
+   periodic joints): points are sorted by group, group g's rows [start[g], start[g + 1]).
+   The first of equally near points; -1 for a group with no point. */
+static void nearest_in_group_rows(const double *points, const long long *start,
+                                  const double *queries, const long long *query_group,
+                                  const unsigned char *periodic, Py_ssize_t Q, Py_ssize_t n,
+                                  long long *nearest) {
+    for (Py_ssize_t r = 0; r < Q; ++r) {
+        const double *q = queries + r * n;
+        long long g = query_group[r], which = -1;
+        double best = INFINITY;
+        for (long long i = start[g]; i < start[g + 1]; ++i) {
+            const double *p = points + i * n;
+            double total = 0.0;
+            for (Py_ssize_t j = 0; j < n; ++j) {
+                double d = q[j] - p[j];
+                if (periodic[j]) d = wrap_to_pi(d);
+                total += d * d;
+            }
+            if (total < best) best = total, which = i;
+        }
+        nearest[r] = which;
+    }
+}
+
 /* ---------------------------------------------------------------- Python entry points */
 
 static PyObject *py_chain(PyObject *self, PyObject *args) {
@@ -1755,6 +1780,21 @@ static PyObject *py_nearest_segment(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
+static PyObject *py_nearest_in_group(PyObject *self, PyObject *args) {
+    Py_buffer points, start, queries, query_group, periodic, nearest;
+    Py_ssize_t Q, n;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*nnw*", &points, &start, &queries, &query_group,
+                          &periodic, &Q, &n, &nearest))
+        return NULL;
+    Py_BEGIN_ALLOW_THREADS
+    nearest_in_group_rows(points.buf, start.buf, queries.buf, query_group.buf, periodic.buf, Q, n,
+                          nearest.buf);
+    Py_END_ALLOW_THREADS
+    Py_buffer *all[] = {&points, &start, &queries, &query_group, &periodic, &nearest};
+    for (size_t i = 0; i < sizeof all / sizeof *all; ++i) PyBuffer_Release(all[i]);
+    Py_RETURN_NONE;
+}
+
 static PyMethodDef methods[] = {
     {"chain", py_chain, METH_VARARGS,
      "chain(fixed, tip, q, n, batch, position, rotation, jacobian): serial-chain FK and Jacobian."},
@@ -1802,6 +1842,9 @@ static PyMethodDef methods[] = {
     {"nearest_segment", py_nearest_segment, METH_VARARGS,
      "nearest_segment(q, points, before, after, nearest, periodic, K, k, n, distance, point): "
      "the least distance to the path segments beside each row's nearest points."},
+    {"nearest_in_group", py_nearest_in_group, METH_VARARGS,
+     "nearest_in_group(points, start, queries, query_group, periodic, Q, n, nearest): each "
+     "query's nearest point of its own group."},
     {NULL, NULL, 0, NULL},
 };
 

@@ -839,3 +839,36 @@ def nearest_segment(
             distance, point,
         )  # fmt: skip
     return distance, point
+
+
+def nearest_in_group(
+    points_rad: FloatArray,  # (P, n) sorted by group
+    point_group: IntArray,  # (P,) ascending, each in [0, G)
+    queries_rad: FloatArray,  # (Q, n)
+    query_group: IntArray,  # (Q,) each in [0, G)
+    periodic: BoolArray,  # (n,)
+) -> IntArray:  # (Q,) row of points_rad, -1 where the query's group has no point
+    """Each query's nearest point of its own group (joint metric, wrapped on the periodic
+    joints; the first of equally near ones), by brute force within the group: a component's
+    members against its own path points, tens against hundreds, which a KD-tree over every
+    component's points answers more slowly."""
+    size, n = points_rad.shape
+    count = len(queries_rad)
+    if n > MAX_JOINTS:
+        raise ValueError(f"{n} joints; the kernel takes at most {MAX_JOINTS}")
+    groups = _int64(point_group, "point_group", (size,))
+    if size and np.any(np.diff(groups) < 0):
+        raise ValueError("point_group must be sorted ascending")
+    asked = _int64(query_group, "query_group", (count,))
+    if count and asked.min() < 0:
+        raise ValueError("query_group must be >= 0")
+    highest = max(int(groups.max(initial=-1)), int(asked.max(initial=-1)))
+    start = np.searchsorted(groups, np.arange(highest + 2)).astype(np.int64)  # (G + 1,)
+    nearest = np.full(count, -1, dtype=np.int64)
+    if count:
+        _native.nearest_in_group(
+            _float64(points_rad, "points_rad", (size, n)), start,
+            _float64(queries_rad, "queries_rad", (count, n)), asked,
+            np.ascontiguousarray(periodic, dtype=np.uint8), count, n, nearest,
+        )  # fmt: skip
+    return nearest

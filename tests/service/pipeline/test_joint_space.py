@@ -1,6 +1,5 @@
 """joint_space: angles wrap to (-pi, pi], only periodic joints are wrapped, and the KD-tree
-box (JointBox) measures the same joint metric, exactly so with no periodic joint, and its
-grouped tree finds each query's nearest point among its own group's."""
+box (JointBox) measures the same joint metric, exactly so with no periodic joint."""
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -74,32 +73,3 @@ def test_joint_box_tree_without_periodic_joints_is_exact_beyond_the_margin() -> 
     near, index_p = wide.tree(data).query(wide.points(query), k=5)
     np.testing.assert_array_equal(index_p, index_w)
     np.testing.assert_array_equal(near, near_w)
-
-
-def test_grouped_tree_finds_the_nearest_point_of_the_querys_own_group() -> None:
-    """With points in groups, the grouped tree's nearest point to a query is the nearest
-    (joint metric, brute force) among its own group's points, at the same distance where
-    that is within the box's margin (as `tree`'s), with and without periodic joints; a
-    query whose group has no point is farther than `apart` from any."""
-    rng = np.random.default_rng(5)
-    checked = 0
-    for periodic in (np.array([True, False, True]), np.array([False, False, False])):
-        points = rng.uniform(-3.0, 3.0, (3000, 3))
-        point_group = rng.integers(0, 6, 3000)
-        queries = rng.uniform(-3.0, 3.0, (200, 3))
-        query_group = rng.integers(0, 7, 200)  # group 6 has no point
-        box = JointBox.covering(np.concatenate([points, queries]), periodic, margin_rad=1.0)
-        apart = 2.0 * float(np.sqrt(np.sum(box.box_rad**2)))
-        tree = box.grouped_tree(points, point_group, apart)
-        distance, nearest = tree.query(box.grouped_points(queries, query_group, apart))
-        for i, group in enumerate(query_group):
-            mine = np.flatnonzero(point_group == group)
-            if not len(mine):
-                assert distance[i] >= apart
-                continue
-            exact = joint_distance(queries[i], points[mine], periodic)
-            assert point_group[nearest[i]] == group
-            if exact.min() <= 1.0:
-                assert abs(distance[i] - exact.min()) <= 1e-12
-                checked += 1
-    assert checked > 300

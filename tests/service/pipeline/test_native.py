@@ -25,8 +25,9 @@ least over many rows finds exactly the least. GJK between placed hulls takes con
 numpy steps (1e-12) on the robots' own hulls, the refined self-clearance at joint values
 equals robot.py's numpy passes (1e-12), and the least distance from samples to the path
 segments beside their candidate points equals the numpy segments' (1e-12) and, with every
-point a candidate, a brute force over every segment. (The trace's compiled walk is pinned in
-tests/service/pipeline/connect/test_walk.py.)
+point a candidate, a brute force over every segment; each query's nearest point of its own
+group is the brute-force argmin of the joint metric, -1 for a group with no point. (The
+trace's compiled walk is pinned in tests/service/pipeline/connect/test_walk.py.)
 """
 
 from __future__ import annotations
@@ -53,6 +54,7 @@ from service.pipeline.collision.frames import chain_frames
 from service.pipeline.collision.robot import RobotSpheres
 from service.pipeline.correction import residual_of, task_error
 from service.pipeline.fibre import Fibre, project, unit_tangent
+from service.pipeline.joint_space import joint_distance
 from service.pipeline.rotations import rotation_log
 from service.pipeline.targets import Target, kernel_orientation
 from tests.support.chains import pytorch_kinematics_answer
@@ -663,4 +665,31 @@ def test_nearest_segment_refuses_indices_out_of_range() -> None:
     with pytest.raises(ValueError, match="before and after must index the 3 points"):
         native.nearest_segment(
             np.zeros((1, 2)), points, np.array([0, 1, 5]), ends, np.array([[0]]), np.zeros(2, bool)
+        )
+
+
+@pytest.mark.parametrize("periodic", [[True, False, True], [False, False, False]])
+def test_nearest_in_group_is_the_brute_force_nearest_of_the_querys_group(
+    periodic: list[bool],
+) -> None:
+    rng = np.random.default_rng(5)
+    mask = np.array(periodic)
+    point_group = np.sort(rng.integers(0, 6, 3000))
+    points = rng.uniform(-3.0, 3.0, (3000, 3))
+    queries = rng.uniform(-3.0, 3.0, (200, 3))
+    query_group = rng.integers(0, 8, 200)  # groups 6 and 7 have no point
+    nearest = native.nearest_in_group(points, point_group, queries, query_group, mask)
+    for i, group in enumerate(query_group):
+        mine = np.flatnonzero(point_group == group)
+        if not len(mine):
+            assert nearest[i] == -1
+            continue
+        assert nearest[i] == mine[np.argmin(joint_distance(queries[i], points[mine], mask))]
+    assert (nearest >= 0).sum() > 100
+
+
+def test_nearest_in_group_refuses_unsorted_groups() -> None:
+    with pytest.raises(ValueError, match="sorted ascending"):
+        native.nearest_in_group(
+            np.zeros((2, 3)), np.array([1, 0]), np.zeros((1, 3)), np.array([0]), np.zeros(3, bool)
         )
