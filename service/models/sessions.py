@@ -47,12 +47,13 @@ def open_session(path: Path, threads: int) -> ort.InferenceSession:
 # A flow call of at least this many rows runs on the session's threads, a smaller one on
 # one thread. A worker that does not spin must be woken for every call, which costs more
 # than it saves on a small call. Measured on a 2-core Intel Xeon (`python -m
-# tools.onnx_threads`): the 512-wide int8 networks (iiwa14, Panda) run faster on one
-# thread up to 384 rows (iiwa14 pose at 128 rows 0.49 against 0.73 ms) and on two from 512
-# (at 1000 rows 2.99 against 4.23 ms); the 256-wide planar 3R network gains from two only
-# from about 700 rows, but it is drawn in rounds of 128. A row's velocity is the same to
-# the bit on either (tests/service/models/test_sessions.py).
-PARALLEL_MIN_ROWS = 512
+# tools.onnx_threads`): the 512-wide int8 networks (iiwa14, Panda) run as fast or faster
+# on one thread up to about 450 rows (iiwa14 pose at 128 rows 0.49 against 0.73 ms, at 448
+# rows 1.79 against 1.80) and faster on two from about 480 (at 1000 rows 2.99 against
+# 4.23 ms); the 256-wide planar 3R network gains from two only from about 700 rows, but it
+# is drawn in rounds of 128. A row's velocity is the same to the bit on either
+# (tests/service/models/test_sessions.py).
+PARALLEL_MIN_ROWS = 448
 
 
 class CallsInFlight:
