@@ -1344,6 +1344,95 @@ static void nearest_in_group_rows(const double *points, const long long *start,
     }
 }
 
+/* cut.py's `along`: each tangent row with the sign that points it along its direction row;
+   a row with a non-finite entry is replaced by the unit direction. */
+static void along_rows(const double *tangent, const double *direction, Py_ssize_t K, Py_ssize_t n,
+                       double *out) {
+    for (Py_ssize_t r = 0; r < K; ++r) {
+        const double *t = tangent + r * n, *d = direction + r * n;
+        double *o = out + r * n;
+        int finite = 1;
+        for (Py_ssize_t j = 0; j < n; ++j) finite &= isfinite(t[j]) != 0;
+        if (finite) {
+            for (Py_ssize_t j = 0; j < n; ++j) o[j] = t[j];
+        } else {
+            double length = norm_of(d, n);
+            for (Py_ssize_t j = 0; j < n; ++j) o[j] = d[j] / length;
+        }
+        if (dot_of(o, d, n) < 0.0)
+            for (Py_ssize_t j = 0; j < n; ++j) o[j] = -o[j];
+    }
+}
+
+/* cut.py's `hermite`: the cubic Hermite curve from p0 to p1 with end tangents t0, t1 scaled
+   by the chord length, at parameter s; its point and unit direction per row. The
+   arithmetic is numpy's, term by term, so the points are the same to the bit. */
+static void hermite_rows(const double *p0, const double *t0, const double *p1, const double *t1,
+                         const double *s, Py_ssize_t K, Py_ssize_t n, double *point,
+                         double *direction) {
+    double chord[64];
+    for (Py_ssize_t r = 0; r < K; ++r) {
+        const double *a = p0 + r * n, *b = p1 + r * n, *u = t0 + r * n, *v = t1 + r * n;
+        double *x = point + r * n, *d = direction + r * n;
+        for (Py_ssize_t j = 0; j < n; ++j) chord[j] = b[j] - a[j];
+        double length = norm_of(chord, n), sr = s[r], rr = 1.0 - sr;
+        double c1 = sr * sr * (3.0 - 2.0 * sr), c2 = length * sr * rr * rr;
+        double c3 = length * sr * sr * rr, c4 = 6.0 * sr * rr;
+        double c5 = length * rr * (1.0 - 3.0 * sr), c6 = length * sr * (3.0 * sr - 2.0);
+        for (Py_ssize_t j = 0; j < n; ++j) {
+            x[j] = a[j] + c1 * chord[j] + c2 * u[j] - c3 * v[j];
+            d[j] = c4 * chord[j] + c5 * u[j] + c6 * v[j];
+        }
+        double size = norm_of(d, n);
+        for (Py_ssize_t j = 0; j < n; ++j) d[j] = d[j] / size;
+    }
+}
+
+/* densify.py's last pass over the dense points, in place: a point Newton carried more than
+   `stray_rad` from where it was placed is out; every point into the 2 pi window from `low`
+   (numpy's mod); the `fixed` rows set to their given values (limit points, exactly on their
+   limit); inside = within the limits and not strayed, false on the `excluded` rows; then the
+   periodic joints wrapped to (-pi, pi]. */
+static double mod_two_pi(double x) {
+    double m = fmod(x, TWO_PI);
+    if (m != 0.0) {
+        if (m < 0.0) m += TWO_PI;
+    } else {
+        m = copysign(0.0, TWO_PI);
+    }
+    return m;
+}
+
+static void settle_dense_rows(double *q, const double *placed, const double *low,
+                              const double *lower, const double *upper,
+                              const unsigned char *periodic, Py_ssize_t D, Py_ssize_t n,
+                              double stray_rad, const long long *fixed_rows,
+                              const double *fixed_q, Py_ssize_t F, const long long *excluded,
+                              Py_ssize_t E, unsigned char *inside) {
+    for (Py_ssize_t r = 0; r < D; ++r) {
+        double *x = q + r * n, moved = 0.0;
+        const double *y = placed + r * n;
+        for (Py_ssize_t j = 0; j < n; ++j) {
+            double d = x[j] - y[j];
+            moved += d * d;
+        }
+        inside[r] = !(sqrt(moved) > stray_rad);
+        for (Py_ssize_t j = 0; j < n; ++j) x[j] = low[j] + mod_two_pi(x[j] - low[j]);
+    }
+    for (Py_ssize_t f = 0; f < F; ++f)
+        for (Py_ssize_t j = 0; j < n; ++j) q[fixed_rows[f] * n + j] = fixed_q[f * n + j];
+    for (Py_ssize_t r = 0; r < D; ++r) {
+        double *x = q + r * n;
+        int within = 1;
+        for (Py_ssize_t j = 0; j < n; ++j)
+            within &= periodic[j] || (x[j] >= lower[j] && x[j] <= upper[j]);
+        inside[r] = inside[r] && within;
+        for (Py_ssize_t j = 0; j < n; ++j)
+            if (periodic[j]) x[j] = wrap_to_pi(x[j]);
+    }
+    for (Py_ssize_t e = 0; e < E; ++e) inside[excluded[e]] = 0;
+}
+
 /* ---------------------------------------------------------------- Python entry points */
 
 static PyObject *py_chain(PyObject *self, PyObject *args) {
@@ -1795,6 +1884,49 @@ static PyObject *py_nearest_in_group(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
+static PyObject *py_along(PyObject *self, PyObject *args) {
+    Py_buffer tangent, direction, out;
+    Py_ssize_t K, n;
+    if (!PyArg_ParseTuple(args, "y*y*nnw*", &tangent, &direction, &K, &n, &out)) return NULL;
+    Py_BEGIN_ALLOW_THREADS
+    along_rows(tangent.buf, direction.buf, K, n, out.buf);
+    Py_END_ALLOW_THREADS
+    PyBuffer_Release(&tangent), PyBuffer_Release(&direction), PyBuffer_Release(&out);
+    Py_RETURN_NONE;
+}
+
+static PyObject *py_hermite(PyObject *self, PyObject *args) {
+    Py_buffer p0, t0, p1, t1, s, point, direction;
+    Py_ssize_t K, n;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*nnw*w*", &p0, &t0, &p1, &t1, &s, &K, &n, &point,
+                          &direction))
+        return NULL;
+    Py_BEGIN_ALLOW_THREADS
+    hermite_rows(p0.buf, t0.buf, p1.buf, t1.buf, s.buf, K, n, point.buf, direction.buf);
+    Py_END_ALLOW_THREADS
+    Py_buffer *all[] = {&p0, &t0, &p1, &t1, &s, &point, &direction};
+    for (size_t i = 0; i < sizeof all / sizeof *all; ++i) PyBuffer_Release(all[i]);
+    Py_RETURN_NONE;
+}
+
+static PyObject *py_settle_dense(PyObject *self, PyObject *args) {
+    Py_buffer q, placed, low, lower, upper, periodic, fixed_rows, fixed_q, excluded, inside;
+    Py_ssize_t D, n, F, E;
+    double stray_rad;
+    if (!PyArg_ParseTuple(args, "w*y*y*y*y*y*nndy*y*ny*nw*", &q, &placed, &low, &lower, &upper,
+                          &periodic, &D, &n, &stray_rad, &fixed_rows, &fixed_q, &F, &excluded,
+                          &E, &inside))
+        return NULL;
+    Py_BEGIN_ALLOW_THREADS
+    settle_dense_rows(q.buf, placed.buf, low.buf, lower.buf, upper.buf, periodic.buf, D, n,
+                      stray_rad, fixed_rows.buf, fixed_q.buf, F, excluded.buf, E, inside.buf);
+    Py_END_ALLOW_THREADS
+    Py_buffer *all[] = {&q,         &placed,  &low,      &lower, &upper,
+                        &periodic,  &fixed_rows, &fixed_q, &excluded, &inside};
+    for (size_t i = 0; i < sizeof all / sizeof *all; ++i) PyBuffer_Release(all[i]);
+    Py_RETURN_NONE;
+}
+
 static PyMethodDef methods[] = {
     {"chain", py_chain, METH_VARARGS,
      "chain(fixed, tip, q, n, batch, position, rotation, jacobian): serial-chain FK and Jacobian."},
@@ -1842,6 +1974,13 @@ static PyMethodDef methods[] = {
     {"nearest_segment", py_nearest_segment, METH_VARARGS,
      "nearest_segment(q, points, before, after, nearest, periodic, K, k, n, distance, point): "
      "the least distance to the path segments beside each row's nearest points."},
+    {"along", py_along, METH_VARARGS,
+     "along(tangent, direction, K, n, out): each tangent signed along its direction."},
+    {"hermite", py_hermite, METH_VARARGS,
+     "hermite(p0, t0, p1, t1, s, K, n, point, direction): cubic Hermite points and directions."},
+    {"settle_dense", py_settle_dense, METH_VARARGS,
+     "settle_dense(q, placed, low, lower, upper, periodic, D, n, stray_rad, fixed_rows, "
+     "fixed_q, F, excluded, E, inside): densify's window, limits and wrap, in place."},
     {"nearest_in_group", py_nearest_in_group, METH_VARARGS,
      "nearest_in_group(points, start, queries, query_group, periodic, Q, n, nearest): each "
      "query's nearest point of its own group."},

@@ -872,3 +872,80 @@ def nearest_in_group(
             np.ascontiguousarray(periodic, dtype=np.uint8), count, n, nearest,
         )  # fmt: skip
     return nearest
+
+
+def along(tangent: FloatArray, direction: FloatArray) -> FloatArray:  # (K, n) -> (K, n)
+    """Each tangent with the sign that points it along `direction`; where the tangent is
+    not finite (a rank-deficient Jacobian), the unit direction itself."""
+    count, n = direction.shape
+    if n > MAX_JOINTS:
+        raise ValueError(f"{n} joints; the kernel takes at most {MAX_JOINTS}")
+    out = np.empty((count, n))
+    if count:
+        _native.along(
+            _float64(tangent, "tangent", (count, n)), _float64(direction, "direction", (count, n)),
+            count, n, out,
+        )  # fmt: skip
+    return out
+
+
+def hermite(
+    p0: FloatArray,  # (K, n)
+    t0: FloatArray,  # (K, n) unit tangent at p0, pointing toward p1
+    p1: FloatArray,  # (K, n)
+    t1: FloatArray,  # (K, n) unit tangent at p1, pointing away from p0
+    s: FloatArray,  # (K,) in [0, 1]
+) -> tuple[FloatArray, FloatArray]:  # (K, n) points, (K, n) unit directions of the curve
+    """The cubic Hermite curve from p0 to p1 with end tangents t0, t1 scaled by the chord
+    length, at parameter s: off a smooth curve by O(L^4) where the chord is off by O(L^2)
+    (the trace's guesses between its points, connect/trace/)."""
+    count, n = p0.shape
+    if n > MAX_JOINTS:
+        raise ValueError(f"{n} joints; the kernel takes at most {MAX_JOINTS}")
+    point, direction = np.empty((count, n)), np.empty((count, n))
+    if count:
+        _native.hermite(
+            _float64(p0, "p0", (count, n)), _float64(t0, "t0", (count, n)),
+            _float64(p1, "p1", (count, n)), _float64(t1, "t1", (count, n)),
+            _float64(s, "s", (count,)), count, n, point, direction,
+        )  # fmt: skip
+    return point, direction
+
+
+def settle_dense(
+    q_rad: FloatArray,  # (D, n) the dense points after Newton
+    placed_rad: FloatArray,  # (D, n) where each was placed before
+    window_low_rad: FloatArray,  # (n,)
+    lower_rad: FloatArray,  # (n,)
+    upper_rad: FloatArray,  # (n,)
+    periodic: BoolArray,  # (n,)
+    stray_rad: float,
+    fixed_rows: IntArray,  # (F,) rows set to `fixed_rad` once in the window
+    fixed_rad: FloatArray,  # (F, n)
+    excluded_rows: IntArray,  # (E,) rows never inside
+) -> tuple[FloatArray, BoolArray]:  # (D, n) wrapped, (D,) inside
+    """densify.py's last pass: each point into the 2 pi window from `window_low_rad`, the
+    fixed rows set, then inside = within the limits, not carried more than `stray_rad`
+    from where it was placed and not excluded; the periodic joints wrapped."""
+    count, n = q_rad.shape
+    fixed, excluded = (
+        _int64(fixed_rows, "fixed_rows", (len(fixed_rows),)),
+        _int64(excluded_rows, "excluded_rows", (len(excluded_rows),)),
+    )
+    for name, rows in (("fixed_rows", fixed), ("excluded_rows", excluded)):
+        if len(rows) and (rows.min() < 0 or rows.max() >= count):
+            raise ValueError(f"{name} must index the {count} points")
+    q = np.array(q_rad, dtype=np.float64, order="C")  # (D, n) a copy, settled in place
+    inside = np.zeros(count, dtype=np.uint8)
+    if count:
+        _native.settle_dense(
+            q, _float64(placed_rad, "placed_rad", (count, n)),
+            *(_float64(v, name, (n,)) for v, name in (
+                (window_low_rad, "window_low_rad"), (lower_rad, "lower_rad"),
+                (upper_rad, "upper_rad"),
+            )),
+            np.ascontiguousarray(periodic, dtype=np.uint8), count, n, float(stray_rad),
+            fixed, _float64(fixed_rad, "fixed_rad", (len(fixed), n)), len(fixed),
+            excluded, len(excluded), inside,
+        )  # fmt: skip
+    return q, inside.astype(bool)

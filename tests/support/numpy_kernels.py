@@ -2,8 +2,9 @@
 reference they are pinned to (tests/service/pipeline/test_native.py): the serial chain's
 FK and Jacobian (batch-last frames, cos and sin from tan(q / 2)), and the DLS step by
 LAPACK's batched solve; every URDF joint frame (Rodrigues' formula on whole columns),
-the least sphere gap of self-collision (two passes over padded arrays) and the distance
-from samples to the path segments beside their nearest path points.
+the least sphere gap of self-collision (two passes over padded arrays), the distance
+from samples to the path segments beside their nearest path points, and the trace's
+tangent signs, cubic Hermite guesses and last pass over its dense points.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ from service.manifest import ChainSpec
 from service.models.chain import SerialChainKinematics, _z_to_axis
 from service.pipeline.arrays import BoolArray, FloatArray, IntArray
 from service.pipeline.collision.robot import PlacedBodies, RobotSpheres
-from service.pipeline.joint_space import joint_difference
+from service.pipeline.joint_space import joint_difference, wrap_to_pi
 from service.pipeline.types import KinematicsResult
 
 CHUNK = 4096
@@ -273,3 +274,63 @@ def segment_distance(
         np.einsum("kcn,kcn->kc", offset, along) / np.maximum(length2, 1e-300), 0.0, 1.0
     )
     return np.linalg.norm(offset - fraction[..., None] * along, axis=2)
+
+
+def along(tangent: FloatArray, direction: FloatArray) -> FloatArray:  # (K, n) -> (K, n)
+    """Each tangent with the sign that points it along `direction`; where the tangent is
+    not finite (a rank-deficient Jacobian), the unit direction itself."""
+    if not np.isfinite(tangent).all():
+        with np.errstate(invalid="ignore", divide="ignore"):
+            unit = direction / np.linalg.norm(direction, axis=1, keepdims=True)
+        tangent = np.where(np.all(np.isfinite(tangent), axis=1, keepdims=True), tangent, unit)
+    return np.where(np.einsum("kn,kn->k", tangent, direction)[:, None] < 0.0, -tangent, tangent)
+
+
+def hermite(
+    p0: FloatArray,  # (K, n)
+    t0: FloatArray,  # (K, n) unit tangent at p0, pointing toward p1
+    p1: FloatArray,  # (K, n)
+    t1: FloatArray,  # (K, n) unit tangent at p1, pointing away from p0
+    s: FloatArray,  # (K,) in [0, 1]
+) -> tuple[FloatArray, FloatArray]:  # (K, n) points, (K, n) unit directions of the curve
+    """The cubic Hermite curve from p0 to p1 with end tangents t0, t1 scaled by the chord
+    length, at parameter s: off a smooth curve by O(L^4) where the chord is off by O(L^2)."""
+    chord = p1 - p0  # (K, n)
+    length = np.linalg.norm(chord, axis=1, keepdims=True)  # (K, 1)
+    s = s[:, None]
+    r = 1.0 - s
+    point = (
+        p0
+        + (s * s * (3.0 - 2.0 * s)) * chord
+        + (length * s * r * r) * t0
+        - (length * s * s * r) * t1
+    )
+    direction = (
+        (6.0 * s * r) * chord
+        + (length * r * (1.0 - 3.0 * s)) * t0
+        + (length * s * (3.0 * s - 2.0)) * t1
+    )
+    with np.errstate(invalid="ignore"):
+        direction = direction / np.linalg.norm(direction, axis=1, keepdims=True)
+    return point, direction
+
+
+def settle_dense(
+    q_rad: FloatArray,
+    placed_rad: FloatArray,
+    window_low_rad: FloatArray,
+    lower_rad: FloatArray,
+    upper_rad: FloatArray,
+    periodic: BoolArray,
+    stray_rad: float,
+    fixed_rows: IntArray,
+    fixed_rad: FloatArray,
+    excluded_rows: IntArray,
+) -> tuple[FloatArray, BoolArray]:
+    """densify.py's last pass as numpy steps (native.settle_dense)."""
+    strayed = np.linalg.norm(q_rad - placed_rad, axis=1) > stray_rad
+    q = window_low_rad + np.mod(q_rad - window_low_rad, 2.0 * np.pi)
+    q[fixed_rows] = fixed_rad
+    inside = np.all(periodic | ((q >= lower_rad) & (q <= upper_rad)), axis=1) & ~strayed
+    inside[excluded_rows] = False
+    return np.where(periodic, wrap_to_pi(q), q), inside

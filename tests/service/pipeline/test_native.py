@@ -26,8 +26,10 @@ numpy steps (1e-12) on the robots' own hulls, the refined self-clearance at join
 equals robot.py's numpy passes (1e-12), and the least distance from samples to the path
 segments beside their candidate points equals the numpy segments' (1e-12) and, with every
 point a candidate, a brute force over every segment; each query's nearest point of its own
-group is the brute-force argmin of the joint metric, -1 for a group with no point. (The
-trace's compiled walk is pinned in tests/service/pipeline/connect/test_walk.py.)
+group is the brute-force argmin of the joint metric, -1 for a group with no point. The
+trace's tangent signs, Hermite guesses and last pass over its dense points equal the numpy
+steps bitwise. (The trace's compiled walk is pinned in
+tests/service/pipeline/connect/test_walk.py.)
 """
 
 from __future__ import annotations
@@ -59,11 +61,14 @@ from service.pipeline.rotations import rotation_log
 from service.pipeline.targets import Target, kernel_orientation
 from tests.support.chains import pytorch_kinematics_answer
 from tests.support.numpy_kernels import NumpyChainKinematics, NumpyStepsKinematics
+from tests.support.numpy_kernels import along as numpy_along
 from tests.support.numpy_kernels import chain_frames as numpy_chain_frames
 from tests.support.numpy_kernels import dls_step as numpy_dls_step
+from tests.support.numpy_kernels import hermite as numpy_hermite
 from tests.support.numpy_kernels import nearest_segment as numpy_nearest_segment
 from tests.support.numpy_kernels import segment_distance as numpy_segment_distance
 from tests.support.numpy_kernels import self_clearance_m as numpy_self_clearance_m
+from tests.support.numpy_kernels import settle_dense as numpy_settle_dense
 from training.evaluate.targets import uniform_configurations
 
 MODELS = ["iiwa14-pose", "panda-pose", "planar3r-position"]
@@ -693,3 +698,48 @@ def test_nearest_in_group_refuses_unsorted_groups() -> None:
         native.nearest_in_group(
             np.zeros((2, 3)), np.array([1, 0]), np.zeros((1, 3)), np.array([0]), np.zeros(3, bool)
         )
+
+
+@pytest.mark.parametrize("n", [3, 7])
+def test_the_traces_hermite_guesses_and_tangent_signs_are_numpys_to_the_bit(n: int) -> None:
+    """Steps like the trace's (0.1 rad chords anywhere on three turns), unit end tangents
+    of either sign, one row in seven with a NaN tangent: `along` and `hermite` give the
+    numpy steps' values bitwise, so the trace's answers did not move."""
+    rng = np.random.default_rng(8)
+    count = 4000
+    p0 = rng.uniform(-3 * np.pi, 3 * np.pi, (count, n))
+    p1 = p0 + rng.normal(0.0, 0.1, (count, n))
+    t0, t1 = (rng.normal(size=(count, n)) for _ in range(2))
+    t0, t1 = (t / np.linalg.norm(t, axis=1, keepdims=True) for t in (t0, t1))
+    s = rng.uniform(0.0, 1.0, count)
+    for compiled, reference in zip(
+        native.hermite(p0, t0, p1, t1, s), numpy_hermite(p0, t0, p1, t1, s), strict=True
+    ):
+        np.testing.assert_array_equal(compiled, reference)
+    broken = t0.copy()
+    broken[::7, 1] = np.nan
+    for tangent in (t0, broken):
+        np.testing.assert_array_equal(native.along(tangent, p1 - p0), numpy_along(tangent, p1 - p0))
+    assert np.all(np.einsum("kn,kn->k", native.along(broken, p1 - p0), p1 - p0) >= 0)
+
+
+def test_the_dense_points_are_settled_as_the_numpy_steps_settle_them() -> None:
+    """Points over several turns, some carried far from where they were placed, limited
+    and periodic joints, fixed and excluded rows: the same windowed and wrapped values and
+    the same inside flags as numpy's mod, limits and wrap, bitwise."""
+    rng = np.random.default_rng(9)
+    count, n = 3000, 7
+    q = rng.uniform(-8.0, 8.0, (count, n))
+    placed = q + rng.normal(0.0, 0.03, (count, n))
+    low = np.where(np.arange(n) % 2 == 0, -np.pi, -2.0)
+    lower, upper = np.full(n, -2.5), np.full(n, 2.5)
+    periodic = np.arange(n) % 3 == 0
+    fixed_rows, excluded = np.array([3, 10, 11]), np.array([5, 10])
+    fixed = rng.uniform(-2.0, 2.0, (3, n))
+    args = (q, placed, low, lower, upper, periodic, 0.05, fixed_rows, fixed, excluded)
+    settled, inside = native.settle_dense(*args)
+    expected_q, expected_inside = numpy_settle_dense(*args)
+    np.testing.assert_array_equal(settled, expected_q)
+    np.testing.assert_array_equal(inside, expected_inside)
+    assert 0 < inside.sum() < count and not inside[10]
+    np.testing.assert_array_equal(settled[fixed_rows[:2]][:, ~periodic], fixed[:2][:, ~periodic])

@@ -17,6 +17,7 @@ from service.pipeline.connect.trace.points import (
 )
 from service.pipeline.fibre import Fibre, project, unit_tangent
 from service.pipeline.joint_space import TWO_PI, JointLimits
+from service.pipeline.native import along, hermite
 
 
 def window_low(limits: JointLimits) -> FloatArray:
@@ -171,45 +172,6 @@ class Steps:
             start_tangent=along(tangents[:, :-1].reshape(delta.shape), delta),
             end_tangent=along(tangents[:, 1:].reshape(delta.shape), delta),
         )
-
-
-def along(tangent: FloatArray, direction: FloatArray) -> FloatArray:  # (K, n) -> (K, n)
-    """Each tangent with the sign that points it along `direction`; where the tangent is
-    not finite (a rank-deficient Jacobian), the unit direction itself."""
-    if not np.isfinite(tangent).all():
-        with np.errstate(invalid="ignore", divide="ignore"):
-            unit = direction / np.linalg.norm(direction, axis=1, keepdims=True)
-        tangent = np.where(np.all(np.isfinite(tangent), axis=1, keepdims=True), tangent, unit)
-    return np.where(np.einsum("kn,kn->k", tangent, direction)[:, None] < 0.0, -tangent, tangent)
-
-
-def hermite(
-    p0: FloatArray,  # (K, n)
-    t0: FloatArray,  # (K, n) unit tangent at p0, pointing toward p1
-    p1: FloatArray,  # (K, n)
-    t1: FloatArray,  # (K, n) unit tangent at p1, pointing away from p0
-    s: FloatArray,  # (K,) in [0, 1]
-) -> tuple[FloatArray, FloatArray]:  # (K, n) points, (K, n) unit directions of the curve
-    """The cubic Hermite curve from p0 to p1 with end tangents t0, t1 scaled by the chord
-    length, at parameter s: off a smooth curve by O(L^4) where the chord is off by O(L^2)."""
-    chord = p1 - p0  # (K, n)
-    length = np.linalg.norm(chord, axis=1, keepdims=True)  # (K, 1)
-    s = s[:, None]
-    r = 1.0 - s
-    point = (
-        p0
-        + (s * s * (3.0 - 2.0 * s)) * chord
-        + (length * s * r * r) * t0
-        - (length * s * s * r) * t1
-    )
-    direction = (
-        (6.0 * s * r) * chord
-        + (length * r * (1.0 - 3.0 * s)) * t0
-        + (length * s * (3.0 * s - 2.0)) * t1
-    )
-    with np.errstate(invalid="ignore"):
-        direction = direction / np.linalg.norm(direction, axis=1, keepdims=True)
-    return point, direction
 
 
 def chord_meets_box(

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from service.pipeline import native
 from service.pipeline.arrays import BoolArray, FloatArray, IntArray
 from service.pipeline.connect.trace.cut import Run, along, hermite, to_window, window_low
 from service.pipeline.connect.trace.points import (
@@ -16,7 +17,7 @@ from service.pipeline.connect.trace.points import (
     torus_difference,
 )
 from service.pipeline.fibre import Fibre, Projection, evaluate, newton, project, unit_tangent
-from service.pipeline.joint_space import JointLimits, wrap_to_pi
+from service.pipeline.joint_space import JointLimits
 
 
 @dataclass(frozen=True)
@@ -96,14 +97,16 @@ def densify(
     error[layout.offset] = nodes.error[node.row]  # the limit points' (the others are set next)
     moved_rows = np.concatenate([layout.offset[moving_node], layout.between])
     q[moved_rows], error[moved_rows] = moved.q_rad, moved.error
-    # A point that Newton carried away from its place on the path is left out.
-    strayed = np.linalg.norm(q - placed, axis=1) > 0.5 * settings.path_spacing_rad
-    q = to_window(q, low)
-    # A limit point as refined, on its limit exactly (not through its run's coordinates).
-    q[layout.offset[limit_node]] = found_window[node.row[limit_node] - len(evaluated)]
-    inside = limits.contains(q) & ~strayed
-    inside[layout.offset[repeated]] = False
-    q = np.where(limits.periodic, wrap_to_pi(q), q)
+    # Into the window, a limit point as refined (on its limit exactly, not through its
+    # run's coordinates); left out: a point past a limit, one Newton carried away from its
+    # place on the path, the closing repeat of a closed run.
+    q, inside = native.settle_dense(
+        q, placed, low, limits.lower_rad, limits.upper_rad, limits.periodic,
+        stray_rad=0.5 * settings.path_spacing_rad,
+        fixed_rows=layout.offset[limit_node],
+        fixed_rad=found_window[node.row[limit_node] - len(evaluated)],
+        excluded_rows=layout.offset[repeated],
+    )  # fmt: skip
     bounds = np.searchsorted(node.run[layout.segment], np.arange(len(runs) + 1))
     pieces = []
     for r, run in enumerate(runs):
