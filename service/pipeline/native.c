@@ -1433,6 +1433,135 @@ static void settle_dense_rows(double *q, const double *placed, const double *low
     for (Py_ssize_t e = 0; e < E; ++e) inside[excluded[e]] = 0;
 }
 
+/* strands.py's closest approach of two strands of the traced fibre: the least joint-metric
+   distance, at most `within_rad`, between points of two different curves, or of one curve
+   but more than `strand_arc` apart along it (the shorter way round a closed one); +inf
+   when none. Curve c is rows [first[c], first[c + 1]) of `points`. Every step, arc and
+   distance is summed in numpy's order, so the answer is the numpy one to the bit.
+
+   Candidate pairs come from a grid on the two embedded coordinates (a limited joint, or the
+   cosine or sine of a periodic one) that spread the points most: two points within
+   `within_rad` differ by no more in either. The points are sorted by their column of width
+   w >= `within_rad` in the first and by the second within it; a point is paired with the
+   later points of its column and those of the next within `within_rad` in the second.
+   `work`: 2 P doubles; `order`: P; `curve_of`: P; `column`: P + 2. */
+typedef struct {
+    double x, y; /* the two coordinates */
+    long long cell, row;
+} Gridded;
+
+static int by_cell(const void *a, const void *b) {
+    const Gridded *u = a, *v = b;
+    if (u->cell != v->cell) return (u->cell > v->cell) - (u->cell < v->cell);
+    return (u->y > v->y) - (u->y < v->y);
+}
+
+static double joint_distance_row(const double *a, const double *b, const unsigned char *periodic,
+                                 Py_ssize_t n) {
+    double sum = 0.0;
+    for (Py_ssize_t j = 0; j < n; ++j) {
+        double d = a[j] - b[j];
+        if (periodic[j]) d = wrap_to_pi(d);
+        sum += d * d;
+    }
+    return sqrt(sum);
+}
+
+/* Coordinate e of the embedding: joint j itself, or the cosine (t = 1) or sine (t = 2). */
+static double embedded(const double *q, Py_ssize_t j, int t) {
+    return t == 0 ? q[j] : (t == 1 ? cos(q[j]) : sin(q[j]));
+}
+
+static double closest_strands(const double *points, Py_ssize_t P, Py_ssize_t n,
+                              const long long *first, Py_ssize_t C, const unsigned char *closed,
+                              const unsigned char *periodic, double within_rad,
+                              double strand_arc, double *work, Gridded *order,
+                              long long *curve_of, long long *column) {
+    double *arc = work, *total = work + P;
+    for (Py_ssize_t c = 0; c < C; ++c) {
+        long long a = first[c], b = first[c + 1];
+        double s = 0.0;
+        for (long long i = a; i < b; ++i) {
+            if (i > a) s += joint_distance_row(points + i * n, points + (i - 1) * n, periodic, n);
+            arc[i] = s, curve_of[i] = c;
+        }
+        double closing = 0.0;
+        if (closed[c] && b > a)
+            closing = joint_distance_row(points + a * n, points + (b - 1) * n, periodic, n);
+        for (long long i = a; i < b; ++i) total[i] = s + closing;
+    }
+    if (P < 2 || !(within_rad >= 0.0)) return INFINITY;
+    /* The two embedded coordinates of widest spread. */
+    double spread[2] = {-1.0, -1.0}, low[2] = {0.0, 0.0};
+    Py_ssize_t joint[2] = {0, 0};
+    int trig[2] = {0, 0};
+    for (Py_ssize_t j = 0; j < n; ++j) {
+        for (int t = 0; t < (periodic[j] ? 2 : 1); ++t) {
+            int kind = periodic[j] ? 1 + t : 0;
+            double lo = INFINITY, hi = -INFINITY;
+            for (Py_ssize_t i = 0; i < P; ++i) {
+                double v = embedded(points + i * n, j, kind);
+                lo = v < lo ? v : lo, hi = v > hi ? v : hi;
+            }
+            double width = hi - lo;
+            if (width > spread[0]) {
+                spread[1] = spread[0], joint[1] = joint[0], trig[1] = trig[0], low[1] = low[0];
+                spread[0] = width, joint[0] = j, trig[0] = kind, low[0] = lo;
+            } else if (width > spread[1]) {
+                spread[1] = width, joint[1] = j, trig[1] = kind, low[1] = lo;
+            }
+        }
+    }
+    if (spread[1] < 0.0) joint[1] = joint[0], trig[1] = trig[0]; /* one coordinate only */
+    double w = within_rad > spread[0] / (double)P ? within_rad : spread[0] / (double)P;
+    long long cells = 1;
+    for (Py_ssize_t i = 0; i < P; ++i) {
+        const double *q = points + i * n;
+        double x = embedded(q, joint[0], trig[0]);
+        long long cell = isfinite(w) && w > 0.0 ? (long long)floor((x - low[0]) / w) : 0;
+        cell = cell < 0 ? 0 : (cell > P ? P : cell);
+        order[i] = (Gridded){x, embedded(q, joint[1], trig[1]), cell, i};
+        cells = cell + 1 > cells ? cell + 1 : cells;
+    }
+    qsort(order, (size_t)P, sizeof *order, by_cell);
+    for (long long c = 0; c <= cells; ++c) column[c] = P;
+    for (Py_ssize_t u = P - 1; u >= 0; --u) column[order[u].cell] = u;
+    for (long long c = cells - 1; c >= 0; --c)
+        if (column[c] > column[c + 1]) column[c] = column[c + 1];
+    double best = INFINITY;
+    for (Py_ssize_t u = 0; u < P; ++u) {
+        const Gridded *g = order + u;
+        long long a = g->row;
+        for (int next = 0; next < 2; ++next) {
+            long long c = g->cell + next;
+            if (c >= cells) break;
+            Py_ssize_t v = next ? column[c] : u + 1, end = column[c + 1];
+            if (next) { /* the first of the next column within reach in y: binary search */
+                Py_ssize_t lo = v, hi = end;
+                while (lo < hi) {
+                    Py_ssize_t mid = lo + (hi - lo) / 2;
+                    if (order[mid].y < g->y - within_rad) lo = mid + 1; else hi = mid;
+                }
+                v = lo;
+            }
+            for (; v < end; ++v) {
+                const Gridded *h = order + v;
+                if (!(h->y - g->y <= within_rad)) break;
+                if (!(fabs(h->x - g->x) <= within_rad)) continue;
+                long long b = h->row;
+                if (curve_of[a] == curve_of[b]) {
+                    double d = fabs(arc[a] - arc[b]);
+                    if (closed[curve_of[a]]) d = d < total[a] - d ? d : total[a] - d;
+                    if (!(d > strand_arc)) continue;
+                }
+                double distance = joint_distance_row(points + a * n, points + b * n, periodic, n);
+                if (distance <= within_rad && distance < best) best = distance;
+            }
+        }
+    }
+    return best;
+}
+
 /* ---------------------------------------------------------------- Python entry points */
 
 static PyObject *py_chain(PyObject *self, PyObject *args) {
@@ -1927,6 +2056,27 @@ static PyObject *py_settle_dense(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
+static PyObject *py_closest_strands(PyObject *self, PyObject *args) {
+    Py_buffer points, first, closed, periodic, work, curve_of, column;
+    Py_ssize_t P, n, C;
+    double within_rad, strand_arc, best = INFINITY;
+    if (!PyArg_ParseTuple(args, "y*nny*ny*y*ddw*w*w*", &points, &P, &n, &first, &C, &closed,
+                          &periodic, &within_rad, &strand_arc, &work, &curve_of, &column))
+        return NULL;
+    Gridded *order = PyMem_RawMalloc((size_t)(P > 0 ? P : 1) * sizeof *order);
+    if (order != NULL) {
+        Py_BEGIN_ALLOW_THREADS
+        best = closest_strands(points.buf, P, n, first.buf, C, closed.buf, periodic.buf,
+                               within_rad, strand_arc, work.buf, order, curve_of.buf, column.buf);
+        Py_END_ALLOW_THREADS
+        PyMem_RawFree(order);
+    }
+    Py_buffer *all[] = {&points, &first, &closed, &periodic, &work, &curve_of, &column};
+    for (size_t i = 0; i < sizeof all / sizeof *all; ++i) PyBuffer_Release(all[i]);
+    if (order == NULL) return PyErr_NoMemory();
+    return PyFloat_FromDouble(best);
+}
+
 static PyMethodDef methods[] = {
     {"chain", py_chain, METH_VARARGS,
      "chain(fixed, tip, q, n, batch, position, rotation, jacobian): serial-chain FK and Jacobian."},
@@ -1981,6 +2131,9 @@ static PyMethodDef methods[] = {
     {"settle_dense", py_settle_dense, METH_VARARGS,
      "settle_dense(q, placed, low, lower, upper, periodic, D, n, stray_rad, fixed_rows, "
      "fixed_q, F, excluded, E, inside): densify's window, limits and wrap, in place."},
+    {"closest_strands", py_closest_strands, METH_VARARGS,
+     "closest_strands(points, P, n, first, C, closed, periodic, within_rad, strand_arc, work, "
+     "curve_of, column) -> the least distance between two strands of the traced curves."},
     {"nearest_in_group", py_nearest_in_group, METH_VARARGS,
      "nearest_in_group(points, start, queries, query_group, periodic, Q, n, nearest): each "
      "query's nearest point of its own group."},

@@ -949,3 +949,34 @@ def settle_dense(
             excluded, len(excluded), inside,
         )  # fmt: skip
     return q, inside.astype(bool)
+
+
+def closest_strands(
+    points_rad: FloatArray,  # (P, n) every curve's points in order, curve after curve
+    first: IntArray,  # (C + 1,) curve c is rows first[c] to first[c + 1]
+    closed: BoolArray,  # (C,)
+    periodic: BoolArray,  # (n,)
+    within_rad: float,
+    strand_arc_rad: float,
+) -> float:
+    """The least joint-metric distance, at most `within_rad`, between points of two curves
+    or of one curve more than `strand_arc_rad` apart along it (the shorter way round a
+    closed one); inf when none (connect/trace/strands.py says what for)."""
+    size, n = points_rad.shape
+    bounds = _int64(first, "first", (len(first),))
+    count = len(bounds) - 1
+    if count < 0 or bounds[0] != 0 or bounds[-1] != size or np.any(np.diff(bounds) < 0):
+        raise ValueError(f"first must rise from 0 to the {size} points")
+    if n > MAX_JOINTS:
+        raise ValueError(f"{n} joints; the kernel takes at most {MAX_JOINTS}")
+    loops = np.ascontiguousarray(closed, dtype=np.uint8)
+    if loops.shape != (count,):
+        raise ValueError(f"closed must have one flag per curve ({count}), got {loops.shape}")
+    return float(
+        _native.closest_strands(
+            _float64(points_rad, "points_rad", (size, n)), size, n, bounds, count, loops,
+            np.ascontiguousarray(periodic, dtype=np.uint8), float(within_rad),
+            float(strand_arc_rad), np.empty(2 * max(size, 1)), np.empty(max(size, 1), np.int64),
+            np.empty(size + 2, np.int64),
+        )
+    )  # fmt: skip

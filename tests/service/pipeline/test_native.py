@@ -28,7 +28,7 @@ segments beside their candidate points equals the numpy segments' (1e-12) and, w
 point a candidate, a brute force over every segment; each query's nearest point of its own
 group is the brute-force argmin of the joint metric, -1 for a group with no point. The
 trace's tangent signs, Hermite guesses and last pass over its dense points equal the numpy
-steps bitwise. (The trace's compiled walk is pinned in
+steps bitwise. (The trace's compiled walk and closest approach of two strands are pinned in
 tests/service/pipeline/connect/test_walk.py.)
 """
 
