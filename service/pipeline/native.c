@@ -1562,6 +1562,42 @@ static double closest_strands(const double *points, Py_ssize_t P, Py_ssize_t n,
     return best;
 }
 
+/* cut.py's test of which trace steps the refinement splits: a step from `start` by `delta`
+   (unwrapped like its curve), read in the 2 pi window from `low`, with neither end inside
+   the limits, whose chord, the limits widened by a quarter of its length (how far a curve
+   bends off its chord in a step), passes through the box: the slab test over the limited
+   joints, NaN as numpy carries it (no step). */
+static double nan_min(double x, double y) { return x != x || y != y ? NAN : (x < y ? x : y); }
+static double nan_max(double x, double y) { return x != x || y != y ? NAN : (x > y ? x : y); }
+
+static void steps_near_limits_rows(const double *start, const double *delta, const double *low,
+                                   const double *lower, const double *upper,
+                                   const unsigned char *periodic, Py_ssize_t S, Py_ssize_t n,
+                                   unsigned char *split) {
+    for (Py_ssize_t r = 0; r < S; ++r) {
+        const double *x = start + r * n, *d = delta + r * n;
+        double margin = 0.25 * norm_of(d, n), entry = -INFINITY, leave = INFINITY;
+        int inside_a = 1, inside_b = 1;
+        for (Py_ssize_t j = 0; j < n; ++j) {
+            double a = low[j] + mod_two_pi(x[j] - low[j]), b = a + d[j];
+            inside_a &= periodic[j] || (a >= lower[j] && a <= upper[j]);
+            inside_b &= periodic[j] || (b >= lower[j] && b <= upper[j]);
+            if (periodic[j]) continue;
+            double lo = lower[j] - margin, hi = upper[j] + margin, step = b - a;
+            double in, out;
+            if (step == 0.0) {
+                int within = a >= lo && a <= hi;
+                in = within ? -INFINITY : INFINITY, out = within ? INFINITY : -INFINITY;
+            } else {
+                double t1 = (lo - a) / step, t2 = (hi - a) / step;
+                in = nan_min(t1, t2), out = nan_max(t1, t2);
+            }
+            entry = nan_max(entry, in), leave = nan_min(leave, out);
+        }
+        split[r] = entry <= leave && leave >= 0.0 && entry <= 1.0 && !inside_a && !inside_b;
+    }
+}
+
 /* ---------------------------------------------------------------- Python entry points */
 
 static PyObject *py_chain(PyObject *self, PyObject *args) {
@@ -2077,6 +2113,21 @@ static PyObject *py_closest_strands(PyObject *self, PyObject *args) {
     return PyFloat_FromDouble(best);
 }
 
+static PyObject *py_steps_near_limits(PyObject *self, PyObject *args) {
+    Py_buffer start, delta, low, lower, upper, periodic, split;
+    Py_ssize_t S, n;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*nnw*", &start, &delta, &low, &lower, &upper,
+                          &periodic, &S, &n, &split))
+        return NULL;
+    Py_BEGIN_ALLOW_THREADS
+    steps_near_limits_rows(start.buf, delta.buf, low.buf, lower.buf, upper.buf, periodic.buf, S, n,
+                           split.buf);
+    Py_END_ALLOW_THREADS
+    Py_buffer *all[] = {&start, &delta, &low, &lower, &upper, &periodic, &split};
+    for (size_t i = 0; i < sizeof all / sizeof *all; ++i) PyBuffer_Release(all[i]);
+    Py_RETURN_NONE;
+}
+
 static PyMethodDef methods[] = {
     {"chain", py_chain, METH_VARARGS,
      "chain(fixed, tip, q, n, batch, position, rotation, jacobian): serial-chain FK and Jacobian."},
@@ -2134,6 +2185,9 @@ static PyMethodDef methods[] = {
     {"closest_strands", py_closest_strands, METH_VARARGS,
      "closest_strands(points, P, n, first, C, closed, periodic, within_rad, strand_arc, work, "
      "curve_of, column) -> the least distance between two strands of the traced curves."},
+    {"steps_near_limits", py_steps_near_limits, METH_VARARGS,
+     "steps_near_limits(start, delta, low, lower, upper, periodic, S, n, split): the trace "
+     "steps whose chord may pass through the limits unseen."},
     {"nearest_in_group", py_nearest_in_group, METH_VARARGS,
      "nearest_in_group(points, start, queries, query_group, periodic, Q, n, nearest): each "
      "query's nearest point of its own group."},

@@ -980,3 +980,29 @@ def closest_strands(
             np.empty(size + 2, np.int64),
         )
     )  # fmt: skip
+
+
+def steps_near_limits(
+    start_rad: FloatArray,  # (S, n) unwrapped like its curve
+    delta_rad: FloatArray,  # (S, n) to the step's end
+    window_low_rad: FloatArray,  # (n,)
+    lower_rad: FloatArray,  # (n,)
+    upper_rad: FloatArray,  # (n,)
+    periodic: BoolArray,  # (n,)
+) -> BoolArray:  # (S,)
+    """Which trace steps may pass through the joint limits unseen: read in the 2 pi window
+    from `window_low_rad`, neither end inside the limits, and the chord passes through the
+    limit box widened by a quarter of its length (connect/trace/cut.py)."""
+    count, n = start_rad.shape
+    split = np.zeros(count, dtype=np.uint8)
+    if count:
+        _native.steps_near_limits(
+            _float64(start_rad, "start_rad", (count, n)),
+            _float64(delta_rad, "delta_rad", (count, n)),
+            *(_float64(v, name, (n,)) for v, name in (
+                (window_low_rad, "window_low_rad"), (lower_rad, "lower_rad"),
+                (upper_rad, "upper_rad"),
+            )),
+            np.ascontiguousarray(periodic, dtype=np.uint8), count, n, split,
+        )  # fmt: skip
+    return split.astype(bool)

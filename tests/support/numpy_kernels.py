@@ -4,7 +4,8 @@ FK and Jacobian (batch-last frames, cos and sin from tan(q / 2)), and the DLS st
 LAPACK's batched solve; every URDF joint frame (Rodrigues' formula on whole columns),
 the least sphere gap of self-collision (two passes over padded arrays), the distance
 from samples to the path segments beside their nearest path points, and the trace's
-tangent signs, cubic Hermite guesses and last pass over its dense points.
+tangent signs, cubic Hermite guesses, choice of the steps to refine near the limits and
+last pass over its dense points.
 """
 
 from __future__ import annotations
@@ -334,3 +335,39 @@ def settle_dense(
     inside = np.all(periodic | ((q >= lower_rad) & (q <= upper_rad)), axis=1) & ~strayed
     inside[excluded_rows] = False
     return np.where(periodic, wrap_to_pi(q), q), inside
+
+
+def chord_meets_box(
+    a: FloatArray, b: FloatArray, lower: FloatArray, upper: FloatArray, periodic: BoolArray
+) -> BoolArray:  # (S,)
+    """Whether each segment a -> b (S, n) passes through the box (slab test, limited joints)."""
+    d = b - a
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t1 = (lower - a) / d
+        t2 = (upper - a) / d
+    entry = np.where(
+        d == 0, np.where((a >= lower) & (a <= upper), -np.inf, np.inf), np.minimum(t1, t2)
+    )
+    leave = np.where(
+        d == 0, np.where((a >= lower) & (a <= upper), np.inf, -np.inf), np.maximum(t1, t2)
+    )
+    entry = np.where(periodic, -np.inf, entry).max(axis=1)
+    leave = np.where(periodic, np.inf, leave).min(axis=1)
+    return (entry <= leave) & (leave >= 0.0) & (entry <= 1.0)
+
+
+def steps_near_limits(
+    start_rad: FloatArray,
+    delta_rad: FloatArray,
+    window_low_rad: FloatArray,
+    lower_rad: FloatArray,
+    upper_rad: FloatArray,
+    periodic: BoolArray,
+) -> BoolArray:
+    """cut.py's choice of the steps to split as numpy steps (native.steps_near_limits)."""
+    a = window_low_rad + np.mod(start_rad - window_low_rad, 2.0 * np.pi)
+    b = a + delta_rad
+    inside = [np.all(periodic | ((x >= lower_rad) & (x <= upper_rad)), axis=1) for x in (a, b)]
+    margin = 0.25 * np.linalg.norm(delta_rad, axis=1, keepdims=True)
+    meets = chord_meets_box(a, b, lower_rad - margin, upper_rad + margin, periodic)
+    return meets & ~inside[0] & ~inside[1]

@@ -27,9 +27,9 @@ equals robot.py's numpy passes (1e-12), and the least distance from samples to t
 segments beside their candidate points equals the numpy segments' (1e-12) and, with every
 point a candidate, a brute force over every segment; each query's nearest point of its own
 group is the brute-force argmin of the joint metric, -1 for a group with no point. The
-trace's tangent signs, Hermite guesses and last pass over its dense points equal the numpy
-steps bitwise. (The trace's compiled walk and closest approach of two strands are pinned in
-tests/service/pipeline/connect/test_walk.py.)
+trace's tangent signs, Hermite guesses, choice of the steps to refine near the limits and
+last pass over its dense points equal the numpy steps bitwise. (The trace's compiled walk
+and closest approach of two strands are pinned in tests/service/pipeline/connect/.)
 """
 
 from __future__ import annotations
@@ -69,6 +69,7 @@ from tests.support.numpy_kernels import nearest_segment as numpy_nearest_segment
 from tests.support.numpy_kernels import segment_distance as numpy_segment_distance
 from tests.support.numpy_kernels import self_clearance_m as numpy_self_clearance_m
 from tests.support.numpy_kernels import settle_dense as numpy_settle_dense
+from tests.support.numpy_kernels import steps_near_limits as numpy_steps_near_limits
 from training.evaluate.targets import uniform_configurations
 
 MODELS = ["iiwa14-pose", "panda-pose", "planar3r-position"]
@@ -743,3 +744,22 @@ def test_the_dense_points_are_settled_as_the_numpy_steps_settle_them() -> None:
     np.testing.assert_array_equal(inside, expected_inside)
     assert 0 < inside.sum() < count and not inside[10]
     np.testing.assert_array_equal(settled[fixed_rows[:2]][:, ~periodic], fixed[:2][:, ~periodic])
+
+
+def test_the_steps_refined_near_the_limits_are_the_numpy_slab_tests() -> None:
+    """Trace steps anywhere on three turns (some of zero length, some NaN), limited and
+    periodic joints: the compiled choice of the steps to split is the numpy window, limits
+    and slab test's, step for step; both pick steps and leave others."""
+    rng = np.random.default_rng(11)
+    count, n = 20000, 7
+    start = rng.uniform(-3 * np.pi, 3 * np.pi, (count, n))
+    delta = rng.normal(0.0, 0.3, (count, n))
+    delta[::50] = 0.0
+    start[::97, 2] = np.nan
+    low = np.where(np.arange(n) % 2 == 0, -np.pi, -2.0)
+    lower, upper = np.full(n, -1.5), np.full(n, 1.5)
+    periodic = np.arange(n) == 3
+    args = (start, delta, low, lower, upper, periodic)
+    split = native.steps_near_limits(*args)
+    np.testing.assert_array_equal(split, numpy_steps_near_limits(*args))
+    assert 0 < split.sum() < count

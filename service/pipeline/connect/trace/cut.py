@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from service.pipeline import native
 from service.pipeline.arrays import BoolArray, FloatArray, IntArray
 from service.pipeline.connect.trace.points import (
     Curve,
@@ -57,13 +58,11 @@ def refine_near_limits(
     added_key: list[FloatArray] = []  # place in the loop: its step's first point + fraction
     fraction = np.arange(1, pieces) / pieces  # (p - 1,)
     for _ in range(rounds):
-        a = to_window(steps.start, low)  # (C, n)
-        b = a + steps.delta
-        inside_a, inside_b = limits.contains(a), limits.contains(b)
-        # A curve bends off its chord by ~kappa L^2 / 8: a margin of L / 4 per step.
-        margin = 0.25 * np.linalg.norm(steps.delta, axis=1, keepdims=True)  # (C, 1)
-        meets = chord_meets_box(a, b, lower_rad - margin, upper_rad + margin, periodic)
-        steps = steps.take(meets & ~inside_a & ~inside_b)
+        # Both ends outside, the chord through the box widened by a margin of L / 4 per
+        # step (a curve bends off its chord by ~kappa L^2 / 8), by the slab test (compiled).
+        steps = steps.take(
+            native.steps_near_limits(steps.start, steps.delta, low, lower_rad, upper_rad, periodic)
+        )
         if not len(steps.loop):
             break
         count = len(steps.loop)
@@ -172,25 +171,6 @@ class Steps:
             start_tangent=along(tangents[:, :-1].reshape(delta.shape), delta),
             end_tangent=along(tangents[:, 1:].reshape(delta.shape), delta),
         )
-
-
-def chord_meets_box(
-    a: FloatArray, b: FloatArray, lower: FloatArray, upper: FloatArray, periodic: BoolArray
-) -> BoolArray:  # (S,)
-    """Whether each segment a -> b (S, n) passes through the box (slab test, limited joints)."""
-    d = b - a
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t1 = (lower - a) / d
-        t2 = (upper - a) / d
-    entry = np.where(
-        d == 0, np.where((a >= lower) & (a <= upper), -np.inf, np.inf), np.minimum(t1, t2)
-    )
-    leave = np.where(
-        d == 0, np.where((a >= lower) & (a <= upper), np.inf, -np.inf), np.maximum(t1, t2)
-    )
-    entry = np.where(periodic, -np.inf, entry).max(axis=1)
-    leave = np.where(periodic, np.inf, leave).min(axis=1)
-    return (entry <= leave) & (leave >= 0.0) & (entry <= 1.0)
 
 
 @dataclass(frozen=True)
