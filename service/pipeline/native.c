@@ -1598,6 +1598,83 @@ static void steps_near_limits_rows(const double *start, const double *delta, con
     }
 }
 
+/* Each query's k nearest points (joint metric, wrapped on the periodic joints), nearest
+   first, the lower row first among equally near ones; fewer than k points give -1 after
+   them. The points are binned on a grid over the two embedded coordinates (a limited
+   joint, or the cosine or sine of a periodic one) that spread the points and queries most,
+   cells about six points each; a query looks at rings of cells around its own until the
+   k-th nearest so far is no farther than the ring's reach (a point beyond it differs by
+   more than that in one of the two coordinates, hence in the metric). */
+typedef struct {
+    Py_ssize_t joint;
+    int kind; /* 0: the joint, 1: its cosine, 2: its sine */
+    double low, width;
+    long long cells;
+} Axis;
+
+static long long cell_of(const Axis *axis, const double *q) {
+    double v = embedded(q, axis->joint, axis->kind), at = floor((v - axis->low) / axis->width);
+    if (!(at >= 0.0)) return 0; /* below, or NaN */
+    if (at >= (double)axis->cells) return axis->cells - 1;
+    long long c = (long long)at;
+    return c < 0 ? 0 : (c >= axis->cells ? axis->cells - 1 : c);
+}
+
+static void nearest_points_rows(const double *points, Py_ssize_t P, const double *queries,
+                                Py_ssize_t K, const unsigned char *periodic, Py_ssize_t n,
+                                Py_ssize_t k, long long *out, long long *cell_start,
+                                long long *binned, long long *cell_point, Axis *axes) {
+    long long cells = axes[0].cells * axes[1].cells;
+    for (long long c = 0; c <= cells; ++c) cell_start[c] = 0;
+    for (Py_ssize_t i = 0; i < P; ++i) {
+        const double *q = points + i * n;
+        cell_point[i] = cell_of(axes, q) * axes[1].cells + cell_of(axes + 1, q);
+        cell_start[cell_point[i] + 1] += 1;
+    }
+    for (long long c = 0; c < cells; ++c) cell_start[c + 1] += cell_start[c];
+    for (Py_ssize_t i = 0; i < P; ++i) binned[cell_start[cell_point[i]]++] = i;
+    for (long long c = cells; c > 0; --c) cell_start[c] = cell_start[c - 1];
+    cell_start[0] = 0;
+    double reach_step = axes[0].width < axes[1].width ? axes[0].width : axes[1].width;
+    long long widest = axes[0].cells > axes[1].cells ? axes[0].cells : axes[1].cells;
+    for (Py_ssize_t r = 0; r < K; ++r) {
+        const double *q = queries + r * n;
+        long long *best = out + r * k;
+        double best_d[64];
+        Py_ssize_t found = 0;
+        long long cx = cell_of(axes, q), cy = cell_of(axes + 1, q);
+        for (long long ring = 0; ring <= widest; ++ring) {
+            for (long long x = cx - ring; x <= cx + ring; ++x) {
+                if (x < 0 || x >= axes[0].cells) continue;
+                int edge_x = x == cx - ring || x == cx + ring;
+                for (long long y = cy - ring; y <= cy + ring; ++y) {
+                    if (y < 0 || y >= axes[1].cells) continue;
+                    if (!edge_x && y != cy - ring && y != cy + ring) continue;
+                    long long c = x * axes[1].cells + y;
+                    for (long long t = cell_start[c]; t < cell_start[c + 1]; ++t) {
+                        long long i = binned[t];
+                        double d = joint_distance_row(q, points + i * n, periodic, n);
+                        /* insert (d, i) into the sorted best list, ties by lower row */
+                        Py_ssize_t at = found;
+                        while (at > 0 && (best_d[at - 1] > d ||
+                                          (best_d[at - 1] == d && best[at - 1] > i)))
+                            --at;
+                        if (at >= k) continue;
+                        Py_ssize_t last = found < k ? found : k - 1;
+                        for (Py_ssize_t m = last; m > at; --m)
+                            best_d[m] = best_d[m - 1], best[m] = best[m - 1];
+                        best_d[at] = d, best[at] = i;
+                        if (found < k) ++found;
+                    }
+                }
+            }
+            /* Unseen points lie more than ring x width away in one coordinate. */
+            if (found == k && best_d[k - 1] <= (double)ring * reach_step) break;
+        }
+        for (Py_ssize_t m = found; m < k; ++m) best[m] = -1;
+    }
+}
+
 /* ---------------------------------------------------------------- Python entry points */
 
 static PyObject *py_chain(PyObject *self, PyObject *args) {
@@ -2128,6 +2205,58 @@ static PyObject *py_steps_near_limits(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
+static Axis axis_of(const double *points, Py_ssize_t P, const double *queries, Py_ssize_t K,
+                    Py_ssize_t n, Py_ssize_t joint, int kind) {
+    double lo = INFINITY, hi = -INFINITY;
+    for (Py_ssize_t i = 0; i < P + K; ++i) {
+        const double *q = i < P ? points + i * n : queries + (i - P) * n;
+        double v = embedded(q, joint, kind);
+        if (v == v) lo = v < lo ? v : lo, hi = v > hi ? v : hi;
+    }
+    Axis axis = {joint, kind, isfinite(lo) ? lo : 0.0, hi - lo, 1};
+    return axis;
+}
+
+static PyObject *py_nearest_points(PyObject *self, PyObject *args) {
+    Py_buffer points, queries, periodic, out;
+    Py_ssize_t P, K, n, k;
+    if (!PyArg_ParseTuple(args, "y*ny*ny*nnw*", &points, &P, &queries, &K, &periodic, &n, &k, &out))
+        return NULL;
+    const double *pts = points.buf, *qs = queries.buf;
+    const unsigned char *per = periodic.buf;
+    /* The two embedded coordinates of widest spread over the points and queries. */
+    Axis axes[2] = {{0, 0, 0.0, -1.0, 1}, {0, 0, 0.0, -1.0, 1}};
+    for (Py_ssize_t j = 0; j < n; ++j)
+        for (int t = 0; t < (per[j] ? 2 : 1); ++t) {
+            Axis a = axis_of(pts, P, qs, K, n, j, per[j] ? 1 + t : 0);
+            if (!(a.width <= axes[0].width)) axes[1] = axes[0], axes[0] = a;
+            else if (!(a.width <= axes[1].width)) axes[1] = a;
+        }
+    if (axes[1].width < 0.0) axes[1] = axes[0];
+    /* Cells of about six points each: side sqrt(area x 6 / P), at most P cells per axis. */
+    double area = axes[0].width * axes[1].width, side = sqrt(area * 6.0 / (double)(P > 0 ? P : 1));
+    for (int a = 0; a < 2; ++a) {
+        double width = axes[a].width;
+        long long cells = side > 0.0 && isfinite(side) ? (long long)ceil(width / side) : 1;
+        cells = cells < 1 ? 1 : (cells > P ? (P > 0 ? P : 1) : cells);
+        axes[a].cells = cells;
+        axes[a].width = width > 0.0 && isfinite(width) ? width / (double)cells : INFINITY;
+    }
+    long long cells = axes[0].cells * axes[1].cells;
+    long long *scratch = PyMem_RawMalloc((size_t)(cells + 1 + 2 * (P > 0 ? P : 1)) * sizeof *scratch);
+    if (scratch != NULL) {
+        Py_BEGIN_ALLOW_THREADS
+        nearest_points_rows(pts, P, qs, K, per, n, k, out.buf, scratch, scratch + cells + 1,
+                            scratch + cells + 1 + (P > 0 ? P : 1), axes);
+        Py_END_ALLOW_THREADS
+        PyMem_RawFree(scratch);
+    }
+    PyBuffer_Release(&points), PyBuffer_Release(&queries), PyBuffer_Release(&periodic);
+    PyBuffer_Release(&out);
+    if (scratch == NULL) return PyErr_NoMemory();
+    Py_RETURN_NONE;
+}
+
 static PyMethodDef methods[] = {
     {"chain", py_chain, METH_VARARGS,
      "chain(fixed, tip, q, n, batch, position, rotation, jacobian): serial-chain FK and Jacobian."},
@@ -2188,6 +2317,9 @@ static PyMethodDef methods[] = {
     {"steps_near_limits", py_steps_near_limits, METH_VARARGS,
      "steps_near_limits(start, delta, low, lower, upper, periodic, S, n, split): the trace "
      "steps whose chord may pass through the limits unseen."},
+    {"nearest_points", py_nearest_points, METH_VARARGS,
+     "nearest_points(points, P, queries, K, periodic, n, k, out): each query's k nearest "
+     "points, nearest first."},
     {"nearest_in_group", py_nearest_in_group, METH_VARARGS,
      "nearest_in_group(points, start, queries, query_group, periodic, Q, n, nearest): each "
      "query's nearest point of its own group."},

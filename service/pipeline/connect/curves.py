@@ -295,10 +295,7 @@ def owner_path(
     closed = np.array([p.closed for p in paths])
     before[first] = np.where(closed, last, first)  # ... along each path (a loop wraps)
     after[last] = np.where(closed, first, last)
-    box = limits.box(np.concatenate([points, q_rad]), margin_rad=1.0)
-    k = min(candidates, len(points))
-    _, nearest = box.tree(points).query(box.points(q_rad), k=k)  # (K, k)
-    nearest = nearest.reshape(len(q_rad), k)
+    nearest = native.nearest_points(points, q_rad, limits.periodic, min(candidates, len(points)))
     distance, point = native.nearest_segment(q_rad, points, before, after, nearest, limits.periodic)
     on_path = distance <= within_rad  # (K,)
     owner[on_path] = which[point[on_path]]

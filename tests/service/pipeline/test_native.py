@@ -26,7 +26,8 @@ numpy steps (1e-12) on the robots' own hulls, the refined self-clearance at join
 equals robot.py's numpy passes (1e-12), and the least distance from samples to the path
 segments beside their candidate points equals the numpy segments' (1e-12) and, with every
 point a candidate, a brute force over every segment; each query's nearest point of its own
-group is the brute-force argmin of the joint metric, -1 for a group with no point. The
+group is the brute-force argmin of the joint metric, -1 for a group with no point, and its k
+nearest points are the brute-force order. The
 trace's tangent signs, Hermite guesses, choice of the steps to refine near the limits and
 last pass over its dense points equal the numpy steps bitwise. (The trace's compiled walk
 and closest approach of two strands are pinned in tests/service/pipeline/connect/.)
@@ -763,3 +764,23 @@ def test_the_steps_refined_near_the_limits_are_the_numpy_slab_tests() -> None:
     split = native.steps_near_limits(*args)
     np.testing.assert_array_equal(split, numpy_steps_near_limits(*args))
     assert 0 < split.sum() < count
+
+
+@pytest.mark.parametrize("n", [2, 3, 7])
+def test_nearest_points_are_the_brute_force_nearest_in_order(n: int) -> None:
+    """Random walks as paths (some joints periodic, wrapped), queries beside them and far
+    off, fewer points than asked for: each query's k nearest points are the brute-force
+    joint-metric order (the lower row first among equally near), -1 past the last point."""
+    rng = np.random.default_rng(12 + n)
+    for _ in range(40):
+        periodic = rng.uniform(size=n) < 0.4
+        size, count = int(rng.integers(1, 600)), int(rng.integers(1, 150))
+        walk = np.cumsum(rng.normal(0.0, 0.05, (size, n)), axis=0) + rng.uniform(-3, 3, n)
+        points = np.where(periodic, np.mod(walk + np.pi, 2 * np.pi) - np.pi, walk)
+        queries = points[rng.integers(0, size, count)]
+        queries = queries + rng.normal(0.0, float(rng.choice([0.01, 0.5])), (count, n))
+        nearest = native.nearest_points(points, queries, periodic, 4)
+        distance = np.stack([joint_distance(q, points, periodic) for q in queries])
+        expected = np.argsort(distance, axis=1, kind="stable")[:, :4]
+        np.testing.assert_array_equal(nearest[:, : min(4, size)], expected)
+        assert np.all(nearest[:, size:] == -1)
