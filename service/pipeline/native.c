@@ -1456,12 +1456,16 @@ static int by_cell(const void *a, const void *b) {
     return (u->y > v->y) - (u->y < v->y);
 }
 
+/* wrap_to_pi, with no division for |angle| < 3 (there ceil((angle - pi) / 2 pi) is 0, so the
+   formula gives the angle itself, to the bit). */
+static double wrap_near(double angle) { return fabs(angle) < 3.0 ? angle : wrap_to_pi(angle); }
+
 static double joint_distance_row(const double *a, const double *b, const unsigned char *periodic,
                                  Py_ssize_t n) {
     double sum = 0.0;
     for (Py_ssize_t j = 0; j < n; ++j) {
         double d = a[j] - b[j];
-        if (periodic[j]) d = wrap_to_pi(d);
+        if (periodic[j]) d = wrap_near(d);
         sum += d * d;
     }
     return sqrt(sum);
@@ -1600,30 +1604,49 @@ static void steps_near_limits_rows(const double *start, const double *delta, con
 
 /* Each query's k nearest points (joint metric, wrapped on the periodic joints), nearest
    first, the lower row first among equally near ones; fewer than k points give -1 after
-   them. The points are binned on a grid over the two embedded coordinates (a limited
-   joint, or the cosine or sine of a periodic one) that spread the points and queries most,
-   cells about six points each; a query looks at rings of cells around its own until the
-   k-th nearest so far is no farther than the ring's reach (a point beyond it differs by
-   more than that in one of the two coordinates, hence in the metric). */
+   them. The points are binned on a grid over two joints (those that spread the points and
+   queries most; a periodic joint's cells go round its circle), about 4 P cells; a query looks at rings of cells around its own until the k-th nearest so far is no
+   farther than the ring's reach (a point beyond it differs by more than that in one of
+   the two joints, hence in the metric), or past FAR_RINGS rings measures every point. */
 typedef struct {
     Py_ssize_t joint;
-    int kind; /* 0: the joint, 1: its cosine, 2: its sine */
+    int periodic;
     double low, width;
     long long cells;
 } Axis;
 
+static double axis_value(const Axis *axis, const double *q) {
+    double v = q[axis->joint];
+    return axis->periodic ? wrap_to_pi(v) : v;
+}
+
 static long long cell_of(const Axis *axis, const double *q) {
-    double v = embedded(q, axis->joint, axis->kind), at = floor((v - axis->low) / axis->width);
+    double at = floor((axis_value(axis, q) - axis->low) / axis->width);
     if (!(at >= 0.0)) return 0; /* below, or NaN */
     if (at >= (double)axis->cells) return axis->cells - 1;
-    long long c = (long long)at;
-    return c < 0 ? 0 : (c >= axis->cells ? axis->cells - 1 : c);
+    return (long long)at;
 }
+
+/* The cell `offset` cells from `from` along the axis, -1 where there is none at exactly that
+   distance (off a limited axis, or round a periodic one to a nearer cell). */
+static long long cell_at(const Axis *axis, long long from, long long offset) {
+    if (!axis->periodic) {
+        long long c = from + offset;
+        return c < 0 || c >= axis->cells ? -1 : c;
+    }
+    long long span = offset < 0 ? -offset : offset;
+    if (2 * span > axis->cells || (2 * span == axis->cells && offset < 0 && span > 0)) return -1;
+    return ((from + offset) % axis->cells + axis->cells) % axis->cells;
+}
+
+/* Rings of cells a query searches before it measures every point instead: beyond them the
+   rings are mostly empty cells, and a far query is cheaper taken point by point. */
+#define FAR_RINGS 4
 
 static void nearest_points_rows(const double *points, Py_ssize_t P, const double *queries,
                                 Py_ssize_t K, const unsigned char *periodic, Py_ssize_t n,
                                 Py_ssize_t k, long long *out, long long *cell_start,
-                                long long *binned, long long *cell_point, Axis *axes) {
+                                long long *binned, long long *cell_point, const Axis *axes) {
     long long cells = axes[0].cells * axes[1].cells;
     for (long long c = 0; c <= cells; ++c) cell_start[c] = 0;
     for (Py_ssize_t i = 0; i < P; ++i) {
@@ -1636,20 +1659,31 @@ static void nearest_points_rows(const double *points, Py_ssize_t P, const double
     for (long long c = cells; c > 0; --c) cell_start[c] = cell_start[c - 1];
     cell_start[0] = 0;
     double reach_step = axes[0].width < axes[1].width ? axes[0].width : axes[1].width;
-    long long widest = axes[0].cells > axes[1].cells ? axes[0].cells : axes[1].cells;
+    long long rings = axes[0].cells > axes[1].cells ? axes[0].cells : axes[1].cells;
     for (Py_ssize_t r = 0; r < K; ++r) {
         const double *q = queries + r * n;
         long long *best = out + r * k;
         double best_d[64];
         Py_ssize_t found = 0;
         long long cx = cell_of(axes, q), cy = cell_of(axes + 1, q);
-        for (long long ring = 0; ring <= widest; ++ring) {
-            for (long long x = cx - ring; x <= cx + ring; ++x) {
-                if (x < 0 || x >= axes[0].cells) continue;
-                int edge_x = x == cx - ring || x == cx + ring;
-                for (long long y = cy - ring; y <= cy + ring; ++y) {
-                    if (y < 0 || y >= axes[1].cells) continue;
-                    if (!edge_x && y != cy - ring && y != cy + ring) continue;
+        for (long long ring = 0; ring <= rings; ++ring) {
+            /* The ring's cells along y: every one on its edges in x, its two ends between. */
+            long long ys[2 * FAR_RINGS + 1], ends[2];
+            Py_ssize_t count = 0;
+            for (long long dy = -ring; dy <= ring && ring <= FAR_RINGS; ++dy) {
+                long long y = cell_at(axes + 1, cy, dy);
+                if (y >= 0) ys[count++] = y;
+            }
+            ends[0] = cell_at(axes + 1, cy, -ring), ends[1] = ring ? cell_at(axes + 1, cy, ring) : -1;
+            for (long long dx = -ring; dx <= ring; ++dx) {
+                long long x = cell_at(axes, cx, dx);
+                if (x < 0) continue;
+                int edge = dx == -ring || dx == ring;
+                const long long *row = edge ? ys : ends;
+                Py_ssize_t across = edge ? count : 2;
+                for (Py_ssize_t e = 0; e < across; ++e) {
+                    long long y = row[e];
+                    if (y < 0) continue;
                     long long c = x * axes[1].cells + y;
                     for (long long t = cell_start[c]; t < cell_start[c + 1]; ++t) {
                         long long i = binned[t];
@@ -1668,8 +1702,34 @@ static void nearest_points_rows(const double *points, Py_ssize_t P, const double
                     }
                 }
             }
-            /* Unseen points lie more than ring x width away in one coordinate. */
+            /* Unseen points lie more than ring x width away in one joint. */
             if (found == k && best_d[k - 1] <= (double)ring * reach_step) break;
+            if (ring == FAR_RINGS) { /* far from every point: all of them, one by one */
+                found = 0;
+                for (long long i = 0; i < P; ++i) {
+                    /* A point whose partial sum already passes the k-th nearest is out. */
+                    const double *x = points + i * n;
+                    double bound = found == k ? best_d[k - 1] * best_d[k - 1] * (1.0 + 1e-9) : INFINITY;
+                    double sum = 0.0;
+                    Py_ssize_t j = 0;
+                    for (; j < n && !(sum > bound); ++j) {
+                        double e = q[j] - x[j];
+                        if (periodic[j]) e = wrap_near(e);
+                        sum += e * e;
+                    }
+                    if (j < n) continue;
+                    double d = sqrt(sum);
+                    Py_ssize_t at = found;
+                    while (at > 0 && best_d[at - 1] > d) --at; /* rows come in order */
+                    if (at >= k) continue;
+                    Py_ssize_t last = found < k ? found : k - 1;
+                    for (Py_ssize_t m = last; m > at; --m)
+                        best_d[m] = best_d[m - 1], best[m] = best[m - 1];
+                    best_d[at] = d, best[at] = i;
+                    if (found < k) ++found;
+                }
+                break;
+            }
         }
         for (Py_ssize_t m = found; m < k; ++m) best[m] = -1;
     }
@@ -2206,48 +2266,51 @@ static PyObject *py_steps_near_limits(PyObject *self, PyObject *args) {
 }
 
 static Axis axis_of(const double *points, Py_ssize_t P, const double *queries, Py_ssize_t K,
-                    Py_ssize_t n, Py_ssize_t joint, int kind) {
+                    Py_ssize_t n, Py_ssize_t joint, int periodic) {
+    Axis axis = {joint, periodic, -PI, TWO_PI, 1};
+    if (periodic) return axis;
     double lo = INFINITY, hi = -INFINITY;
     for (Py_ssize_t i = 0; i < P + K; ++i) {
-        const double *q = i < P ? points + i * n : queries + (i - P) * n;
-        double v = embedded(q, joint, kind);
+        double v = (i < P ? points + i * n : queries + (i - P) * n)[joint];
         if (v == v) lo = v < lo ? v : lo, hi = v > hi ? v : hi;
     }
-    Axis axis = {joint, kind, isfinite(lo) ? lo : 0.0, hi - lo, 1};
+    axis.low = isfinite(lo) ? lo : 0.0, axis.width = hi - lo;
     return axis;
 }
 
 static PyObject *py_nearest_points(PyObject *self, PyObject *args) {
     Py_buffer points, queries, periodic, out;
     Py_ssize_t P, K, n, k;
-    if (!PyArg_ParseTuple(args, "y*ny*ny*nnw*", &points, &P, &queries, &K, &periodic, &n, &k, &out))
+    if (!PyArg_ParseTuple(args, "y*ny*ny*nnw*", &points, &P, &queries, &K, &periodic, &n, &k,
+                          &out))
         return NULL;
     const double *pts = points.buf, *qs = queries.buf;
     const unsigned char *per = periodic.buf;
-    /* The two embedded coordinates of widest spread over the points and queries. */
+    /* The two joints of widest spread over the points and queries (a periodic one: 2 pi). */
     Axis axes[2] = {{0, 0, 0.0, -1.0, 1}, {0, 0, 0.0, -1.0, 1}};
-    for (Py_ssize_t j = 0; j < n; ++j)
-        for (int t = 0; t < (per[j] ? 2 : 1); ++t) {
-            Axis a = axis_of(pts, P, qs, K, n, j, per[j] ? 1 + t : 0);
-            if (!(a.width <= axes[0].width)) axes[1] = axes[0], axes[0] = a;
-            else if (!(a.width <= axes[1].width)) axes[1] = a;
-        }
+    for (Py_ssize_t j = 0; j < n; ++j) {
+        Axis a = axis_of(pts, P, qs, K, n, j, per[j]);
+        if (!(a.width <= axes[0].width)) axes[1] = axes[0], axes[0] = a;
+        else if (!(a.width <= axes[1].width)) axes[1] = a;
+    }
     if (axes[1].width < 0.0) axes[1] = axes[0];
-    /* Cells of about six points each: side sqrt(area x 6 / P), at most P cells per axis. */
-    double area = axes[0].width * axes[1].width, side = sqrt(area * 6.0 / (double)(P > 0 ? P : 1));
+    /* About 4 P cells: the points lie along curves, which cross few of them (a cell then
+       holds a few consecutive points of a curve); at most P cells per axis. */
+    long long most = P > 0 ? P : 1;
+    double area = axes[0].width * axes[1].width, side = sqrt(area / (4.0 * (double)most));
     for (int a = 0; a < 2; ++a) {
         double width = axes[a].width;
         long long cells = side > 0.0 && isfinite(side) ? (long long)ceil(width / side) : 1;
-        cells = cells < 1 ? 1 : (cells > P ? (P > 0 ? P : 1) : cells);
+        cells = cells < 1 ? 1 : (cells > most ? most : cells);
         axes[a].cells = cells;
         axes[a].width = width > 0.0 && isfinite(width) ? width / (double)cells : INFINITY;
     }
     long long cells = axes[0].cells * axes[1].cells;
-    long long *scratch = PyMem_RawMalloc((size_t)(cells + 1 + 2 * (P > 0 ? P : 1)) * sizeof *scratch);
+    long long *scratch = PyMem_RawMalloc((size_t)(cells + 1 + 2 * most) * sizeof *scratch);
     if (scratch != NULL) {
         Py_BEGIN_ALLOW_THREADS
         nearest_points_rows(pts, P, qs, K, per, n, k, out.buf, scratch, scratch + cells + 1,
-                            scratch + cells + 1 + (P > 0 ? P : 1), axes);
+                            scratch + cells + 1 + most, axes);
         Py_END_ALLOW_THREADS
         PyMem_RawFree(scratch);
     }
