@@ -1439,8 +1439,8 @@ static void settle_dense_rows(double *q, const double *placed, const double *low
    when none. Curve c is rows [first[c], first[c + 1]) of `points`. Every step, arc and
    distance is summed in numpy's order, so the answer is the numpy one to the bit.
 
-   Candidate pairs come from a grid on the two embedded coordinates (a limited joint, or the
-   cosine or sine of a periodic one) that spread the points most: two points within
+   Candidate pairs come from a grid on two joints' embedded coordinates (a limited joint, or
+   the cosine or sine of a periodic one) that spread the points most: two points within
    `within_rad` differ by no more in either. The points are sorted by their column of width
    w >= `within_rad` in the first and by the second within it; a point is paired with the
    later points of its column and those of the next within `within_rad` in the second.
@@ -1495,25 +1495,28 @@ static double closest_strands(const double *points, Py_ssize_t P, Py_ssize_t n,
         for (long long i = a; i < b; ++i) total[i] = s + closing;
     }
     if (P < 2 || !(within_rad >= 0.0)) return INFINITY;
-    /* The two embedded coordinates of widest spread. */
+    /* Two joints' embedded coordinates of widest spread (a periodic joint's the wider of
+       its cosine and sine): two of one joint would put every point on its circle. */
     double spread[2] = {-1.0, -1.0}, low[2] = {0.0, 0.0};
     Py_ssize_t joint[2] = {0, 0};
     int trig[2] = {0, 0};
     for (Py_ssize_t j = 0; j < n; ++j) {
+        double width = -1.0, from = 0.0;
+        int kind = 0;
         for (int t = 0; t < (periodic[j] ? 2 : 1); ++t) {
-            int kind = periodic[j] ? 1 + t : 0;
+            int k = periodic[j] ? 1 + t : 0;
             double lo = INFINITY, hi = -INFINITY;
             for (Py_ssize_t i = 0; i < P; ++i) {
-                double v = embedded(points + i * n, j, kind);
+                double v = embedded(points + i * n, j, k);
                 lo = v < lo ? v : lo, hi = v > hi ? v : hi;
             }
-            double width = hi - lo;
-            if (width > spread[0]) {
-                spread[1] = spread[0], joint[1] = joint[0], trig[1] = trig[0], low[1] = low[0];
-                spread[0] = width, joint[0] = j, trig[0] = kind, low[0] = lo;
-            } else if (width > spread[1]) {
-                spread[1] = width, joint[1] = j, trig[1] = kind, low[1] = lo;
-            }
+            if (hi - lo > width) width = hi - lo, from = lo, kind = k;
+        }
+        if (width > spread[0]) {
+            spread[1] = spread[0], joint[1] = joint[0], trig[1] = trig[0], low[1] = low[0];
+            spread[0] = width, joint[0] = j, trig[0] = kind, low[0] = from;
+        } else if (width > spread[1]) {
+            spread[1] = width, joint[1] = j, trig[1] = kind, low[1] = from;
         }
     }
     if (spread[1] < 0.0) joint[1] = joint[0], trig[1] = trig[0]; /* one coordinate only */
