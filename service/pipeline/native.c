@@ -1738,6 +1738,30 @@ static void nearest_points_rows(const double *points, Py_ssize_t P, const double
     }
 }
 
+/* seeds.py's greedy spread: in order, each configuration not within `spacing_rad` of a
+   seed already chosen (the torus metric: every joint a circle) becomes one; the rows
+   chosen, in order, and their count. */
+static Py_ssize_t spread_seeds_rows(const double *q, Py_ssize_t M, Py_ssize_t n,
+                                    double spacing_rad, long long *chosen) {
+    double r2 = spacing_rad * spacing_rad;
+    Py_ssize_t count = 0;
+    for (Py_ssize_t i = 0; i < M; ++i) {
+        const double *x = q + i * n;
+        int covered = 0;
+        for (Py_ssize_t c = 0; c < count && !covered; ++c) {
+            const double *y = q + chosen[c] * n;
+            double sum = 0.0;
+            for (Py_ssize_t j = 0; j < n && !(sum > r2); ++j) {
+                double d = wrap_near(x[j] - y[j]);
+                sum += d * d;
+            }
+            covered = sum <= r2;
+        }
+        if (!covered) chosen[count++] = i;
+    }
+    return count;
+}
+
 /* ---------------------------------------------------------------- Python entry points */
 
 static PyObject *py_chain(PyObject *self, PyObject *args) {
@@ -2323,6 +2347,18 @@ static PyObject *py_nearest_points(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
+static PyObject *py_spread_seeds(PyObject *self, PyObject *args) {
+    Py_buffer q, chosen;
+    Py_ssize_t M, n, count;
+    double spacing_rad;
+    if (!PyArg_ParseTuple(args, "y*nndw*", &q, &M, &n, &spacing_rad, &chosen)) return NULL;
+    Py_BEGIN_ALLOW_THREADS
+    count = spread_seeds_rows(q.buf, M, n, spacing_rad, chosen.buf);
+    Py_END_ALLOW_THREADS
+    PyBuffer_Release(&q), PyBuffer_Release(&chosen);
+    return PyLong_FromSsize_t(count);
+}
+
 static PyMethodDef methods[] = {
     {"chain", py_chain, METH_VARARGS,
      "chain(fixed, tip, q, n, batch, position, rotation, jacobian): serial-chain FK and Jacobian."},
@@ -2386,6 +2422,8 @@ static PyMethodDef methods[] = {
     {"nearest_points", py_nearest_points, METH_VARARGS,
      "nearest_points(points, P, queries, K, periodic, n, k, out): each query's k nearest "
      "points, nearest first."},
+    {"spread_seeds", py_spread_seeds, METH_VARARGS,
+     "spread_seeds(q, M, n, spacing_rad, chosen) -> count: the trace's greedy seeds."},
     {"nearest_in_group", py_nearest_in_group, METH_VARARGS,
      "nearest_in_group(points, start, queries, query_group, periodic, Q, n, nearest): each "
      "query's nearest point of its own group."},

@@ -1030,3 +1030,17 @@ def nearest_points(
             np.ascontiguousarray(periodic, dtype=np.uint8), n, k, out,
         )  # fmt: skip
     return out
+
+
+def spread_seeds(q_rad: FloatArray, spacing_rad: float) -> IntArray:  # (M, n) -> (S,)
+    """The rows of a subset of q_rad, greedily at least `spacing_rad` apart on the joint
+    torus (every joint a circle): in order, each row not within the spacing of a row
+    already chosen is chosen."""
+    count, n = q_rad.shape
+    chosen = np.empty(count, dtype=np.int64)
+    found = 0
+    if count:
+        found = _native.spread_seeds(
+            _float64(q_rad, "q_rad", (count, n)), count, n, float(spacing_rad), chosen
+        )
+    return chosen[:found]

@@ -50,8 +50,8 @@ def test_seeds_are_spread_on_the_torus_and_survive_angles_rounding_to_2_pi() -> 
 
 @pytest.mark.parametrize("spacing", [0.3, 1.0, 2.5])
 def test_seeds_are_the_greedy_choice_in_order(spacing: float) -> None:
-    """The batched choice (distances from circle embeddings, the torus distance only where
-    they cannot decide) picks exactly the points the one-by-one greedy choice picks."""
+    """The compiled choice picks exactly the points the one-by-one greedy choice over the
+    torus distance picks."""
     rng = np.random.default_rng(6)
     q = rng.uniform(-4.0, 4.0, (300, 4))
     q[150:] = q[:150] + rng.normal(scale=0.2, size=(150, 4))  # pairs near each other
