@@ -20,6 +20,7 @@ from service.manifest import TaskSpec
 from service.pipeline import native
 from service.pipeline.arrays import BoolArray, FloatArray, IntArray
 from service.pipeline.correction import Residual, compiled_newton, dls_step, iterate, residual_of
+from service.pipeline.rows import over_rows
 from service.pipeline.targets import Target
 from service.pipeline.types import ChainKinematics, Kinematics, chain_of
 
@@ -192,9 +193,14 @@ def smallest_singular_value(jacobian: FloatArray) -> FloatArray:  # (B, m, n) ->
     return sigma
 
 
-def min_singular_value(jacobian: FloatArray) -> float:  # (B, m, n), m <= n
+def min_singular_value(jacobian: FloatArray, threads: int = 1) -> float:  # (B, m, n), m <= n
     """The least sigma_min over the rows with a finite J (inf for none): compiled, exact
-    only for the rows whose cheap bound could hold the least (`native.least_singular_value`)."""
+    only for the rows whose cheap bound could hold the least (`native.least_singular_value`),
+    the rows split over `threads` (the least of each chunk's least is the least)."""
     if 0 < jacobian.shape[1] <= jacobian.shape[2]:
-        return native.least_singular_value(jacobian)
+
+        def least_of(rows: slice) -> float:
+            return native.least_singular_value(jacobian[rows])
+
+        return min(over_rows(least_of, len(jacobian), threads), default=np.inf)
     return float(np.nanmin(smallest_singular_value(jacobian), initial=np.inf))

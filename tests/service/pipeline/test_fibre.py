@@ -1,7 +1,7 @@
 """fibre: Newton projection lands on the planar 3R's fibre (closed-form FK), rows already
 within `until` take no step and no point is evaluated twice, the tangent is the Jacobian's
 null vector with a continuous sign, the corrector solves its system, and the least
-sigma_min over a batch is the SVD's."""
+sigma_min over a batch is the SVD's, on one thread or split over several."""
 
 from dataclasses import dataclass, replace
 
@@ -115,3 +115,9 @@ def test_least_singular_value_is_the_svds() -> None:
     assert min_singular_value(jacobian) == np.nanmin(sigma) < 1e-12
     assert min_singular_value(np.delete(jacobian, 5, axis=0)) == np.nanmin(np.delete(sigma, 5))
     assert min_singular_value(jacobian[9:10]) == np.inf
+    # Split over threads (chunks of at least 128 rows): the least of the chunks' least.
+    many = np.concatenate([np.delete(jacobian, 5, axis=0)] * 3)  # (597, 2, 3)
+    many[450] = jacobian[5]
+    for threads in (2, 3, 8):
+        assert min_singular_value(many, threads) == min_singular_value(many) < 1e-12
+    assert min_singular_value(many[:0], 2) == np.inf

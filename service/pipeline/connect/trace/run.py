@@ -60,7 +60,8 @@ def trace_fibre(
     evaluated, loops, complete = walk_fronts(fibre, seeds, settings, deadline)
     reached_rad = evaluated.q_rad  # (R, n) the whole curves, before the limits cut them
     # sigma_min over the seeds and every point the fronts reached.
-    sigma = min_singular_value(np.concatenate([start.jacobian, evaluated.jacobian[len(seeds) :]]))
+    reached_jacobian = np.concatenate([start.jacobian, evaluated.jacobian[len(seeds) :]])
+    sigma = min_singular_value(reached_jacobian, fibre.threads)
     evaluated, loops = refine_near_limits(fibre, evaluated, loops, limits, settings)
     runs = cut_by_limits(loops, limits)
     dense = densify(fibre, evaluated, runs, limits, settings)
