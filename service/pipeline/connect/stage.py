@@ -78,7 +78,8 @@ def connect(
     redundancy = correction.q_rad.shape[1] - correction.jacobian.shape[1]
     min_sigma = np.inf
     if redundancy > 1:  # r = 1: the trace measures sigma_min along every curve instead
-        min_sigma = min_singular_value(correction.jacobian[acceptance.within_tolerance])
+        within = correction.jacobian[acceptance.within_tolerance]
+        min_sigma = min_singular_value(within, space.fibre.threads)
     components: list[Component] = []
     leftover = accepted
     complete = True
