@@ -1762,6 +1762,82 @@ static Py_ssize_t spread_seeds_rows(const double *q, Py_ssize_t M, Py_ssize_t n,
     return count;
 }
 
+/* roadmap.py's links between components, in the KD-tree's box coordinates (a dimension
+   with a finite `box` width is periodic with it, as cKDTree's boxsize is). */
+static double box_distance2(const double *a, const double *b, const double *box, Py_ssize_t n) {
+    double sum = 0.0;
+    for (Py_ssize_t j = 0; j < n; ++j) {
+        double d = a[j] - b[j];
+        if (isfinite(box[j])) {
+            double half = 0.5 * box[j];
+            if (d > half) d -= box[j];
+            else if (d < -half) d += box[j];
+        }
+        sum += d * d;
+    }
+    return sum;
+}
+
+/* For each row x in [x0, x1) and each set m (the nodes of one component of several), the
+   nearest node y of the set to x within `radius` (strictly), when x is not in it: best[x, m]
+   its row (-1 for none), distance[x, m] its distance; the lower row among equally near.
+   `grouped` holds the sets' nodes' coordinates set after set (rows `member`, ascending
+   within a set), set m at [start[m], start[m + 1]). */
+static void nearest_of_sets_rows(const double *points, Py_ssize_t n, const double *box,
+                                 const long long *set_of, const double *grouped,
+                                 const long long *member, const long long *start, Py_ssize_t M,
+                                 double radius, Py_ssize_t x0, Py_ssize_t x1, long long *best,
+                                 double *distance) {
+    int periodic = 0;
+    for (Py_ssize_t j = 0; j < n; ++j) periodic |= isfinite(box[j]) != 0;
+    for (Py_ssize_t x = x0; x < x1; ++x) {
+        const double *p = points + x * n;
+        for (Py_ssize_t m = 0; m < M; ++m) {
+            long long found = -1;
+            double least = INFINITY;
+            if (m != set_of[x]) {
+                for (long long t = start[m]; t < start[m + 1]; ++t) {
+                    const double *o = grouped + t * n;
+                    double sum = 0.0;
+                    if (periodic) {
+                        sum = box_distance2(p, o, box, n);
+                    } else {
+                        for (Py_ssize_t j = 0; j < n; ++j) {
+                            double e = p[j] - o[j];
+                            sum += e * e;
+                        }
+                    }
+                    if (sum < least) least = sum, found = t;
+                }
+            }
+            least = sqrt(least);
+            int near = found >= 0 && least < radius;
+            best[x * M + m] = near ? member[found] : -1;
+            distance[x * M + m] = near ? least : INFINITY;
+        }
+    }
+}
+
+/* Every pair (rows[i], y), y != rows[i], within `radius` (strictly): counted when `fill` is
+   0, else written to (i_out, y_out, length) in order of i then y; the count. */
+static Py_ssize_t links_within_rows(const double *points, Py_ssize_t N, Py_ssize_t n,
+                                    const double *box, const long long *rows, Py_ssize_t R,
+                                    double radius, int fill, long long *i_out, long long *y_out,
+                                    double *length) {
+    Py_ssize_t count = 0;
+    for (Py_ssize_t i = 0; i < R; ++i) {
+        const double *p = points + rows[i] * n;
+        for (Py_ssize_t y = 0; y < N; ++y) {
+            if (y == rows[i]) continue;
+            double d = sqrt(box_distance2(p, points + y * n, box, n));
+            if (!(d < radius)) continue;
+            if (fill) i_out[count] = i, y_out[count] = y, length[count] = d;
+            ++count;
+        }
+    }
+    return count;
+}
+
 /* ---------------------------------------------------------------- Python entry points */
 
 static PyObject *py_chain(PyObject *self, PyObject *args) {
@@ -2359,6 +2435,39 @@ static PyObject *py_spread_seeds(PyObject *self, PyObject *args) {
     return PyLong_FromSsize_t(count);
 }
 
+static PyObject *py_nearest_of_sets(PyObject *self, PyObject *args) {
+    Py_buffer points, box, set_of, grouped, member, start, best, distance;
+    Py_ssize_t n, M, x0, x1;
+    double radius;
+    if (!PyArg_ParseTuple(args, "y*ny*y*y*y*y*ndnnw*w*", &points, &n, &box, &set_of, &grouped,
+                          &member, &start, &M, &radius, &x0, &x1, &best, &distance))
+        return NULL;
+    Py_BEGIN_ALLOW_THREADS
+    nearest_of_sets_rows(points.buf, n, box.buf, set_of.buf, grouped.buf, member.buf, start.buf,
+                         M, radius, x0, x1, best.buf, distance.buf);
+    Py_END_ALLOW_THREADS
+    Py_buffer *all[] = {&points, &box, &set_of, &grouped, &member, &start, &best, &distance};
+    for (size_t i = 0; i < sizeof all / sizeof *all; ++i) PyBuffer_Release(all[i]);
+    Py_RETURN_NONE;
+}
+
+static PyObject *py_links_within(PyObject *self, PyObject *args) {
+    Py_buffer points, box, rows, i_out, y_out, length;
+    Py_ssize_t N, n, R, count;
+    double radius;
+    int fill;
+    if (!PyArg_ParseTuple(args, "y*nny*y*ndpw*w*w*", &points, &N, &n, &box, &rows, &R, &radius,
+                          &fill, &i_out, &y_out, &length))
+        return NULL;
+    Py_BEGIN_ALLOW_THREADS
+    count = links_within_rows(points.buf, N, n, box.buf, rows.buf, R, radius, fill, i_out.buf,
+                              y_out.buf, length.buf);
+    Py_END_ALLOW_THREADS
+    Py_buffer *all[] = {&points, &box, &rows, &i_out, &y_out, &length};
+    for (size_t i = 0; i < sizeof all / sizeof *all; ++i) PyBuffer_Release(all[i]);
+    return PyLong_FromSsize_t(count);
+}
+
 static PyMethodDef methods[] = {
     {"chain", py_chain, METH_VARARGS,
      "chain(fixed, tip, q, n, batch, position, rotation, jacobian): serial-chain FK and Jacobian."},
@@ -2424,6 +2533,12 @@ static PyMethodDef methods[] = {
      "points, nearest first."},
     {"spread_seeds", py_spread_seeds, METH_VARARGS,
      "spread_seeds(q, M, n, spacing_rad, chosen) -> count: the trace's greedy seeds."},
+    {"nearest_of_sets", py_nearest_of_sets, METH_VARARGS,
+     "nearest_of_sets(points, n, box, set_of, grouped, member, start, M, radius, x0, x1, best, "
+     "distance): each row's nearest node of every other set within the radius."},
+    {"links_within", py_links_within, METH_VARARGS,
+     "links_within(points, N, n, box, rows, R, radius, fill, i, y, length) -> count: every "
+     "node within the radius of each of `rows`."},
     {"nearest_in_group", py_nearest_in_group, METH_VARARGS,
      "nearest_in_group(points, start, queries, query_group, periodic, Q, n, nearest): each "
      "query's nearest point of its own group."},

@@ -30,6 +30,7 @@ import numpy as np
 
 from service.pipeline import _native  # type: ignore[attr-defined]
 from service.pipeline.arrays import BoolArray, FloatArray, IntArray
+from service.pipeline.rows import over_rows
 
 # The C code keeps a chain's joint frames on the stack.
 MAX_JOINTS = 64
@@ -1044,3 +1045,63 @@ def spread_seeds(q_rad: FloatArray, spacing_rad: float) -> IntArray:  # (M, n) -
             _float64(q_rad, "q_rad", (count, n)), count, n, float(spacing_rad), chosen
         )
     return chosen[:found]
+
+
+def nearest_of_sets(
+    points: FloatArray,  # (N, n) KD-tree box coordinates
+    box: FloatArray,  # (n,) a finite width makes its dimension periodic with it
+    set_of: IntArray,  # (N,) each node's set in [0, M), -1 for a node in none
+    sets: int,  # M
+    radius: float,
+    threads: int = 1,
+) -> tuple[IntArray, FloatArray]:  # (N, M) nearest node of each set, (N, M) its distance
+    """For each node x and each set m that x is not in, the nearest node of m within
+    `radius` (strictly; the lower row among equally near) and its distance; -1 and inf for
+    none. By brute force, the rows split over `threads`: what one KD-tree per set, queried
+    by every node, answers."""
+    count, n = points.shape
+    members = _int64(set_of, "set_of", (count,))
+    if count and (members.min() < -1 or members.max() >= sets):
+        raise ValueError(f"set_of must be -1 or a set in [0, {sets})")
+    best = np.full((count, sets), -1, dtype=np.int64)
+    distance = np.full((count, sets), np.inf)
+    if not (count and sets):
+        return best, distance
+    coordinates, widths = _float64(points, "points", (count, n)), _float64(box, "box", (n,))
+    member = np.argsort(members, kind="stable")  # (N,) set after set, rows ascending in each
+    member = member[members[member] >= 0]
+    start = np.searchsorted(members[member], np.arange(sets + 1)).astype(np.int64)  # (M + 1,)
+    grouped = np.ascontiguousarray(coordinates[member])
+
+    def rows(part: slice) -> None:
+        _native.nearest_of_sets(
+            coordinates, n, widths, members, grouped, member, start, sets, float(radius),
+            part.start, part.stop, best, distance,
+        )  # fmt: skip
+
+    over_rows(rows, count, threads)
+    return best, distance
+
+
+def links_within(
+    points: FloatArray,  # (N, n) KD-tree box coordinates
+    box: FloatArray,  # (n,) a finite width makes its dimension periodic with it
+    rows: IntArray,  # (R,) nodes whose links are wanted
+    radius: float,
+) -> tuple[IntArray, IntArray, FloatArray]:  # (L,) index into rows, (L,) node, (L,) length
+    """Every node within `radius` (strictly) of each of `rows`, itself excepted, in order
+    of `rows` then node: what a sparse distance matrix of their KD-trees lists."""
+    count, n = points.shape
+    asked = _int64(rows, "rows", (len(rows),))
+    if len(asked) and (asked.min() < 0 or asked.max() >= count):
+        raise ValueError(f"rows must index the {count} points")
+    arguments = (
+        _float64(points, "points", (count, n)), count, n, _float64(box, "box", (n,)), asked,
+        len(asked), float(radius),
+    )  # fmt: skip
+    none = np.empty(0, dtype=np.int64)
+    total = _native.links_within(*arguments, False, none, none, np.empty(0))
+    i, y, length = np.empty(total, np.int64), np.empty(total, np.int64), np.empty(total)
+    if total:
+        _native.links_within(*arguments, True, i, y, length)
+    return i, y, length

@@ -27,7 +27,8 @@ equals robot.py's numpy passes (1e-12), and the least distance from samples to t
 segments beside their candidate points equals the numpy segments' (1e-12) and, with every
 point a candidate, a brute force over every segment; each query's nearest point of its own
 group is the brute-force argmin of the joint metric, -1 for a group with no point, and its k
-nearest points are the brute-force order. The
+nearest points are the brute-force order; the roadmap's nearest node of each other component
+and links within a radius are the brute-force ones in the KD-tree box's metric. The
 trace's tangent signs, Hermite guesses, choice of the steps to refine near the limits and
 last pass over its dense points equal the numpy steps bitwise. (The trace's compiled walk
 and closest approach of two strands are pinned in tests/service/pipeline/connect/.)
@@ -784,3 +785,41 @@ def test_nearest_points_are_the_brute_force_nearest_in_order(n: int) -> None:
         expected = np.argsort(distance, axis=1, kind="stable")[:, :4]
         np.testing.assert_array_equal(nearest[:, : min(4, size)], expected)
         assert np.all(nearest[:, size:] == -1)
+
+
+@pytest.mark.parametrize("periodic", [False, True])
+def test_nearest_of_sets_and_links_within_are_the_brute_force_ones(periodic: bool) -> None:
+    """Nodes in components (sets; -1: a lone node, in none), a KD-tree box periodic or not:
+    each node's nearest node of every set it is not in, within the radius, is the
+    brute-force one in the box metric (the lower row among equally near), and every node's
+    links within the radius are every other node nearer than it, in order."""
+    rng = np.random.default_rng(13)
+    count, n, sets, radius = 300, 4, 7, 1.2
+    points = rng.uniform(0.0, 4.0, (count, n))
+    set_of = rng.integers(-1, sets, count)
+    box = np.full(n, 4.0 if periodic else np.inf)
+
+    def metric(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        d = a - b
+        if periodic:
+            d = np.where(d > 2.0, d - 4.0, np.where(d < -2.0, d + 4.0, d))
+        return np.sqrt(np.sum(d * d, axis=-1))
+
+    best, distance = native.nearest_of_sets(points, box, set_of, sets, radius, threads=2)
+    for x in range(count):
+        to_all = metric(points[x], points)
+        for m in range(sets):
+            mine = np.flatnonzero(set_of == m)
+            if m == set_of[x] or not len(mine) or to_all[mine].min() >= radius:
+                assert best[x, m] == -1 and distance[x, m] == np.inf
+                continue
+            assert best[x, m] == mine[np.argmin(to_all[mine])]
+            assert distance[x, m] == pytest.approx(to_all[mine].min(), abs=1e-12)
+    rows = np.array([0, 5, 17])
+    i, y, length = native.links_within(points, box, rows, radius)
+    for k, row in enumerate(rows):
+        to_all = metric(points[row], points)
+        expected = np.flatnonzero((to_all < radius) & (np.arange(count) != row))
+        np.testing.assert_array_equal(y[i == k], expected)
+        np.testing.assert_allclose(length[i == k], to_all[expected], atol=1e-12)
+    assert np.all(np.diff(i) >= 0)
