@@ -1838,6 +1838,30 @@ static Py_ssize_t links_within_rows(const double *points, Py_ssize_t N, Py_ssize
     return count;
 }
 
+/* roadmap.py's components after new edges: the parts (labels in [0, L), one per node) merged
+   along the edges a-b between parts, renumbered 0, 1, ... in the order of their lowest
+   node. Union-find over the parts; `parent`, `number`: L each. */
+static long long find_root(long long *parent, long long x) {
+    while (parent[x] != x) parent[x] = parent[parent[x]], x = parent[x];
+    return x;
+}
+
+static void merge_labels_rows(const long long *labels, Py_ssize_t N, Py_ssize_t L,
+                              const long long *a, const long long *b, Py_ssize_t E,
+                              long long *out, long long *parent, long long *number) {
+    for (Py_ssize_t k = 0; k < L; ++k) parent[k] = k, number[k] = -1;
+    for (Py_ssize_t e = 0; e < E; ++e) {
+        long long x = find_root(parent, a[e]), y = find_root(parent, b[e]);
+        if (x != y) parent[x > y ? x : y] = x < y ? x : y;
+    }
+    long long next = 0;
+    for (Py_ssize_t i = 0; i < N; ++i) {
+        long long r = find_root(parent, labels[i]);
+        if (number[r] < 0) number[r] = next++;
+        out[i] = number[r];
+    }
+}
+
 /* ---------------------------------------------------------------- Python entry points */
 
 static PyObject *py_chain(PyObject *self, PyObject *args) {
@@ -2468,6 +2492,18 @@ static PyObject *py_links_within(PyObject *self, PyObject *args) {
     return PyLong_FromSsize_t(count);
 }
 
+static PyObject *py_merge_labels(PyObject *self, PyObject *args) {
+    Py_buffer labels, a, b, out, parent, number;
+    Py_ssize_t N, L, E;
+    if (!PyArg_ParseTuple(args, "y*nny*y*nw*w*w*", &labels, &N, &L, &a, &b, &E, &out, &parent,
+                          &number))
+        return NULL;
+    merge_labels_rows(labels.buf, N, L, a.buf, b.buf, E, out.buf, parent.buf, number.buf);
+    Py_buffer *all[] = {&labels, &a, &b, &out, &parent, &number};
+    for (size_t i = 0; i < sizeof all / sizeof *all; ++i) PyBuffer_Release(all[i]);
+    Py_RETURN_NONE;
+}
+
 static PyMethodDef methods[] = {
     {"chain", py_chain, METH_VARARGS,
      "chain(fixed, tip, q, n, batch, position, rotation, jacobian): serial-chain FK and Jacobian."},
@@ -2539,6 +2575,9 @@ static PyMethodDef methods[] = {
     {"links_within", py_links_within, METH_VARARGS,
      "links_within(points, N, n, box, rows, R, radius, fill, i, y, length) -> count: every "
      "node within the radius of each of `rows`."},
+    {"merge_labels", py_merge_labels, METH_VARARGS,
+     "merge_labels(labels, N, L, a, b, E, out, parent, number): parts merged along edges, "
+     "numbered by their lowest node."},
     {"nearest_in_group", py_nearest_in_group, METH_VARARGS,
      "nearest_in_group(points, start, queries, query_group, periodic, Q, n, nearest): each "
      "query's nearest point of its own group."},

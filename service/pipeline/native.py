@@ -1105,3 +1105,26 @@ def links_within(
     if total:
         _native.links_within(*arguments, True, i, y, length)
     return i, y, length
+
+
+def merge_labels(
+    labels: IntArray,  # (N,) each node's part, in [0, L)
+    a: IntArray,  # (E,) parts joined by an edge ...
+    b: IntArray,  # (E,) ... to these
+) -> IntArray:  # (N,)
+    """The parts merged along the edges, numbered 0, 1, ... in the order of their lowest
+    node (as scipy's connected_components numbers components): union-find over the parts."""
+    count = len(labels)
+    parts = _int64(labels, "labels", (count,))
+    joined = (_int64(a, "a", (len(a),)), _int64(b, "b", (len(b),)))
+    if len(joined[0]) != len(joined[1]):
+        raise ValueError(f"a and b must be as long, got {len(joined[0])} and {len(joined[1])}")
+    size = int(max(parts.max(initial=-1), *(e.max(initial=-1) for e in joined))) + 1
+    if min(parts.min(initial=0), *(e.min(initial=0) for e in joined)) < 0:
+        raise ValueError("labels and edge ends must be >= 0")
+    out = np.empty(count, dtype=np.int64)
+    _native.merge_labels(
+        parts, count, size, *joined, len(joined[0]), out, np.empty(max(size, 1), np.int64),
+        np.empty(max(size, 1), np.int64),
+    )  # fmt: skip
+    return out

@@ -131,12 +131,13 @@ class Roadmap:
         else:  # nodes added since: each its own component until an edge joins it
             added = labels.max(initial=-1) + 1 + np.arange(num_nodes - len(labels))
             labels = np.append(labels, added)
-        merged = _components(
-            int(labels.max(initial=-1)) + 1,
-            [labels[a] for a in self.joined_from[self._applied :]],
-            [labels[b] for b in self.joined_to[self._applied :]],
-        )[labels]  # (N,) the components of the components along the new edges
-        self._labels = _numbered_by_lowest_node(merged)
+        new_from = [labels[a] for a in self.joined_from[self._applied :]]
+        new_to = [labels[b] for b in self.joined_to[self._applied :]]
+        # The components of the components along the new edges, numbered by lowest node.
+        self._labels = native.merge_labels(
+            labels, np.concatenate([np.zeros(0, np.int64), *new_from]),
+            np.concatenate([np.zeros(0, np.int64), *new_to]),
+        )  # fmt: skip
         self._labels.flags.writeable = False
         self._applied = edges
         return self._labels
@@ -434,17 +435,6 @@ def _components(num_nodes: int, starts: list[IntArray], ends: list[IntArray]) ->
     b = np.concatenate([np.zeros(0, dtype=np.int64), *ends])
     graph = coo_matrix((np.ones(len(a), dtype=np.int8), (a, b)), shape=(num_nodes, num_nodes))
     return connected_components(graph, directed=False)[1].astype(np.int64)
-
-
-def _numbered_by_lowest_node(label: IntArray) -> IntArray:
-    """The same partition of the nodes (N,) with its parts numbered 0, 1, ... in the order
-    of their lowest node, as scipy's connected_components numbers components."""
-    _, part = np.unique(label, return_inverse=True)
-    lowest = np.full(part.max(initial=-1) + 1, len(label))
-    np.minimum.at(lowest, part, np.arange(len(label)))
-    rank = np.empty_like(lowest)
-    rank[np.argsort(lowest)] = np.arange(len(lowest))
-    return rank[part].astype(np.int64)
 
 
 def _first_per(group: IntArray, index: IntArray) -> IntArray:

@@ -28,7 +28,8 @@ segments beside their candidate points equals the numpy segments' (1e-12) and, w
 point a candidate, a brute force over every segment; each query's nearest point of its own
 group is the brute-force argmin of the joint metric, -1 for a group with no point, and its k
 nearest points are the brute-force order; the roadmap's nearest node of each other component
-and links within a radius are the brute-force ones in the KD-tree box's metric. The
+and links within a radius are the brute-force ones in the KD-tree box's metric, and its
+components merged along new edges are scipy's, numbered by lowest node. The
 trace's tangent signs, Hermite guesses, choice of the steps to refine near the limits and
 last pass over its dense points equal the numpy steps bitwise. (The trace's compiled walk
 and closest approach of two strands are pinned in tests/service/pipeline/connect/.)
@@ -38,6 +39,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial.transform import Rotation
 
 from service.manifest import (
@@ -823,3 +826,22 @@ def test_nearest_of_sets_and_links_within_are_the_brute_force_ones(periodic: boo
         np.testing.assert_array_equal(y[i == k], expected)
         np.testing.assert_allclose(length[i == k], to_all[expected], atol=1e-12)
     assert np.all(np.diff(i) >= 0)
+
+
+def test_merged_labels_are_scipys_components_numbered_by_lowest_node() -> None:
+    """Parts of nodes merged along random edges between parts: the same partition as
+    scipy's connected components of the parts' graph, numbered 0, 1, ... in the order of
+    each part's lowest node (what connected_components gives a graph of the nodes)."""
+    rng = np.random.default_rng(14)
+    for _ in range(50):
+        parts = int(rng.integers(1, 60))
+        labels = rng.integers(0, parts, int(rng.integers(1, 200)))
+        edges = int(rng.integers(0, 40))
+        a, b = rng.integers(0, parts, edges), rng.integers(0, parts, edges)
+        graph = coo_matrix((np.ones(edges), (a, b)), shape=(parts, parts))
+        component = connected_components(graph, directed=False)[1][labels]
+        _, first = np.unique(component, return_index=True)
+        rank = np.empty(len(first), dtype=np.int64)
+        rank[np.argsort(first)] = np.arange(len(first))
+        expected = rank[np.unique(component, return_inverse=True)[1]]
+        np.testing.assert_array_equal(native.merge_labels(labels, a, b), expected)
