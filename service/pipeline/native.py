@@ -654,6 +654,11 @@ class PlannedWalks:
     expired: bool
 
 
+# Walks a thread must have to take some: one walk on the fibre is tens of microseconds
+# (an iiwa14 position edge about 20), a thread's hand-off about as much.
+MIN_CHUNK_WALKS = 8
+
+
 def projected_walk(
     space: CompiledSpace,
     q_from_rad: FloatArray,  # (E, n) valid configurations
@@ -662,12 +667,13 @@ def projected_walk(
     rules: PlannerRules,
     expires_at_s: float,  # time.monotonic() after which the walks stop (inf: never)
     record: bool,
+    threads: int = 1,
 ) -> PlannedWalks:
     """local_planner.py's `walk_on_fibre`, each edge whole in compiled code: the same
     projected steps and validity tests (space.py's motion_valid with its coaxial crossings,
     and collision/check.py's `free` for self-collision, the hulls deciding where the
     spheres are within the margin), in the same order, as its numpy loop, which is the
-    reference it is pinned to."""
+    reference it is pinned to. The edges are split over `threads` (each walk is its own)."""
     arguments, sizes = space.arguments()
     n, m = sizes[0], sizes[1]
     edges = len(q_from_rad)
@@ -676,25 +682,31 @@ def projected_walk(
          expires_at_s]
     )  # fmt: skip
     counts_of = [rules.iterations, rules.extra_iterations, rules.set_iterations, rules.max_steps]
-    all_sizes = np.array([*sizes, *counts_of, edges, record], dtype=np.int64)
     reached = np.zeros(edges, dtype=np.uint8)
     counts = np.zeros(edges, dtype=np.int64)
-    points = np.empty((edges * rules.max_steps if record else 1, n))
-    work = np.empty(_native.walk_scratch(n, m, sizes[6], sizes[7]))
-    status = 0
-    if edges:
-        status = _native.projected_walk(
-            numbers, all_sizes, *arguments,
-            _float64(q_from_rad, "q_from_rad", (edges, n)),
-            _float64(goal_rad, "goal_rad", (edges, n)),
-            _float64(chord_rad, "chord_rad", (edges,)), reached, points, counts, work,
+    points = np.empty((edges, rules.max_steps if record else 0, n))
+    q_from = _float64(q_from_rad, "q_from_rad", (edges, n))
+    goal = _float64(goal_rad, "goal_rad", (edges, n))
+    chord = _float64(chord_rad, "chord_rad", (edges,))
+
+    def walk_part(part: slice) -> int:
+        size = part.stop - part.start
+        part_sizes = np.array([*sizes, *counts_of, size, record], dtype=np.int64)
+        work = np.empty(_native.walk_scratch(n, m, sizes[6], sizes[7]))
+        written = points[part] if record else np.empty((1, n))
+        return int(
+            _native.projected_walk(
+                numbers, part_sizes, *arguments, q_from[part], goal[part], chord[part],
+                reached[part], written, counts[part], work,
+            )
         )  # fmt: skip
-    expired = bool(status)
+
+    statuses = over_rows(walk_part, edges, threads, MIN_CHUNK_WALKS) if edges else [0]
+    expired = any(statuses)
     if not record:
         return PlannedWalks(reached.astype(bool), [], expired)
-    walked = points.reshape(edges, rules.max_steps, n) if edges else points[:0].reshape(0, 0, n)
     return PlannedWalks(
-        reached.astype(bool), [walked[e, : counts[e]].copy() for e in range(edges)], expired
+        reached.astype(bool), [points[e, : counts[e]].copy() for e in range(edges)], expired
     )
 
 
@@ -728,11 +740,13 @@ def steer_walk(
     goal_rad: FloatArray,  # (E, n) unwrapped toward each start
     rules: SteerRules,
     expires_at_s: float,
+    threads: int = 1,
 ) -> Steered:
     """steering.py's `steer`, each walk whole in compiled code: the direction to the goal
     projected onto J's null space with the joints pushed out of a limit held, the step
     clipped to the limits and projected back with those joints locked, and the planner's
-    validity tests, in the same order as its numpy loop, which it is pinned to."""
+    validity tests, in the same order as its numpy loop, which it is pinned to. The walks
+    are split over `threads` (each is its own)."""
     arguments, sizes = space.arguments()
     n, m = sizes[0], sizes[1]
     walks = len(q_from_rad)
@@ -741,17 +755,21 @@ def steer_walk(
          expires_at_s, rules.min_progress_rad]
     )  # fmt: skip
     counts_of = [rules.iterations, rules.stall_steps, rules.set_iterations, rules.max_steps]
-    all_sizes = np.array([*sizes, *counts_of, walks, 0], dtype=np.int64)
     q = np.array(_float64(q_from_rad, "q_from_rad", (walks, n)))
+    goal = _float64(goal_rad, "goal_rad", (walks, n))
     arrived = np.zeros(walks, dtype=np.uint8)
-    work = np.empty(_native.walk_scratch(n, m, sizes[6], sizes[7]))
-    status = 0
-    if walks:
-        status = _native.steer_walk(
-            numbers, all_sizes, *arguments, _float64(goal_rad, "goal_rad", (walks, n)), q,
-            arrived, work,
-        )  # fmt: skip
-    return Steered(q, arrived.astype(bool), bool(status))
+
+    def walk_part(part: slice) -> int:
+        part_sizes = np.array([*sizes, *counts_of, part.stop - part.start, 0], dtype=np.int64)
+        work = np.empty(_native.walk_scratch(n, m, sizes[6], sizes[7]))
+        return int(
+            _native.steer_walk(
+                numbers, part_sizes, *arguments, goal[part], q[part], arrived[part], work
+            )
+        )
+
+    statuses = over_rows(walk_part, walks, threads, MIN_CHUNK_WALKS) if walks else [0]
+    return Steered(q, arrived.astype(bool), any(statuses))
 
 
 def _body_arguments(bodies: SelfBodies, n: int) -> tuple[tuple[object, ...], list[int]]:

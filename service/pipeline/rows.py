@@ -29,19 +29,22 @@ def _pool(threads: int) -> ThreadPoolExecutor:
     return ThreadPoolExecutor(max_workers=threads - 1, thread_name_prefix="smm-rows")
 
 
-def chunks(rows: int, threads: int) -> list[slice]:
+def chunks(rows: int, threads: int, min_rows: int = MIN_CHUNK_ROWS) -> list[slice]:
     """`rows` split into at most `threads` consecutive slices of nearly equal length, none
-    shorter than MIN_CHUNK_ROWS (one slice, all rows, when they are too few to split)."""
-    count = max(1, min(threads, rows // MIN_CHUNK_ROWS))
+    shorter than `min_rows` (one slice, all rows, when they are too few to split)."""
+    count = max(1, min(threads, rows // max(min_rows, 1)))
     bounds = [rows * k // count for k in range(count + 1)]
     return [slice(a, b) for a, b in pairwise(bounds)]
 
 
-def over_rows(call: Callable[[slice], T], rows: int, threads: int) -> list[T]:
-    """`call` on each of `chunks(rows, threads)`, the first ones on helper threads and the
-    last on the caller's, in order of the slices. `call` must release the GIL for its
-    work and write only its own rows."""
-    parts = chunks(rows, threads)
+def over_rows(
+    call: Callable[[slice], T], rows: int, threads: int, min_rows: int = MIN_CHUNK_ROWS
+) -> list[T]:
+    """`call` on each of `chunks(rows, threads, min_rows)`, the first ones on helper threads
+    and the last on the caller's, in order of the slices. `call` must release the GIL for
+    its work and write only its own rows. A kernel whose rows each cost far more than a
+    DLS step (a whole walk on the fibre) passes a smaller `min_rows`."""
+    parts = chunks(rows, threads, min_rows)
     if len(parts) == 1:
         return [call(parts[0])]
     helpers = [_pool(threads).submit(call, part) for part in parts[:-1]]

@@ -162,8 +162,9 @@ def _compiled_walks(
     if compiled is None:
         return None
     walked = native.projected_walk(
-        compiled, q_from_rad, goal_rad, chord_rad, rules, deadline.expires_at_s, record
-    )
+        compiled, q_from_rad, goal_rad, chord_rad, rules, deadline.expires_at_s, record,
+        space.fibre.threads,
+    )  # fmt: skip
     if walked.expired:
         deadline.check("connect")
     return Walks(walked.reached, walked.points_rad)

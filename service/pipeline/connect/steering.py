@@ -75,7 +75,9 @@ def steer(
             settings.projection_tolerance, settings.projection_iterations,
             settings.stall_steps, settings.min_progress_rad,
         )  # fmt: skip
-        steered = native.steer_walk(compiled, q_from_rad, goal, rules, deadline.expires_at_s)
+        steered = native.steer_walk(
+            compiled, q_from_rad, goal, rules, deadline.expires_at_s, space.fibre.threads
+        )
         if steered.expired:
             deadline.check("connect")
         return Steer(q_end_rad=limits.wrap(steered.q_end_rad), arrived=steered.arrived)

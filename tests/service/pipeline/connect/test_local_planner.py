@@ -2,6 +2,8 @@
 and fails between different components however close (planar 3R closed form); the
 compiled walks take the numpy loop's steps on the iiwa14's and Panda's r = 4 fibres."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -83,7 +85,8 @@ def test_the_compiled_walks_take_the_numpy_loops_steps(model: str) -> None:
     sets crossed as the service checks them: the compiled walks (`native.projected_walk`,
     taken for a serial chain without obstacles) reach the same ends and step through the
     same points (1e-12) as the numpy loop (the same fibre behind a plain callable, whose
-    steps are numpy's); an expired deadline stops them with the connect stage named."""
+    steps are numpy's), and the same to the bit with the edges split over two threads; an
+    expired deadline stops them with the connect stage named."""
     served = load_model(REPO_MODELS_DIR / model, threads=1)
     rng = np.random.default_rng(31)
     reached_any = failed_any = False
@@ -95,6 +98,12 @@ def test_the_compiled_walks_take_the_numpy_loops_steps(model: str) -> None:
             compiled = walk_on_fibre(space, nodes[a], nodes[b], settings)
             reference = walk_on_fibre(through, nodes[a], nodes[b], settings)
             assert compiled.reached.tolist() == reference.reached.tolist()
+            # The edges split over two threads: each walk is its own, to the bit.
+            threaded = replace(space, fibre=replace(space.fibre, threads=2))
+            split = walk_on_fibre(threaded, nodes[a], nodes[b], settings)
+            assert split.reached.tolist() == compiled.reached.tolist()
+            for mine, theirs in zip(split.points_rad, compiled.points_rad, strict=True):
+                np.testing.assert_array_equal(mine, theirs)
             for mine, theirs in zip(compiled.points_rad, reference.points_rad, strict=True):
                 np.testing.assert_allclose(mine, theirs, rtol=0, atol=1e-12)
             reached_any |= bool(compiled.reached.any())

@@ -7,6 +7,8 @@ whose straight way out is blocked by a joint limit slides along it to its goal, 
 recorded it keeps the points where walks of each number of steps end; and the compiled
 walks take the numpy loop's steps on the iiwa14's and Panda's r = 4 fibres."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from scipy.linalg import null_space
@@ -142,8 +144,8 @@ def test_the_compiled_walks_take_the_numpy_loops_steps(model: str) -> None:
     """Walks between configurations of r = 4 fibres, self-collision checked and the coaxial
     sets crossed as the service checks them: the compiled walks (`native.steer_walk`, taken
     for a serial chain without obstacles) end where the numpy loop's do (the same fibre
-    behind a plain callable), to 1e-10, and arrive alike; an expired deadline stops them
-    with the connect stage named.
+    behind a plain callable), to 1e-10, and arrive alike (split over two threads: the same
+    to the bit); an expired deadline stops them with the connect stage named.
 
     1e-10, not the single kernels' 1e-12: a walk is up to 100 steps, each projected until
     |e| is under 1e-4 rather than to convergence, so the last bits where C and numpy's
@@ -159,6 +161,11 @@ def test_the_compiled_walks_take_the_numpy_loops_steps(model: str) -> None:
         compiled = steer(space, nodes[a], nodes[b], SETTINGS)
         reference = steer(through, nodes[a], nodes[b], SETTINGS)
         assert compiled.arrived.tolist() == reference.arrived.tolist()
+        # The walks split over two threads: each is its own, to the bit.
+        threaded = replace(space, fibre=replace(space.fibre, threads=2))
+        split = steer(threaded, nodes[a], nodes[b], SETTINGS)
+        assert split.arrived.tolist() == compiled.arrived.tolist()
+        np.testing.assert_array_equal(split.q_end_rad, compiled.q_end_rad)
         np.testing.assert_allclose(compiled.q_end_rad, reference.q_end_rad, rtol=0, atol=1e-10)
         arrived_any |= bool(compiled.arrived.any())
         stopped_any |= bool((~compiled.arrived).any())
