@@ -1308,6 +1308,7 @@ static void nearest_segment_rows(const double *q, const double *points, const lo
         long long which = -1;
         for (Py_ssize_t c = 0; c < k; ++c) {
             long long i = nearest[r * k + c];
+            if (i < 0) continue; /* no candidate */
             const double *a = points + i * n;
             double d_before = segment_distance_row(qr, a, points + before[i] * n, periodic, n);
             double d_after = segment_distance_row(qr, a, points + after[i] * n, periodic, n);
@@ -1610,7 +1611,8 @@ static void steps_near_limits_rows(const double *start, const double *delta, con
    them. The points are binned on a grid over two joints (those that spread the points and
    queries most; a periodic joint's cells go round its circle), about 4 P cells; a query looks at rings of cells around its own until the k-th nearest so far is no
    farther than the ring's reach (a point beyond it differs by more than that in one of
-   the two joints, hence in the metric), or past FAR_RINGS rings measures every point. */
+   the two joints, hence in the metric) or every point within `reach` is seen, or past
+   FAR_RINGS rings measures every point; only points within `reach` are returned. */
 typedef struct {
     Py_ssize_t joint;
     int periodic;
@@ -1648,7 +1650,7 @@ static long long cell_at(const Axis *axis, long long from, long long offset) {
 
 static void nearest_points_rows(const double *points, Py_ssize_t P, const double *queries,
                                 Py_ssize_t K, const unsigned char *periodic, Py_ssize_t n,
-                                Py_ssize_t k, long long *out, long long *cell_start,
+                                Py_ssize_t k, double reach, long long *out, long long *cell_start,
                                 long long *binned, long long *cell_point, const Axis *axes) {
     long long cells = axes[0].cells * axes[1].cells;
     for (long long c = 0; c <= cells; ++c) cell_start[c] = 0;
@@ -1707,6 +1709,7 @@ static void nearest_points_rows(const double *points, Py_ssize_t P, const double
             }
             /* Unseen points lie more than ring x width away in one joint. */
             if (found == k && best_d[k - 1] <= (double)ring * reach_step) break;
+            if ((double)ring * reach_step >= reach) break; /* every point within reach seen */
             if (ring == FAR_RINGS) { /* far from every point: all of them, one by one */
                 found = 0;
                 for (long long i = 0; i < P; ++i) {
@@ -1734,6 +1737,7 @@ static void nearest_points_rows(const double *points, Py_ssize_t P, const double
                 break;
             }
         }
+        while (found > 0 && !(best_d[found - 1] <= reach)) --found; /* only those within */
         for (Py_ssize_t m = found; m < k; ++m) best[m] = -1;
     }
 }
@@ -2408,8 +2412,9 @@ static Axis axis_of(const double *points, Py_ssize_t P, const double *queries, P
 static PyObject *py_nearest_points(PyObject *self, PyObject *args) {
     Py_buffer points, queries, periodic, out;
     Py_ssize_t P, K, n, k;
-    if (!PyArg_ParseTuple(args, "y*ny*ny*nnw*", &points, &P, &queries, &K, &periodic, &n, &k,
-                          &out))
+    double reach;
+    if (!PyArg_ParseTuple(args, "y*ny*ny*nndw*", &points, &P, &queries, &K, &periodic, &n, &k,
+                          &reach, &out))
         return NULL;
     const double *pts = points.buf, *qs = queries.buf;
     const unsigned char *per = periodic.buf;
@@ -2436,7 +2441,7 @@ static PyObject *py_nearest_points(PyObject *self, PyObject *args) {
     long long *scratch = PyMem_RawMalloc((size_t)(cells + 1 + 2 * most) * sizeof *scratch);
     if (scratch != NULL) {
         Py_BEGIN_ALLOW_THREADS
-        nearest_points_rows(pts, P, qs, K, per, n, k, out.buf, scratch, scratch + cells + 1,
+        nearest_points_rows(pts, P, qs, K, per, n, k, reach, out.buf, scratch, scratch + cells + 1,
                             scratch + cells + 1 + most, axes);
         Py_END_ALLOW_THREADS
         PyMem_RawFree(scratch);
@@ -2565,8 +2570,8 @@ static PyMethodDef methods[] = {
      "steps_near_limits(start, delta, low, lower, upper, periodic, S, n, split): the trace "
      "steps whose chord may pass through the limits unseen."},
     {"nearest_points", py_nearest_points, METH_VARARGS,
-     "nearest_points(points, P, queries, K, periodic, n, k, out): each query's k nearest "
-     "points, nearest first."},
+     "nearest_points(points, P, queries, K, periodic, n, k, reach, out): each query's k "
+     "nearest points within reach, nearest first."},
     {"spread_seeds", py_spread_seeds, METH_VARARGS,
      "spread_seeds(q, M, n, spacing_rad, chosen) -> count: the trace's greedy seeds."},
     {"nearest_of_sets", py_nearest_of_sets, METH_VARARGS,

@@ -281,7 +281,8 @@ def owner_path(
     The distance is to the path's segments beside each of the sample's nearest path
     points, not to the points: a sample lies on its own curve between two points up to
     the spacing apart, while a twin curve near a singular value can pass nearer than
-    that to it without passing through it.
+    that to it without passing through it. Only candidates within reach of a segment
+    within `within_rad` are looked for, so a sample far from every path costs little.
     """
     owner = np.full(len(q_rad), -1)
     if not paths or not len(q_rad):
@@ -295,7 +296,12 @@ def owner_path(
     closed = np.array([p.closed for p in paths])
     before[first] = np.where(closed, last, first)  # ... along each path (a loop wraps)
     after[last] = np.where(closed, first, last)
-    nearest = native.nearest_points(points, q_rad, limits.periodic, min(candidates, len(points)))
+    # A candidate farther than within_rad + the longest segment is beside no segment within
+    # within_rad of the sample: leaving it out changes no owner.
+    longest = float(limits.distance(points, points[after]).max(initial=0.0))
+    reach = (within_rad + longest) * (1.0 + 1e-9) + 1e-12
+    k = min(candidates, len(points))
+    nearest = native.nearest_points(points, q_rad, limits.periodic, k, reach)
     distance, point = native.nearest_segment(q_rad, points, before, after, nearest, limits.periodic)
     on_path = distance <= within_rad  # (K,)
     owner[on_path] = which[point[on_path]]

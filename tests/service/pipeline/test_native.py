@@ -664,15 +664,27 @@ def test_nearest_segment_is_the_numpy_segments_and_brute_force(periodic: list[bo
         brute = np.minimum(brute, d)
     np.testing.assert_allclose(least, brute, rtol=0, atol=1e-12)
     assert distance.min() >= 0 and (distance >= least - 1e-15).all()
+    # A -1 candidate is none: the others decide, and a row with none is +inf and -1.
+    fewer = nearest.copy()
+    fewer[:, 2:] = -1
+    fewer[0] = -1
+    partial, which = native.nearest_segment(q, points, before, after, fewer, mask)
+    expected, expected_point = native.nearest_segment(
+        q, points, before, after, nearest[:, :2], mask
+    )
+    np.testing.assert_array_equal(partial[1:], expected[1:])
+    assert which[1:].tolist() == expected_point[1:].tolist()
+    assert partial[0] == np.inf and which[0] == -1
 
 
 def test_nearest_segment_refuses_indices_out_of_range() -> None:
     points = np.zeros((3, 2))
     ends = np.array([0, 1, 2])
-    with pytest.raises(ValueError, match="nearest must index the 3 points"):
-        native.nearest_segment(
-            np.zeros((1, 2)), points, ends, ends, np.array([[3]]), np.zeros(2, bool)
-        )
+    for wrong in (3, -2):
+        with pytest.raises(ValueError, match="nearest must index the 3 points"):
+            native.nearest_segment(
+                np.zeros((1, 2)), points, ends, ends, np.array([[wrong]]), np.zeros(2, bool)
+            )
     with pytest.raises(ValueError, match="before and after must index the 3 points"):
         native.nearest_segment(
             np.zeros((1, 2)), points, np.array([0, 1, 5]), ends, np.array([[0]]), np.zeros(2, bool)
@@ -774,7 +786,8 @@ def test_the_steps_refined_near_the_limits_are_the_numpy_slab_tests() -> None:
 def test_nearest_points_are_the_brute_force_nearest_in_order(n: int) -> None:
     """Random walks as paths (some joints periodic, wrapped), queries beside them and far
     off, fewer points than asked for: each query's k nearest points are the brute-force
-    joint-metric order (the lower row first among equally near), -1 past the last point."""
+    joint-metric order (the lower row first among equally near), -1 past the last point;
+    within a reach, the same with those beyond it -1."""
     rng = np.random.default_rng(12 + n)
     for _ in range(40):
         periodic = rng.uniform(size=n) < 0.4
@@ -788,6 +801,11 @@ def test_nearest_points_are_the_brute_force_nearest_in_order(n: int) -> None:
         expected = np.argsort(distance, axis=1, kind="stable")[:, :4]
         np.testing.assert_array_equal(nearest[:, : min(4, size)], expected)
         assert np.all(nearest[:, size:] == -1)
+        # Within a reach: the same nearest, those beyond it left out (-1).
+        reach = 0.1
+        near = native.nearest_points(points, queries, periodic, 4, reach)
+        within = np.take_along_axis(distance, expected, axis=1) <= reach
+        np.testing.assert_array_equal(near[:, : min(4, size)], np.where(within, expected, -1))
 
 
 @pytest.mark.parametrize("periodic", [False, True])
