@@ -167,7 +167,11 @@ def load_model(model_dir: Path, threads: int) -> ServedModel:
     return ServedModel(
         manifest=manifest,
         networks={
-            name: OnnxVelocityField.open(model_dir / name, threads)
+            # A one-thread session (each holds its weights: ~45 MiB over the seven
+            # bundled models' every network) only beside the network the requests use.
+            name: OnnxVelocityField.open(
+                model_dir / name, threads, serial=name == manifest.defaults.sampler.file
+            )
             for name in FLOW_FILES.values()
             if name in manifest.files
         },

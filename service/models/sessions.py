@@ -97,12 +97,13 @@ class OnnxVelocityField:
         self._parallel_min_rows = parallel_min_rows
 
     @classmethod
-    def open(cls, path: Path, threads: int) -> OnnxVelocityField:
+    def open(cls, path: Path, threads: int, serial: bool = True) -> OnnxVelocityField:
         """The network at `path` with `threads` intra-op threads for large calls (0: every
-        core), and a one-thread session beside it unless `threads` is 1."""
+        core), and, with `serial`, a one-thread session beside it unless `threads` is 1
+        (without, every call runs on the first session)."""
         parallel = open_session(path, threads)
-        serial = None if threads == 1 else open_session(path, 1)
-        return cls(parallel, serial)
+        one = open_session(path, 1) if serial and threads != 1 else None
+        return cls(parallel, one)
 
     def session_for(self, rows: int, others_in_flight: int) -> ort.InferenceSession:
         """The session a call of `rows` rows runs on while `others_in_flight` others run."""

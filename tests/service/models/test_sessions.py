@@ -20,6 +20,7 @@ from service.manifest import (
     MANIFEST_FILE,
     REPO_MODELS_DIR,
 )
+from service.models.registry import load_model
 from service.models.sessions import (
     PARALLEL_MIN_ROWS,
     CallsInFlight,
@@ -126,3 +127,20 @@ def test_flow_calls_in_flight_are_counted_while_they_run() -> None:
             assert third == 1
     with calls.entered() as again:
         assert again == 0
+
+
+def test_the_registry_opens_a_one_thread_session_only_beside_the_served_network() -> None:
+    """Each one-thread session holds its own weights: only the network a request's default
+    sampler evaluates gets one; the others run every call on their parallel session."""
+    model = load_model(PLANAR3R_DIR, threads=2)
+    for name, network in model.networks.items():
+        small = network.session_for(1, 0)
+        served = name == model.manifest.defaults.sampler.file
+        assert (small.get_session_options().intra_op_num_threads == 1) is served
+    assert (
+        OnnxVelocityField.open(PLANAR3R_DIR / FLOW_INT8_FILE, 2, serial=False)
+        .session_for(1, 0)
+        .get_session_options()
+        .intra_op_num_threads
+        == 2
+    )
