@@ -1783,8 +1783,9 @@ static double box_distance2(const double *a, const double *b, const double *box,
 }
 
 /* For each row x in [x0, x1) and each set m (the nodes of one component of several), the
-   nearest node y of the set to x within `radius` (strictly), when x is not in it: best[x, m]
-   its row (-1 for none), distance[x, m] its distance; the lower row among equally near.
+   nearest node y of the set to x within `radius` (strictly), when x is not in it:
+   best[x - x0, m] its row (-1 for none), distance[x - x0, m] its distance; the lower row
+   among equally near.
    `grouped` holds the sets' nodes' coordinates set after set (rows `member`, ascending
    within a set), set m at [start[m], start[m + 1]). */
 static void nearest_of_sets_rows(const double *points, Py_ssize_t n, const double *box,
@@ -1816,8 +1817,8 @@ static void nearest_of_sets_rows(const double *points, Py_ssize_t n, const doubl
             }
             least = sqrt(least);
             int near = found >= 0 && least < radius;
-            best[x * M + m] = near ? member[found] : -1;
-            distance[x * M + m] = near ? least : INFINITY;
+            best[(x - x0) * M + m] = near ? member[found] : -1;
+            distance[(x - x0) * M + m] = near ? least : INFINITY;
         }
     }
 }

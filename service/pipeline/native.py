@@ -1066,6 +1066,11 @@ def spread_seeds(q_rad: FloatArray, spacing_rad: float) -> IntArray:  # (M, n) -
     return chosen[:found]
 
 
+# Nodes whose nearest node of every set are tabled at once: the table is rows x sets,
+# and a 4-D fibre of 10,000 samples can hold thousands of components of several nodes.
+SETS_BLOCK_ROWS = 256
+
+
 def nearest_of_sets(
     points: FloatArray,  # (N, n) KD-tree box coordinates
     box: FloatArray,  # (n,) a finite width makes its dimension periodic with it
@@ -1073,33 +1078,42 @@ def nearest_of_sets(
     sets: int,  # M
     radius: float,
     threads: int = 1,
-) -> tuple[IntArray, FloatArray]:  # (N, M) nearest node of each set, (N, M) its distance
+) -> tuple[IntArray, IntArray, FloatArray]:  # (F,) node of the set, (F,) node x, (F,) length
     """For each node x and each set m that x is not in, the nearest node of m within
-    `radius` (strictly; the lower row among equally near) and its distance; -1 and inf for
-    none. By brute force, the rows split over `threads`: what one KD-tree per set, queried
-    by every node, answers."""
+    `radius` (strictly; the lower row among equally near), as links in order of the set,
+    then of x. By brute force, SETS_BLOCK_ROWS nodes at a time, their rows split over
+    `threads`: what one KD-tree per set, queried by every node, answers."""
     count, n = points.shape
     members = _int64(set_of, "set_of", (count,))
     if count and (members.min() < -1 or members.max() >= sets):
         raise ValueError(f"set_of must be -1 or a set in [0, {sets})")
-    best = np.full((count, sets), -1, dtype=np.int64)
-    distance = np.full((count, sets), np.inf)
+    none = np.zeros(0, dtype=np.int64)
     if not (count and sets):
-        return best, distance
+        return none, none, np.zeros(0)
     coordinates, widths = _float64(points, "points", (count, n)), _float64(box, "box", (n,))
     member = np.argsort(members, kind="stable")  # (N,) set after set, rows ascending in each
     member = member[members[member] >= 0]
     start = np.searchsorted(members[member], np.arange(sets + 1)).astype(np.int64)  # (M + 1,)
     grouped = np.ascontiguousarray(coordinates[member])
+    found: list[tuple[IntArray, IntArray, IntArray, FloatArray]] = []  # (set, x, y, length)
+    for first in range(0, count, SETS_BLOCK_ROWS):
+        size = min(SETS_BLOCK_ROWS, count - first)
+        best = np.empty((size, sets), dtype=np.int64)
+        distance = np.empty((size, sets))
 
-    def rows(part: slice) -> None:
-        _native.nearest_of_sets(
-            coordinates, n, widths, members, grouped, member, start, sets, float(radius),
-            part.start, part.stop, best, distance,
-        )  # fmt: skip
+        def rows(part: slice, first: int = first, best: IntArray = best,
+                 distance: FloatArray = distance) -> None:  # fmt: skip
+            _native.nearest_of_sets(
+                coordinates, n, widths, members, grouped, member, start, sets, float(radius),
+                first + part.start, first + part.stop, best[part], distance[part],
+            )  # fmt: skip
 
-    over_rows(rows, count, threads)
-    return best, distance
+        over_rows(rows, size, threads)
+        x, m = np.nonzero(best >= 0)
+        found.append((m, first + x, best[x, m], distance[x, m]))
+    set_index, x, y, length = (np.concatenate(column) for column in zip(*found, strict=True))
+    order = np.lexsort((x, set_index))  # by set, then node
+    return y[order], x[order], length[order]
 
 
 def links_within(

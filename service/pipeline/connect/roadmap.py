@@ -283,13 +283,12 @@ class Roadmap:
         if len(several):
             index = np.full(int(root.max()) + 1, -1)
             index[several] = np.arange(len(several))
-            best, distance = native.nearest_of_sets(
+            nearest, x, length = native.nearest_of_sets(
                 points, widths, index[root], len(several), radius_rad, self.space.fibre.threads
-            )  # (N, M) each node's nearest of each component of several
-            m, x = np.nonzero(best.T >= 0)  # in order of component, then node
-            rows_.append(best.T[m, x])
+            )  # each node's nearest of each component of several, by component then node
+            rows_.append(nearest)
             cols_.append(x)
-            length_.append(distance.T[m, x])
+            length_.append(length)
         rows, cols = np.concatenate(rows_), np.concatenate(cols_)
         length = np.concatenate(length_)
         low, high = np.minimum(rows, cols), np.maximum(rows, cols)  # one link per node pair

@@ -812,8 +812,9 @@ def test_nearest_points_are_the_brute_force_nearest_in_order(n: int) -> None:
 def test_nearest_of_sets_and_links_within_are_the_brute_force_ones(periodic: bool) -> None:
     """Nodes in components (sets; -1: a lone node, in none), a KD-tree box periodic or not:
     each node's nearest node of every set it is not in, within the radius, is the
-    brute-force one in the box metric (the lower row among equally near), and every node's
-    links within the radius are every other node nearer than it, in order."""
+    brute-force one in the box metric (the lower row among equally near), listed by set
+    then node whatever block of nodes is tabled at once, and every node's links within
+    the radius are every other node nearer than it, in order."""
     rng = np.random.default_rng(13)
     count, n, sets, radius = 300, 4, 7, 1.2
     points = rng.uniform(0.0, 4.0, (count, n))
@@ -826,23 +827,33 @@ def test_nearest_of_sets_and_links_within_are_the_brute_force_ones(periodic: boo
             d = np.where(d > 2.0, d - 4.0, np.where(d < -2.0, d + 4.0, d))
         return np.sqrt(np.sum(d * d, axis=-1))
 
-    best, distance = native.nearest_of_sets(points, box, set_of, sets, radius, threads=2)
-    for x in range(count):
-        to_all = metric(points[x], points)
-        for m in range(sets):
-            mine = np.flatnonzero(set_of == m)
-            if m == set_of[x] or not len(mine) or to_all[mine].min() >= radius:
-                assert best[x, m] == -1 and distance[x, m] == np.inf
-                continue
-            assert best[x, m] == mine[np.argmin(to_all[mine])]
-            assert distance[x, m] == pytest.approx(to_all[mine].min(), abs=1e-12)
+    nearest, x_of, length = native.nearest_of_sets(points, box, set_of, sets, radius, threads=2)
+    expected: list[tuple[int, int, int, float]] = []  # (set, x, its nearest, distance)
+    for m in range(sets):
+        mine = np.flatnonzero(set_of == m)
+        for x in range(count):
+            to_mine = metric(points[x], points[mine]) if len(mine) else np.zeros(0)
+            if m != set_of[x] and len(mine) and to_mine.min() < radius:
+                expected.append((m, x, int(mine[np.argmin(to_mine)]), float(to_mine.min())))
+    assert nearest.tolist() == [e[2] for e in expected]  # in order of set, then node
+    assert x_of.tolist() == [e[1] for e in expected]
+    np.testing.assert_allclose(length, [e[3] for e in expected], rtol=0, atol=1e-12)
+    # A block of a few rows at a time gives the same links.
+    blocks = native.SETS_BLOCK_ROWS
+    try:
+        native.SETS_BLOCK_ROWS = 7
+        again = native.nearest_of_sets(points, box, set_of, sets, radius, threads=2)
+    finally:
+        native.SETS_BLOCK_ROWS = blocks
+    for mine_, theirs in zip(again, (nearest, x_of, length), strict=True):
+        np.testing.assert_array_equal(mine_, theirs)
     rows = np.array([0, 5, 17])
     i, y, length = native.links_within(points, box, rows, radius)
     for k, row in enumerate(rows):
         to_all = metric(points[row], points)
-        expected = np.flatnonzero((to_all < radius) & (np.arange(count) != row))
-        np.testing.assert_array_equal(y[i == k], expected)
-        np.testing.assert_allclose(length[i == k], to_all[expected], atol=1e-12)
+        near = np.flatnonzero((to_all < radius) & (np.arange(count) != row))
+        np.testing.assert_array_equal(y[i == k], near)
+        np.testing.assert_allclose(length[i == k], to_all[near], atol=1e-12)
     assert np.all(np.diff(i) >= 0)
 
 
