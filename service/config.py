@@ -80,12 +80,12 @@ class Settings(BaseSettings):
         0,
         ge=0,
         description="onnxruntime intra-op threads per session; 0 gives each session the "
-        "process's share of the cores (cores // workers): a flow call of at least 448 rows "
+        "process's share of the cores (cores // workers): a flow call of at least 384 rows "
         "made while no other runs takes them all, a smaller one or one made beside another "
         "takes one thread (a worker woken for a small call costs more than it saves: "
         "`python -m tools.onnx_threads`), requests in flight at once share the cores (the "
-        "workers do not spin, so an idle one holds no core). `python -m tools.load` "
-        "measures the trade against 1 thread (docs/operations.md).",
+        "workers spin only while a call runs, so an idle one holds no core). "
+        "`python -m tools.load` measures the trade against 1 thread (docs/operations.md).",
     )
     log_level: LogLevel = Field(
         "info", description="Level of the service's JSON logs and of uvicorn's."

@@ -4,8 +4,8 @@
     python -m tools.onnx_threads --models planar3r-position --rows 128 512 1000
 
 Each model's served flow network (its manifest's sampler) is opened twice as the service
-opens it (workers that do not spin): with one intra-op thread, and with the threads the
-service gives a session on this machine (`Settings`). At each row count the two take
+opens it (workers that spin only while a call runs): with one intra-op thread, and with
+the threads the service gives a session on this machine (`Settings`). At each row count the two take
 turns, a block of calls each per round, so a load that comes and goes falls on both
 alike. Prints the median time per call of each, which is faster, and whether the service
 runs that row count on every thread (`sessions.PARALLEL_MIN_ROWS`). Compare figures only

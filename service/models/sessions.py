@@ -26,15 +26,19 @@ KINEMATICS_OUTPUTS = ("position", "rotation", "jacobian")
 def session_options(threads: int) -> ort.SessionOptions:
     """`threads` intra-op threads (0: onnxruntime's default, all cores), one inter-op.
 
-    The intra-op workers do not spin between calls: a spinning worker keeps its core busy
-    for a while after every network evaluation, which on a small machine steals that
-    core from the numpy stages of the same request (correction, connect) and from the
-    other request in flight.
+    The intra-op workers spin while a call runs and stop when it returns
+    (`session.force_spinning_stop`). Within a call a worker that sleeps must be woken for
+    each of the network's operators (about forty), which on a 2-core Intel Xeon cost more
+    than the second thread saved up to about 500 rows (`python -m tools.onnx_threads`);
+    between calls a spinning worker would keep its core busy for a while, stealing it from
+    the numpy and compiled stages of the same request (correction, connect) and from the
+    other request in flight, so it sleeps there.
     """
     options = ort.SessionOptions()
     options.intra_op_num_threads = threads
     options.inter_op_num_threads = 1
-    options.add_session_config_entry("session.intra_op.allow_spinning", "0")
+    options.add_session_config_entry("session.intra_op.allow_spinning", "1")
+    options.add_session_config_entry("session.force_spinning_stop", "1")
     options.add_session_config_entry("session.inter_op.allow_spinning", "0")
     return options
 
@@ -45,15 +49,15 @@ def open_session(path: Path, threads: int) -> ort.InferenceSession:
 
 
 # A flow call of at least this many rows runs on the session's threads, a smaller one on
-# one thread. A worker that does not spin must be woken for every call, which costs more
-# than it saves on a small call. Measured on a 2-core Intel Xeon (`python -m
+# one thread: handing a small call's work to a second thread costs more than it saves.
+# Measured on a 2-core Intel Xeon with the workers spinning within a call (`python -m
 # tools.onnx_threads`): the 512-wide int8 networks (iiwa14, Panda) run as fast or faster
-# on one thread up to about 450 rows (iiwa14 pose at 128 rows 0.49 against 0.73 ms, at 448
-# rows 1.79 against 1.80) and faster on two from about 480 (at 1000 rows 2.99 against
-# 4.23 ms); the 256-wide planar 3R network gains from two only from about 700 rows, but it
-# is drawn in rounds of 128. A row's velocity is the same to the bit on either
-# (tests/service/models/test_sessions.py).
-PARALLEL_MIN_ROWS = 448
+# on one thread up to about 320 rows (iiwa14 pose at 128 rows 0.38 against 0.50 ms, at 256
+# 0.79 against 0.77-0.89) and faster on two from about 384 (1.23 against 1.08; at 500
+# rows 1.67 against 1.42, at 1000 3.60 against 1.95); the 256-wide planar 3R network
+# crosses over about the same place, and is drawn in rounds of 128. A row's velocity is
+# the same to the bit on either (tests/service/models/test_sessions.py).
+PARALLEL_MIN_ROWS = 384
 
 
 class CallsInFlight:

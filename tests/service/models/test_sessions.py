@@ -1,5 +1,6 @@
 """kinematics.onnx (planar 3R): FK equals the closed form, Jacobian equals finite differences;
-every session is opened with the threads asked and with workers that do not spin; every
+every session is opened with the threads asked, its workers spinning only while a call runs
+(the process takes no CPU once the call returns); every
 bundled flow network gives the same velocities on one thread and on two, and a call runs
 on every thread only when it is large and no other runs.
 
@@ -9,6 +10,7 @@ that kernel is checked against at load and what models without chain.json are se
 """
 
 import json
+import time
 
 import numpy as np
 import pytest
@@ -31,6 +33,8 @@ from service.models.sessions import (
 from tests.support.app import PLANAR3R_DIR
 from tests.support.bundled import bundled_model_ids
 from training.evaluate.references.planar3r import planar3r_jacobian, planar3r_position
+
+IIWA14_POSE_DIR = REPO_MODELS_DIR / "iiwa14-pose"
 
 
 @pytest.fixture(scope="module")
@@ -67,12 +71,27 @@ def test_batch_size_is_dynamic(kinematics: OnnxKinematics) -> None:
         assert kinematics(np.zeros((batch, 3))).jacobian.shape == (batch, 6, 3)
 
 
-def test_sessions_take_the_threads_asked_and_do_not_spin() -> None:
+def test_sessions_take_the_threads_asked_and_spin_only_within_a_call() -> None:
     session = open_session(PLANAR3R_DIR / KINEMATICS_FILE, threads=2)
     options = session.get_session_options()
     assert (options.intra_op_num_threads, options.inter_op_num_threads) == (2, 1)
-    for pool in ("intra_op", "inter_op"):
-        assert options.get_session_config_entry(f"session.{pool}.allow_spinning") == "0"
+    assert options.get_session_config_entry("session.intra_op.allow_spinning") == "1"
+    assert options.get_session_config_entry("session.force_spinning_stop") == "1"
+    assert options.get_session_config_entry("session.inter_op.allow_spinning") == "0"
+
+
+def test_an_idle_process_spins_no_worker_after_a_parallel_call() -> None:
+    """After a call on two threads returns, its worker sleeps: the process uses (almost) no
+    CPU while it waits. A worker left spinning takes tens of milliseconds of CPU there."""
+    flow = OnnxVelocityField.open(IIWA14_POSE_DIR / FLOW_INT8_FILE, threads=2, serial=False)
+    rows = 2 * PARALLEL_MIN_ROWS
+    q_t, t = np.zeros((rows, 7), np.float32), np.zeros((rows, 1), np.float32)
+    condition = np.zeros((rows, 9), np.float32)
+    for _ in range(3):
+        flow(q_t, t, condition)
+        cpu_s = time.process_time()
+        time.sleep(0.2)
+        assert time.process_time() - cpu_s < 0.01
 
 
 def _bundled_flows() -> list[tuple[str, str]]:

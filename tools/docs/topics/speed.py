@@ -15,6 +15,7 @@
     <!-- figures: load-table -->                     the load test (docs/benchmark/load.json)
     <!-- figures: load-models -->                    its latency per model
     <!-- figures: model-default correction_steps --> a served default, every model
+    <!-- figures: parallel-min-rows -->              the least rows a flow call runs on all threads
 
 Options are `key=value` words: `report=NAME` reads docs/benchmark/NAME.json (default
 `benchmark`, the benchmark of record), `n=N` a size other than the goals' N, `fmt=SPEC` a
@@ -30,6 +31,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from service.models.sessions import PARALLEL_MIN_ROWS
 from tools.docs import sources
 from tools.docs.blocks import block
 from tools.goals import (
@@ -179,6 +181,12 @@ def autoscaler_target() -> float:
 
 
 # -- blocks ----------------------------------------------------------------------------
+
+
+@block("parallel-min-rows")
+def parallel_min_rows() -> str:
+    """The fewest rows a flow call runs on every thread (service/models/sessions.py)."""
+    return str(PARALLEL_MIN_ROWS)
 
 
 @block("bench")
