@@ -172,6 +172,15 @@ class SamplerSpec(_Strict):
         "whose accepted samples all lie on curves already traced (service/pipeline/"
         "rounds.py), num_samples at most; None: all num_samples at once",
     )
+    call_rows: int | None = Field(
+        default=None,
+        ge=1,
+        description="evaluate the network on at most this many samples per call: the "
+        "samples (of each round) are integrated in equal chunks of at most call_rows, each "
+        "on its own (int8: its activation scales from its own rows), the chunks over the "
+        "request's row threads, each on one onnxruntime thread "
+        "(service/pipeline/sampling.py); None: all at once, one call per step",
+    )
 
     @property
     def file(self) -> str:

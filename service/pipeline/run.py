@@ -104,6 +104,7 @@ def sample(
         limits=model.limits,
         rng=np.random.default_rng(query.seed) if rng is None else rng,
         deadline=deadline,
+        threads=model.row_threads,
     )
 
 

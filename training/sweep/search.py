@@ -199,9 +199,11 @@ def _time_grid(
 
 def _defaults(model: ServedModel, chosen: Setting, reasons: dict[str, str]) -> Defaults:
     """The model's defaults with the swept values of `chosen` and the reasons so far; what
-    the sweep does not sweep (the sampler's rounds, the connectivity but its step) stays."""
+    the sweep does not sweep (the sampler's rounds and rows per call, the connectivity but
+    its step) stays."""
     start = model.manifest.defaults
-    sampler = chosen.sampler.model_copy(update={"round_samples": start.sampler.round_samples})
+    kept = {"round_samples": start.sampler.round_samples, "call_rows": start.sampler.call_rows}
+    sampler = chosen.sampler.model_copy(update=kept)
     return Defaults.model_validate(
         {
             **start.model_dump(),

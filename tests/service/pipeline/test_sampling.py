@@ -1,7 +1,10 @@
 """sampling: Euler integration follows the flow exactly, its time grid goes from 0 to 1 with
 steps shortening towards 1 above power 1 (and then integrates a field that steepens near
 t = 1 more accurately, against the closed form), a field that pushes a draw outwards cannot
-take it to inf or NaN, and samples are seeded and wrapped."""
+take it to inf or NaN, and samples are seeded and wrapped; with rows per call, each chunk of
+draws is integrated on its own, the same on one thread or two."""
+
+from itertools import pairwise
 
 import numpy as np
 import pytest
@@ -11,6 +14,7 @@ from service.models.registry import ServedModel
 from service.pipeline.joint_space import JointLimits
 from service.pipeline.sampling import (
     ENVELOPE_MARGIN,
+    call_chunks,
     euler_integrate,
     sample_configurations,
     time_grid,
@@ -99,3 +103,48 @@ def test_samples_are_seeded_denormalised_and_wrapped(planar3r: ServedModel) -> N
     # Scaling the normalisation up pushes raw angles past pi; periodic joints come back wrapped.
     wide = AffineNormalisation(offset=[0.0] * 3, scale=[30.0] * 3)
     assert np.all(np.abs(draw(1, wide)) <= np.pi)
+
+
+def test_call_chunks_cover_the_samples_in_equal_chunks_of_at_most_call_rows() -> None:
+    assert call_chunks(500, None) == [slice(0, 500)]
+    assert call_chunks(500, 250) == [slice(0, 250), slice(250, 500)]
+    for num_samples, call_rows in [(1000, 250), (501, 250), (300, 250), (7, 1), (3, 10)]:
+        chunks = call_chunks(num_samples, call_rows)
+        sizes = [chunk.stop - chunk.start for chunk in chunks]
+        assert chunks[0].start == 0 and chunks[-1].stop == num_samples
+        assert all(a.stop == b.start for a, b in pairwise(chunks))
+        assert max(sizes) <= call_rows and max(sizes) - min(sizes) <= 1
+        assert len(chunks) == -(-num_samples // call_rows)
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_with_rows_per_call_each_chunk_is_integrated_on_its_own(
+    planar3r: ServedModel, threads: int
+) -> None:
+    """The served int8 network quantises its activations per call, so a draw's sample
+    depends on the draws that share its call: with call_rows, exactly on its chunk's."""
+    manifest = planar3r.manifest
+    limits = JointLimits.of(manifest.joints)
+    normalisation = manifest.joint_normalisation
+    sampler = manifest.defaults.sampler.model_copy(update={"call_rows": 40, "round_samples": None})
+    condition = np.array([0.4, 0.2], np.float32)
+    chunked = sample_configurations(
+        planar3r.velocity, condition, 100, sampler, normalisation, limits,
+        np.random.default_rng(3), threads=threads,
+    )  # fmt: skip
+    q_0 = np.random.default_rng(3).standard_normal((100, 3), dtype=np.float32)
+    conditions = np.ascontiguousarray(np.broadcast_to(condition, (100, 2)))
+    alone = [
+        euler_integrate(
+            planar3r.velocity, q_0[a:b], conditions[a:b], sampler.steps,
+            time_power=sampler.time_power,
+        )
+        for a, b in [(0, 33), (33, 66), (66, 100)]
+    ]  # fmt: skip
+    expected = limits.wrap(normalisation.denormalise(np.concatenate(alone).astype(np.float64)))
+    np.testing.assert_array_equal(chunked, expected)
+    whole = sample_configurations(
+        planar3r.velocity, condition, 100, sampler.model_copy(update={"call_rows": None}),
+        normalisation, limits, np.random.default_rng(3), threads=threads,
+    )  # fmt: skip
+    assert not np.array_equal(chunked, whole)  # the chunks' own activation scales

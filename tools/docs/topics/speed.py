@@ -484,6 +484,8 @@ def speed_judged(name: str) -> str:
         words = sampler_words(sampler.get("flow", "base"), sampler["steps"], sampler["precision"])
         rounds = sampler.get("round_samples")
         drawn = f"N = {d['num_samples']}" + (f" in rounds of {rounds}" if rounds else "")
+        call_rows = sampler.get("call_rows")
+        drawn += f", calls of at most {call_rows} rows" if call_rows else ""
         other = record["incumbent_defaults" if side == "candidate" else "candidate_defaults"]
         connectivity = [
             f", {key} {value}"
