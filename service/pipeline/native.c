@@ -1434,6 +1434,191 @@ static void settle_dense_rows(double *q, const double *placed, const double *low
     for (Py_ssize_t e = 0; e < E; ++e) inside[excluded[e]] = 0;
 }
 
+/* cut.py's curves cut by the limits into runs of consecutive points inside them. Curve c
+   is rows [first[c], first[c + 1]) of `points` (unwrapped along it) and `rows` (the
+   evaluated rows), closed or not; a point is inside when, read in the 2 pi window from
+   `low`, every limited joint lies within [lower, upper] (numpy's `to_window` and
+   `contains`, to the bit). A curve inside all along is one run (closed as the curve); a
+   closed curve that leaves the limits is turned to start outside (the points before its
+   first outside one moved on by the curve's turns), so no run wraps round. Each run of an
+   open or turned curve is open, with the outside point before it and after it (`exits`
+   (R, 2, n), `has_exit` (R, 2): 0 at a curve's own end). Runs are written in order to
+   out_points / out_rows, run r at [run_first[r], run_first[r + 1]); returns R. `inside`:
+   P bytes of scratch. */
+static Py_ssize_t cut_runs_of(const double *points, const long long *rows, const long long *first,
+                              const unsigned char *closed, Py_ssize_t C, Py_ssize_t n,
+                              const double *low, const double *lower, const double *upper,
+                              const unsigned char *periodic, unsigned char *inside,
+                              double *out_points, long long *out_rows, long long *run_first,
+                              unsigned char *run_closed, double *exits,
+                              unsigned char *has_exit) {
+    Py_ssize_t R = 0, written = 0;
+    double turns[64];
+    run_first[0] = 0;
+    for (Py_ssize_t c = 0; c < C; ++c) {
+        Py_ssize_t a = first[c], k = first[c + 1] - first[c], count = 0, shift = -1;
+        for (Py_ssize_t i = 0; i < k; ++i) {
+            const double *x = points + (a + i) * n;
+            int within = 1;
+            for (Py_ssize_t j = 0; j < n; ++j) {
+                double w = low[j] + mod_two_pi(x[j] - low[j]);
+                within &= periodic[j] || (w >= lower[j] && w <= upper[j]);
+            }
+            inside[i] = (unsigned char)within;
+            count += within;
+            if (!within && shift < 0) shift = i;
+        }
+        if (count == 0) continue;
+        if (count == k) { /* one run, the curve as it is */
+            memcpy(out_points + written * n, points + a * n, (size_t)(k * n) * sizeof(double));
+            memcpy(out_rows + written, rows + a, (size_t)k * sizeof(long long));
+            written += k;
+            run_closed[R] = closed[c];
+            has_exit[2 * R] = has_exit[2 * R + 1] = 0;
+            run_first[++R] = written;
+            continue;
+        }
+        int loop = closed[c] != 0;
+        if (!loop) shift = 0;
+        const double *head = points + a * n, *tail = points + (a + k - 1) * n;
+        for (Py_ssize_t j = 0; j < n; ++j)
+            turns[j] = loop ? tail[j] + wrap_to_pi(head[j] - tail[j]) - head[j] : 0.0;
+/* the i-th point of the (turned) curve, written to x */
+#define TURNED(i, x)                                                                          \
+    do {                                                                                      \
+        Py_ssize_t at_ = shift + (i), wrapped_ = at_ >= k;                                    \
+        if (wrapped_) at_ -= k;                                                               \
+        const double *p_ = points + (a + at_) * n;                                            \
+        for (Py_ssize_t j_ = 0; j_ < n; ++j_) (x)[j_] = wrapped_ ? p_[j_] + turns[j_] : p_[j_]; \
+    } while (0)
+#define INSIDE(i) inside[(shift + (i)) >= k ? shift + (i) - k : shift + (i)]
+        Py_ssize_t i = 0;
+        while (i < k) {
+            if (!INSIDE(i)) {
+                ++i;
+                continue;
+            }
+            Py_ssize_t begin = i;
+            while (i < k && INSIDE(i)) {
+                Py_ssize_t at = shift + i;
+                out_rows[written] = rows[a + (at >= k ? at - k : at)];
+                TURNED(i, out_points + written * n);
+                ++written;
+                ++i;
+            }
+            double *before = exits + 2 * R * n, *after = before + n;
+            has_exit[2 * R] = begin > 0 || loop;
+            if (begin > 0) TURNED(begin - 1, before);
+            else if (loop) TURNED(k - 1, before);
+            has_exit[2 * R + 1] = i < k || loop;
+            if (i < k) TURNED(i, after);
+            else if (loop) TURNED(0, after);
+            run_closed[R] = 0;
+            run_first[++R] = written;
+        }
+#undef TURNED
+#undef INSIDE
+    }
+    return R;
+}
+
+/* densify.py's nodes: each run's refined start (limit_of[2 r] >= 0: row L0 of `found`),
+   its points, its refined end (limit_of[2 r + 1]), and for a closed run its first point
+   again, the short way round; node_row is the node's evaluated row (T + l for limit
+   point l), node_kind 0 for a point Newton moves, 1 for a limit point (kept as refined),
+   2 for a closed run's closing repeat. Then how many inner points the segment after each
+   node gets: ceil(|chord| / (0.9 spacing)) - 1, at least 0, none after a run's last node
+   (numpy's order to the bit). Returns the dense points in all (nodes and inner points). */
+static Py_ssize_t dense_nodes_of(const double *points, const long long *rows,
+                                 const long long *first, const unsigned char *closed,
+                                 Py_ssize_t R, Py_ssize_t n, const long long *limit_of,
+                                 const double *found, Py_ssize_t T, double spacing_rad,
+                                 double *node_q, long long *node_row, long long *node_run,
+                                 unsigned char *node_kind, long long *inner) {
+    Py_ssize_t N = 0;
+    double gap = 0.9 * spacing_rad;
+    for (Py_ssize_t r = 0; r < R; ++r) {
+        Py_ssize_t start = N;
+        long long head = limit_of[2 * r], end = limit_of[2 * r + 1];
+        if (head >= 0) {
+            memcpy(node_q + N * n, found + head * n, (size_t)n * sizeof(double));
+            node_row[N] = T + head;
+            node_kind[N++] = 1;
+        }
+        for (long long i = first[r]; i < first[r + 1]; ++i) {
+            memcpy(node_q + N * n, points + i * n, (size_t)n * sizeof(double));
+            node_row[N] = rows[i];
+            node_kind[N++] = 0;
+        }
+        if (end >= 0) {
+            memcpy(node_q + N * n, found + end * n, (size_t)n * sizeof(double));
+            node_row[N] = T + end;
+            node_kind[N++] = 1;
+        }
+        if (closed[r]) { /* back to the first point, the short way round */
+            const double *last = node_q + (N - 1) * n, *head_q = node_q + start * n;
+            double *x = node_q + N * n;
+            for (Py_ssize_t j = 0; j < n; ++j) x[j] = last[j] + wrap_to_pi(head_q[j] - last[j]);
+            node_row[N] = node_row[start];
+            node_kind[N++] = 2;
+        }
+        for (Py_ssize_t i = start; i < N; ++i) node_run[i] = r;
+    }
+    Py_ssize_t D = 0;
+    for (Py_ssize_t i = 0; i < N; ++i) {
+        inner[i] = 0;
+        if (i + 1 < N && node_run[i + 1] == node_run[i]) {
+            double sum = 0.0;
+            for (Py_ssize_t j = 0; j < n; ++j) {
+                double d = node_q[(i + 1) * n + j] - node_q[i * n + j];
+                sum += d * d;
+            }
+            double count = ceil(sqrt(sum) / gap);
+            inner[i] = (long long)(count > 1.0 ? count : 1.0) - 1;
+        }
+        D += inner[i] + 1;
+    }
+    return D;
+}
+
+/* densify.py's dense path from the nodes: node i at dense row offset[i], then its
+   segment's inner points, the p-th of c on the cubic Hermite curve between the node and
+   the next at s = p / (c + 1) with their tangents (rows of `tangent` (T, n), then of
+   `found_tangent`) signed along the chord (`along_rows`, `hermite_rows`). placed (D, n):
+   where each dense point is put before Newton; dense_run (D,): its run; between (I,):
+   the inner points' dense rows, guess and direction (I, n) theirs. */
+static void dense_layout_of(const double *node_q, const long long *node_row,
+                            const long long *node_run, const long long *inner, Py_ssize_t N,
+                            Py_ssize_t n, const double *tangent, const double *found_tangent,
+                            Py_ssize_t T, double *placed, long long *dense_run,
+                            long long *offset, long long *between, double *guess,
+                            double *direction) {
+    double chord[64], t0[64], t1[64];
+    Py_ssize_t row = 0, I = 0;
+    for (Py_ssize_t i = 0; i < N; ++i) {
+        const double *a = node_q + i * n;
+        offset[i] = row;
+        memcpy(placed + row * n, a, (size_t)n * sizeof(double));
+        dense_run[row++] = node_run[i];
+        long long c = inner[i];
+        if (c == 0) continue;
+        const double *b = a + n;
+        long long ra = node_row[i], rb = node_row[i + 1];
+        const double *ta = ra < T ? tangent + ra * n : found_tangent + (ra - T) * n;
+        const double *tb = rb < T ? tangent + rb * n : found_tangent + (rb - T) * n;
+        for (Py_ssize_t j = 0; j < n; ++j) chord[j] = b[j] - a[j];
+        along_rows(ta, chord, 1, n, t0);
+        along_rows(tb, chord, 1, n, t1);
+        for (long long p = 1; p <= c; ++p) {
+            double s = (double)p / (double)(c + 1);
+            hermite_rows(a, t0, b, t1, &s, 1, n, guess + I * n, direction + I * n);
+            memcpy(placed + row * n, guess + I * n, (size_t)n * sizeof(double));
+            between[I++] = row;
+            dense_run[row++] = node_run[i];
+        }
+    }
+}
+
 /* strands.py's closest approach of two strands of the traced fibre: the least joint-metric
    distance, at most `within_rad`, between points of two different curves, or of one curve
    but more than `strand_arc` apart along it (the shorter way round a closed one); +inf
@@ -2361,6 +2546,65 @@ static PyObject *py_settle_dense(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
+static PyObject *py_cut_runs(PyObject *self, PyObject *args) {
+    Py_buffer points, rows, first, closed, low, lower, upper, periodic, inside, out_points,
+        out_rows, run_first, run_closed, exits, has_exit;
+    Py_ssize_t C, n, R;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*nny*y*y*y*w*w*w*w*w*w*w*", &points, &rows, &first,
+                          &closed, &C, &n, &low, &lower, &upper, &periodic, &inside,
+                          &out_points, &out_rows, &run_first, &run_closed, &exits, &has_exit))
+        return NULL;
+    Py_BEGIN_ALLOW_THREADS
+    R = cut_runs_of(points.buf, rows.buf, first.buf, closed.buf, C, n, low.buf, lower.buf,
+                    upper.buf, periodic.buf, inside.buf, out_points.buf, out_rows.buf,
+                    run_first.buf, run_closed.buf, exits.buf, has_exit.buf);
+    Py_END_ALLOW_THREADS
+    Py_buffer *all[] = {&points,     &rows,     &first,     &closed,     &low,
+                        &lower,      &upper,    &periodic,  &inside,     &out_points,
+                        &out_rows,   &run_first, &run_closed, &exits,    &has_exit};
+    for (size_t i = 0; i < sizeof all / sizeof *all; ++i) PyBuffer_Release(all[i]);
+    return PyLong_FromSsize_t(R);
+}
+
+static PyObject *py_dense_nodes(PyObject *self, PyObject *args) {
+    Py_buffer points, rows, first, closed, limit_of, found, node_q, node_row, node_run, node_kind,
+        inner;
+    Py_ssize_t R, n, T, D;
+    double spacing_rad;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*nny*y*ndw*w*w*w*w*", &points, &rows, &first, &closed, &R,
+                          &n, &limit_of, &found, &T, &spacing_rad, &node_q, &node_row,
+                          &node_run, &node_kind, &inner))
+        return NULL;
+    Py_BEGIN_ALLOW_THREADS
+    D = dense_nodes_of(points.buf, rows.buf, first.buf, closed.buf, R, n, limit_of.buf, found.buf,
+                       T, spacing_rad, node_q.buf, node_row.buf, node_run.buf, node_kind.buf,
+                       inner.buf);
+    Py_END_ALLOW_THREADS
+    Py_buffer *all[] = {&points,   &rows,     &first,    &closed,    &limit_of, &found,
+                        &node_q,   &node_row, &node_run, &node_kind, &inner};
+    for (size_t i = 0; i < sizeof all / sizeof *all; ++i) PyBuffer_Release(all[i]);
+    return PyLong_FromSsize_t(D);
+}
+
+static PyObject *py_dense_layout(PyObject *self, PyObject *args) {
+    Py_buffer node_q, node_row, node_run, inner, tangent, found_tangent, placed, dense_run, offset,
+        between, guess, direction;
+    Py_ssize_t N, n, T;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*nny*y*nw*w*w*w*w*w*", &node_q, &node_row, &node_run,
+                          &inner, &N, &n, &tangent, &found_tangent, &T, &placed, &dense_run,
+                          &offset, &between, &guess, &direction))
+        return NULL;
+    Py_BEGIN_ALLOW_THREADS
+    dense_layout_of(node_q.buf, node_row.buf, node_run.buf, inner.buf, N, n, tangent.buf,
+                    found_tangent.buf, T, placed.buf, dense_run.buf, offset.buf, between.buf,
+                    guess.buf, direction.buf);
+    Py_END_ALLOW_THREADS
+    Py_buffer *all[] = {&node_q,    &node_row, &node_run, &inner,   &tangent, &found_tangent,
+                        &placed,    &dense_run, &offset,  &between, &guess,   &direction};
+    for (size_t i = 0; i < sizeof all / sizeof *all; ++i) PyBuffer_Release(all[i]);
+    Py_RETURN_NONE;
+}
+
 static PyObject *py_closest_strands(PyObject *self, PyObject *args) {
     Py_buffer points, first, closed, periodic, work, curve_of, column;
     Py_ssize_t P, n, C;
@@ -2564,6 +2808,16 @@ static PyMethodDef methods[] = {
     {"settle_dense", py_settle_dense, METH_VARARGS,
      "settle_dense(q, placed, low, lower, upper, periodic, D, n, stray_rad, fixed_rows, "
      "fixed_q, F, excluded, E, inside): densify's window, limits and wrap, in place."},
+    {"cut_runs", py_cut_runs, METH_VARARGS,
+     "cut_runs(points, rows, first, closed, C, n, low, lower, upper, periodic, inside, "
+     "out_points, out_rows, run_first, run_closed, exits, has_exit) -> R: the traced curves "
+     "cut by the limits into runs."},
+    {"dense_nodes", py_dense_nodes, METH_VARARGS,
+     "dense_nodes(points, rows, first, closed, R, n, limit_of, found, T, spacing_rad, node_q, "
+     "node_row, node_run, node_kind, inner) -> D: densify's nodes and inner point counts."},
+    {"dense_layout", py_dense_layout, METH_VARARGS,
+     "dense_layout(node_q, node_row, node_run, inner, N, n, tangent, found_tangent, T, placed, "
+     "dense_run, offset, between, guess, direction): densify's dense points before Newton."},
     {"closest_strands", py_closest_strands, METH_VARARGS,
      "closest_strands(points, P, n, first, C, closed, periodic, within_rad, strand_arc, work, "
      "curve_of, column) -> the least distance between two strands of the traced curves."},

@@ -19,7 +19,9 @@ beforehand, and its cache locator requires a writable directory.
 Each wrapper checks what the C code relies on (float64, C-contiguous, shapes) and
 allocates the outputs; the C code loops over rows with the GIL released. Each kernel is
 pinned by tests/service/pipeline/test_native.py to the numpy implementation it replaces
-(1e-12) and to pytorch-kinematics.
+(1e-12) and to pytorch-kinematics; the trace's cut by the limits and dense layout, by
+tests/service/pipeline/connect/test_densify.py to the Python loops they replaced (to the
+bit).
 """
 
 from __future__ import annotations
@@ -968,6 +970,133 @@ def settle_dense(
             excluded, len(excluded), inside,
         )  # fmt: skip
     return q, inside.astype(bool)
+
+
+def cut_runs(
+    points_rad: FloatArray,  # (P, n) every curve's points, unwrapped along it
+    rows: IntArray,  # (P,) their evaluated rows
+    first: IntArray,  # (C + 1,) curve c is [first[c], first[c + 1])
+    closed: BoolArray,  # (C,)
+    window_low_rad: FloatArray,  # (n,)
+    lower_rad: FloatArray,  # (n,)
+    upper_rad: FloatArray,  # (n,)
+    periodic: BoolArray,  # (n,)
+) -> tuple[FloatArray, IntArray, IntArray, BoolArray, FloatArray, BoolArray]:
+    """cut.py's runs of consecutive points inside the limits, run after run: their points
+    (P', n) and rows (P',), where each starts (R + 1,), closed (R,), and the outside point
+    before and after each (R, 2, n) where there is one (R, 2); a closed curve that leaves
+    the limits turned to start outside, the points past its start moved on by its turns."""
+    count, n = points_rad.shape
+    curves = len(first) - 1
+    if n > MAX_JOINTS:
+        raise ValueError(f"{n} joints; the kernel takes at most {MAX_JOINTS}")
+    first = _int64(first, "first", (curves + 1,))
+    if curves < 0 or first[0] != 0 or first[-1] != count or np.any(np.diff(first) < 0):
+        raise ValueError(f"first must run from 0 to the {count} points, never back")
+    out_points, out_rows = np.empty((count, n)), np.empty(count, dtype=np.int64)
+    run_first = np.zeros(count + 1, dtype=np.int64)
+    run_closed = np.zeros(count, dtype=np.uint8)
+    exits, has_exit = np.full((count, 2, n), np.nan), np.zeros((count, 2), dtype=np.uint8)
+    runs = _native.cut_runs(
+        _float64(points_rad, "points_rad", (count, n)), _int64(rows, "rows", (count,)), first,
+        np.ascontiguousarray(closed, dtype=np.uint8).reshape(curves), curves, n,
+        *(_float64(v, name, (n,)) for v, name in (
+            (window_low_rad, "window_low_rad"), (lower_rad, "lower_rad"),
+            (upper_rad, "upper_rad"),
+        )),
+        np.ascontiguousarray(periodic, dtype=np.uint8), np.empty(count, dtype=np.uint8),
+        out_points, out_rows, run_first, run_closed, exits, has_exit,
+    )  # fmt: skip
+    size = run_first[runs]
+    return (
+        out_points[:size], out_rows[:size], run_first[: runs + 1], run_closed[:runs].astype(bool),
+        exits[:runs], has_exit[:runs].astype(bool),
+    )  # fmt: skip
+
+
+@dataclass(frozen=True)
+class DenseNodes:
+    """densify.py's nodes (N), run after run: each run's refined start, its points, its
+    refined end, and for a closed run its first point again."""
+
+    q_rad: FloatArray  # (N, n) unwrapped along each run
+    row: IntArray  # (N,) evaluated row; T + l for refined limit point l
+    run: IntArray  # (N,)
+    kind: IntArray  # (N,) 0 a point Newton moves, 1 a limit point, 2 a closing repeat
+    inner: IntArray  # (N,) inner points in the segment after the node
+    dense: int  # nodes and inner points in all
+
+
+def dense_nodes(
+    points_rad: FloatArray,  # (P, n) the runs' points, unwrapped along each
+    rows: IntArray,  # (P,) their evaluated rows
+    first: IntArray,  # (R + 1,)
+    closed: BoolArray,  # (R,)
+    limit_of: IntArray,  # (2 R,) each run's refined start and end: a row of found, -1: none
+    found_rad: FloatArray,  # (L, n) the refined limit points, unwrapped like their runs
+    evaluated: int,  # T, the evaluated rows (a limit point's row is T + its index)
+    spacing_rad: float,
+) -> DenseNodes:
+    """densify.py's nodes and how many inner points each segment gets:
+    ceil(|chord| / (0.9 spacing)) - 1, at least 0, none after a run's last node."""
+    count, n = points_rad.shape
+    runs = len(closed)
+    if n > MAX_JOINTS:
+        raise ValueError(f"{n} joints; the kernel takes at most {MAX_JOINTS}")
+    first = _int64(first, "first", (runs + 1,))
+    limit_of = _int64(limit_of, "limit_of", (2 * runs,))
+    found_rad = _float64(found_rad, "found_rad", (len(found_rad), n))
+    if runs and (first[0] != 0 or first[-1] != count or np.any(np.diff(first) < 1)):
+        raise ValueError(f"first must run from 0 to the {count} points, a point a run at least")
+    if np.any(limit_of >= len(found_rad)):
+        raise ValueError(f"limit_of must index the {len(found_rad)} limit points")
+    nodes = count + int(np.sum(limit_of >= 0)) + int(np.sum(closed))
+    q, row, run = np.empty((nodes, n)), np.empty(nodes, np.int64), np.empty(nodes, np.int64)
+    kind, inner = np.empty(nodes, np.uint8), np.empty(nodes, np.int64)
+    dense = _native.dense_nodes(
+        _float64(points_rad, "points_rad", (count, n)), _int64(rows, "rows", (count,)), first,
+        np.ascontiguousarray(closed, dtype=np.uint8), runs, n, limit_of, found_rad,
+        int(evaluated), float(spacing_rad), q, row, run, kind, inner,
+    )  # fmt: skip
+    return DenseNodes(q, row, run, kind, inner, int(dense))
+
+
+@dataclass(frozen=True)
+class DenseLayout:
+    """densify.py's dense path before Newton: each node, then its segment's inner points."""
+
+    placed_rad: FloatArray  # (D, n) where each dense point is put
+    run: IntArray  # (D,) the run of each
+    offset: IntArray  # (N,) dense row of each node
+    between: IntArray  # (I,) dense rows of the inner points
+    guess_rad: FloatArray  # (I, n) the inner points, on the cubic Hermite curves
+    direction: FloatArray  # (I, n) unit directions of those curves there
+
+
+def dense_layout(
+    nodes: DenseNodes,
+    tangent: FloatArray,  # (T, n) at the evaluated rows
+    found_tangent: FloatArray,  # (L, n) at the refined limit points
+) -> DenseLayout:
+    """The p-th of a segment's c inner points on the cubic Hermite curve (`hermite`) from
+    its node to the next at s = p / (c + 1), the nodes' tangents signed along the chord
+    (`along`)."""
+    count, n = nodes.q_rad.shape
+    total = nodes.dense
+    inner = total - count
+    rows = len(tangent)
+    if np.any(nodes.row >= rows + len(found_tangent)):
+        raise ValueError(f"node rows must index the {rows} + {len(found_tangent)} tangents")
+    placed, run = np.empty((total, n)), np.empty(total, np.int64)
+    offset, between = np.empty(count, np.int64), np.empty(inner, np.int64)
+    guess, direction = np.empty((inner, n)), np.empty((inner, n))
+    _native.dense_layout(
+        nodes.q_rad, nodes.row, nodes.run, nodes.inner, count, n,
+        _float64(tangent, "tangent", (rows, n)),
+        _float64(found_tangent, "found_tangent", (len(found_tangent), n)), rows,
+        placed, run, offset, between, guess, direction,
+    )  # fmt: skip
+    return DenseLayout(placed, run, offset, between, guess, direction)
 
 
 def closest_strands(

@@ -174,39 +174,35 @@ class Steps:
 
 
 @dataclass(frozen=True)
-class Run:
-    rows: IntArray  # (P,) evaluated points in order
-    points: FloatArray  # (P, n) those points unwrapped
-    closed: bool
-    start_exit: FloatArray | None  # (n,) the outside point before the run (open runs)
-    end_exit: FloatArray | None  # (n,) the outside point after the run
+class Runs:
+    """The runs of consecutive traced points inside the limits (R of them), run after run."""
+
+    points: FloatArray  # (P, n) unwrapped along each run
+    rows: IntArray  # (P,) their evaluated rows
+    first: IntArray  # (R + 1,) run r is [first[r], first[r + 1])
+    closed: BoolArray  # (R,) a whole curve inside the limits
+    exits: FloatArray  # (R, 2, n) the outside point before the run and after it ...
+    has_exit: BoolArray  # (R, 2) ... where there is one (not at an open curve's own end)
+
+    def __len__(self) -> int:
+        return len(self.closed)
 
 
-def cut_by_limits(loops: list[Curve], limits: JointLimits) -> list[Run]:
-    """The runs of consecutive points of each curve that lie inside the limits."""
+def cut_by_limits(loops: list[Curve], limits: JointLimits) -> Runs:
+    """The runs of consecutive points of each curve that lie inside the limits: a curve
+    inside all along is one run; a closed curve that leaves them is turned to start
+    outside (its points past the start moved on by its turns, so the run stays
+    continuous), so that no run wraps round; compiled (`native.cut_runs`)."""
+    n = limits.count
     if not loops:
-        return []
-    window = to_window(np.concatenate([loop.points for loop in loops]), window_low(limits))
-    inside_all = limits.contains(window)  # (P,)
-    per_loop = np.split(inside_all, np.cumsum([len(loop.rows) for loop in loops])[:-1])
-    runs = []
-    for loop, inside in zip(loops, per_loop, strict=True):
-        if inside.all():
-            runs.append(Run(loop.rows, loop.points, loop.closed, None, None))
-            continue
-        if not inside.any():
-            continue
-        rows, points, closed = loop.rows, loop.points, loop.closed
-        if closed:  # rotate so that the loop starts outside: runs never wrap
-            shift = int(np.argmin(inside))
-            turns = points[-1] + torus_difference(points[0], points[-1]) - points[0]  # (n,)
-            rows = np.concatenate([rows[shift:], rows[:shift]])
-            inside = np.concatenate([inside[shift:], inside[:shift]])
-            points = np.concatenate([points[shift:], points[:shift] + turns])
-        edges = np.diff(np.concatenate([[0], inside.astype(np.int8), [0]]))
-        starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
-        for begin, end in zip(starts.tolist(), stops.tolist(), strict=True):
-            before = points[begin - 1] if begin > 0 else (points[-1] if closed else None)
-            after = points[end] if end < len(points) else (points[0] if closed else None)
-            runs.append(Run(rows[begin:end], points[begin:end], False, before, after))
-    return runs
+        none = np.zeros((0, n))
+        return Runs(none, np.zeros(0, np.int64), np.zeros(1, np.int64), np.zeros(0, bool),
+                    np.zeros((0, 2, n)), np.zeros((0, 2), bool))  # fmt: skip
+    first = np.cumsum([0] + [len(loop.rows) for loop in loops])
+    cut = native.cut_runs(
+        np.concatenate([loop.points for loop in loops]),
+        np.concatenate([loop.rows for loop in loops]),
+        first, np.array([loop.closed for loop in loops]), window_low(limits),
+        limits.lower_rad, limits.upper_rad, limits.periodic,
+    )  # fmt: skip
+    return Runs(*cut)

@@ -3,13 +3,11 @@ spacing on the cubic Hermite curve through its points, every point put on the fi
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from service.pipeline import native
-from service.pipeline.arrays import BoolArray, FloatArray, IntArray
-from service.pipeline.connect.trace.cut import Run, along, hermite, to_window, window_low
+from service.pipeline.arrays import FloatArray, IntArray
+from service.pipeline.connect.trace.cut import Runs, to_window, window_low
 from service.pipeline.connect.trace.points import (
     Evaluated,
     TracedPiece,
@@ -20,32 +18,10 @@ from service.pipeline.fibre import Fibre, Projection, evaluate, newton, project,
 from service.pipeline.joint_space import JointLimits
 
 
-@dataclass(frozen=True)
-class Nodes:
-    """Every run's nodes in order (its traced points and its refined limit points), as
-    rows of the evaluated points extended by the limit points."""
-
-    q_rad: FloatArray  # (N, n) unwrapped along each run
-    row: IntArray  # (N,) rows of `evaluated.extended(limits)`
-    run: IntArray  # (N,) the run each node belongs to
-    last: BoolArray  # (N,) the run's last node: no segment after it
-
-
-@dataclass(frozen=True)
-class Layout:
-    """The dense path: each node, then the inner points of the segment to the next."""
-
-    inner: IntArray  # (N,) inner points after each node
-    offset: IntArray  # (N,) dense row of each node
-    segment: IntArray  # (D,) the node each dense row follows
-    between: IntArray  # (I,) dense rows that are inner points
-    part: IntArray  # (D,) 0 for a node, k for the k-th inner point after it
-
-
 def densify(
     fibre: Fibre,
     evaluated: Evaluated,
-    runs: list[Run],
+    runs: Runs,
     limits: JointLimits,
     settings: TraceSettings,
 ) -> list[TracedPiece]:
@@ -58,102 +34,59 @@ def densify(
     is still above path_error. A traced node needs no second evaluation: Newton goes on
     from what the trace measured there, and a node already within path_error stays as it
     is. The refined limit points are exact and are not moved (another step would push
-    them across their limit).
+    them across their limit). The nodes and the guesses between them are laid out by
+    compiled code (`native.dense_nodes`, `native.dense_layout`).
     """
-    if not runs:
+    if not len(runs):
         return []
-    n = runs[0].points.shape[1]
     low = window_low(limits)
     found, found_window, limit_of = limit_points(fibre, runs, evaluated, limits, low, settings)
-    nodes = evaluated.extended(found)  # a limit point's row: len(evaluated) + its index
-    node = _nodes(runs, evaluated, found, limit_of)
-    chord = np.diff(node.q_rad, axis=0)  # (N - 1, n)
-    layout = _layout(node, chord, settings.path_spacing_rad)
-    k = layout.segment[layout.between]
-    guess, direction = hermite(
-        node.q_rad[k],
-        along(nodes.tangent[node.row[k]], chord[k]),
-        node.q_rad[k + 1],
-        along(nodes.tangent[node.row[k + 1]], chord[k]),
-        layout.part[layout.between] / (layout.inner[k] + 1),
-    )  # (I, n)
-    # The closing node of a closed run repeats its first; a limit point is kept as it is.
-    repeated = np.zeros(len(node.row), dtype=bool)
-    repeated[np.flatnonzero(node.last)] = [run.closed for run in runs]
-    limit_node = node.row >= len(evaluated)
-    moving_node = np.flatnonzero(~repeated & ~limit_node)
-    placed = np.empty((len(layout.segment), n))  # (D, n) where each point was put before Newton
-    placed[layout.offset] = node.q_rad
-    placed[layout.between] = guess
-    known_rows = node.row[moving_node]
-    known = Projection(node.q_rad[moving_node], nodes.error[known_rows], nodes.jacobian[known_rows])
+    nodes = native.dense_nodes(
+        runs.points, runs.rows, runs.first, runs.closed, limit_of, found.q_rad,
+        len(evaluated), settings.path_spacing_rad,
+    )  # fmt: skip
+    layout = native.dense_layout(nodes, evaluated.tangent, found.tangent)
+    moving, limit_node = nodes.kind == MOVING, nodes.kind == LIMIT
+    known_rows = nodes.row[moving]  # every one a traced point: a row of `evaluated`
+    known = Projection(
+        nodes.q_rad[moving], evaluated.error[known_rows], evaluated.jacobian[known_rows]
+    )
+    guess = layout.guess_rad
     start = _stack(known, evaluate(fibre, guess)) if len(guess) else known
-    tangent = np.concatenate([nodes.tangent[known_rows], direction])
+    tangent = np.concatenate([evaluated.tangent[known_rows], layout.direction])
     moved = newton(
         fibre, start, settings.path_iterations, tangent=tangent, until=settings.path_error
     )
-    q = placed.copy()
-    error = np.empty((len(layout.segment), nodes.error.shape[1]))
-    error[layout.offset] = nodes.error[node.row]  # the limit points' (the others are set next)
-    moved_rows = np.concatenate([layout.offset[moving_node], layout.between])
+    q = layout.placed_rad.copy()  # (D, n)
+    error = np.empty((nodes.dense, evaluated.error.shape[1]))
+    traced = nodes.row < len(evaluated)
+    error[layout.offset[traced]] = evaluated.error[nodes.row[traced]]  # closing repeats
+    error[layout.offset[~traced]] = found.error[nodes.row[~traced] - len(evaluated)]
+    moved_rows = np.concatenate([layout.offset[moving], layout.between])
     q[moved_rows], error[moved_rows] = moved.q_rad, moved.error
     # Into the window, a limit point as refined (on its limit exactly, not through its
     # run's coordinates); left out: a point past a limit, one Newton carried away from its
     # place on the path, the closing repeat of a closed run.
     q, inside = native.settle_dense(
-        q, placed, low, limits.lower_rad, limits.upper_rad, limits.periodic,
+        q, layout.placed_rad, low, limits.lower_rad, limits.upper_rad, limits.periodic,
         stray_rad=0.5 * settings.path_spacing_rad,
         fixed_rows=layout.offset[limit_node],
-        fixed_rad=found_window[node.row[limit_node] - len(evaluated)],
-        excluded_rows=layout.offset[repeated],
+        fixed_rad=found_window[nodes.row[limit_node] - len(evaluated)],
+        excluded_rows=layout.offset[nodes.kind == REPEATED],
     )  # fmt: skip
-    bounds = np.searchsorted(node.run[layout.segment], np.arange(len(runs) + 1))
-    pieces = []
-    for r, run in enumerate(runs):
-        rows = np.arange(bounds[r], bounds[r + 1])
-        rows = rows[inside[rows]]  # a point the projection pushed past a limit is left out
-        path = TracedPiece(path_rad=q[rows].reshape(-1, n), error=error[rows], closed=run.closed)
-        pieces.append(path)
-    return pieces
+    # Each run's points that stayed inside, in order (a point the projection pushed past
+    # a limit is left out).
+    ends = np.cumsum(np.bincount(layout.run[inside], minlength=len(runs)))[:-1]
+    return [
+        TracedPiece(path_rad=path, error=path_error, closed=bool(closed))
+        for path, path_error, closed in zip(
+            np.split(q[inside], ends), np.split(error[inside], ends), runs.closed, strict=True
+        )
+    ]
 
 
-def _nodes(runs: list[Run], evaluated: Evaluated, found: Evaluated, limit_of: IntArray) -> Nodes:
-    """Each run's nodes: its refined start, its traced points, its refined end, and for a
-    closed run its first point again (the short way round)."""
-    node_q: list[FloatArray] = []  # per run (N_r, n), unwrapped
-    node_rows: list[IntArray] = []  # per run (N_r,) rows of `nodes`
-    for r, run in enumerate(runs):
-        first, last = limit_of[2 * r], limit_of[2 * r + 1]
-        points, rows = run.points, run.rows
-        if first >= 0:
-            points = np.concatenate([found.q_rad[first][None], points])
-            rows = np.concatenate([[len(evaluated) + first], rows])
-        if last >= 0:
-            points = np.concatenate([points, found.q_rad[last][None]])
-            rows = np.concatenate([rows, [len(evaluated) + last]])
-        if run.closed:  # back to the first point, the short way round
-            closing = points[-1:] + torus_difference(points[:1], points[-1:])
-            points, rows = np.concatenate([points, closing]), np.append(rows, rows[0])
-        node_q.append(points)
-        node_rows.append(rows)
-    run_of = np.repeat(np.arange(len(runs)), [len(rows) for rows in node_rows])  # (N,)
-    return Nodes(
-        q_rad=np.concatenate(node_q),
-        row=np.concatenate(node_rows),
-        run=run_of,
-        last=np.append(run_of[1:] != run_of[:-1], True),
-    )
-
-
-def _layout(node: Nodes, chord: FloatArray, spacing_rad: float) -> Layout:
-    """How many inner points each segment gets (chord / (0.9 spacing), rounded up, less
-    one; none after a run's last node) and where every point lies in the dense path."""
-    inner = np.ceil(np.linalg.norm(chord, axis=1) / (0.9 * spacing_rad))
-    inner = np.append(np.where(node.last[:-1], 0, np.maximum(inner, 1) - 1), 0).astype(np.int64)
-    offset = np.cumsum(inner + 1) - (inner + 1)  # (N,) dense row of each node
-    segment = np.repeat(np.arange(len(node.row)), inner + 1)  # (D,)
-    part = np.arange(len(segment)) - offset[segment]  # (D,) 0 for the node itself
-    return Layout(inner, offset, segment, np.flatnonzero(part > 0), part)
+# What each node of `native.dense_nodes` is.
+MOVING, LIMIT, REPEATED = 0, 1, 2
 
 
 def _stack(*parts: Projection) -> Projection:
@@ -166,7 +99,7 @@ def _stack(*parts: Projection) -> Projection:
 
 def limit_points(
     fibre: Fibre,
-    runs: list[Run],
+    runs: Runs,
     evaluated: Evaluated,
     limits: JointLimits,
     window_low: FloatArray,  # (n,)
@@ -182,23 +115,16 @@ def limit_points(
     refined point that lands outside another limit or off the fibre is dropped (the run
     then ends at its last traced point, within a step of the limit).
     """
-    inner, outer, keys = [], [], []
-    for r, run in enumerate(runs):
-        if run.start_exit is not None:
-            inner.append(run.points[0])
-            outer.append(run.start_exit)
-            keys.append(2 * r)
-        if run.end_exit is not None:
-            inner.append(run.points[-1])
-            outer.append(run.end_exit)
-            keys.append(2 * r + 1)
     lower_rad, upper_rad, periodic = limits.lower_rad, limits.upper_rad, limits.periodic
     found = np.full(2 * len(runs), -1)
     n, m = evaluated.q_rad.shape[1], evaluated.error.shape[1]
-    if not inner:
+    keys = np.flatnonzero(runs.has_exit.ravel())  # (E,) 2 r for a run's start, 2 r + 1 its end
+    if not len(keys):
         none = Evaluated(np.zeros((0, n)), np.zeros((0, m)), np.zeros((0, m, n)), np.zeros((0, n)))
         return none, np.zeros((0, n)), found
-    a, b = np.asarray(inner), np.asarray(outer)  # (E, n) unwrapped, consecutive on the curve
+    ends = np.stack([runs.points[runs.first[:-1]], runs.points[runs.first[1:] - 1]], axis=1)
+    a = ends.reshape(-1, n)[keys]  # (E, n) unwrapped, consecutive on the curve
+    b = runs.exits.reshape(-1, n)[keys]
     b = a + torus_difference(b, a)
     a_w = to_window(a, window_low)
     b_w = a_w + (b - a)  # the same step in window coordinates (may leave the window)
@@ -223,5 +149,5 @@ def limit_points(
     # Back to the runs' unwrapped coordinates: the same offset as each inner point.
     tangent = unit_tangent(refined.jacobian, previous=b - a)
     points = Evaluated(q + (a - a_w), refined.error, refined.jacobian, tangent).take(good)
-    found[np.asarray(keys)[good]] = np.arange(good.sum())
+    found[keys[good]] = np.arange(good.sum())
     return points, q[good], found

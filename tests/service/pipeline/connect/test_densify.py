@@ -1,0 +1,121 @@
+"""cut and densify: the compiled cut of the traced curves by the limits and the compiled
+layout of the dense paths give the Python loops' answers (tests/support/trace_reference.py)
+to the bit: the same runs (points, rows, closedness, the outside point at each end), the
+same pieces (every path point, its error, closedness), on traced iiwa14 pose, Panda pose
+and planar 3R fibres, and on a closed curve that leaves the limits and comes back twice
+(turned to start outside, so no run wraps round). A curve wholly inside is one run, one
+wholly outside none; malformed curve bounds are refused."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from service.manifest import REPO_MODELS_DIR
+from service.models.registry import ServedModel, load_model
+from service.pipeline import native
+from service.pipeline.connect.trace import TraceSettings
+from service.pipeline.connect.trace.cut import Runs, cut_by_limits, refine_near_limits
+from service.pipeline.connect.trace.densify import densify
+from service.pipeline.connect.trace.points import Curve, Evaluated, curve
+from service.pipeline.connect.trace.seeds import spread_seeds
+from service.pipeline.connect.trace.walk import walk_fronts
+from service.pipeline.deadline import NO_DEADLINE
+from service.pipeline.fibre import Fibre, evaluate, project, unit_tangent
+from service.pipeline.joint_space import JointLimits
+from tests.service.pipeline.fibre_support import pose_fibre
+from tests.support import trace_reference as reference
+from training.evaluate.targets import uniform_configurations
+
+SETTINGS = TraceSettings(
+    step_rad=0.15, max_steps=200, seed_spacing_rad=1.0, path_spacing_rad=0.05
+)  # the bundled models' defaults
+
+
+def traced(fibre: Fibre, q_on_fibre: np.ndarray) -> tuple[Evaluated, list[Curve]]:
+    """trace_fibre's phases up to the cut: the walked curves, refined near the limits."""
+    start = evaluate(fibre, spread_seeds(q_on_fibre, SETTINGS.seed_spacing_rad))
+    tangent = unit_tangent(start.jacobian)
+    seeds = Evaluated.of(start, tangent).take(np.all(np.isfinite(tangent), axis=1))
+    evaluated, loops, _ = walk_fronts(fibre, seeds, SETTINGS, NO_DEADLINE)
+    return evaluated, loops
+
+
+def assert_same_runs(runs: Runs, expected: list[reference.Run]) -> None:
+    assert len(runs) == len(expected)
+    for r, run in enumerate(expected):
+        rows = slice(runs.first[r], runs.first[r + 1])
+        np.testing.assert_array_equal(runs.points[rows], run.points)
+        np.testing.assert_array_equal(runs.rows[rows], run.rows)
+        assert runs.closed[r] == run.closed
+        for side, exit_rad in enumerate((run.start_exit, run.end_exit)):
+            assert runs.has_exit[r, side] == (exit_rad is not None)
+            if exit_rad is not None:
+                np.testing.assert_array_equal(runs.exits[r, side], exit_rad)
+
+
+@pytest.mark.parametrize("model_id", ["iiwa14-pose", "panda-pose", "planar3r-position"])
+def test_runs_and_pieces_are_the_python_loops_answers(model_id: str) -> None:
+    model: ServedModel = load_model(REPO_MODELS_DIR / model_id, threads=1)
+    limits = JointLimits.of(model.manifest.joints)
+    checked_pieces = 0
+    for seed, q_target in enumerate(uniform_configurations(limits, 6, seed=41)):
+        fibre = pose_fibre(model, q_target)
+        near = q_target + np.random.default_rng(seed).normal(0.0, 0.5, (200, len(q_target)))
+        on_fibre = project(fibre, near, 20)
+        evaluated, loops = traced(fibre, on_fibre.q_rad[on_fibre.error_norm < 1e-9])
+        evaluated, loops = refine_near_limits(fibre, evaluated, loops, limits, SETTINGS)
+        runs = cut_by_limits(loops, limits)
+        expected_runs = reference.cut_by_limits(loops, limits)
+        assert_same_runs(runs, expected_runs)
+        pieces = densify(fibre, evaluated, runs, limits, SETTINGS)
+        expected = reference.densify(fibre, evaluated, expected_runs, limits, SETTINGS)
+        assert len(pieces) == len(expected)
+        for piece, want in zip(pieces, expected, strict=True):
+            np.testing.assert_array_equal(piece.path_rad, want.path_rad)
+            np.testing.assert_array_equal(piece.error, want.error)
+            assert piece.closed == want.closed
+        checked_pieces += len(pieces)
+    assert checked_pieces >= 6
+
+
+def circle_curve(turns_rad: float = 0.0) -> tuple[Curve, JointLimits]:
+    """A closed curve of 40 points round a circle of radius 1 in two joints, joint 0
+    limited to [-0.5, 0.5] (the curve leaves and comes back twice), joint 1 periodic."""
+    theta = np.linspace(0.0, 2 * np.pi, 40, endpoint=False)
+    q = np.stack([np.cos(theta), np.sin(theta) + turns_rad], axis=1)
+    evaluated = Evaluated(q, np.zeros((40, 1)), np.zeros((40, 1, 2)), np.zeros((40, 2)))
+    limits = JointLimits(
+        lower_rad=np.array([-0.5, -np.pi]),
+        upper_rad=np.array([0.5, np.pi]),
+        periodic=np.array([False, True]),
+    )
+    return curve(evaluated, np.roll(np.arange(40), 3), closed=True), limits
+
+
+@pytest.mark.parametrize("turns_rad", [0.0, 3.0])
+def test_a_closed_curve_leaving_the_limits_is_turned_to_start_outside(turns_rad: float) -> None:
+    loop, limits = circle_curve(turns_rad)
+    runs = cut_by_limits([loop], limits)
+    assert_same_runs(runs, reference.cut_by_limits([loop], limits))
+    assert len(runs) == 2 and not runs.closed.any() and runs.has_exit.all()
+    inside = cut_by_limits([loop], JointLimits(
+        lower_rad=np.array([-2.0, -np.pi]), upper_rad=np.array([2.0, np.pi]),
+        periodic=np.array([False, True]),
+    ))  # fmt: skip
+    assert len(inside) == 1 and inside.closed[0] and not inside.has_exit.any()
+    np.testing.assert_array_equal(inside.points, loop.points)
+    outside = cut_by_limits([loop], JointLimits(
+        lower_rad=np.array([1.5, -np.pi]), upper_rad=np.array([2.0, np.pi]),
+        periodic=np.array([False, True]),
+    ))  # fmt: skip
+    assert len(outside) == 0 and len(outside.points) == 0
+
+
+def test_curve_bounds_that_do_not_cover_the_points_are_refused() -> None:
+    loop, limits = circle_curve()
+    with pytest.raises(ValueError, match="first must run from 0"):
+        native.cut_runs(
+            loop.points, loop.rows, np.array([0, 30]), np.array([True]), np.zeros(2),
+            limits.lower_rad, limits.upper_rad, limits.periodic,
+        )  # fmt: skip

@@ -1,0 +1,270 @@
+"""The trace's last phases as numpy and Python loops, kept as the reference the compiled
+ones are pinned to (tests/service/pipeline/connect/test_densify.py): the curves cut by the
+limits into runs, each run's ends refined onto the limits, and the runs densified to the
+path spacing.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from service.pipeline import native
+from service.pipeline.arrays import BoolArray, FloatArray, IntArray
+from service.pipeline.connect.trace.cut import along, hermite, to_window, window_low
+from service.pipeline.connect.trace.points import (
+    Curve,
+    Evaluated,
+    TracedPiece,
+    TraceSettings,
+    torus_difference,
+)
+from service.pipeline.fibre import Fibre, Projection, evaluate, newton, project, unit_tangent
+from service.pipeline.joint_space import JointLimits
+
+
+@dataclass(frozen=True)
+class Run:
+    rows: IntArray  # (P,) evaluated points in order
+    points: FloatArray  # (P, n) those points unwrapped
+    closed: bool
+    start_exit: FloatArray | None  # (n,) the outside point before the run (open runs)
+    end_exit: FloatArray | None  # (n,) the outside point after the run
+
+
+def cut_by_limits(loops: list[Curve], limits: JointLimits) -> list[Run]:
+    """The runs of consecutive points of each curve that lie inside the limits."""
+    if not loops:
+        return []
+    window = to_window(np.concatenate([loop.points for loop in loops]), window_low(limits))
+    inside_all = limits.contains(window)  # (P,)
+    per_loop = np.split(inside_all, np.cumsum([len(loop.rows) for loop in loops])[:-1])
+    runs = []
+    for loop, inside in zip(loops, per_loop, strict=True):
+        if inside.all():
+            runs.append(Run(loop.rows, loop.points, loop.closed, None, None))
+            continue
+        if not inside.any():
+            continue
+        rows, points, closed = loop.rows, loop.points, loop.closed
+        if closed:  # rotate so that the loop starts outside: runs never wrap
+            shift = int(np.argmin(inside))
+            turns = points[-1] + torus_difference(points[0], points[-1]) - points[0]  # (n,)
+            rows = np.concatenate([rows[shift:], rows[:shift]])
+            inside = np.concatenate([inside[shift:], inside[:shift]])
+            points = np.concatenate([points[shift:], points[:shift] + turns])
+        edges = np.diff(np.concatenate([[0], inside.astype(np.int8), [0]]))
+        starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+        for begin, end in zip(starts.tolist(), stops.tolist(), strict=True):
+            before = points[begin - 1] if begin > 0 else (points[-1] if closed else None)
+            after = points[end] if end < len(points) else (points[0] if closed else None)
+            runs.append(Run(rows[begin:end], points[begin:end], False, before, after))
+    return runs
+
+
+@dataclass(frozen=True)
+class Nodes:
+    """Every run's nodes in order (its traced points and its refined limit points), as
+    rows of the evaluated points extended by the limit points."""
+
+    q_rad: FloatArray  # (N, n) unwrapped along each run
+    row: IntArray  # (N,) rows of `evaluated.extended(limits)`
+    run: IntArray  # (N,) the run each node belongs to
+    last: BoolArray  # (N,) the run's last node: no segment after it
+
+
+@dataclass(frozen=True)
+class Layout:
+    """The dense path: each node, then the inner points of the segment to the next."""
+
+    inner: IntArray  # (N,) inner points after each node
+    offset: IntArray  # (N,) dense row of each node
+    segment: IntArray  # (D,) the node each dense row follows
+    between: IntArray  # (I,) dense rows that are inner points
+    part: IntArray  # (D,) 0 for a node, k for the k-th inner point after it
+
+
+def densify(
+    fibre: Fibre,
+    evaluated: Evaluated,
+    runs: list[Run],
+    limits: JointLimits,
+    settings: TraceSettings,
+) -> list[TracedPiece]:
+    """Each run with its ends refined onto the limits, at the path spacing, all evaluated.
+
+    A run's nodes are its traced points and its refined limit points. Between two nodes
+    a chord of length L gets ceil(L / (0.9 spacing)) - 1 points on the cubic Hermite
+    curve through the nodes' tangents, within O(L^4) of the fibre, and Newton puts each on
+    it (orthogonally to the curve's direction), with more steps for the points whose |e|
+    is still above path_error. A traced node needs no second evaluation: Newton goes on
+    from what the trace measured there, and a node already within path_error stays as it
+    is. The refined limit points are exact and are not moved (another step would push
+    them across their limit).
+    """
+    if not runs:
+        return []
+    n = runs[0].points.shape[1]
+    low = window_low(limits)
+    found, found_window, limit_of = limit_points(fibre, runs, evaluated, limits, low, settings)
+    nodes = evaluated.extended(found)  # a limit point's row: len(evaluated) + its index
+    node = _nodes(runs, evaluated, found, limit_of)
+    chord = np.diff(node.q_rad, axis=0)  # (N - 1, n)
+    layout = _layout(node, chord, settings.path_spacing_rad)
+    k = layout.segment[layout.between]
+    guess, direction = hermite(
+        node.q_rad[k],
+        along(nodes.tangent[node.row[k]], chord[k]),
+        node.q_rad[k + 1],
+        along(nodes.tangent[node.row[k + 1]], chord[k]),
+        layout.part[layout.between] / (layout.inner[k] + 1),
+    )  # (I, n)
+    # The closing node of a closed run repeats its first; a limit point is kept as it is.
+    repeated = np.zeros(len(node.row), dtype=bool)
+    repeated[np.flatnonzero(node.last)] = [run.closed for run in runs]
+    limit_node = node.row >= len(evaluated)
+    moving_node = np.flatnonzero(~repeated & ~limit_node)
+    placed = np.empty((len(layout.segment), n))  # (D, n) where each point was put before Newton
+    placed[layout.offset] = node.q_rad
+    placed[layout.between] = guess
+    known_rows = node.row[moving_node]
+    known = Projection(node.q_rad[moving_node], nodes.error[known_rows], nodes.jacobian[known_rows])
+    start = _stack(known, evaluate(fibre, guess)) if len(guess) else known
+    tangent = np.concatenate([nodes.tangent[known_rows], direction])
+    moved = newton(
+        fibre, start, settings.path_iterations, tangent=tangent, until=settings.path_error
+    )
+    q = placed.copy()
+    error = np.empty((len(layout.segment), nodes.error.shape[1]))
+    error[layout.offset] = nodes.error[node.row]  # the limit points' (the others are set next)
+    moved_rows = np.concatenate([layout.offset[moving_node], layout.between])
+    q[moved_rows], error[moved_rows] = moved.q_rad, moved.error
+    # Into the window, a limit point as refined (on its limit exactly, not through its
+    # run's coordinates); left out: a point past a limit, one Newton carried away from its
+    # place on the path, the closing repeat of a closed run.
+    q, inside = native.settle_dense(
+        q, placed, low, limits.lower_rad, limits.upper_rad, limits.periodic,
+        stray_rad=0.5 * settings.path_spacing_rad,
+        fixed_rows=layout.offset[limit_node],
+        fixed_rad=found_window[node.row[limit_node] - len(evaluated)],
+        excluded_rows=layout.offset[repeated],
+    )  # fmt: skip
+    bounds = np.searchsorted(node.run[layout.segment], np.arange(len(runs) + 1))
+    pieces = []
+    for r, run in enumerate(runs):
+        rows = np.arange(bounds[r], bounds[r + 1])
+        rows = rows[inside[rows]]  # a point the projection pushed past a limit is left out
+        path = TracedPiece(path_rad=q[rows].reshape(-1, n), error=error[rows], closed=run.closed)
+        pieces.append(path)
+    return pieces
+
+
+def _nodes(runs: list[Run], evaluated: Evaluated, found: Evaluated, limit_of: IntArray) -> Nodes:
+    """Each run's nodes: its refined start, its traced points, its refined end, and for a
+    closed run its first point again (the short way round)."""
+    node_q: list[FloatArray] = []  # per run (N_r, n), unwrapped
+    node_rows: list[IntArray] = []  # per run (N_r,) rows of `nodes`
+    for r, run in enumerate(runs):
+        first, last = limit_of[2 * r], limit_of[2 * r + 1]
+        points, rows = run.points, run.rows
+        if first >= 0:
+            points = np.concatenate([found.q_rad[first][None], points])
+            rows = np.concatenate([[len(evaluated) + first], rows])
+        if last >= 0:
+            points = np.concatenate([points, found.q_rad[last][None]])
+            rows = np.concatenate([rows, [len(evaluated) + last]])
+        if run.closed:  # back to the first point, the short way round
+            closing = points[-1:] + torus_difference(points[:1], points[-1:])
+            points, rows = np.concatenate([points, closing]), np.append(rows, rows[0])
+        node_q.append(points)
+        node_rows.append(rows)
+    run_of = np.repeat(np.arange(len(runs)), [len(rows) for rows in node_rows])  # (N,)
+    return Nodes(
+        q_rad=np.concatenate(node_q),
+        row=np.concatenate(node_rows),
+        run=run_of,
+        last=np.append(run_of[1:] != run_of[:-1], True),
+    )
+
+
+def _layout(node: Nodes, chord: FloatArray, spacing_rad: float) -> Layout:
+    """How many inner points each segment gets (chord / (0.9 spacing), rounded up, less
+    one; none after a run's last node) and where every point lies in the dense path."""
+    inner = np.ceil(np.linalg.norm(chord, axis=1) / (0.9 * spacing_rad))
+    inner = np.append(np.where(node.last[:-1], 0, np.maximum(inner, 1) - 1), 0).astype(np.int64)
+    offset = np.cumsum(inner + 1) - (inner + 1)  # (N,) dense row of each node
+    segment = np.repeat(np.arange(len(node.row)), inner + 1)  # (D,)
+    part = np.arange(len(segment)) - offset[segment]  # (D,) 0 for the node itself
+    return Layout(inner, offset, segment, np.flatnonzero(part > 0), part)
+
+
+def _stack(*parts: Projection) -> Projection:
+    return Projection(
+        q_rad=np.concatenate([p.q_rad for p in parts]),
+        error=np.concatenate([p.error for p in parts]),
+        jacobian=np.concatenate([p.jacobian for p in parts]),
+    )
+
+
+def limit_points(
+    fibre: Fibre,
+    runs: list[Run],
+    evaluated: Evaluated,
+    limits: JointLimits,
+    window_low: FloatArray,  # (n,)
+    settings: TraceSettings,
+) -> tuple[Evaluated, FloatArray, IntArray]:
+    """Each run's start and end refined onto the joint limit its curve crosses there: the
+    refined points (L,), unwrapped like their runs, the same (L, n) in window coordinates
+    (the limited joint on its limit exactly), and for each run end (2 x runs, start then
+    end) the index of its point, -1 for none.
+
+    Between the last point inside and the first outside, the joint that leaves first is
+    set on its limit and held there while Newton puts the rest back on the fibre. A
+    refined point that lands outside another limit or off the fibre is dropped (the run
+    then ends at its last traced point, within a step of the limit).
+    """
+    inner, outer, keys = [], [], []
+    for r, run in enumerate(runs):
+        if run.start_exit is not None:
+            inner.append(run.points[0])
+            outer.append(run.start_exit)
+            keys.append(2 * r)
+        if run.end_exit is not None:
+            inner.append(run.points[-1])
+            outer.append(run.end_exit)
+            keys.append(2 * r + 1)
+    lower_rad, upper_rad, periodic = limits.lower_rad, limits.upper_rad, limits.periodic
+    found = np.full(2 * len(runs), -1)
+    n, m = evaluated.q_rad.shape[1], evaluated.error.shape[1]
+    if not inner:
+        none = Evaluated(np.zeros((0, n)), np.zeros((0, m)), np.zeros((0, m, n)), np.zeros((0, n)))
+        return none, np.zeros((0, n)), found
+    a, b = np.asarray(inner), np.asarray(outer)  # (E, n) unwrapped, consecutive on the curve
+    b = a + torus_difference(b, a)
+    a_w = to_window(a, window_low)
+    b_w = a_w + (b - a)  # the same step in window coordinates (may leave the window)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_low = np.where(b_w < lower_rad, (a_w - lower_rad) / (a_w - b_w), np.inf)
+        t_high = np.where(b_w > upper_rad, (upper_rad - a_w) / (b_w - a_w), np.inf)
+    t_cross = np.where(periodic, np.inf, np.minimum(t_low, t_high))  # (E, n)
+    joint = np.argmin(t_cross, axis=1)  # (E,)
+    rows = np.arange(len(a))
+    t = np.clip(t_cross[rows, joint], 0.0, 1.0)
+    guess = a_w + t[:, None] * (b_w - a_w)
+    bound = np.where(t_low[rows, joint] <= t_high[rows, joint], lower_rad[joint], upper_rad[joint])
+    guess[rows, joint] = bound
+    locked = np.zeros_like(guess, dtype=bool)
+    locked[rows, joint] = True
+    refined = project(fibre, guess, iterations=6, locked=locked, until=settings.path_error)
+    q = refined.q_rad
+    q[rows, joint] = bound  # exactly on the limit (the locked joint did not move)
+    inside = limits.contains(q)
+    close = np.linalg.norm(q - a_w, axis=1) <= 2.0 * np.linalg.norm(b_w - a_w, axis=1)
+    good = inside & close & (refined.error_norm < 1e-8)
+    # Back to the runs' unwrapped coordinates: the same offset as each inner point.
+    tangent = unit_tangent(refined.jacobian, previous=b - a)
+    points = Evaluated(q + (a - a_w), refined.error, refined.jacobian, tangent).take(good)
+    found[np.asarray(keys)[good]] = np.arange(good.sum())
+    return points, q[good], found
