@@ -1434,6 +1434,111 @@ static void settle_dense_rows(double *q, const double *placed, const double *low
     for (Py_ssize_t e = 0; e < E; ++e) inside[excluded[e]] = 0;
 }
 
+/* strands.py's chaining of the trace's fronts into curves. Rows [0, S) of q (T, n) are the
+   seeds; row S + i was reached by front by_front[i] (fronts 2 s and 2 s + 1 leave seed s
+   along +t and -t), in travel order. A front's last point lies past its partner's when the
+   partner's last point is behind it against its last step (the fronts met just after
+   passing): that point is dropped from the front followed forward. From each seed not yet
+   on a curve: the seed, its + front, the partner front backwards to its seed, that seed's
+   other front, ... until back at the first seed (closed), at a front that met none, or at
+   a seed another chain took (open; then the same backwards from the - front, in front of
+   the seed). Writes the curves' rows to out_rows, curve c at [first[c], first[c + 1]),
+   closed[c]; returns the number of curves. Scratch: `front_first` F + 1 and `front_rows`
+   T - S longs, `visited` S and `overlap` F bytes, `ahead` and `behind` T longs. */
+static long long follow_fronts(const long long *front_first, const long long *front_rows,
+                               const long long *partner, const unsigned char *overlap,
+                               unsigned char *visited, long long front, long long stop,
+                               long long *out, long long *count) {
+    long long k = 0;
+    for (;;) {
+        long long other = partner[front], a = front_first[front], b = front_first[front + 1];
+        if (other < 0) {
+            for (long long i = a; i < b; ++i) out[k++] = front_rows[i];
+            *count = k;
+            return 0;
+        }
+        if (overlap[front]) --b;
+        for (long long i = a; i < b; ++i) out[k++] = front_rows[i];
+        for (long long i = front_first[other + 1] - 1; i >= front_first[other]; --i)
+            out[k++] = front_rows[i];
+        long long seed = other / 2;
+        if (seed == stop || visited[seed]) {
+            *count = k;
+            return seed == stop;
+        }
+        visited[seed] = 1;
+        out[k++] = seed;
+        front = other ^ 1;
+    }
+}
+
+static Py_ssize_t chain_fronts_of(const double *q, Py_ssize_t T, Py_ssize_t n, Py_ssize_t S,
+                                  const long long *by_front, const long long *partner,
+                                  long long *front_first, long long *front_rows,
+                                  unsigned char *visited, unsigned char *overlap,
+                                  long long *ahead, long long *behind, long long *out_rows,
+                                  long long *first, unsigned char *closed) {
+    Py_ssize_t F = 2 * S, reached = T - S, C = 0, written = 0;
+    for (Py_ssize_t f = 0; f <= F; ++f) front_first[f] = 0;
+    for (Py_ssize_t i = 0; i < reached; ++i) ++front_first[by_front[i] + 1];
+    for (Py_ssize_t f = 0; f < F; ++f) front_first[f + 1] += front_first[f];
+    for (Py_ssize_t f = 0; f < F; ++f) ahead[f] = front_first[f]; /* fill positions */
+    for (Py_ssize_t i = 0; i < reached; ++i) front_rows[ahead[by_front[i]]++] = S + i;
+    for (Py_ssize_t f = 0; f < F; ++f) {
+        long long other = partner[f], a = front_first[f], b = front_first[f + 1];
+        overlap[f] = 0;
+        if (other < 0 || b - a < 2 || front_first[other + 1] == front_first[other]) continue;
+        const double *before = q + front_rows[b - 2] * n, *last = q + front_rows[b - 1] * n;
+        const double *theirs = q + front_rows[front_first[other + 1] - 1] * n;
+        double dot = 0.0;
+        for (Py_ssize_t j = 0; j < n; ++j)
+            dot += wrap_to_pi(theirs[j] - last[j]) * wrap_to_pi(last[j] - before[j]);
+        overlap[f] = dot < 0.0;
+    }
+    for (Py_ssize_t s = 0; s < S; ++s) visited[s] = 0;
+    first[0] = 0;
+    for (Py_ssize_t s = 0; s < S; ++s) {
+        if (visited[s]) continue;
+        visited[s] = 1;
+        long long forward, backward = 0;
+        int loop = (int)follow_fronts(front_first, front_rows, partner, overlap, visited, 2 * s,
+                                      s, ahead, &forward);
+        if (!loop)
+            follow_fronts(front_first, front_rows, partner, overlap, visited, 2 * s + 1, s,
+                          behind, &backward);
+        for (long long i = backward - 1; i >= 0; --i) out_rows[written++] = behind[i];
+        out_rows[written++] = s;
+        for (long long i = 0; i < forward; ++i) out_rows[written++] = ahead[i];
+        closed[C] = (unsigned char)loop;
+        first[++C] = written;
+    }
+    return C;
+}
+
+/* points.py's `unwrap` of every curve: curve c's rows [first[c], first[c + 1]) of q read in
+   order, each step the short way round (wrap_to_pi of every joint), the points the first
+   one plus the running sum of the steps (numpy's cumsum, to the bit). */
+static void unwrap_curves_of(const double *q, const long long *rows, const long long *first,
+                             Py_ssize_t C, Py_ssize_t n, double *out) {
+    double sum[64];
+    for (Py_ssize_t c = 0; c < C; ++c) {
+        long long a = first[c], b = first[c + 1];
+        if (a == b) continue;
+        const double *head = q + rows[a] * n;
+        for (Py_ssize_t j = 0; j < n; ++j) {
+            out[a * n + j] = head[j];
+            sum[j] = 0.0;
+        }
+        for (long long i = a + 1; i < b; ++i) {
+            const double *x = q + rows[i] * n, *y = q + rows[i - 1] * n;
+            for (Py_ssize_t j = 0; j < n; ++j) {
+                sum[j] += wrap_to_pi(x[j] - y[j]);
+                out[i * n + j] = head[j] + sum[j];
+            }
+        }
+    }
+}
+
 /* cut.py's curves cut by the limits into runs of consecutive points inside them. Curve c
    is rows [first[c], first[c + 1]) of `points` (unwrapped along it) and `rows` (the
    evaluated rows), closed or not; a point is inside when, read in the 2 pi window from
@@ -2546,6 +2651,39 @@ static PyObject *py_settle_dense(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
+static PyObject *py_chain_fronts(PyObject *self, PyObject *args) {
+    Py_buffer q, by_front, partner, front_first, front_rows, visited, overlap, ahead, behind,
+        out_rows, first, closed;
+    Py_ssize_t T, n, S, C;
+    if (!PyArg_ParseTuple(args, "y*nnny*y*w*w*w*w*w*w*w*w*w*", &q, &T, &n, &S, &by_front, &partner,
+                          &front_first, &front_rows, &visited, &overlap, &ahead, &behind,
+                          &out_rows, &first, &closed))
+        return NULL;
+    Py_BEGIN_ALLOW_THREADS
+    C = chain_fronts_of(q.buf, T, n, S, by_front.buf, partner.buf, front_first.buf,
+                        front_rows.buf, visited.buf, overlap.buf, ahead.buf, behind.buf,
+                        out_rows.buf, first.buf, closed.buf);
+    Py_END_ALLOW_THREADS
+    Py_buffer *all[] = {&q,       &by_front, &partner, &front_first, &front_rows, &visited,
+                        &overlap, &ahead,    &behind,  &out_rows,    &first,      &closed};
+    for (size_t i = 0; i < sizeof all / sizeof *all; ++i) PyBuffer_Release(all[i]);
+    return PyLong_FromSsize_t(C);
+}
+
+static PyObject *py_unwrap_curves(PyObject *self, PyObject *args) {
+    Py_buffer q, rows, first, out;
+    Py_ssize_t C, n;
+    if (!PyArg_ParseTuple(args, "y*y*y*nnw*", &q, &rows, &first, &C, &n, &out)) return NULL;
+    Py_BEGIN_ALLOW_THREADS
+    unwrap_curves_of(q.buf, rows.buf, first.buf, C, n, out.buf);
+    Py_END_ALLOW_THREADS
+    PyBuffer_Release(&q);
+    PyBuffer_Release(&rows);
+    PyBuffer_Release(&first);
+    PyBuffer_Release(&out);
+    Py_RETURN_NONE;
+}
+
 static PyObject *py_cut_runs(PyObject *self, PyObject *args) {
     Py_buffer points, rows, first, closed, low, lower, upper, periodic, inside, out_points,
         out_rows, run_first, run_closed, exits, has_exit;
@@ -2808,6 +2946,12 @@ static PyMethodDef methods[] = {
     {"settle_dense", py_settle_dense, METH_VARARGS,
      "settle_dense(q, placed, low, lower, upper, periodic, D, n, stray_rad, fixed_rows, "
      "fixed_q, F, excluded, E, inside): densify's window, limits and wrap, in place."},
+    {"chain_fronts", py_chain_fronts, METH_VARARGS,
+     "chain_fronts(q, T, n, S, by_front, partner, front_first, front_rows, visited, overlap, "
+     "ahead, behind, out_rows, first, closed) -> C: the trace's fronts chained into curves."},
+    {"unwrap_curves", py_unwrap_curves, METH_VARARGS,
+     "unwrap_curves(q, rows, first, C, n, out): each curve's points, every step the short "
+     "way round."},
     {"cut_runs", py_cut_runs, METH_VARARGS,
      "cut_runs(points, rows, first, closed, C, n, low, lower, upper, periodic, inside, "
      "out_points, out_rows, run_first, run_closed, exits, has_exit) -> R: the traced curves "

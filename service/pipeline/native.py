@@ -972,6 +972,51 @@ def settle_dense(
     return q, inside.astype(bool)
 
 
+def chain_fronts(
+    q_rad: FloatArray,  # (T, n) the seeds (first S rows), then every point the fronts reached
+    seeds: int,  # S
+    by_front: IntArray,  # (T - S,) the front that reached each, in travel order
+    partner: IntArray,  # (2 S,) the front each met, -1: none
+) -> tuple[IntArray, IntArray, BoolArray]:  # rows (P,), first (C + 1,), closed (C,)
+    """strands.py's fronts chained through their seeds and meetings into ordered curves:
+    the curves' rows of `q_rad`, curve after curve, where each starts, and which close."""
+    total, n = q_rad.shape
+    reached, fronts = total - seeds, 2 * seeds
+    by_front = _int64(by_front, "by_front", (reached,))
+    partner = _int64(partner, "partner", (fronts,))
+    if np.any((by_front < 0) | (by_front >= fronts)) or np.any(partner >= fronts):
+        raise ValueError(f"fronts must be numbered below {fronts}")
+    rows, first = np.empty(total, np.int64), np.empty(seeds + 1, np.int64)
+    closed = np.empty(seeds, np.uint8)
+    curves = _native.chain_fronts(
+        _float64(q_rad, "q_rad", (total, n)), total, n, seeds, by_front, partner,
+        np.empty(fronts + 1, np.int64), np.empty(reached, np.int64), np.empty(seeds, np.uint8),
+        np.empty(fronts, np.uint8), np.empty(total, np.int64), np.empty(total, np.int64),
+        rows, first, closed,
+    )  # fmt: skip
+    return rows[: first[curves]], first[: curves + 1], closed[:curves].astype(bool)
+
+
+def unwrap_curves(
+    q_rad: FloatArray,  # (T, n)
+    rows: IntArray,  # (P,) each curve's rows in order, curve after curve
+    first: IntArray,  # (C + 1,)
+) -> FloatArray:  # (P, n)
+    """points.py's `unwrap` of each curve: its points made continuous, every step the short
+    way round the torus, to the bit."""
+    total, n = q_rad.shape
+    count = len(rows)
+    rows = _int64(rows, "rows", (count,))
+    first = _int64(first, "first", (len(first),))
+    if len(first) < 1 or first[0] != 0 or first[-1] != count or np.any(np.diff(first) < 0):
+        raise ValueError(f"first must run from 0 to the {count} rows, never back")
+    if count and (rows.min() < 0 or rows.max() >= total):
+        raise ValueError(f"rows must index the {total} points")
+    out = np.empty((count, n))
+    _native.unwrap_curves(_float64(q_rad, "q_rad", (total, n)), rows, first, len(first) - 1, n, out)
+    return out
+
+
 def cut_runs(
     points_rad: FloatArray,  # (P, n) every curve's points, unwrapped along it
     rows: IntArray,  # (P,) their evaluated rows

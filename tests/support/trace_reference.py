@@ -1,7 +1,7 @@
-"""The trace's last phases as numpy and Python loops, kept as the reference the compiled
-ones are pinned to (tests/service/pipeline/connect/test_densify.py): the curves cut by the
-limits into runs, each run's ends refined onto the limits, and the runs densified to the
-path spacing.
+"""The trace's phases after the walk as numpy and Python loops, kept as the reference the
+compiled ones are pinned to (tests/service/pipeline/connect/test_densify.py): the fronts
+chained into curves (each a `Curve` of its own), the curves cut by the limits into runs,
+each run's ends refined onto the limits, and the runs densified to the path spacing.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from service.pipeline import native
 from service.pipeline.arrays import BoolArray, FloatArray, IntArray
 from service.pipeline.connect.trace.cut import along, hermite, to_window, window_low
 from service.pipeline.connect.trace.points import (
-    Curve,
+    Curves,
     Evaluated,
     TracedPiece,
     TraceSettings,
@@ -22,6 +22,243 @@ from service.pipeline.connect.trace.points import (
 )
 from service.pipeline.fibre import Fibre, Projection, evaluate, newton, project, unit_tangent
 from service.pipeline.joint_space import JointLimits
+
+
+@dataclass(frozen=True)
+class Curve:
+    """A traced curve: rows of the evaluated points in order along it."""
+
+    rows: IntArray  # (P,)
+    points: FloatArray  # (P, n) those points made continuous (unwrapped)
+    closed: bool  # the last point joins the first
+
+
+def curve(evaluated: Evaluated, rows: IntArray, closed: bool) -> Curve:
+    return Curve(rows, unwrap(evaluated.q_rad[rows]), closed)
+
+
+def unwrap(points: FloatArray) -> FloatArray:
+    """Points (P, n) of a curve on the torus made continuous: every step the short way."""
+    if len(points) < 2:
+        return points
+    steps = torus_difference(points[1:], points[:-1])
+    return np.concatenate([points[:1], points[0] + np.cumsum(steps, axis=0)])
+
+
+def curve_list(curves: Curves) -> list[Curve]:
+    """The flat curves as one `Curve` each."""
+    return [
+        Curve(curves.rows[a:b], curves.points[a:b], bool(closed))
+        for a, b, closed in zip(curves.first[:-1], curves.first[1:], curves.closed, strict=True)
+    ]
+
+
+def chain(
+    evaluated: Evaluated,
+    num_seeds: int,  # the seeds are the first rows of `evaluated`
+    fronts: list[IntArray],  # per front, its points' rows in travel order
+    partner: IntArray,  # (F,)
+) -> list[Curve]:
+    """Order every curve: seed, its + front, the partner front backwards to its seed, ..."""
+    overlap = overlaps(evaluated.q_rad, fronts, partner)
+    visited = np.zeros(num_seeds, dtype=bool)
+    loops = []
+    for first in range(num_seeds):
+        if visited[first]:
+            continue
+        visited[first] = True
+        seed = np.array([first])
+        forward, closed = follow(fronts, partner, overlap, 2 * first, visited, first)
+        if closed:
+            loops.append(curve(evaluated, np.concatenate([seed, *forward]), closed=True))
+            continue
+        backward, _ = follow(fronts, partner, overlap, 2 * first + 1, visited, first)
+        parts = [p[::-1] for p in backward[::-1]] + [seed] + forward
+        loops.append(curve(evaluated, np.concatenate(parts), closed=False))
+    return loops
+
+
+def overlaps(q_rad: FloatArray, fronts: list[IntArray], partner: IntArray) -> BoolArray:
+    """(F,) whether each front's last point lies past its partner's (fronts that met just
+    after passing overlap by under a step): the partner's last point is behind it, against
+    its last step. Chaining drops that point from the front it follows forward."""
+    ends = [
+        (f, rows[-2], rows[-1], fronts[other][-1])
+        for f, (rows, other) in enumerate(zip(fronts, partner.tolist(), strict=True))
+        if other >= 0 and len(rows) >= 2 and len(fronts[other])
+    ]
+    overlap = np.zeros(len(fronts), dtype=bool)
+    if ends:
+        front, before, last, theirs = (np.asarray(column) for column in zip(*ends, strict=True))
+        travel = torus_difference(q_rad[last], q_rad[before])  # (E, n)
+        behind = torus_difference(q_rad[theirs], q_rad[last])
+        overlap[front] = np.einsum("en,en->e", behind, travel) < 0
+    return overlap
+
+
+def follow(
+    fronts: list[IntArray], partner: IntArray, overlap: BoolArray, front: int,
+    visited: BoolArray, stop_seed: int,
+) -> tuple[list[IntArray], bool]:  # fmt: skip
+    """Rows along the curve from a seed through `front` and on; closed if back at stop_seed."""
+    parts: list[IntArray] = []
+    while True:
+        other = int(partner[front])
+        if other < 0:
+            parts.append(fronts[front])
+            return parts, False
+        parts.append(fronts[front][:-1] if overlap[front] else fronts[front])
+        # The partner front ran from its seed to the meeting: walk it backwards to its seed.
+        parts.append(fronts[other][::-1])
+        seed = other // 2
+        if seed == stop_seed:
+            return parts, True
+        if visited[seed]:  # a second chain met this one: stop rather than loop
+            return parts, False
+        visited[seed] = True
+        parts.append(np.array([seed]))
+        front = other ^ 1  # the seed's other front carries on in the same direction
+
+
+def refine_near_limits(
+    fibre: Fibre,
+    evaluated: Evaluated,
+    loops: list[Curve],
+    limits: JointLimits,
+    settings: TraceSettings,
+    rounds: int = 3,
+    pieces: int = 4,
+) -> tuple[Evaluated, list[Curve]]:
+    """Curves with points added where a step may pass through the limits unseen.
+
+    A component shorter than a step can lie between two traced points that are both
+    outside the limits. Where the chord of a step, widened by how far a curve bends in
+    a step, meets the limit box, the step is split into `pieces` projected points (from
+    the Hermite curve through its ends); a few rounds, each looking again only at the
+    pieces of the steps the last one split, find components down to about
+    h / pieces**rounds long. The evaluated points come back with the added ones.
+    """
+    low = window_low(limits)
+    lower_rad, upper_rad, periodic = limits.lower_rad, limits.upper_rad, limits.periodic
+    steps = Steps.of(evaluated, loops)
+    added: list[Evaluated] = []
+    added_loop: list[IntArray] = []
+    added_key: list[FloatArray] = []  # place in the loop: its step's first point + fraction
+    fraction = np.arange(1, pieces) / pieces  # (p - 1,)
+    for _ in range(rounds):
+        # Both ends outside, the chord through the box widened by a margin of L / 4 per
+        # step (a curve bends off its chord by ~kappa L^2 / 8), by the slab test (compiled).
+        steps = steps.take(
+            native.steps_near_limits(steps.start, steps.delta, low, lower_rad, upper_rad, periodic)
+        )
+        if not len(steps.loop):
+            break
+        count = len(steps.loop)
+        guess, direction = hermite(
+            np.repeat(steps.start, pieces - 1, axis=0),
+            np.repeat(steps.start_tangent, pieces - 1, axis=0),
+            np.repeat(steps.start + steps.delta, pieces - 1, axis=0),
+            np.repeat(steps.end_tangent, pieces - 1, axis=0),
+            np.tile(fraction, count),
+        )  # (C (p - 1), n)
+        projected = project(fibre, guess, 2, tangent=direction, until=settings.path_error)
+        ok = np.all((projected.error_norm < 1e-6).reshape(count, pieces - 1), axis=1)  # (C,)
+        if not ok.any():
+            break
+        new_rows = len(evaluated) + np.arange((pieces - 1) * ok.sum()).reshape(-1, pieces - 1)
+        keep = np.repeat(ok, pieces - 1)
+        new = Evaluated.of(projected, unit_tangent(projected.jacobian, previous=direction))
+        added.append(new.take(keep))
+        evaluated = evaluated.extended(added[-1])
+        steps = steps.take(ok)
+        added_loop.append(np.repeat(steps.loop, pieces - 1))
+        added_key.append((steps.key[:, None] + steps.span[:, None] * fraction).ravel())
+        steps = steps.split(new_rows, evaluated)
+    if not added:
+        return evaluated, loops
+    loop_of = np.concatenate(added_loop)
+    key = np.concatenate(added_key)
+    rows = len(evaluated) - len(loop_of) + np.arange(len(loop_of))  # the added rows, in order
+    loops = list(loops)
+    for k in np.unique(loop_of).tolist():
+        mine = loop_of == k
+        places = np.concatenate([np.arange(len(loops[k].rows)), key[mine]])
+        merged = np.concatenate([loops[k].rows, rows[mine]])[np.argsort(places, kind="stable")]
+        loops[k] = curve(evaluated, merged, loops[k].closed)
+    return evaluated, loops
+
+
+@dataclass(frozen=True)
+class Steps:
+    """Steps of traced curves between evaluated points (C of them), as the refinement
+    looks at them: unwrapped start and chord, tangents along the chord at both ends."""
+
+    loop: IntArray  # (C,) which curve
+    key: FloatArray  # (C,) where the step starts in the curve: point index (+ fraction)
+    span: FloatArray  # (C,) how much of the curve's step it is: 1, 1 / pieces, ...
+    start: FloatArray  # (C, n) unwrapped like the curve
+    delta: FloatArray  # (C, n) to the step's end, the short way on the torus
+    start_tangent: FloatArray  # (C, n) unit, along delta
+    end_tangent: FloatArray  # (C, n)
+
+    @classmethod
+    def of(cls, evaluated: Evaluated, loops: list[Curve]) -> Steps:
+        """Every step of every curve (the closing step of a closed one included)."""
+        n = evaluated.q_rad.shape[1]
+        if not loops:
+            none = np.zeros((0, n))
+            return cls(np.zeros(0, np.int64), np.zeros(0), np.zeros(0), none, none, none, none)
+        size = np.array([len(curve.rows) for curve in loops])  # (L,)
+        first = np.cumsum(size) - size  # (L,) where each curve starts
+        loop = np.repeat(np.arange(len(loops)), size)  # (P,)
+        place = np.arange(len(loop)) - first[loop]  # (P,) index in its curve
+        following = np.arange(len(loop)) + 1  # (P,) the point after, round a closed curve
+        last = place == size[loop] - 1
+        following[last] = first[loop[last]]
+        step = ~last | np.array([curve.closed for curve in loops])[loop]
+        rows = np.concatenate([curve.rows for curve in loops])
+        row_a, row_b = rows[step], rows[following[step]]  # (C,) each step's ends
+        delta = torus_difference(evaluated.q_rad[row_b], evaluated.q_rad[row_a])
+        return cls(
+            loop=loop[step],
+            key=place[step].astype(np.float64),
+            span=np.ones(len(delta)),
+            start=np.concatenate([curve.points for curve in loops])[step],
+            delta=delta,
+            start_tangent=along(evaluated.tangent[row_a], delta),
+            end_tangent=along(evaluated.tangent[row_b], delta),
+        )
+
+    def take(self, rows: BoolArray) -> Steps:
+        return Steps(
+            self.loop[rows], self.key[rows], self.span[rows], self.start[rows],
+            self.delta[rows], self.start_tangent[rows], self.end_tangent[rows],
+        )  # fmt: skip
+
+    def split(self, new_rows: IntArray, evaluated: Evaluated) -> Steps:
+        """Each step as its `pieces` steps through the new points (C, pieces - 1) inside it."""
+        count, inner = new_rows.shape
+        pieces = inner + 1
+        q = evaluated.q_rad[new_rows]  # (C, p - 1, n)
+        end = self.start + self.delta
+        # The new points in the step's unwrapped coordinates: each moved little from its guess.
+        q = self.start[:, None, :] + torus_difference(q, self.start[:, None, :])
+        nodes = np.concatenate([self.start[:, None], q, end[:, None]], axis=1)  # (C, p + 1, n)
+        tangents = np.concatenate(
+            [self.start_tangent[:, None], evaluated.tangent[new_rows], self.end_tangent[:, None]],
+            axis=1,
+        )  # (C, p + 1, n)
+        delta = np.diff(nodes, axis=1).reshape(-1, nodes.shape[2])  # (C p, n)
+        span = np.repeat(self.span / pieces, pieces)
+        return Steps(
+            loop=np.repeat(self.loop, pieces),
+            key=np.repeat(self.key, pieces) + span * np.tile(np.arange(pieces), count),
+            span=span,
+            start=nodes[:, :-1].reshape(-1, nodes.shape[2]),
+            delta=delta,
+            start_tangent=along(tangents[:, :-1].reshape(delta.shape), delta),
+            end_tangent=along(tangents[:, 1:].reshape(delta.shape), delta),
+        )
 
 
 @dataclass(frozen=True)

@@ -10,10 +10,9 @@ import numpy as np
 from service.pipeline import native
 from service.pipeline.arrays import BoolArray, FloatArray, IntArray
 from service.pipeline.connect.trace.points import (
-    Curve,
+    Curves,
     Evaluated,
     TraceSettings,
-    curve,
     torus_difference,
 )
 from service.pipeline.fibre import Fibre, project, unit_tangent
@@ -35,12 +34,12 @@ def to_window(q_rad: FloatArray, window_low: FloatArray) -> FloatArray:
 def refine_near_limits(
     fibre: Fibre,
     evaluated: Evaluated,
-    loops: list[Curve],
+    curves: Curves,
     limits: JointLimits,
     settings: TraceSettings,
     rounds: int = 3,
     pieces: int = 4,
-) -> tuple[Evaluated, list[Curve]]:
+) -> tuple[Evaluated, Curves]:
     """Curves with points added where a step may pass through the limits unseen.
 
     A component shorter than a step can lie between two traced points that are both
@@ -52,10 +51,11 @@ def refine_near_limits(
     """
     low = window_low(limits)
     lower_rad, upper_rad, periodic = limits.lower_rad, limits.upper_rad, limits.periodic
-    steps = Steps.of(evaluated, loops)
-    added: list[Evaluated] = []
+    steps = Steps.of(evaluated, curves)
+    added: list[Evaluated] = []  # each round's new points, rows len(evaluated) + ... on
     added_loop: list[IntArray] = []
-    added_key: list[FloatArray] = []  # place in the loop: its step's first point + fraction
+    added_key: list[FloatArray] = []  # place in the curve: its step's first point + fraction
+    count_added = 0
     fraction = np.arange(1, pieces) / pieces  # (p - 1,)
     for _ in range(rounds):
         # Both ends outside, the chord through the box widened by a margin of L / 4 per
@@ -77,27 +77,29 @@ def refine_near_limits(
         ok = np.all((projected.error_norm < 1e-6).reshape(count, pieces - 1), axis=1)  # (C,)
         if not ok.any():
             break
-        new_rows = len(evaluated) + np.arange((pieces - 1) * ok.sum()).reshape(-1, pieces - 1)
         keep = np.repeat(ok, pieces - 1)
         new = Evaluated.of(projected, unit_tangent(projected.jacobian, previous=direction))
         added.append(new.take(keep))
-        evaluated = evaluated.extended(added[-1])
         steps = steps.take(ok)
         added_loop.append(np.repeat(steps.loop, pieces - 1))
         added_key.append((steps.key[:, None] + steps.span[:, None] * fraction).ravel())
-        steps = steps.split(new_rows, evaluated)
+        steps = steps.split(added[-1].q_rad, added[-1].tangent)
+        count_added += len(added[-1])
     if not added:
-        return evaluated, loops
+        return evaluated, curves
+    # The added points into their curves, in order of their places along them.
+    before = len(evaluated)
+    evaluated = evaluated.extended(*added)
+    size = np.diff(curves.first)  # (C,)
+    curve_of = np.repeat(np.arange(len(curves)), size)  # (P,)
+    place = np.arange(len(curve_of)) - curves.first[curve_of]  # (P,) index in its curve
     loop_of = np.concatenate(added_loop)
-    key = np.concatenate(added_key)
-    rows = len(evaluated) - len(loop_of) + np.arange(len(loop_of))  # the added rows, in order
-    loops = list(loops)
-    for k in np.unique(loop_of).tolist():
-        mine = loop_of == k
-        places = np.concatenate([np.arange(len(loops[k].rows)), key[mine]])
-        merged = np.concatenate([loops[k].rows, rows[mine]])[np.argsort(places, kind="stable")]
-        loops[k] = curve(evaluated, merged, loops[k].closed)
-    return evaluated, loops
+    order = np.lexsort(
+        (np.concatenate([place, np.concatenate(added_key)]), np.concatenate([curve_of, loop_of]))
+    )
+    rows = np.concatenate([curves.rows, before + np.arange(count_added)])[order]
+    first = np.concatenate([[0], np.cumsum(size + np.bincount(loop_of, minlength=len(size)))])
+    return evaluated, Curves.of(evaluated, rows, first, curves.closed)
 
 
 @dataclass(frozen=True)
@@ -114,28 +116,28 @@ class Steps:
     end_tangent: FloatArray  # (C, n)
 
     @classmethod
-    def of(cls, evaluated: Evaluated, loops: list[Curve]) -> Steps:
+    def of(cls, evaluated: Evaluated, curves: Curves) -> Steps:
         """Every step of every curve (the closing step of a closed one included)."""
         n = evaluated.q_rad.shape[1]
-        if not loops:
+        if not len(curves):
             none = np.zeros((0, n))
             return cls(np.zeros(0, np.int64), np.zeros(0), np.zeros(0), none, none, none, none)
-        size = np.array([len(curve.rows) for curve in loops])  # (L,)
-        first = np.cumsum(size) - size  # (L,) where each curve starts
-        loop = np.repeat(np.arange(len(loops)), size)  # (P,)
+        size = np.diff(curves.first)  # (L,)
+        first = curves.first[:-1]  # (L,) where each curve starts
+        loop = np.repeat(np.arange(len(curves)), size)  # (P,)
         place = np.arange(len(loop)) - first[loop]  # (P,) index in its curve
         following = np.arange(len(loop)) + 1  # (P,) the point after, round a closed curve
         last = place == size[loop] - 1
         following[last] = first[loop[last]]
-        step = ~last | np.array([curve.closed for curve in loops])[loop]
-        rows = np.concatenate([curve.rows for curve in loops])
+        step = ~last | curves.closed[loop]
+        rows = curves.rows
         row_a, row_b = rows[step], rows[following[step]]  # (C,) each step's ends
         delta = torus_difference(evaluated.q_rad[row_b], evaluated.q_rad[row_a])
         return cls(
             loop=loop[step],
             key=place[step].astype(np.float64),
             span=np.ones(len(delta)),
-            start=np.concatenate([curve.points for curve in loops])[step],
+            start=curves.points[step],
             delta=delta,
             start_tangent=along(evaluated.tangent[row_a], delta),
             end_tangent=along(evaluated.tangent[row_b], delta),
@@ -147,26 +149,32 @@ class Steps:
             self.delta[rows], self.start_tangent[rows], self.end_tangent[rows],
         )  # fmt: skip
 
-    def split(self, new_rows: IntArray, evaluated: Evaluated) -> Steps:
-        """Each step as its `pieces` steps through the new points (C, pieces - 1) inside it."""
-        count, inner = new_rows.shape
-        pieces = inner + 1
-        q = evaluated.q_rad[new_rows]  # (C, p - 1, n)
+    def split(self, new_q_rad: FloatArray, new_tangent: FloatArray) -> Steps:
+        """Each step as its `pieces` steps through its new points (C (pieces - 1), n) in
+        order, step after step."""
+        count = len(self.loop)
+        n = self.start.shape[1]
+        q = new_q_rad.reshape(count, -1, n)  # (C, p - 1, n)
+        pieces = q.shape[1] + 1
         end = self.start + self.delta
         # The new points in the step's unwrapped coordinates: each moved little from its guess.
         q = self.start[:, None, :] + torus_difference(q, self.start[:, None, :])
         nodes = np.concatenate([self.start[:, None], q, end[:, None]], axis=1)  # (C, p + 1, n)
         tangents = np.concatenate(
-            [self.start_tangent[:, None], evaluated.tangent[new_rows], self.end_tangent[:, None]],
+            [
+                self.start_tangent[:, None],
+                new_tangent.reshape(count, -1, n),
+                self.end_tangent[:, None],
+            ],
             axis=1,
         )  # (C, p + 1, n)
-        delta = np.diff(nodes, axis=1).reshape(-1, nodes.shape[2])  # (C p, n)
+        delta = np.diff(nodes, axis=1).reshape(-1, n)  # (C p, n)
         span = np.repeat(self.span / pieces, pieces)
         return Steps(
             loop=np.repeat(self.loop, pieces),
             key=np.repeat(self.key, pieces) + span * np.tile(np.arange(pieces), count),
             span=span,
-            start=nodes[:, :-1].reshape(-1, nodes.shape[2]),
+            start=nodes[:, :-1].reshape(-1, n),
             delta=delta,
             start_tangent=along(tangents[:, :-1].reshape(delta.shape), delta),
             end_tangent=along(tangents[:, 1:].reshape(delta.shape), delta),
@@ -188,21 +196,13 @@ class Runs:
         return len(self.closed)
 
 
-def cut_by_limits(loops: list[Curve], limits: JointLimits) -> Runs:
+def cut_by_limits(curves: Curves, limits: JointLimits) -> Runs:
     """The runs of consecutive points of each curve that lie inside the limits: a curve
     inside all along is one run; a closed curve that leaves them is turned to start
     outside (its points past the start moved on by its turns, so the run stays
     continuous), so that no run wraps round; compiled (`native.cut_runs`)."""
-    n = limits.count
-    if not loops:
-        none = np.zeros((0, n))
-        return Runs(none, np.zeros(0, np.int64), np.zeros(1, np.int64), np.zeros(0, bool),
-                    np.zeros((0, 2, n)), np.zeros((0, 2), bool))  # fmt: skip
-    first = np.cumsum([0] + [len(loop.rows) for loop in loops])
     cut = native.cut_runs(
-        np.concatenate([loop.points for loop in loops]),
-        np.concatenate([loop.rows for loop in loops]),
-        first, np.array([loop.closed for loop in loops]), window_low(limits),
+        curves.points, curves.rows, curves.first, curves.closed, window_low(limits),
         limits.lower_rad, limits.upper_rad, limits.periodic,
     )  # fmt: skip
     return Runs(*cut)

@@ -1,6 +1,6 @@
 """What the trace hands between its phases: the settings, the evaluated points (every
 configuration the kinematics was evaluated at, with what it measured there), the curves
-as rows of them, and the pieces it returns."""
+as rows of them (flat, curve after curve), and the pieces it returns."""
 
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from service.pipeline import native
 from service.pipeline.arrays import BoolArray, FloatArray, IntArray
 from service.pipeline.fibre import Projection
 from service.pipeline.joint_space import wrap_to_pi
@@ -79,25 +80,23 @@ class Evaluated:
 
 
 @dataclass(frozen=True)
-class Curve:
-    """A traced curve: rows of the evaluated points in order along it."""
+class Curves:
+    """Traced curves (C of them), curve after curve: rows of the evaluated points in order
+    along each, and those points made continuous (every step the short way round)."""
 
     rows: IntArray  # (P,)
-    points: FloatArray  # (P, n) those points made continuous (unwrapped)
-    closed: bool  # the last point joins the first
+    points: FloatArray  # (P, n) unwrapped along each curve
+    first: IntArray  # (C + 1,) curve c is [first[c], first[c + 1])
+    closed: BoolArray  # (C,) the last point joins the first
 
+    def __len__(self) -> int:
+        return len(self.closed)
 
-def curve(evaluated: Evaluated, rows: IntArray, closed: bool) -> Curve:
-    return Curve(rows, unwrap(evaluated.q_rad[rows]), closed)
+    @classmethod
+    def of(cls, evaluated: Evaluated, rows: IntArray, first: IntArray, closed: BoolArray) -> Curves:
+        """The curves through `rows` of `evaluated`, unwrapped (`native.unwrap_curves`)."""
+        return cls(rows, native.unwrap_curves(evaluated.q_rad, rows, first), first, closed)
 
 
 def torus_difference(a: FloatArray, b: FloatArray) -> FloatArray:
     return wrap_to_pi(a - b)
-
-
-def unwrap(points: FloatArray) -> FloatArray:
-    """Points (P, n) of a curve on the torus made continuous: every step the short way."""
-    if len(points) < 2:
-        return points
-    steps = torus_difference(points[1:], points[:-1])
-    return np.concatenate([points[:1], points[0] + np.cumsum(steps, axis=0)])

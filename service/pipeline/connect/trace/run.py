@@ -57,12 +57,12 @@ def trace_fibre(
     start = evaluate(fibre, spread_seeds(q_on_fibre_rad, settings.seed_spacing_rad))  # (S,)
     tangent0 = unit_tangent(start.jacobian)  # (S, n)
     seeds = Evaluated.of(start, tangent0).take(np.all(np.isfinite(tangent0), axis=1))
-    evaluated, loops, complete = walk_fronts(fibre, seeds, settings, deadline)
+    evaluated, curves, complete = walk_fronts(fibre, seeds, settings, deadline)
     reached_rad = evaluated.q_rad  # (R, n) the whole curves, before the limits cut them
     # sigma_min over the seeds and every point the fronts reached.
     reached_jacobian = np.concatenate([start.jacobian, evaluated.jacobian[len(seeds) :]])
     sigma = min_singular_value(reached_jacobian, fibre.threads)
-    evaluated, loops = refine_near_limits(fibre, evaluated, loops, limits, settings)
-    runs = cut_by_limits(loops, limits)
+    evaluated, curves = refine_near_limits(fibre, evaluated, curves, limits, settings)
+    runs = cut_by_limits(curves, limits)
     dense = densify(fibre, evaluated, runs, limits, settings)
     return Trace(pieces=dense, complete=complete, min_singular_value=sigma, reached_rad=reached_rad)

@@ -8,8 +8,8 @@ from collections.abc import Sequence
 import numpy as np
 
 from service.pipeline import native
-from service.pipeline.arrays import BoolArray, FloatArray, IntArray
-from service.pipeline.connect.trace.points import Curve, Evaluated, curve, torus_difference
+from service.pipeline.arrays import FloatArray, IntArray
+from service.pipeline.connect.trace.points import Curves, Evaluated
 from service.pipeline.joint_space import JointLimits
 
 # Two traced points are on different strands of one curve when they lie more than this
@@ -49,65 +49,17 @@ def closest_strands_rad(
 def chain(
     evaluated: Evaluated,
     num_seeds: int,  # the seeds are the first rows of `evaluated`
-    fronts: list[IntArray],  # per front, its points' rows in travel order
-    partner: IntArray,  # (F,)
-) -> list[Curve]:
-    """Order every curve: seed, its + front, the partner front backwards to its seed, ..."""
-    overlap = overlaps(evaluated.q_rad, fronts, partner)
-    visited = np.zeros(num_seeds, dtype=bool)
-    loops = []
-    for first in range(num_seeds):
-        if visited[first]:
-            continue
-        visited[first] = True
-        seed = np.array([first])
-        forward, closed = follow(fronts, partner, overlap, 2 * first, visited, first)
-        if closed:
-            loops.append(curve(evaluated, np.concatenate([seed, *forward]), closed=True))
-            continue
-        backward, _ = follow(fronts, partner, overlap, 2 * first + 1, visited, first)
-        parts = [p[::-1] for p in backward[::-1]] + [seed] + forward
-        loops.append(curve(evaluated, np.concatenate(parts), closed=False))
-    return loops
+    by_front: IntArray,  # (T - S,) the front that reached each later row, in travel order
+    partner: IntArray,  # (F,) the front each met, -1: none
+) -> Curves:
+    """Order every curve: seed, its + front, the partner front backwards to its seed, ...
 
-
-def overlaps(q_rad: FloatArray, fronts: list[IntArray], partner: IntArray) -> BoolArray:
-    """(F,) whether each front's last point lies past its partner's (fronts that met just
-    after passing overlap by under a step): the partner's last point is behind it, against
-    its last step. Chaining drops that point from the front it follows forward."""
-    ends = [
-        (f, rows[-2], rows[-1], fronts[other][-1])
-        for f, (rows, other) in enumerate(zip(fronts, partner.tolist(), strict=True))
-        if other >= 0 and len(rows) >= 2 and len(fronts[other])
-    ]
-    overlap = np.zeros(len(fronts), dtype=bool)
-    if ends:
-        front, before, last, theirs = (np.asarray(column) for column in zip(*ends, strict=True))
-        travel = torus_difference(q_rad[last], q_rad[before])  # (E, n)
-        behind = torus_difference(q_rad[theirs], q_rad[last])
-        overlap[front] = np.einsum("en,en->e", behind, travel) < 0
-    return overlap
-
-
-def follow(
-    fronts: list[IntArray], partner: IntArray, overlap: BoolArray, front: int,
-    visited: BoolArray, stop_seed: int,
-) -> tuple[list[IntArray], bool]:  # fmt: skip
-    """Rows along the curve from a seed through `front` and on; closed if back at stop_seed."""
-    parts: list[IntArray] = []
-    while True:
-        other = int(partner[front])
-        if other < 0:
-            parts.append(fronts[front])
-            return parts, False
-        parts.append(fronts[front][:-1] if overlap[front] else fronts[front])
-        # The partner front ran from its seed to the meeting: walk it backwards to its seed.
-        parts.append(fronts[other][::-1])
-        seed = other // 2
-        if seed == stop_seed:
-            return parts, True
-        if visited[seed]:  # a second chain met this one: stop rather than loop
-            return parts, False
-        visited[seed] = True
-        parts.append(np.array([seed]))
-        front = other ^ 1  # the seed's other front carries on in the same direction
+    From each seed not yet on a curve: the seed, its + front, the partner front walked
+    backwards to its seed, that seed's other front, and so on, until back at the first seed
+    (a closed curve), at a front that met none, or at a seed another chain took (open: then
+    the same from the seed's - front, in front of the seed). Fronts that met just after
+    passing overlap by under a step: the point of the one followed forward that lies past
+    its partner's last point is left out. Compiled (`native.chain_fronts`).
+    """
+    rows, first, closed = native.chain_fronts(evaluated.q_rad, num_seeds, by_front, partner)
+    return Curves.of(evaluated, rows, first, closed)

@@ -10,7 +10,7 @@ import numpy as np
 
 from service.pipeline import native
 from service.pipeline.arrays import BoolArray, FloatArray, IntArray
-from service.pipeline.connect.trace.points import Curve, Evaluated, TraceSettings, torus_difference
+from service.pipeline.connect.trace.points import Curves, Evaluated, TraceSettings, torus_difference
 from service.pipeline.connect.trace.strands import chain as chain_fronts
 from service.pipeline.deadline import Deadline
 from service.pipeline.fibre import Fibre, project, smallest_singular_value, unit_tangent
@@ -31,7 +31,7 @@ def walk_fronts(
     seeds: Evaluated,  # (S,) on the fibre, with their tangents
     settings: TraceSettings,
     deadline: Deadline,
-) -> tuple[Evaluated, list[Curve], bool]:
+) -> tuple[Evaluated, Curves, bool]:
     """Fronts in lockstep from every seed both ways; every point they reached (the seeds
     first, then the fronts' points), the curves through them, and whether all closed.
 
@@ -41,8 +41,7 @@ def walk_fronts(
     h, and a good step lets the next one grow back by 1.5x: sharp bends near a singular
     value are walked, not jumped.
     """
-    num_seeds = len(seeds)
-    num_fronts = 2 * num_seeds  # front 2i leaves seed i along +t, front 2i + 1 along -t
+    num_seeds = len(seeds)  # front 2i leaves seed i along +t, front 2i + 1 along -t
     q = np.repeat(seeds.q_rad, 2, axis=0)  # (F, n) front ends
     tangent = np.repeat(seeds.tangent, 2, axis=0) * np.tile([1.0, -1.0], num_seeds)[:, None]
     jacobian = np.repeat(seeds.jacobian, 2, axis=0)  # (F, m, n) at the front ends
@@ -69,13 +68,9 @@ def walk_fronts(
         reached = Evaluated(walked.q_rad, walked.error, walked.jacobian, walked.tangent)
         by_front, partner = walked.front, walked.partner
     evaluated = seeds.extended(reached)
-    # Each front's points in travel order, as rows of `evaluated` (after the seeds).
-    order = np.argsort(by_front, kind="stable")
-    bounds = np.searchsorted(by_front[order], np.arange(num_fronts + 1))
-    fronts = [num_seeds + order[bounds[f] : bounds[f + 1]] for f in range(num_fronts)]
-    loops = chain_fronts(evaluated, num_seeds, fronts, partner)
+    curves = chain_fronts(evaluated, num_seeds, by_front, partner)
     # A front that gave up but was met by another leaves its curve closed all the same.
-    return evaluated, loops, all(loop.closed for loop in loops)
+    return evaluated, curves, bool(curves.closed.all())
 
 
 def _walk(

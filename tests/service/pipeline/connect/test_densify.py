@@ -1,10 +1,11 @@
-"""cut and densify: the compiled cut of the traced curves by the limits and the compiled
-layout of the dense paths give the Python loops' answers (tests/support/trace_reference.py)
-to the bit: the same runs (points, rows, closedness, the outside point at each end), the
-same pieces (every path point, its error, closedness), on traced iiwa14 pose, Panda pose
-and planar 3R fibres, and on a closed curve that leaves the limits and comes back twice
-(turned to start outside, so no run wraps round). A curve wholly inside is one run, one
-wholly outside none; malformed curve bounds are refused."""
+"""chain, refine, cut and densify: the trace's phases after the walk, compiled or on flat
+arrays, give the Python loops' answers (tests/support/trace_reference.py) to the bit on
+traced iiwa14 pose, Panda pose and planar 3R fibres: the same curves from the fronts (rows
+in order, unwrapped points, closedness), the same curves refined near the limits, the same
+runs (points, rows, closedness, the outside point at each end) and the same pieces (every
+path point, its error, closedness); and on a closed curve that leaves the limits and
+comes back twice (turned to start outside, so no run wraps round). A curve wholly inside
+is one run, one wholly outside none; malformed curve bounds are refused."""
 
 from __future__ import annotations
 
@@ -14,12 +15,11 @@ import pytest
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
 from service.pipeline import native
-from service.pipeline.connect.trace import TraceSettings
+from service.pipeline.connect.trace import TraceSettings, walk
 from service.pipeline.connect.trace.cut import Runs, cut_by_limits, refine_near_limits
 from service.pipeline.connect.trace.densify import densify
-from service.pipeline.connect.trace.points import Curve, Evaluated, curve
+from service.pipeline.connect.trace.points import Curves, Evaluated
 from service.pipeline.connect.trace.seeds import spread_seeds
-from service.pipeline.connect.trace.walk import walk_fronts
 from service.pipeline.deadline import NO_DEADLINE
 from service.pipeline.fibre import Fibre, evaluate, project, unit_tangent
 from service.pipeline.joint_space import JointLimits
@@ -32,13 +32,40 @@ SETTINGS = TraceSettings(
 )  # the bundled models' defaults
 
 
-def traced(fibre: Fibre, q_on_fibre: np.ndarray) -> tuple[Evaluated, list[Curve]]:
-    """trace_fibre's phases up to the cut: the walked curves, refined near the limits."""
+def traced(
+    fibre: Fibre, q_on_fibre: np.ndarray, monkeypatch: pytest.MonkeyPatch
+) -> tuple[Evaluated, Curves, list[reference.Curve]]:
+    """trace_fibre's phases up to the refinement: the walked curves, and the reference's
+    chaining of the same fronts."""
     start = evaluate(fibre, spread_seeds(q_on_fibre, SETTINGS.seed_spacing_rad))
     tangent = unit_tangent(start.jacobian)
     seeds = Evaluated.of(start, tangent).take(np.all(np.isfinite(tangent), axis=1))
-    evaluated, loops, _ = walk_fronts(fibre, seeds, SETTINGS, NO_DEADLINE)
-    return evaluated, loops
+    calls = []
+    chain = walk.chain_fronts
+
+    def recorded(
+        evaluated: Evaluated, num_seeds: int, by_front: np.ndarray, partner: np.ndarray
+    ) -> Curves:
+        calls.append((num_seeds, by_front, partner))
+        return chain(evaluated, num_seeds, by_front, partner)
+
+    monkeypatch.setattr(walk, "chain_fronts", recorded)
+    evaluated, curves, _ = walk.walk_fronts(fibre, seeds, SETTINGS, NO_DEADLINE)
+    monkeypatch.undo()
+    ((num_seeds, by_front, partner),) = calls
+    order = np.argsort(by_front, kind="stable")
+    bounds = np.searchsorted(by_front[order], np.arange(2 * num_seeds + 1))
+    fronts = [num_seeds + order[bounds[f] : bounds[f + 1]] for f in range(2 * num_seeds)]
+    return evaluated, curves, reference.chain(evaluated, num_seeds, fronts, partner)
+
+
+def assert_same_curves(curves: Curves, expected: list[reference.Curve]) -> None:
+    assert len(curves) == len(expected)
+    for c, want in enumerate(expected):
+        rows = slice(curves.first[c], curves.first[c + 1])
+        np.testing.assert_array_equal(curves.rows[rows], want.rows)
+        np.testing.assert_array_equal(curves.points[rows], want.points)
+        assert curves.closed[c] == want.closed
 
 
 def assert_same_runs(runs: Runs, expected: list[reference.Run]) -> None:
@@ -55,17 +82,34 @@ def assert_same_runs(runs: Runs, expected: list[reference.Run]) -> None:
 
 
 @pytest.mark.parametrize("model_id", ["iiwa14-pose", "panda-pose", "planar3r-position"])
-def test_runs_and_pieces_are_the_python_loops_answers(model_id: str) -> None:
+def test_curves_runs_and_pieces_are_the_python_loops_answers(
+    model_id: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
     model: ServedModel = load_model(REPO_MODELS_DIR / model_id, threads=1)
     limits = JointLimits.of(model.manifest.joints)
-    checked_pieces = 0
+    checked_pieces = refined_curves = 0
     for seed, q_target in enumerate(uniform_configurations(limits, 6, seed=41)):
         fibre = pose_fibre(model, q_target)
         near = q_target + np.random.default_rng(seed).normal(0.0, 0.5, (200, len(q_target)))
         on_fibre = project(fibre, near, 20)
-        evaluated, loops = traced(fibre, on_fibre.q_rad[on_fibre.error_norm < 1e-9])
-        evaluated, loops = refine_near_limits(fibre, evaluated, loops, limits, SETTINGS)
-        runs = cut_by_limits(loops, limits)
+        evaluated, curves, chained = traced(
+            fibre, on_fibre.q_rad[on_fibre.error_norm < 1e-9], monkeypatch
+        )
+        assert_same_curves(curves, chained)
+        refined_evaluated, curves = refine_near_limits(fibre, evaluated, curves, limits, SETTINGS)
+        expected_evaluated, loops = reference.refine_near_limits(
+            fibre, evaluated, chained, limits, SETTINGS
+        )
+        for ours, theirs in zip(
+            (refined_evaluated.q_rad, refined_evaluated.error, refined_evaluated.tangent),
+            (expected_evaluated.q_rad, expected_evaluated.error, expected_evaluated.tangent),
+            strict=True,
+        ):
+            np.testing.assert_array_equal(ours, theirs)
+        assert_same_curves(curves, loops)
+        refined_curves += len(refined_evaluated) > len(evaluated)
+        evaluated = refined_evaluated
+        runs = cut_by_limits(curves, limits)
         expected_runs = reference.cut_by_limits(loops, limits)
         assert_same_runs(runs, expected_runs)
         pieces = densify(fibre, evaluated, runs, limits, SETTINGS)
@@ -79,7 +123,7 @@ def test_runs_and_pieces_are_the_python_loops_answers(model_id: str) -> None:
     assert checked_pieces >= 6
 
 
-def circle_curve(turns_rad: float = 0.0) -> tuple[Curve, JointLimits]:
+def circle_curve(turns_rad: float = 0.0) -> tuple[Curves, JointLimits]:
     """A closed curve of 40 points round a circle of radius 1 in two joints, joint 0
     limited to [-0.5, 0.5] (the curve leaves and comes back twice), joint 1 periodic."""
     theta = np.linspace(0.0, 2 * np.pi, 40, endpoint=False)
@@ -90,22 +134,23 @@ def circle_curve(turns_rad: float = 0.0) -> tuple[Curve, JointLimits]:
         upper_rad=np.array([0.5, np.pi]),
         periodic=np.array([False, True]),
     )
-    return curve(evaluated, np.roll(np.arange(40), 3), closed=True), limits
+    rows = np.roll(np.arange(40), 3)
+    return Curves.of(evaluated, rows, np.array([0, 40]), np.array([True])), limits
 
 
 @pytest.mark.parametrize("turns_rad", [0.0, 3.0])
 def test_a_closed_curve_leaving_the_limits_is_turned_to_start_outside(turns_rad: float) -> None:
     loop, limits = circle_curve(turns_rad)
-    runs = cut_by_limits([loop], limits)
-    assert_same_runs(runs, reference.cut_by_limits([loop], limits))
+    runs = cut_by_limits(loop, limits)
+    assert_same_runs(runs, reference.cut_by_limits(reference.curve_list(loop), limits))
     assert len(runs) == 2 and not runs.closed.any() and runs.has_exit.all()
-    inside = cut_by_limits([loop], JointLimits(
+    inside = cut_by_limits(loop, JointLimits(
         lower_rad=np.array([-2.0, -np.pi]), upper_rad=np.array([2.0, np.pi]),
         periodic=np.array([False, True]),
     ))  # fmt: skip
     assert len(inside) == 1 and inside.closed[0] and not inside.has_exit.any()
     np.testing.assert_array_equal(inside.points, loop.points)
-    outside = cut_by_limits([loop], JointLimits(
+    outside = cut_by_limits(loop, JointLimits(
         lower_rad=np.array([1.5, -np.pi]), upper_rad=np.array([2.0, np.pi]),
         periodic=np.array([False, True]),
     ))  # fmt: skip
