@@ -143,6 +143,7 @@ def compiled_newton(
     locked: BoolArray | None = None,  # (B, n) or (n,) joints held fixed
     tangent: FloatArray | None = None,  # (B, n) bordered steps (r = 1)
     threads: int = 1,
+    fresh: BoolArray | None = None,  # (B,) rows not yet evaluated (evaluated first)
 ) -> tuple[FloatArray, FloatArray, FloatArray]:  # q (B, n), error (B, m), jacobian (B, m, n)
     """`native.newton` on a serial chain's rows, split over `threads` (rows.py): the same
     steps row by row, so the same numbers on any count."""
@@ -155,6 +156,7 @@ def compiled_newton(
             q_rad[rows], error[rows], jacobian[rows], iterations, damping, until,
             locked[rows] if per_row and locked is not None else locked,
             None if tangent is None else tangent[rows],
+            None if fresh is None else fresh[rows],
         )  # fmt: skip
 
     parts = over_rows(chunk, len(q_rad), threads)

@@ -85,7 +85,11 @@ def project(
     [J; t^T] dq = [e; 0], the corrector of pseudo-arclength continuation, which keeps the
     point from sliding along the fibre.
     """
-    return newton(fibre, evaluate(fibre, q_rad.copy()), iterations, locked, tangent, until)
+    batch, n = q_rad.shape
+    m = fibre.task.dimension
+    unmeasured = Projection(q_rad.copy(), np.empty((batch, m)), np.empty((batch, m, n)))
+    fresh = np.ones(batch, dtype=bool)
+    return newton(fibre, unmeasured, iterations, locked, tangent, until, fresh)
 
 
 def newton(
@@ -95,9 +99,12 @@ def newton(
     locked: BoolArray | None = None,  # (B, n)
     tangent: FloatArray | None = None,  # (B, n)
     until: float | None = None,
+    fresh: BoolArray | None = None,  # (B,) rows of `start` not evaluated yet
 ) -> Projection:
     """`project` from configurations whose error and Jacobian are known: no evaluation is
-    repeated, so iterations = k costs at most k evaluations per row.
+    repeated, so iterations = k costs at most k evaluations per row; a `fresh` row is
+    evaluated first (its given error and Jacobian are not read), in the same compiled
+    call where the kinematics is a serial chain's.
 
     Each step is one batched kinematics call over the rows still moving: every row with
     `until` None, else the rows whose |e| is above `until` (or not finite). With a serial
@@ -110,9 +117,14 @@ def newton(
     if kinematics is not None and (tangent is not None or fibre.damping > 0):
         q, error, jacobian = compiled_newton(
             kinematics, fibre.target, fibre.task, start.q_rad, start.error, start.jacobian,
-            iterations, fibre.damping, until, locked, tangent, fibre.threads,
+            iterations, fibre.damping, until, locked, tangent, fibre.threads, fresh,
         )  # fmt: skip
         return Projection(q_rad=q, error=error, jacobian=jacobian)
+    if fresh is not None and fresh.any():
+        rows = np.flatnonzero(fresh)
+        error, jacobian = start.error.copy(), start.jacobian.copy()
+        error[rows], jacobian[rows] = fibre.residual(start.q_rad[rows])
+        start = Projection(q_rad=start.q_rad, error=error, jacobian=jacobian)
 
     def step(jacobian: FloatArray, error: FloatArray, rows: IntArray | slice) -> FloatArray:
         return _step(

@@ -339,11 +339,15 @@ static void newton_rows(const double *fixed, const double *tip, Py_ssize_t n, co
                         Py_ssize_t m, Py_ssize_t m_position, const double *target_position,
                         const double *target_rotation, double *q, double *error, double *jacobian,
                         Py_ssize_t batch, Py_ssize_t iterations, double until, double damping,
-                        const unsigned char *locked, const double *tangent, double *scratch) {
+                        const unsigned char *locked, const double *tangent,
+                        const unsigned char *fresh, double *scratch) {
     double *system = scratch, *dq = scratch + (m + 1) * n, *rhs = dq + n;
     unsigned char singular;
     for (Py_ssize_t b = 0; b < batch; ++b) {
         double *qb = q + b * n, *e = error + b * m, *J = jacobian + b * m * n;
+        if (fresh != NULL && fresh[b]) /* not yet evaluated: measure it first */
+            residual_rows(fixed, tip, n, qb, 1, rows, m, m_position, target_position,
+                          target_rotation, e, J);
         for (Py_ssize_t it = 0; it < iterations; ++it) {
             if (until >= 0.0) {
                 double norm2 = 0.0;
@@ -981,7 +985,8 @@ static int walk_steps(Walk *w, Py_ssize_t max_steps, double expires_at_s, double
                           w->target_position, w->target_rotation, error, jacobian);
             newton_rows(w->fixed, w->tip, n, w->rows, m, w->m_position, w->target_position,
                         w->target_rotation, moved_q, error, jacobian, 1,
-                        w->corrector_iterations, -1.0, w->damping, NULL, t, newton_scratch);
+                        w->corrector_iterations, -1.0, w->damping, NULL, t, NULL,
+                        newton_scratch);
             double step2 = 0.0, pulled2 = 0.0;
             for (Py_ssize_t k = 0; k < n; ++k) {
                 double d = moved_q[k] - q[k], p = moved_q[k] - predicted[k];
@@ -1072,7 +1077,7 @@ static void project_row(const Planner *p, double *q, double *e, double *J, Py_ss
     }
     newton_rows(p->fixed, p->tip, p->n, p->rows, p->m, p->m_position, p->target_position,
                 p->target_rotation, q, e, J, 1, iterations, -1.0, p->damping,
-                lock >= 0 ? locked : NULL, NULL, scratch);
+                lock >= 0 ? locked : NULL, NULL, NULL, scratch);
 }
 
 /* The fibre reaches a coaxial set where Newton, the aligning joint held on it, gets this
@@ -2263,23 +2268,24 @@ static PyObject *py_task_residual(PyObject *self, PyObject *args) {
 
 static PyObject *py_newton(PyObject *self, PyObject *args) {
     Py_buffer fixed, tip, rows, target_position, target_rotation, q, error, jacobian, locked,
-        tangent, scratch;
+        tangent, fresh, scratch;
     Py_ssize_t n, m, m_position, batch, iterations;
-    int orientation, has_locked, has_tangent;
+    int orientation, has_locked, has_tangent, has_fresh;
     double until, damping;
-    if (!PyArg_ParseTuple(args, "y*y*ny*nny*y*pw*w*w*nnddy*py*pw*", &fixed, &tip, &n, &rows, &m,
-                          &m_position, &target_position, &target_rotation, &orientation, &q,
+    if (!PyArg_ParseTuple(args, "y*y*ny*nny*y*pw*w*w*nnddy*py*py*pw*", &fixed, &tip, &n, &rows,
+                          &m, &m_position, &target_position, &target_rotation, &orientation, &q,
                           &error, &jacobian, &batch, &iterations, &until, &damping, &locked,
-                          &has_locked, &tangent, &has_tangent, &scratch))
+                          &has_locked, &tangent, &has_tangent, &fresh, &has_fresh, &scratch))
         return NULL;
     Py_BEGIN_ALLOW_THREADS
     newton_rows(fixed.buf, tip.buf, n, rows.buf, m, m_position, target_position.buf,
                 orientation ? target_rotation.buf : NULL, q.buf, error.buf, jacobian.buf, batch,
                 iterations, until, damping, has_locked ? locked.buf : NULL,
-                has_tangent ? tangent.buf : NULL, scratch.buf);
+                has_tangent ? tangent.buf : NULL, has_fresh ? fresh.buf : NULL, scratch.buf);
     Py_END_ALLOW_THREADS
-    Py_buffer *all[] = {&fixed, &tip, &rows, &target_position, &target_rotation, &q, &error,
-                        &jacobian, &locked, &tangent, &scratch};
+    Py_buffer *all[] = {&fixed,  &tip,     &rows,   &target_position, &target_rotation,
+                        &q,      &error,   &jacobian, &locked,        &tangent,
+                        &fresh,  &scratch};
     for (size_t i = 0; i < sizeof all / sizeof *all; ++i) PyBuffer_Release(all[i]);
     Py_RETURN_NONE;
 }
@@ -2442,7 +2448,7 @@ static int steer_one(const Planner *p, Py_ssize_t stall_steps, double min_progre
                       p->target_position, p->target_rotation, e_new, J_new);
         newton_rows(p->fixed, p->tip, n, p->rows, m, p->m_position, p->target_position,
                     p->target_rotation, q_new, e_new, J_new, 1, p->iterations, p->tolerance,
-                    p->damping, on_limit, NULL, scratch);
+                    p->damping, on_limit, NULL, NULL, scratch);
         double error = 0.0;
         for (Py_ssize_t k = 0; k < m; ++k) error += e_new[k] * e_new[k];
         int ok = sqrt(error) <= p->tolerance && distance_of(q_new, q, n) <= p->stretch * p->delta &&
@@ -2912,7 +2918,8 @@ static PyMethodDef methods[] = {
     {"newton", py_newton, METH_VARARGS,
      "newton(fixed, tip, n, rows, m, m_position, target_position, target_rotation, orientation, "
      "q, error, jacobian, batch, iterations, until, damping, locked, has_locked, tangent, "
-     "has_tangent, scratch): Newton steps onto the fibre per row, in place."},
+     "has_tangent, fresh, has_fresh, scratch): Newton steps onto the fibre per row, in place "
+     "(a fresh row evaluated first)."},
     {"walk", py_walk, METH_VARARGS,
      "walk(fixed, tip, n, rows, m, m_position, target_position, target_rotation, orientation, "
      "fronts, q, tangent, jacobian, step, alive, partner, h, damping, meet_factor, twin_sigma, "

@@ -387,12 +387,14 @@ def newton(
     until: float | None = None,
     locked: BoolArray | None = None,  # (B, n) joints a row holds fixed (DLS steps)
     tangent: FloatArray | None = None,  # (B, n) bordered steps [J; t^T] dq = [e; 0] (r = 1)
+    fresh: BoolArray | None = None,  # (B,) rows not yet evaluated: their error and J unread
 ) -> tuple[FloatArray, FloatArray, FloatArray]:  # q (B, n), error (B, m), jacobian (B, m, n)
     """Up to `iterations` Newton steps per row, each evaluated by the task residual, as
     `correction.iterate` takes them with `fibre`'s step rules: a DLS step with the locked
     joints' columns zeroed, or with `tangent` the bordered step; with `until`, a row stops
     once |e| <= until (a NaN |e| never does); a step entry that is not finite makes its
-    joint NaN. The inputs are not changed."""
+    joint NaN. A `fresh` row is evaluated first (its given error and Jacobian are not
+    read). The inputs are not changed."""
     n = len(fixed)
     orientation_rows, rotation = _orientation(target_rotation)
     rows = [*position_axes, *orientation_rows]
@@ -413,14 +415,19 @@ def newton(
         else np.ascontiguousarray(np.broadcast_to(locked, (batch, n)), dtype=np.uint8)
     )
     border = np.zeros(1) if tangent is None else _float64(tangent, "tangent", (batch, n))
-    if batch and iterations > 0:
+    first = (
+        np.zeros(1, dtype=np.uint8)
+        if fresh is None
+        else np.ascontiguousarray(np.broadcast_to(fresh, (batch,)), dtype=np.uint8)
+    )
+    if batch and (iterations > 0 or fresh is not None):
         _native.newton(
             _float64(fixed, "fixed", (n, 4, 4)), _float64(tip, "tip", (4, 4)), n,
             np.array(rows, dtype=np.int64), m, m_position,
             _float64(target_position_m, "target_position_m", (m_position,)), rotation,
             target_rotation is not None, q, e, j, batch, iterations,
             -1.0 if until is None else float(until), float(damping), lock, locked is not None,
-            border, tangent is not None, np.empty((m + 3) * n),
+            border, tangent is not None, first, fresh is not None, np.empty((m + 3) * n),
         )  # fmt: skip
     return q, e, j
 

@@ -19,7 +19,8 @@ kinematics.onnx to 1e-12, for pose and position tasks; for the axis task its two
 the numpy ones to 1e-12, their norm is the angle between the tool axis and its target (pi
 when opposite), and their Jacobian is -de/dq by central differences. The compiled Newton
 steps (DLS, stopping at a tolerance, locked joints, bordered on a tangent) end where the
-numpy steps do, to 1e-12. The smallest singular value (one-sided Jacobi) equals LAPACK's SVD
+numpy steps do, to 1e-12, and rows marked fresh (evaluated first) where the same rows
+measured beforehand do, to the bit. The smallest singular value (one-sided Jacobi) equals LAPACK's SVD
 to 1e-12, singular and near-singular Jacobians included, and the bounded search for the
 least over many rows finds exactly the least. GJK between placed hulls takes convex.py's
 numpy steps (1e-12) on the robots' own hulls, the refined self-clearance at joint values
@@ -60,7 +61,7 @@ from service.pipeline.collision.convex import hull_support, separation_m
 from service.pipeline.collision.frames import chain_frames
 from service.pipeline.collision.robot import RobotSpheres
 from service.pipeline.correction import residual_of, task_error
-from service.pipeline.fibre import Fibre, project, unit_tangent
+from service.pipeline.fibre import Fibre, Projection, evaluate, newton, project, unit_tangent
 from service.pipeline.joint_space import joint_distance
 from service.pipeline.rotations import rotation_log
 from service.pipeline.targets import Target, kernel_orientation
@@ -411,6 +412,42 @@ def test_newton_takes_the_numpy_steps(model: str) -> None:
         assert np.all(np.isnan(a.q_rad[7])) and np.all(np.isfinite(np.delete(a.q_rad, 7, 0)))
         moved = np.linalg.norm(a.error, axis=1) < np.linalg.norm(compiled.residual(q)[0], axis=1)
         assert moved.mean() > 0.9
+
+
+@pytest.mark.parametrize("model", ["iiwa14-pose", "planar3r-position"])
+def test_newton_evaluates_fresh_rows_first_as_if_measured_before(model: str) -> None:
+    """Rows marked fresh, whatever their given error and Jacobian, end where the same rows
+    measured beforehand end, to the bit, on one thread and on two; rows not fresh are
+    read as given (a wrong error given for them moves them elsewhere)."""
+    kinematics = chain(model)
+    n = kinematics.joint_count
+    task = TaskSpec(
+        name="pose" if model == "iiwa14-pose" else "position",
+        position_axes=[0, 1, 2] if model == "iiwa14-pose" else [0, 1],
+        orientation=model == "iiwa14-pose",
+    )
+    q_target = turns(n, 1, seed=36)
+    fk = kinematics(q_target)
+    target = Target(
+        position_m=fk.position_m[0, task.position_axes],
+        rotation=fk.rotation[0] if task.orientation else None,
+        condition=np.zeros(1, np.float32),
+    )
+    q = q_target + np.random.default_rng(37).normal(scale=0.05, size=(300, n))
+    fresh = np.random.default_rng(38).random(300) < 0.5
+    for threads in (1, 2):
+        fibre = Fibre(target, task, kinematics, damping=1e-3, threads=threads)
+        measured = evaluate(fibre, q)
+        given = Projection(
+            q, np.where(fresh[:, None], np.inf, measured.error),
+            np.where(fresh[:, None, None], np.nan, measured.jacobian),
+        )  # fmt: skip
+        a = newton(fibre, given, 4, until=1e-10, fresh=fresh)
+        b = newton(fibre, measured, 4, until=1e-10)
+        for x, y in ((a.q_rad, b.q_rad), (a.error, b.error), (a.jacobian, b.jacobian)):
+            np.testing.assert_array_equal(x, y)
+        wrong = newton(fibre, Projection(q, measured.error + 0.1, measured.jacobian), 1)
+        assert not np.array_equal(wrong.q_rad, b.q_rad)
 
 
 TILTED_TOOL = [0.6, 0.0, 0.8]  # a tool axis off every joint's, so all joints turn it

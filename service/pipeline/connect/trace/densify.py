@@ -14,7 +14,7 @@ from service.pipeline.connect.trace.points import (
     TraceSettings,
     torus_difference,
 )
-from service.pipeline.fibre import Fibre, Projection, evaluate, newton, project, unit_tangent
+from service.pipeline.fibre import Fibre, Projection, newton, project, unit_tangent
 from service.pipeline.joint_space import JointLimits
 
 
@@ -48,15 +48,19 @@ def densify(
     layout = native.dense_layout(nodes, evaluated.tangent, found.tangent)
     moving, limit_node = nodes.kind == MOVING, nodes.kind == LIMIT
     known_rows = nodes.row[moving]  # every one a traced point: a row of `evaluated`
-    known = Projection(
-        nodes.q_rad[moving], evaluated.error[known_rows], evaluated.jacobian[known_rows]
+    guesses, m, n = len(layout.guess_rad), evaluated.error.shape[1], evaluated.q_rad.shape[1]
+    # The traced nodes as measured, then the guesses, evaluated in Newton's first pass.
+    start = Projection(
+        np.concatenate([nodes.q_rad[moving], layout.guess_rad]),
+        np.concatenate([evaluated.error[known_rows], np.empty((guesses, m))]),
+        np.concatenate([evaluated.jacobian[known_rows], np.empty((guesses, m, n))]),
     )
-    guess = layout.guess_rad
-    start = _stack(known, evaluate(fibre, guess)) if len(guess) else known
+    fresh = np.arange(len(start.q_rad)) >= len(known_rows)
     tangent = np.concatenate([evaluated.tangent[known_rows], layout.direction])
     moved = newton(
-        fibre, start, settings.path_iterations, tangent=tangent, until=settings.path_error
-    )
+        fibre, start, settings.path_iterations, tangent=tangent, until=settings.path_error,
+        fresh=fresh,
+    )  # fmt: skip
     q = layout.placed_rad.copy()  # (D, n)
     error = np.empty((nodes.dense, evaluated.error.shape[1]))
     traced = nodes.row < len(evaluated)
@@ -87,14 +91,6 @@ def densify(
 
 # What each node of `native.dense_nodes` is.
 MOVING, LIMIT, REPEATED = 0, 1, 2
-
-
-def _stack(*parts: Projection) -> Projection:
-    return Projection(
-        q_rad=np.concatenate([p.q_rad for p in parts]),
-        error=np.concatenate([p.error for p in parts]),
-        jacobian=np.concatenate([p.jacobian for p in parts]),
-    )
 
 
 def limit_points(
