@@ -32,8 +32,11 @@ def wrap_periodic(q_rad: FloatArray, periodic: BoolArray) -> FloatArray:
 
 
 def joint_difference(q_a_rad: FloatArray, q_b_rad: FloatArray, periodic: BoolArray) -> FloatArray:
-    """q_a - q_b per joint (..., n), the shortest way round for periodic joints only."""
+    """q_a - q_b per joint (..., n), the shortest way round for periodic joints only (an
+    arm without one, the iiwa's and the Panda's, skips the wrap)."""
     dq_rad = q_a_rad - q_b_rad
+    if not np.any(periodic):
+        return dq_rad
     return np.where(periodic, wrap_to_pi(dq_rad), dq_rad)
 
 

@@ -30,6 +30,10 @@ def test_difference_wraps_periodic_joints_only() -> None:
     np.testing.assert_allclose(joint_difference(q_a, q_b, periodic), [6.0 - 2 * np.pi, 6.0])
     expected = np.hypot(2 * np.pi - 6.0, 6.0)
     np.testing.assert_allclose(joint_distance(q_a, q_b, periodic), expected)
+    limited = np.zeros(2, dtype=bool)  # no periodic joint: the plain difference, any size
+    q_c = np.array([[7.5, -9.0], [0.1, 3.2]])
+    np.testing.assert_array_equal(joint_difference(q_c, q_b, limited), q_c - q_b)
+    np.testing.assert_allclose(joint_distance(q_c, q_b, limited), np.hypot(*(q_c - q_b).T))
 
 
 def test_wrap_periodic_leaves_limited_joints_alone() -> None:
