@@ -1,5 +1,5 @@
 """native: the compiled kernels answer as the numpy kernels, pytorch-kinematics and scipy
-do.  Chain kinematics: for every bundled arm's chain.json, at configurations uniform over
+do. Chain kinematics: for every bundled arm's chain.json, at configurations uniform over
 several turns, the compiled kernel equals the numpy kernel it replaced
 (tests/support/numpy_kernels.py) and pytorch-kinematics (FK and Jacobian of the URDF, what
 kinematics.onnx is exported from) to 1e-12. Rotation error: log(R* R^T) equals scipy's
@@ -20,21 +20,20 @@ the numpy ones to 1e-12, their norm is the angle between the tool axis and its t
 when opposite), and their Jacobian is -de/dq by central differences. The compiled Newton
 steps (DLS, stopping at a tolerance, locked joints, bordered on a tangent) end where the
 numpy steps do, to 1e-12, and rows marked fresh (evaluated first) where the same rows
-measured beforehand do, to the bit. The smallest singular value (one-sided Jacobi) equals LAPACK's SVD
-to 1e-12, singular and near-singular Jacobians included, and the bounded search for the
-least over many rows finds exactly the least. GJK between placed hulls takes convex.py's
-numpy steps (1e-12) on the robots' own hulls, the refined self-clearance at joint values
-equals robot.py's numpy passes (1e-12), and the least distance from samples to the path
-segments beside their candidate points equals the numpy segments' (1e-12) and, with every
-point a candidate, a brute force over every segment; each query's nearest point of its own
-group is the brute-force argmin of the joint metric, -1 for a group with no point, and its k
-nearest points are the brute-force order; the roadmap's nearest node of each other component
-and links within a radius are the brute-force ones in the KD-tree box's metric, and its
-components merged along new edges are scipy's, numbered by lowest node. The
-trace's tangent signs, Hermite guesses, choice of the steps to refine near the limits and
-last pass over its dense points equal the numpy steps bitwise. (The trace's compiled walk
-and closest approach of two strands are pinned in tests/service/pipeline/connect/.)
-"""
+measured beforehand do, to the bit. The smallest singular value (one-sided Jacobi) equals
+LAPACK's SVD to 1e-12, singular and near-singular Jacobians included, and the bounded search
+for the least over many rows finds exactly the least. GJK between placed hulls takes
+convex.py's numpy steps (1e-12) on the robots' own hulls, the refined self-clearance at
+joint values equals robot.py's numpy passes (1e-12), and the least distance from samples to
+the path segments beside their candidate points equals the numpy segments' (1e-12) and, with
+every point a candidate, a brute force over every segment; each query's nearest point of its
+own group is the brute-force argmin of the joint metric, -1 for a group with no point, and
+its k nearest points are the brute-force order; the roadmap's nearest node of each other
+component and links within a radius are the brute-force ones in the KD-tree box's metric,
+and its components merged along new edges are scipy's, numbered by lowest node. The trace's
+tangent signs, Hermite guesses, choice of the steps to refine near the limits and last pass
+over its dense points equal the numpy steps bitwise. (The trace's compiled walk and closest
+approach of two strands are pinned in tests/service/pipeline/connect/.)"""
 
 from __future__ import annotations
 
