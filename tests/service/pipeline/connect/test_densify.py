@@ -1,11 +1,11 @@
 """chain, refine, cut and densify: the trace's phases after the walk, compiled or on flat
-arrays, give the Python loops' answers (tests/support/trace_reference.py) to the bit on
-traced iiwa14 pose, Panda pose and planar 3R fibres: the same curves from the fronts (rows
-in order, unwrapped points, closedness), the same curves refined near the limits, the same
-runs (points, rows, closedness, the outside point at each end) and the same pieces (every
-path point, its error, closedness); and on a closed curve that leaves the limits and
-comes back twice (turned to start outside, so no run wraps round). A curve wholly inside
-is one run, one wholly outside none; malformed curve bounds are refused."""
+arrays, give the Python loops' answers (tests/service/pipeline/connect/trace_reference.py)
+to the bit on traced iiwa14 pose, Panda pose and planar 3R fibres: the same curves from the
+fronts (rows in order, unwrapped points, closedness), the same curves refined near the
+limits, the same runs (points, rows, closedness, the outside point at each end) and the same
+pieces (every path point, its error, closedness); and on a closed curve that leaves the
+limits and comes back twice (turned to start outside, so no run wraps round). A curve wholly
+inside is one run, one wholly outside none; malformed curve bounds are refused."""
 
 from __future__ import annotations
 
@@ -23,8 +23,8 @@ from service.pipeline.connect.trace.seeds import spread_seeds
 from service.pipeline.deadline import NO_DEADLINE
 from service.pipeline.fibre import Fibre, evaluate, project, unit_tangent
 from service.pipeline.joint_space import JointLimits
+from tests.service.pipeline.connect import trace_reference as reference
 from tests.service.pipeline.fibre_support import pose_fibre
-from tests.support import trace_reference as reference
 from training.evaluate.targets import uniform_configurations
 
 SETTINGS = TraceSettings(
