@@ -258,14 +258,15 @@ def correct(
     residual = residual_of(kinematics, target, task)
     q = q_rad[finite]
     chain = chain_of(kinematics)
-    if chain is not None:  # every step of a chunk's rows compiled
-        error, jacobian = residual(q)
+    if chain is not None:  # every step of a chunk's rows compiled, the first evaluation too
+        error, jacobian = np.empty((len(q), m)), np.empty((len(q), m, q.shape[1]))
+        fresh = np.ones(len(q), dtype=bool)
         for first in range(0, len(q), CHUNK_ROWS):
             deadline.check("correct")
             rows = slice(first, first + CHUNK_ROWS)
             q[rows], error[rows], jacobian[rows] = compiled_newton(
                 chain, target, task, q[rows], error[rows], jacobian[rows], steps,
-                damping, until=CONVERGED_ERROR, threads=threads,
+                damping, until=CONVERGED_ERROR, threads=threads, fresh=fresh[rows],
             )  # fmt: skip
     else:
 
