@@ -1729,6 +1729,55 @@ static void dense_layout_of(const double *node_q, const long long *node_row,
     }
 }
 
+/* densify.py's dense path after Newton. q starts as the placed points (D, n); each node's
+   error is the one measured at it (`evaluated_error` (T, m) rows, or `found_error` of a
+   limit point, row T + l); the moved rows (`moved_rows` (M,)) take Newton's points and
+   errors; a limit node (kind 1) is set to its refined point in the window (`found_window`)
+   and a closing repeat (kind 2) is left out; then `settle_dense_rows`. The points inside
+   are written in order to q_out and error_out, and counted per run (`dense_run` (D,) ->
+   run_count (R,)); returns how many. Scratch: q (D n), error (D m), fixed_rows (N),
+   fixed_q (N n), excluded (N), inside (D). */
+static Py_ssize_t dense_finish_of(
+    const double *placed, Py_ssize_t D, Py_ssize_t n, Py_ssize_t m, const double *moved_q,
+    const double *moved_error, const long long *moved_rows, Py_ssize_t M,
+    const long long *offset, const long long *node_row, const unsigned char *node_kind,
+    Py_ssize_t N, const double *evaluated_error, Py_ssize_t T, const double *found_error,
+    const double *found_window, const long long *dense_run, Py_ssize_t R, const double *low,
+    const double *lower, const double *upper, const unsigned char *periodic, double stray_rad,
+    double *q, double *error, long long *fixed_rows, double *fixed_q, long long *excluded,
+    unsigned char *inside, double *q_out, double *error_out, long long *run_count) {
+    memcpy(q, placed, (size_t)(D * n) * sizeof(double));
+    Py_ssize_t F = 0, E = 0;
+    for (Py_ssize_t i = 0; i < N; ++i) {
+        long long row = node_row[i];
+        const double *measured = row < T ? evaluated_error + row * m : found_error + (row - T) * m;
+        memcpy(error + offset[i] * m, measured, (size_t)m * sizeof(double));
+        if (node_kind[i] == 1) {
+            fixed_rows[F] = offset[i];
+            memcpy(fixed_q + F * n, found_window + (row - T) * n, (size_t)n * sizeof(double));
+            ++F;
+        } else if (node_kind[i] == 2) {
+            excluded[E++] = offset[i];
+        }
+    }
+    for (Py_ssize_t k = 0; k < M; ++k) {
+        memcpy(q + moved_rows[k] * n, moved_q + k * n, (size_t)n * sizeof(double));
+        memcpy(error + moved_rows[k] * m, moved_error + k * m, (size_t)m * sizeof(double));
+    }
+    settle_dense_rows(q, placed, low, lower, upper, periodic, D, n, stray_rad, fixed_rows,
+                      fixed_q, F, excluded, E, inside);
+    for (Py_ssize_t r = 0; r < R; ++r) run_count[r] = 0;
+    Py_ssize_t count = 0;
+    for (Py_ssize_t d = 0; d < D; ++d) {
+        if (!inside[d]) continue;
+        memcpy(q_out + count * n, q + d * n, (size_t)n * sizeof(double));
+        memcpy(error_out + count * m, error + d * m, (size_t)m * sizeof(double));
+        ++run_count[dense_run[d]];
+        ++count;
+    }
+    return count;
+}
+
 /* strands.py's closest approach of two strands of the traced fibre: the least joint-metric
    distance, at most `within_rad`, between points of two different curves, or of one curve
    but more than `strand_arc` apart along it (the shorter way round a closed one); +inf
@@ -2749,6 +2798,36 @@ static PyObject *py_dense_layout(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
+static PyObject *py_dense_finish(PyObject *self, PyObject *args) {
+    Py_buffer placed, moved_q, moved_error, moved_rows, offset, node_row, node_kind,
+        evaluated_error, found_error, found_window, dense_run, low, lower, upper, periodic, q,
+        error, fixed_rows, fixed_q, excluded, inside, q_out, error_out, run_count;
+    Py_ssize_t D, n, m, M, N, T, R, count;
+    double stray_rad;
+    if (!PyArg_ParseTuple(args, "y*nnny*y*y*ny*y*y*ny*ny*y*y*ny*y*y*y*dw*w*w*w*w*w*w*w*w*",
+                          &placed, &D, &n, &m, &moved_q, &moved_error, &moved_rows, &M, &offset,
+                          &node_row, &node_kind, &N, &evaluated_error, &T, &found_error,
+                          &found_window, &dense_run, &R, &low, &lower, &upper, &periodic,
+                          &stray_rad, &q, &error, &fixed_rows, &fixed_q, &excluded, &inside,
+                          &q_out, &error_out, &run_count))
+        return NULL;
+    Py_BEGIN_ALLOW_THREADS
+    count = dense_finish_of(placed.buf, D, n, m, moved_q.buf, moved_error.buf, moved_rows.buf, M,
+                            offset.buf, node_row.buf, node_kind.buf, N, evaluated_error.buf, T,
+                            found_error.buf, found_window.buf, dense_run.buf, R, low.buf,
+                            lower.buf, upper.buf, periodic.buf, stray_rad, q.buf, error.buf,
+                            fixed_rows.buf, fixed_q.buf, excluded.buf, inside.buf, q_out.buf,
+                            error_out.buf, run_count.buf);
+    Py_END_ALLOW_THREADS
+    Py_buffer *all[] = {&placed,     &moved_q,     &moved_error, &moved_rows, &offset,
+                        &node_row,   &node_kind,   &evaluated_error, &found_error,
+                        &found_window, &dense_run, &low,        &lower,      &upper,
+                        &periodic,   &q,           &error,      &fixed_rows, &fixed_q,
+                        &excluded,   &inside,      &q_out,      &error_out,  &run_count};
+    for (size_t i = 0; i < sizeof all / sizeof *all; ++i) PyBuffer_Release(all[i]);
+    return PyLong_FromSsize_t(count);
+}
+
 static PyObject *py_closest_strands(PyObject *self, PyObject *args) {
     Py_buffer points, first, closed, periodic, work, curve_of, column;
     Py_ssize_t P, n, C;
@@ -2969,6 +3048,11 @@ static PyMethodDef methods[] = {
     {"dense_layout", py_dense_layout, METH_VARARGS,
      "dense_layout(node_q, node_row, node_run, inner, N, n, tangent, found_tangent, T, placed, "
      "dense_run, offset, between, guess, direction): densify's dense points before Newton."},
+    {"dense_finish", py_dense_finish, METH_VARARGS,
+     "dense_finish(placed, D, n, m, moved_q, moved_error, moved_rows, M, offset, node_row, "
+     "node_kind, N, evaluated_error, T, found_error, found_window, dense_run, R, low, lower, "
+     "upper, periodic, stray_rad, q, error, fixed_rows, fixed_q, excluded, inside, q_out, "
+     "error_out, run_count) -> count: densify's points after Newton, settled, those inside."},
     {"closest_strands", py_closest_strands, METH_VARARGS,
      "closest_strands(points, P, n, first, C, closed, periodic, within_rad, strand_arc, work, "
      "curve_of, column) -> the least distance between two strands of the traced curves."},

@@ -1151,6 +1151,55 @@ def dense_layout(
     return DenseLayout(placed, run, offset, between, guess, direction)
 
 
+def dense_finish(
+    nodes: DenseNodes,
+    layout: DenseLayout,
+    moved_rows: IntArray,  # (M,) dense rows Newton moved: the traced nodes, then inner points
+    moved_q_rad: FloatArray,  # (M, n) where Newton left them
+    moved_error: FloatArray,  # (M, m) measured there
+    evaluated_error: FloatArray,  # (T, m) at the evaluated rows
+    found_error: FloatArray,  # (L, m) at the refined limit points
+    found_window_rad: FloatArray,  # (L, n) the refined limit points in the window
+    runs: int,  # R
+    window_low_rad: FloatArray,  # (n,)
+    lower_rad: FloatArray,  # (n,)
+    upper_rad: FloatArray,  # (n,)
+    periodic: BoolArray,  # (n,)
+    stray_rad: float,
+) -> tuple[FloatArray, FloatArray, IntArray]:  # (P, n), (P, m), (R,)
+    """densify.py's dense path after Newton: the moved points and errors in their rows, each
+    node's measured error, a limit point at its refined place, a closing repeat left out,
+    then `settle_dense`; the points inside, in order, their errors, and how many each run
+    keeps."""
+    total, n = layout.placed_rad.shape
+    count, m = moved_error.shape
+    rows = len(evaluated_error)
+    found = len(found_error)
+    moved_rows = _int64(moved_rows, "moved_rows", (count,))
+    if count and (moved_rows.min() < 0 or moved_rows.max() >= total):
+        raise ValueError(f"moved_rows must index the {total} dense points")
+    nodes_count = len(nodes.row)
+    q_out, error_out = np.empty((total, n)), np.empty((total, m))
+    run_count = np.empty(runs, np.int64)
+    kept = _native.dense_finish(
+        layout.placed_rad, total, n, m, _float64(moved_q_rad, "moved_q_rad", (count, n)),
+        _float64(moved_error, "moved_error", (count, m)), moved_rows, count, layout.offset,
+        nodes.row, nodes.kind, nodes_count,
+        _float64(evaluated_error, "evaluated_error", (rows, m)), rows,
+        _float64(found_error, "found_error", (found, m)),
+        _float64(found_window_rad, "found_window_rad", (found, n)), layout.run, runs,
+        *(_float64(v, name, (n,)) for v, name in (
+            (window_low_rad, "window_low_rad"), (lower_rad, "lower_rad"),
+            (upper_rad, "upper_rad"),
+        )),
+        np.ascontiguousarray(periodic, dtype=np.uint8), float(stray_rad),
+        np.empty((total, n)), np.empty((total, m)), np.empty(nodes_count, np.int64),
+        np.empty((nodes_count, n)), np.empty(nodes_count, np.int64),
+        np.empty(total, np.uint8), q_out, error_out, run_count,
+    )  # fmt: skip
+    return q_out[:kept], error_out[:kept], run_count
+
+
 def closest_strands(
     points_rad: FloatArray,  # (P, n) every curve's points in order, curve after curve
     first: IntArray,  # (C + 1,) curve c is rows first[c] to first[c + 1]

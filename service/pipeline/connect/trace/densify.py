@@ -46,7 +46,7 @@ def densify(
         len(evaluated), settings.path_spacing_rad,
     )  # fmt: skip
     layout = native.dense_layout(nodes, evaluated.tangent, found.tangent)
-    moving, limit_node = nodes.kind == MOVING, nodes.kind == LIMIT
+    moving = nodes.kind == MOVING
     known_rows = nodes.row[moving]  # every one a traced point: a row of `evaluated`
     guesses, m, n = len(layout.guess_rad), evaluated.error.shape[1], evaluated.q_rad.shape[1]
     # The traced nodes as measured, then the guesses, evaluated in Newton's first pass.
@@ -61,30 +61,19 @@ def densify(
         fibre, start, settings.path_iterations, tangent=tangent, until=settings.path_error,
         fresh=fresh,
     )  # fmt: skip
-    q = layout.placed_rad.copy()  # (D, n)
-    error = np.empty((nodes.dense, evaluated.error.shape[1]))
-    traced = nodes.row < len(evaluated)
-    error[layout.offset[traced]] = evaluated.error[nodes.row[traced]]  # closing repeats
-    error[layout.offset[~traced]] = found.error[nodes.row[~traced] - len(evaluated)]
-    moved_rows = np.concatenate([layout.offset[moving], layout.between])
-    q[moved_rows], error[moved_rows] = moved.q_rad, moved.error
     # Into the window, a limit point as refined (on its limit exactly, not through its
     # run's coordinates); left out: a point past a limit, one Newton carried away from its
-    # place on the path, the closing repeat of a closed run.
-    q, inside = native.settle_dense(
-        q, layout.placed_rad, low, limits.lower_rad, limits.upper_rad, limits.periodic,
-        stray_rad=0.5 * settings.path_spacing_rad,
-        fixed_rows=layout.offset[limit_node],
-        fixed_rad=found_window[nodes.row[limit_node] - len(evaluated)],
-        excluded_rows=layout.offset[nodes.kind == REPEATED],
+    # place on the path, the closing repeat of a closed run (compiled: `native.dense_finish`).
+    q, error, kept = native.dense_finish(
+        nodes, layout, np.concatenate([layout.offset[moving], layout.between]), moved.q_rad,
+        moved.error, evaluated.error, found.error, found_window, len(runs), low,
+        limits.lower_rad, limits.upper_rad, limits.periodic, 0.5 * settings.path_spacing_rad,
     )  # fmt: skip
-    # Each run's points that stayed inside, in order (a point the projection pushed past
-    # a limit is left out).
-    ends = np.cumsum(np.bincount(layout.run[inside], minlength=len(runs)))[:-1]
+    ends = np.cumsum(kept)[:-1]  # each run's points that stayed inside, in order
     return [
         TracedPiece(path_rad=path, error=path_error, closed=bool(closed))
         for path, path_error, closed in zip(
-            np.split(q[inside], ends), np.split(error[inside], ends), runs.closed, strict=True
+            np.split(q, ends), np.split(error, ends), runs.closed, strict=True
         )
     ]
 
