@@ -372,25 +372,34 @@ def test_task_residual_equals_the_task_error_of_the_kinematics(
     np.testing.assert_array_equal(through[0], onnx_error)
 
 
-@pytest.mark.parametrize("model", ["iiwa14-pose", "planar3r-position"])
-def test_newton_takes_the_numpy_steps(model: str) -> None:
-    """DLS steps (every row, and stopping rows at `until`), with locked joints, and the
-    bordered steps of a tangent: the compiled Newton ends where `correction.iterate` does,
-    to 1e-12, with the error and Jacobian measured there; a NaN row stays in its row."""
+def reached_target(
+    model: str, seed: int
+) -> tuple[SerialChainKinematics, TaskSpec, Target, np.ndarray]:
+    """The model's chain, its task (pose or position), and the target that a configuration
+    drawn over several turns (seed) reaches, with that configuration (1, n)."""
     kinematics = chain(model)
-    n = kinematics.joint_count
     task = TaskSpec(
         name="pose" if model == "iiwa14-pose" else "position",
         position_axes=[0, 1, 2] if model == "iiwa14-pose" else [0, 1],
         orientation=model == "iiwa14-pose",
     )
-    q_target = turns(n, 1, seed=16)
+    q_target = turns(kinematics.joint_count, 1, seed=seed)
     fk = kinematics(q_target)
     target = Target(
         position_m=fk.position_m[0, task.position_axes],
         rotation=fk.rotation[0] if task.orientation else None,
         condition=np.zeros(1, np.float32),
     )
+    return kinematics, task, target, q_target
+
+
+@pytest.mark.parametrize("model", ["iiwa14-pose", "planar3r-position"])
+def test_newton_takes_the_numpy_steps(model: str) -> None:
+    """DLS steps (every row, and stopping rows at `until`), with locked joints, and the
+    bordered steps of a tangent: the compiled Newton ends where `correction.iterate` does,
+    to 1e-12, with the error and Jacobian measured there; a NaN row stays in its row."""
+    kinematics, task, target, q_target = reached_target(model, seed=16)
+    n = kinematics.joint_count
     compiled = Fibre(target, task, kinematics, damping=1e-3)
     through = Fibre(target, task, NumpyStepsKinematics(kinematics), damping=1e-3)
     q = q_target + np.random.default_rng(17).normal(scale=0.05, size=(300, n))
@@ -418,20 +427,8 @@ def test_newton_evaluates_fresh_rows_first_as_if_measured_before(model: str) -> 
     """Rows marked fresh, whatever their given error and Jacobian, end where the same rows
     measured beforehand end, to the bit, on one thread and on two; rows not fresh are
     read as given (a wrong error given for them moves them elsewhere)."""
-    kinematics = chain(model)
+    kinematics, task, target, q_target = reached_target(model, seed=36)
     n = kinematics.joint_count
-    task = TaskSpec(
-        name="pose" if model == "iiwa14-pose" else "position",
-        position_axes=[0, 1, 2] if model == "iiwa14-pose" else [0, 1],
-        orientation=model == "iiwa14-pose",
-    )
-    q_target = turns(n, 1, seed=36)
-    fk = kinematics(q_target)
-    target = Target(
-        position_m=fk.position_m[0, task.position_axes],
-        rotation=fk.rotation[0] if task.orientation else None,
-        condition=np.zeros(1, np.float32),
-    )
     q = q_target + np.random.default_rng(37).normal(scale=0.05, size=(300, n))
     fresh = np.random.default_rng(38).random(300) < 0.5
     for threads in (1, 2):
