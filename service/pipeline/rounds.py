@@ -110,10 +110,21 @@ def draw_in_rounds(
             within_tolerance=np.concatenate([a.within_tolerance for a in acceptances]),
             within_limits=np.concatenate([a.within_limits for a in acceptances]),
             collision_free=np.concatenate([a.collision_free for a in acceptances]),
+            clearance_m=_concatenate_clearances(acceptances),
         ),
         traced=traced,
         rounds=len(corrections),
     )
+
+
+def _concatenate_clearances(acceptances: list[Acceptance]) -> FloatArray | None:
+    """The rounds' clearances in one array; None when collisions are not checked (every
+    round of a query checks them or none does)."""
+    measured = [a.clearance_m for a in acceptances if a.clearance_m is not None]
+    if not measured:
+        return None
+    assert len(measured) == len(acceptances), "every round checks collisions or none"
+    return np.concatenate(measured)
 
 
 def _concatenate_corrections(corrections: list[Correction]) -> Correction:

@@ -82,9 +82,10 @@ class FibreSpace:
         on_fibre = np.flatnonzero(acceptance.on_fibre)
         if not self.collision.active or not len(on_fibre):
             return acceptance
+        clearance = np.full(len(correction.q_rad), np.nan)  # (N,)
         free = acceptance.collision_free.copy()
-        free[on_fibre] = self.collision.free(correction.q_rad[on_fibre])
-        return replace(acceptance, collision_free=free)
+        clearance[on_fibre], free[on_fibre] = self.collision.judged(correction.q_rad[on_fibre])
+        return replace(acceptance, collision_free=free, clearance_m=clearance)
 
     def polish(
         self, q_rad: FloatArray, iterations: int = 4, max_move_rad: float = 0.01

@@ -255,6 +255,9 @@ class Acceptance:
     within_tolerance: BoolArray  # (N,)
     within_limits: BoolArray  # (N,)
     collision_free: BoolArray  # (N,) True where nothing was checked (kinematically invalid rows)
+    # (N,) each sample's clearance where it was checked (on the fibre), NaN elsewhere;
+    # None when collisions are not checked. Kept so that no later stage measures it again.
+    clearance_m: FloatArray | None = None
 
     @property
     def on_fibre(self) -> BoolArray:
@@ -266,9 +269,13 @@ class Acceptance:
         return self.within_tolerance & self.within_limits & self.collision_free
 
     def kinematic(self) -> Acceptance:
-        """The same samples judged without collisions (what the r = 1 trace starts from)."""
+        """The same samples judged without collisions (what the r = 1 trace starts from);
+        the clearances measured stay, for the pieces cut from the curves."""
         return Acceptance(
-            self.within_tolerance, self.within_limits, np.ones_like(self.collision_free)
+            self.within_tolerance,
+            self.within_limits,
+            np.ones_like(self.collision_free),
+            self.clearance_m,
         )
 
 

@@ -103,8 +103,15 @@ class CollisionCheck:
         measured = self.clearance_m(np.concatenate(parts))
         return np.split(measured, np.cumsum([len(p) for p in parts[:-1]]))
 
+    def judged(self, q_rad: FloatArray) -> tuple[FloatArray, BoolArray]:  # (B, n) -> (B,) x 2
+        """Each configuration's clearance (inf where nothing is checked) and whether it is
+        clear by at least the margin (NaN rows are not): the verdict of `free` with the
+        figure it rests on, for a stage that keeps the figure."""
+        if not self.active:
+            return np.full(len(q_rad), np.inf), np.ones(len(q_rad), dtype=bool)
+        clearance = self.clearance_m(q_rad)
+        return clearance, clearance >= self.margin_m
+
     def free(self, q_rad: FloatArray) -> BoolArray:  # (B, n) -> (B,)
         """Which configurations are clear by at least the margin (NaN rows are not)."""
-        if not self.active:
-            return np.ones(len(q_rad), dtype=bool)
-        return self.clearance_m(q_rad) >= self.margin_m
+        return self.judged(q_rad)[1]

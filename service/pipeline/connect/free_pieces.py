@@ -29,10 +29,14 @@ def free_pieces(
 ) -> list[Component]:
     """The free pieces of the traced components (members not free are dropped: the
     acceptance counted them as rejected_collision); components with no path keep their
-    free members."""
-    parts = [c.q_rad for c in components] + [c.path.q_rad for c in components if c.path]
-    clearances = space.collision.clearances_m(parts)
-    of_members, of_paths = clearances[: len(components)], iter(clearances[len(components) :])
+    free members. The members' clearances are the acceptance's where it measured them."""
+    parts = [c.q_rad for c in components if c.clearance_m is None]
+    parts += [c.path.q_rad for c in components if c.path]
+    clearances = iter(space.collision.clearances_m(parts))
+    of_members = [
+        c.clearance_m if c.clearance_m is not None else next(clearances) for c in components
+    ]
+    of_paths = clearances  # the rest, in the paths' order
     margin_m = space.collision.margin_m
     kept: list[Component] = []  # each component's free members
     cuts: list[list[tuple[IntArray, ComponentPath]] | None] = []  # its path's free runs

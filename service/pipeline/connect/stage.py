@@ -99,7 +99,7 @@ def connect(
         joined = roadmap_components(space, q_leftover, planner, roadmap, deadline)
         for label, graph in enumerate(joined.graphs):
             members = leftover[joined.labels == label]
-            components.append(_component(correction, members, None, graph))
+            components.append(_component(correction, acceptance, members, None, graph))
     structure = FibreStructure(
         near_singular=(min_sigma < spec.singular_sigma) or not complete,
         min_singular_value=min_sigma if np.isfinite(min_sigma) else None,
@@ -157,7 +157,8 @@ def _curve_components(
     strands_rad = closest_strands_rad([(p.q_rad, p.closed) for p in paths], limits, meeting_rad)
     complete &= not np.isfinite(strands_rad)
     components = [
-        _component(correction, accepted[owner == index], path) for index, path in enumerate(paths)
+        _component(correction, acceptance, accepted[owner == index], path)
+        for index, path in enumerate(paths)
     ]
     leftover = accepted[owner < 0]
     complete &= len(leftover) == 0
@@ -166,14 +167,19 @@ def _curve_components(
 
 def _component(
     correction: Correction,
+    acceptance: Acceptance,
     members: IntArray,
     path: ComponentPath | None,
     roadmap: ComponentRoadmap | None = None,
 ) -> Component:
+    """The component of the samples `members` (rows of the correction), with the
+    clearances the acceptance measured for them."""
+    clearance = acceptance.clearance_m
     return Component(
         q_rad=correction.q_rad[members],
         position_error_m=correction.position_error_m[members],
         orientation_error_rad=correction.orientation_error_rad[members],
         path=path,
+        clearance_m=None if clearance is None else clearance[members],
         roadmap=roadmap,
     )

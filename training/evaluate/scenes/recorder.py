@@ -2,9 +2,9 @@
 free, so that the evaluation can check each of them with coal too.
 
 `RecordingCheck` is the query's own `CollisionCheck` (same robot, scene, self check and
-margin, so the same verdicts) that keeps the rows `free` returned True for: the
-accepted samples, every walk step of an r > 1 roadmap edge and the local planner's
-checks, the members of the r = 1 free pieces. `recorded_answer` runs the pipeline's own
+margin, so the same verdicts) that keeps the rows its verdicts (`judged`, which `free`
+asks) called free: the accepted samples, every walk step of an r > 1 roadmap edge and
+the local planner's checks, the members of the r = 1 free pieces. `recorded_answer` runs the pipeline's own
 stages (`service.pipeline.run`: encode, then `answer`: sample, correct, accept, in
 rounds where the model draws so, connect, summarise) in a space built with that check,
 since `run` builds its check inside; the service's code is not changed.
@@ -43,11 +43,12 @@ class RecordingCheck(CollisionCheck):
             margin_m=check.margin_m,
         )  # fmt: skip
 
-    def free(self, q_rad: FloatArray) -> BoolArray:
-        free = super().free(q_rad)
+    def judged(self, q_rad: FloatArray) -> tuple[FloatArray, BoolArray]:
+        """`free` asks this too: every verdict of the check passes here."""
+        clearance, free = super().judged(q_rad)
         if self.active:  # with nothing checked, nothing was called free by a check
             self.called_free.append(np.array(q_rad[free], dtype=np.float64))
-        return free
+        return clearance, free
 
     def recorded(self, num_joints: int) -> FloatArray:  # (R, n), each distinct row once
         """Every configuration called free, each once."""

@@ -2,7 +2,9 @@
 example-robot-data meshes: at random configurations, each in a box placed against one of
 its links, the check's clearance is never above coal's (self and obstacles), so whatever
 it calls free is free; it is never below the spheres' alone; and it refuses fewer of the
-configurations coal finds free than the spheres alone do."""
+configurations coal finds free than the spheres alone do. Its verdicts (`judged`, which
+`free` asks) are its clearance against the margin; with nothing to check,
+every configuration is free at an infinite clearance."""
 
 from __future__ import annotations
 
@@ -64,3 +66,22 @@ def test_the_check_is_between_the_spheres_and_coal(panda: ServedModel) -> None:
         spheres_lost += coal_free and spheres < 0
         check_lost += coal_free and check < 0
     assert checked == CONFIGURATIONS and spheres_lost >= 3 and spheres_lost > check_lost
+
+
+def test_the_verdicts_are_the_clearance_against_the_margin(panda: ServedModel) -> None:
+    rng = np.random.default_rng(5)
+    limits = panda.limits
+    q = rng.uniform(limits.lower_rad, limits.upper_rad, size=(40, limits.count))
+    robot = panda.robot_spheres
+    assert robot is not None
+    obstacle = _box_against_a_link(panda, q[0], rng)
+    check = CollisionCheck(robot, Scene((obstacle,)), True, 0.01)
+    clearance, free = check.judged(q)
+    np.testing.assert_array_equal(clearance, check.clearance_m(q))
+    np.testing.assert_array_equal(free, clearance >= 0.01)
+    np.testing.assert_array_equal(check.free(q), free)
+    assert 0 < free.sum() < len(q)  # the box and the arm take some
+    nothing = CollisionCheck(None, Scene(()), False, 0.01)
+    assert not nothing.active
+    clearance, free = nothing.judged(q)
+    assert np.isinf(clearance).all() and free.all()

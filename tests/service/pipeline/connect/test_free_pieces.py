@@ -2,7 +2,9 @@
 obstacle across part of its self-motion. Every returned path point and configuration is
 clear of it by the closed-form FK, the curve is cut there into pieces whose ends say
 collision, a loop free all along stays closed, clearance is the least along the
-component and the safest configuration the best, and the counts add up."""
+component and the safest configuration the best, and the counts add up. The acceptance
+measures each sample on the fibre once, by the closed form, and free_pieces decides the
+members by the clearances it is given, measuring only those it is not."""
 
 from dataclasses import replace
 
@@ -14,7 +16,7 @@ from service.pipeline.collision.check import CollisionCheck
 from service.pipeline.collision.robot import RobotSpheres
 from service.pipeline.collision.scene import Obstacle, Scene
 from service.pipeline.connect.free_pieces import free_pieces
-from service.pipeline.run import encode, run, space_of
+from service.pipeline.run import correct_samples, encode, run, sample, space_of
 from service.pipeline.types import Component, ComponentSummary, Query
 from tests.service.pipeline.collision.test_robot import (
     RADIUS_M,
@@ -136,3 +138,61 @@ def test_a_free_sample_off_every_free_path_point_is_a_component_of_its_own(
     for piece in pieces:
         if piece.path is not None:
             assert check.free(piece.path.q_rad).all()
+
+
+def test_the_acceptance_measures_every_sample_on_the_fibre_and_no_other(
+    with_spheres: ServedModel,
+) -> None:
+    centre = np.array([0.9, 0.9])
+    obstacle = Obstacle.of(0, "sphere", [0.15], [*centre, 0.0], None)
+    asked = query(with_spheres, [obstacle])
+    target = encode(with_spheres, asked)
+    check = CollisionCheck(with_spheres.robot_spheres, Scene((obstacle,)), False, MARGIN_M)
+    space = space_of(with_spheres, target, asked.tolerance, check)
+    correction = correct_samples(with_spheres, space, sample(with_spheres, asked, target))
+    acceptance = space.accept(correction)
+    on_fibre = acceptance.on_fibre
+    assert acceptance.clearance_m is not None and 0 < on_fibre.sum() < len(on_fibre)
+    assert np.isnan(acceptance.clearance_m[~on_fibre]).all()
+    exact = clearance_closed_form(correction.q_rad[on_fibre], centre, 0.15)
+    np.testing.assert_allclose(acceptance.clearance_m[on_fibre], exact, rtol=0, atol=1e-12)
+    assert 0 < (exact < MARGIN_M).sum() < len(exact)  # the obstacle takes some, not all
+    np.testing.assert_array_equal(acceptance.collision_free[on_fibre], exact >= MARGIN_M)
+    assert acceptance.collision_free[~on_fibre].all()  # nothing checked there
+    # Judged without collisions, the samples keep their clearances for the pieces.
+    kinematic = acceptance.kinematic()
+    assert kinematic.accepted.sum() == on_fibre.sum()
+    assert kinematic.clearance_m is acceptance.clearance_m
+
+
+def test_free_pieces_takes_the_members_clearances_it_is_given(
+    with_spheres: ServedModel,
+) -> None:
+    """A member whose given clearance is under the margin is dropped though it is free,
+    one given a clearance over it keeps that figure, and one given none is measured."""
+    asked = query(with_spheres, [])
+    far = Obstacle.of(0, "box", [0.1, 0.1, 0.1], [-3.5, -3.5, 0.0], None)
+    check = CollisionCheck(with_spheres.robot_spheres, Scene((far,)), False, MARGIN_M)
+    space = space_of(with_spheres, encode(with_spheres, asked), asked.tolerance, check)
+    traced = run(with_spheres, asked).components
+    longest = max(traced, key=lambda c: c.arc_length_rad or 0.0)
+    assert longest.path is not None and len(longest.configurations_rad) >= 3
+    members = longest.configurations_rad[:3]
+    measured = check.clearance_m(members)
+    assert (measured > 1.0).all()  # far from the box: every member is free
+    path = longest.path  # checked along it here: no clearances of its own yet
+    assert path.clearance_m is None
+    given = np.array([MARGIN_M / 2, 0.5, 0.7])  # the first under the margin
+    component = Component(
+        q_rad=members, position_error_m=np.zeros(3), orientation_error_rad=np.zeros(3),
+        path=path, clearance_m=given,
+    )  # fmt: skip
+    (piece,) = free_pieces(space, [component], 0.05)
+    np.testing.assert_array_equal(piece.q_rad, members[1:])
+    assert piece.clearance_m is not None
+    np.testing.assert_array_equal(piece.clearance_m, given[1:])
+    unmeasured = replace(component, clearance_m=None)
+    (piece,) = free_pieces(space, [unmeasured], 0.05)
+    np.testing.assert_array_equal(piece.q_rad, members)
+    assert piece.clearance_m is not None
+    np.testing.assert_array_equal(piece.clearance_m, measured)
