@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import time
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -101,6 +102,8 @@ def batch_against_singles(
     batch_ms: list[float] = []
     mismatched: set[int] = set()
     server_timings: list[dict[str, float]] = []  # the batch's, by span
+    singles_cpu: list[dict[str, float]] = []  # CPU ms of each round's singles, by process
+    batch_cpu: list[dict[str, float]] = []
     try:
         no_retries = RetryPolicy(max_attempts=1)
         with SmmClient(server.url, timeout=TIMEOUT_S, retry=no_retries) as client:
@@ -108,12 +111,14 @@ def batch_against_singles(
             client.smm_batch(batch.model_copy(update={"targets": batch.targets[:2]}))
             for r in range(rounds):
                 progress(f"{manifest.model_id}: round {r + 1} of {rounds}")
-                start = time.perf_counter()
+                start, cpu = time.perf_counter(), ProcessesCpu(server)
                 single_answers = [client.smm(request) for request in singles]
                 singles_ms.append((time.perf_counter() - start) * 1e3)
-                start = time.perf_counter()
+                singles_cpu.append(cpu.spent_ms())
+                start, cpu = time.perf_counter(), ProcessesCpu(server)
                 answer = client.smm_batch(batch)
                 batch_ms.append((time.perf_counter() - start) * 1e3)
+                batch_cpu.append(cpu.spent_ms())
                 mismatched.update(mismatched_targets(answer, single_answers))
                 server_timings.append({str(span): ms for span, ms in answer.timings_ms.items()})
     finally:
@@ -137,7 +142,28 @@ def batch_against_singles(
         },
         "identical": not mismatched,
         "mismatched": sorted(mismatched),
+        "cores": os.cpu_count() or 1,
+        "singles_cpu_median_ms": _median_by_key(singles_cpu),
+        "batch_cpu_median_ms": _median_by_key(batch_cpu),
     }
+
+
+class ProcessesCpu:
+    """CPU time the server and this client process (every thread of each) spend from now:
+    what a phase costs the machine's cores, whatever ran in parallel."""
+
+    def __init__(self, server: LocalServer) -> None:
+        self._server = server
+        self._server_s, self._client_s = server.cpu_s(), time.process_time()
+
+    def spent_ms(self) -> dict[str, float]:
+        server_ms = (self._server.cpu_s() - self._server_s) * 1e3
+        client_ms = (time.process_time() - self._client_s) * 1e3
+        return {"server": server_ms, "client": client_ms, "total": server_ms + client_ms}
+
+
+def _median_by_key(rounds: Sequence[dict[str, float]]) -> dict[str, float]:
+    return {key: float(np.median([r[key] for r in rounds])) for key in rounds[0]}
 
 
 def main() -> None:

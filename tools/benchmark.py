@@ -65,6 +65,7 @@ from service.models.registry import ServedModel, load_model
 from service.pipeline.joint_space import JointLimits
 from service.wire import SmmRequest
 from tools.batch_benchmark import batch_against_singles, target_of
+from tools.batch_bounds import BATCH_STAGES, cpu_bound, cpu_sentence, stage_bound
 from tools.connect_profile import profile_connect
 from tools.connect_profile import summarise as summarise_connect
 from tools.goals import (
@@ -627,37 +628,31 @@ def _batch(batch: dict, one_thread: dict | None) -> list[str]:
     ]
 
 
-BATCH_STAGES = ("sample", "correct", "connect", "summarise")
-
-
 def batch_profile(batch: dict) -> list[str]:
-    """Where the default batch's time goes, per target, and what the network and the
-    transport alone leave for the goal: the server's stage totals (median over the
-    rounds), and the client's wall time less the server's total (HTTP, validation, JSON
-    at both ends)."""
-    targets, server = batch["targets"], batch["server_batch_median_ms"]
-    threads = int(batch.get("batch_threads", 1))  # targets answered at once
-    per_target = {stage: server.get(stage, 0.0) / targets for stage in BATCH_STAGES}
-    outside = max(batch["batch_median_ms"] - server["total"], 0.0) / targets
-    singles = batch["singles_median_ms"] / targets
-    floor = per_target["sample"] / threads + outside
-    return [
+    """Where the default batch's time goes, per target, and what bounds it
+    (tools/batch_bounds.py): the network and the transport alone, and the cores."""
+    bound = stage_bound(batch)
+    lines = [
         "Where the default batch's time goes, ms per target (the server's stages, each "
-        f"target's own, {threads} targets at a time; outside: the client's wall time less the "
-        "server's total, i.e. HTTP, validation and JSON at both ends):",
+        f"target's own, {bound.at_once} targets at a time; outside: the client's wall time less "
+        "the server's total, i.e. HTTP, validation and JSON at both ends):",
         "",
         "| singles | batch | " + " | ".join(BATCH_STAGES) + " | outside |",
         "|---|---|" + "---|" * (len(BATCH_STAGES) + 1),
-        f"| {singles:.1f} | {batch['batch_median_ms'] / targets:.1f} | "
-        + " | ".join(f"{per_target[stage]:.1f}" for stage in BATCH_STAGES)
-        + f" | {outside:.1f} |",
+        f"| {bound.singles_ms:.1f} | {bound.batch_ms:.1f} | "
+        + " | ".join(f"{bound.stage_ms[stage]:.1f}" for stage in BATCH_STAGES)
+        + f" | {bound.outside_ms:.1f} |",
         "",
         f"Even with correction, connection and summaries free, the batch would take the "
-        f"sampling ({threads} targets at a time) and what lies outside the pipeline, "
-        f"{floor:.1f} ms per target: at most "
-        f"{singles / floor:.1f}x the singles (goal {BATCH_GOAL_X:g}x). The rest of the "
+        f"sampling ({bound.at_once} targets at a time) and what lies outside the pipeline, "
+        f"{bound.floor_ms:.1f} ms per target: at most "
+        f"{bound.most_x:.1f}x the singles (goal {BATCH_GOAL_X:g}x). The rest of the "
         "goal needs a cheaper network evaluation or answer transport, not only batching.",
     ]
+    cpu = cpu_bound(batch)
+    if cpu is not None:
+        lines += ["", cpu_sentence(cpu)]
+    return lines
 
 
 def _ms(value: object) -> str:

@@ -40,6 +40,17 @@ def resident_memory_bytes(pid: int) -> int:
     raise RuntimeError(f"no VmRSS for pid {pid}")
 
 
+def cpu_seconds(pid: int) -> float:
+    """CPU time a process has spent, user and system, every thread (Linux /proc; the
+    kernel counts in clock ticks, 10 ms on most systems)."""
+    stat = Path(f"/proc/{pid}/stat").read_text()
+    # After the command name (in parentheses, which may hold spaces): state is field 3,
+    # utime and stime fields 14 and 15.
+    fields = stat[stat.rindex(")") + 2 :].split()
+    utime, stime = int(fields[11]), int(fields[12])
+    return (utime + stime) / os.sysconf("SC_CLK_TCK")
+
+
 class LocalServer:
     def __init__(self, startup_timeout_s: float = 60.0, **settings: Any) -> None:
         """`settings`: Settings fields (`max_in_flight=1`), passed as SMM_* variables."""
@@ -99,6 +110,9 @@ class LocalServer:
 
     def rss_bytes(self) -> int:
         return resident_memory_bytes(self.pid)
+
+    def cpu_s(self) -> float:
+        return cpu_seconds(self.pid)
 
     def log_text(self) -> str:
         return Path(self._log.name).read_text(errors="replace")

@@ -1,8 +1,13 @@
 """tools.batch_benchmark: K targets as one POST /smm/batch against K single POST /smm on a
 real server; every batch answer is checked against its single answer, and a differing
-answer is caught by index."""
+answer is caught by index; each phase's CPU time is the server's and the client's, as the
+kernel counts a process's (`tools.local_server.cpu_seconds`, checked against the clock
+Python reads for its own process)."""
 
 from __future__ import annotations
+
+import os
+import time
 
 from service.api.answers import encode
 from service.api.smm import smm_fields
@@ -13,6 +18,7 @@ from service.pipeline.run import run
 from service.pipeline.types import Query
 from service.wire import SmmBatchResponse, SmmResponse
 from tools.batch_benchmark import batch_against_singles, mismatched_targets
+from tools.local_server import cpu_seconds
 from training.evaluate.targets import uniform_configurations
 
 
@@ -30,6 +36,26 @@ def test_batch_against_singles_times_both_and_finds_the_answers_identical(
     assert result["singles_over_batch"] == ratio
     assert result["server_batch_median_ms"]["total"] > 0
     assert result["model"].startswith("planar3r-position@")
+    for phase in ("singles_cpu_median_ms", "batch_cpu_median_ms"):
+        cpu = result[phase]
+        # The server answers every target; the client at least parses every answer.
+        assert cpu["server"] > 0 and cpu["client"] > 0
+        assert cpu["total"] == cpu["server"] + cpu["client"]
+    assert result["cores"] == os.cpu_count()
+
+
+def test_cpu_seconds_is_the_kernels_count_of_the_process() -> None:
+    """/proc's user and system ticks of this process grow with the CPU clock Python reads
+    for it (a different source: clock_gettime of the process's CPU time), to a tick."""
+    pid = os.getpid()
+    before_proc, before_clock = cpu_seconds(pid), time.process_time()
+    deadline = time.process_time() + 0.3
+    while time.process_time() < deadline:
+        pass
+    spent_proc, spent_clock = cpu_seconds(pid) - before_proc, time.process_time() - before_clock
+    tick_s = 1 / os.sysconf("SC_CLK_TCK")
+    assert spent_clock >= 0.3
+    assert abs(spent_proc - spent_clock) <= 2 * tick_s + 0.01
 
 
 def test_a_batch_answer_that_differs_from_its_single_is_named(planar3r: ServedModel) -> None:

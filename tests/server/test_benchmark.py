@@ -5,7 +5,8 @@ are the evaluation's (planar 3R: the count against the closed form); random-rest
 run to at least the service's number of valid configurations per target; a batch of
 targets against its single requests, with identical answers, in the same report (when a
 figure is worse: tests/training/evaluate/test_judge.py), with where the batch's time goes
-per target and the ratio its sampling and transport alone leave; for each goal not met,
+per target, the ratio its sampling and transport alone leave and the ratio its CPU leaves
+on the machine's cores; for each goal not met,
 by how much and what bounds it (the stage that alone passes the time goal, or the network
 evaluations the other stages leave for sampling; the connect stage's profile; the judge's
 verdicts; the truth figures that are worse, also on a committed judgement of the paper's
@@ -94,7 +95,7 @@ def test_the_command_writes_every_configuration_and_size(tmp_path: Path) -> None
     assert text.count("Where the default batch's time goes") == 1
 
 
-def test_thebatch_profile_is_per_target_with_the_floor_of_sampling_and_transport() -> None:
+def test_the_batch_profile_is_per_target_with_the_bounds_of_sampling_transport_and_cores() -> None:
     batch = {
         "targets": 4, "batch_median_ms": 80.0, "singles_median_ms": 240.0,
         "server_batch_median_ms": {"sample": 40.0, "correct": 8.0, "connect": 12.0,
@@ -105,6 +106,18 @@ def test_thebatch_profile_is_per_target_with_the_floor_of_sampling_and_transport
     assert "| 60.0 | 20.0 | 10.0 | 2.0 | 3.0 | 1.0 | 4.0 |" in lines
     # sampling 10 + outside 4 = 14 ms: at most 60 / 14 = 4.3x
     assert any("14.0 ms per target: at most 4.3x the singles" in line for line in lines)
+    assert not any(line.startswith("CPU per target") for line in lines)  # not measured
+    measured = {
+        **batch, "cores": 2,
+        "singles_cpu_median_ms": {"server": 300.0, "client": 20.0, "total": 320.0},
+        "batch_cpu_median_ms": {"server": 140.0, "client": 12.0, "total": 152.0},
+    }  # fmt: skip
+    (cpu,) = [line for line in batch_profile(measured) if line.startswith("CPU per target")]
+    # per target: singles 80 ms CPU, batch 38 (48 % of 80); over 2 cores at least 19 ms:
+    # at most 60 / 19 = 3.16x; at 3x, at most 2 x 60 / 3 = 40 ms of CPU, 50 % of 80.
+    assert "the singles 80.0 ms, the batch 38.0 ms (48% of a single's)" in cpu
+    assert "at least 19.0 ms per target: at most **3.16x** the singles' 60.0 ms" in cpu
+    assert "at most 40.0 ms of CPU per target, 50% of a single request's" in cpu
 
 
 def test_restarts_reach_the_valid_count_asked_for(planar3r: ServedModel) -> None:

@@ -32,6 +32,7 @@ import numpy as np
 import yaml
 
 from service.models.sessions import PARALLEL_MIN_ROWS
+from tools.batch_bounds import BATCH_STAGES, cpu_bound, cpu_sentence, stage_bound
 from tools.docs import sources
 from tools.docs.blocks import block
 from tools.goals import (
@@ -446,24 +447,21 @@ def speed_batch(*arguments: str) -> str:
         ["server", "singles median ms", "batch median ms", "singles / batch", "same answers"],
         rows,
     )
-    targets, server = batch["targets"], batch["server_batch_median_ms"]
-    at_once = int(batch.get("batch_threads", 1))
-    per = {s: server.get(s, 0.0) / targets for s in (*STAGES, "summarise")}
-    outside = max(batch["batch_median_ms"] - server["total"], 0.0) / targets
-    singles = batch["singles_median_ms"] / targets
-    floor = per["sample"] / at_once + outside
+    bound = stage_bound(batch)
     second = table(
-        ["singles", "batch", "sample", "correct", "connect", "summarise", "outside"],
-        [[f"{singles:.1f}", f"{batch['batch_median_ms'] / targets:.1f}",
-          *(f"{per[s]:.1f}" for s in (*STAGES, "summarise")), f"{outside:.1f}"]],
+        ["singles", "batch", *BATCH_STAGES, "outside"],
+        [[f"{bound.singles_ms:.1f}", f"{bound.batch_ms:.1f}",
+          *(f"{bound.stage_ms[s]:.1f}" for s in BATCH_STAGES), f"{bound.outside_ms:.1f}"]],
     )  # fmt: skip
+    cpu = cpu_bound(batch)
     return (
         f"{first}\n\nWhere the default batch's time goes, ms per target (each target's own "
-        f"stages, {at_once} targets at a time; outside: the client's wall time less the "
+        f"stages, {bound.at_once} targets at a time; outside: the client's wall time less the "
         "server's total, i.e. HTTP, validation and JSON at both ends):\n\n"
-        f"{second}\n\nWith correction, connection and summaries free, sampling ({at_once} "
-        f"targets at a time) and what lies outside the pipeline would still take "
-        f"{floor:.1f} ms per target: at most **{singles / floor:.1f}x** the singles."
+        f"{second}\n\nWith correction, connection and summaries free, sampling "
+        f"({bound.at_once} targets at a time) and what lies outside the pipeline would still "
+        f"take {bound.floor_ms:.1f} ms per target: at most **{bound.most_x:.1f}x** the singles."
+        + ("" if cpu is None else f"\n\n{cpu_sentence(cpu)}")
     )
 
 

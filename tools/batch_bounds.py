@@ -1,0 +1,99 @@
+"""What bounds the batch against its singles, from a `tools.batch_benchmark` result.
+
+Two bounds, per target in ms, both read from the measured result (light imports only, so
+the benchmark's report and the docs' pages compute them alike):
+
+- `stage_bound`: the batch's sampling (its targets' network evaluations, as many targets
+  at a time as the batch runs) and what lies outside the pipeline (HTTP, validation and
+  JSON at both ends), as if correction, connection and summaries took nothing.
+- `cpu_bound`: the cores. A batch takes at least its CPU time (the server's and the
+  client's processes, every thread) spread over every core; so it gains at most the
+  singles' wall time over that. A batch at the goal's ratio could spend at most the cores
+  times a third of the singles' wall time per target: the CPU it must save against what
+  it spends now is what batching would have to share between targets.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from tools.goals import BATCH_GOAL_X
+
+BATCH_STAGES = ("sample", "correct", "connect", "summarise")
+
+
+@dataclass(frozen=True)
+class StageBound:
+    singles_ms: float  # the singles' client wall time per target
+    batch_ms: float  # the batch's client wall time per target
+    stage_ms: dict[str, float]  # each of BATCH_STAGES, the server's total per target
+    outside_ms: float  # client wall time less the server's total, per target
+    at_once: int  # targets the batch answers at a time
+    floor_ms: float  # sampling over at_once, plus outside
+
+    @property
+    def most_x(self) -> float:
+        return self.singles_ms / self.floor_ms
+
+
+def stage_bound(batch: dict[str, Any]) -> StageBound:
+    targets, server = batch["targets"], batch["server_batch_median_ms"]
+    at_once = int(batch.get("batch_threads", 1))
+    stage_ms = {stage: server.get(stage, 0.0) / targets for stage in BATCH_STAGES}
+    outside_ms = max(batch["batch_median_ms"] - server["total"], 0.0) / targets
+    return StageBound(
+        singles_ms=batch["singles_median_ms"] / targets,
+        batch_ms=batch["batch_median_ms"] / targets,
+        stage_ms=stage_ms,
+        outside_ms=outside_ms,
+        at_once=at_once,
+        floor_ms=stage_ms["sample"] / at_once + outside_ms,
+    )
+
+
+@dataclass(frozen=True)
+class CpuBound:
+    cores: int
+    singles_ms: float  # the singles' client wall time per target
+    singles_cpu_ms: float  # their CPU per target, server and client
+    batch_cpu_ms: float  # the batch's CPU per target, server and client
+    least_ms: float  # batch_cpu_ms over the cores: the batch's least wall time per target
+    goal_cpu_ms: float  # the most CPU per target a batch at the goal's ratio could spend
+
+    @property
+    def most_x(self) -> float:
+        return self.singles_ms / self.least_ms
+
+
+def cpu_bound(batch: dict[str, Any]) -> CpuBound | None:
+    """None for a result measured without the processes' CPU."""
+    if "batch_cpu_median_ms" not in batch:
+        return None
+    targets, cores = batch["targets"], int(batch["cores"])
+    singles_ms = batch["singles_median_ms"] / targets
+    batch_cpu_ms = batch["batch_cpu_median_ms"]["total"] / targets
+    return CpuBound(
+        cores=cores,
+        singles_ms=singles_ms,
+        singles_cpu_ms=batch["singles_cpu_median_ms"]["total"] / targets,
+        batch_cpu_ms=batch_cpu_ms,
+        least_ms=batch_cpu_ms / cores,
+        goal_cpu_ms=cores * singles_ms / BATCH_GOAL_X,
+    )
+
+
+def cpu_sentence(cpu: CpuBound) -> str:
+    """The cores' bound on the batch, in words (the report's and the docs' pages)."""
+    return (
+        f"CPU per target (the server's and the client's processes, every thread): the "
+        f"singles {cpu.singles_cpu_ms:.1f} ms, the batch {cpu.batch_cpu_ms:.1f} ms "
+        f"({cpu.batch_cpu_ms / cpu.singles_cpu_ms:.0%} of a single's). Spread over "
+        f"{cpu.cores} cores with nothing waiting, the batch's CPU takes at least "
+        f"{cpu.least_ms:.1f} ms per target: at most **{cpu.most_x:.2f}x** the singles' "
+        f"{cpu.singles_ms:.1f} ms. At {BATCH_GOAL_X:g}x a batch could spend at most "
+        f"{cpu.goal_cpu_ms:.1f} ms of CPU per target, "
+        f"{cpu.goal_cpu_ms / cpu.singles_cpu_ms:.0%} of a single request's: the rest of each "
+        "target's computation would have to be work the targets share, where the batch "
+        "shares only the requests' exchanges."
+    )
