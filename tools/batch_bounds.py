@@ -83,17 +83,23 @@ def cpu_bound(batch: dict[str, Any]) -> CpuBound | None:
     )
 
 
-def cpu_sentence(cpu: CpuBound) -> str:
-    """The cores' bound on the batch, in words (the report's and the docs' pages)."""
+def cpu_sentence(cpu: CpuBound, one_thread: CpuBound | None = None) -> str:
+    """The cores' bound on the batch, in words (the report's and the docs' pages): the
+    default batch's, and the one-thread batch's beside it when measured (the same work
+    per target, answered one target at a time)."""
+    spent = f"the batch {cpu.batch_cpu_ms:.1f} ms"
+    most = f"at most **{cpu.most_x:.2f}x** the singles' {cpu.singles_ms:.1f} ms"
+    least_cpu_ms = cpu.batch_cpu_ms
+    if one_thread is not None:
+        spent += f", and {one_thread.batch_cpu_ms:.1f} ms on one thread (`SMM_BATCH_THREADS=1`)"
+        most += f", and **{one_thread.most_x:.2f}x** on one thread"
+        least_cpu_ms = min(least_cpu_ms, one_thread.batch_cpu_ms)
     return (
         f"CPU per target (the server's and the client's processes, every thread): the "
-        f"singles {cpu.singles_cpu_ms:.1f} ms, the batch {cpu.batch_cpu_ms:.1f} ms "
-        f"({cpu.batch_cpu_ms / cpu.singles_cpu_ms:.0%} of a single's). Spread over "
-        f"{cpu.cores} cores with nothing waiting, the batch's CPU takes at least "
-        f"{cpu.least_ms:.1f} ms per target: at most **{cpu.most_x:.2f}x** the singles' "
-        f"{cpu.singles_ms:.1f} ms. At {BATCH_GOAL_X:g}x a batch could spend at most "
-        f"{cpu.goal_cpu_ms:.1f} ms of CPU per target, "
-        f"{cpu.goal_cpu_ms / cpu.singles_cpu_ms:.0%} of a single request's: the rest of each "
-        "target's computation would have to be work the targets share, where the batch "
-        "shares only the requests' exchanges."
+        f"singles {cpu.singles_cpu_ms:.1f} ms; {spent}. Spread over {cpu.cores} cores with "
+        f"nothing waiting, a batch's CPU takes at least 1/{cpu.cores} of it per target "
+        f"({cpu.least_ms:.1f} ms): {most}. At {BATCH_GOAL_X:g}x a batch could spend at most "
+        f"{cpu.goal_cpu_ms:.1f} ms of CPU per target, {cpu.goal_cpu_ms / least_cpu_ms:.0%} of "
+        "the least a batch spent here: the rest of each target's computation would have to "
+        "be work the targets share, where the batch shares only the requests' exchanges."
     )

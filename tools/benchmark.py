@@ -616,7 +616,7 @@ def _batch(batch: dict, one_thread: dict | None) -> list[str]:
     return [
         *lines,
         "",
-        *batch_profile(batch),
+        *batch_profile(batch, one_thread),
         "",
         "The batch answers each target with the same stages a single request runs "
         "(`service/pipeline/batch.py` says why the network is not called on all targets' "
@@ -628,9 +628,10 @@ def _batch(batch: dict, one_thread: dict | None) -> list[str]:
     ]
 
 
-def batch_profile(batch: dict) -> list[str]:
+def batch_profile(batch: dict, one_thread: dict | None = None) -> list[str]:
     """Where the default batch's time goes, per target, and what bounds it
-    (tools/batch_bounds.py): the network and the transport alone, and the cores."""
+    (tools/batch_bounds.py): the network and the transport alone, and the cores (with the
+    one-thread batch's CPU beside the default's, when measured)."""
     bound = stage_bound(batch)
     lines = [
         "Where the default batch's time goes, ms per target (the server's stages, each "
@@ -651,7 +652,7 @@ def batch_profile(batch: dict) -> list[str]:
     ]
     cpu = cpu_bound(batch)
     if cpu is not None:
-        lines += ["", cpu_sentence(cpu)]
+        lines += ["", cpu_sentence(cpu, None if one_thread is None else cpu_bound(one_thread))]
     return lines
 
 

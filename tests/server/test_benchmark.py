@@ -113,11 +113,22 @@ def test_the_batch_profile_is_per_target_with_the_bounds_of_sampling_transport_a
         "batch_cpu_median_ms": {"server": 140.0, "client": 12.0, "total": 152.0},
     }  # fmt: skip
     (cpu,) = [line for line in batch_profile(measured) if line.startswith("CPU per target")]
-    # per target: singles 80 ms CPU, batch 38 (48 % of 80); over 2 cores at least 19 ms:
-    # at most 60 / 19 = 3.16x; at 3x, at most 2 x 60 / 3 = 40 ms of CPU, 50 % of 80.
-    assert "the singles 80.0 ms, the batch 38.0 ms (48% of a single's)" in cpu
-    assert "at least 19.0 ms per target: at most **3.16x** the singles' 60.0 ms" in cpu
-    assert "at most 40.0 ms of CPU per target, 50% of a single request's" in cpu
+    # per target: singles 80 ms CPU, batch 38; over 2 cores at least 19 ms: at most
+    # 60 / 19 = 3.16x; at 3x, at most 2 x 60 / 3 = 40 ms of CPU, 105 % of 38.
+    assert "the singles 80.0 ms; the batch 38.0 ms. Spread over 2 cores" in cpu
+    assert "(19.0 ms): at most **3.16x** the singles' 60.0 ms. At 3x" in cpu
+    assert "at most 40.0 ms of CPU per target, 105% of the least" in cpu
+    one_thread = {
+        **measured, "singles_median_ms": 200.0,
+        "batch_cpu_median_ms": {"server": 100.0, "client": 12.0, "total": 112.0},
+    }  # fmt: skip
+    lines = batch_profile(measured, one_thread)
+    (cpu,) = [line for line in lines if line.startswith("CPU per target")]
+    # one thread: batch 28 ms CPU a target, at least 14 ms: its singles' 50 / 14 = 3.57x;
+    # the goal's 40 ms is 143 % of the least a batch spent (28).
+    assert "the batch 38.0 ms, and 28.0 ms on one thread" in cpu
+    assert "at most **3.16x** the singles' 60.0 ms, and **3.57x** on one thread." in cpu
+    assert "at most 40.0 ms of CPU per target, 143% of the least" in cpu
 
 
 def test_restarts_reach_the_valid_count_asked_for(planar3r: ServedModel) -> None:

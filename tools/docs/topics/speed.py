@@ -454,6 +454,8 @@ def speed_batch(*arguments: str) -> str:
           *(f"{bound.stage_ms[s]:.1f}" for s in BATCH_STAGES), f"{bound.outside_ms:.1f}"]],
     )  # fmt: skip
     cpu = cpu_bound(batch)
+    one = report.get("batch_one_thread")
+    one_cpu = None if one is None else cpu_bound(one)
     return (
         f"{first}\n\nWhere the default batch's time goes, ms per target (each target's own "
         f"stages, {bound.at_once} targets at a time; outside: the client's wall time less the "
@@ -461,7 +463,7 @@ def speed_batch(*arguments: str) -> str:
         f"{second}\n\nWith correction, connection and summaries free, sampling "
         f"({bound.at_once} targets at a time) and what lies outside the pipeline would still "
         f"take {bound.floor_ms:.1f} ms per target: at most **{bound.most_x:.1f}x** the singles."
-        + ("" if cpu is None else f"\n\n{cpu_sentence(cpu)}")
+        + ("" if cpu is None else f"\n\n{cpu_sentence(cpu, one_cpu)}")
     )
 
 
