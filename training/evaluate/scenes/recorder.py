@@ -4,10 +4,11 @@ free, so that the evaluation can check each of them with coal too.
 `RecordingCheck` is the query's own `CollisionCheck` (same robot, scene, self check and
 margin, so the same verdicts) that keeps the rows its verdicts (`judged`, which `free`
 asks) called free: the accepted samples, every walk step of an r > 1 roadmap edge and
-the local planner's checks, the members of the r = 1 free pieces. `recorded_answer` runs the pipeline's own
-stages (`service.pipeline.run`: encode, then `answer`: sample, correct, accept, in
-rounds where the model draws so, connect, summarise) in a space built with that check,
-since `run` builds its check inside; the service's code is not changed.
+the local planner's checks, the members of the r = 1 free pieces. `recorded_answer`
+runs the pipeline's own stages (`service.pipeline.run`: encode, then `answer`: sample,
+correct, accept, in rounds where the model draws so, connect, summarise) in a space
+built with that check, since `run` builds its check inside; the service's code is not
+changed.
 """
 
 from __future__ import annotations
