@@ -84,6 +84,7 @@ from tools.goals import (
 )
 from tools.local_server import LocalServer
 from training.checkout import git_commit
+from training.evaluate.compare import figure_pair
 from training.evaluate.judge import (
     JUDGED_SEPARATOR,
     TRUTH_FIGURES,
@@ -545,7 +546,7 @@ def _truth_bound(entry: dict, worse: list[str]) -> str:
         if ours is None or theirs is None or ours == theirs:
             continue
         side = better_there if (ours > theirs) == more_is_better else worse_there
-        side.append(f"{name} {ours:.3g} vs {theirs:.3g}")
+        side.append(f"{name} {figure_pair(ours, theirs)}")
     return text + (
         f" On the judge's {judgement['targets']} targets ({judgement['record']}, "
         f"{defaults} defaults), service vs paper: worse on "

@@ -63,6 +63,7 @@ from service.pipeline.arrays import FloatArray
 from service.pipeline.correction import jacobian_on_fibre
 from service.pipeline.joint_space import JointLimits
 from training.defaults import write_defaults
+from training.evaluate.compare import figure_pair
 from training.evaluate.methods import MethodTarget, served_target
 from training.evaluate.metrics import (
     component_agreement,
@@ -157,7 +158,7 @@ def worse_than(
         else:
             is_worse = (ours < theirs) if more_is_better else (ours > theirs)
         if is_worse:
-            worse.append(f"{name} {ours:.3g} vs {theirs:.3g}")
+            worse.append(f"{name} {figure_pair(ours, theirs)}")
     return worse
 
 

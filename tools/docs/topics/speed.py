@@ -48,6 +48,7 @@ from tools.goals import (
     SERVICE,
     SSIK,
 )
+from training.evaluate.compare import figure_pair
 from training.machine import Machine
 
 # Short names for the configurations a report keys by their long names.
@@ -155,7 +156,7 @@ def worse(service: dict[str, Any], other: dict[str, Any]) -> list[str]:
         if ours is None or theirs is None or ours == theirs:
             continue
         if (ours < theirs) == more_is_better:
-            found.append(f"{name} {ours:.3g} vs {theirs:.3g}")
+            found.append(f"{name} {figure_pair(ours, theirs)}")
     return found
 
 
