@@ -22,6 +22,8 @@ from typing import Any
 
 import httpx
 
+from tools.procfs import cpu_seconds, resident_memory_bytes
+
 LOOPBACK = "127.0.0.1"
 
 
@@ -30,25 +32,6 @@ def free_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
         probe.bind((LOOPBACK, 0))
         return int(probe.getsockname()[1])
-
-
-def resident_memory_bytes(pid: int) -> int:
-    """Resident set size of a process, from /proc (Linux)."""
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
-            return int(line.split()[1]) * 1024
-    raise RuntimeError(f"no VmRSS for pid {pid}")
-
-
-def cpu_seconds(pid: int) -> float:
-    """CPU time a process has spent, user and system, every thread (Linux /proc; the
-    kernel counts in clock ticks, 10 ms on most systems)."""
-    stat = Path(f"/proc/{pid}/stat").read_text()
-    # After the command name (in parentheses, which may hold spaces): state is field 3,
-    # utime and stime fields 14 and 15.
-    fields = stat[stat.rindex(")") + 2 :].split()
-    utime, stime = int(fields[11]), int(fields[12])
-    return (utime + stime) / os.sysconf("SC_CLK_TCK")
 
 
 class LocalServer:

@@ -61,7 +61,8 @@ from tools.load import (
     request_bodies,
     require_loopback,
 )
-from tools.local_server import LocalServer, resident_memory_bytes
+from tools.local_server import LocalServer
+from tools.procfs import resident_memory_bytes
 from training.checkout import git_commit
 from training.machine import Machine
 

@@ -1,7 +1,7 @@
 """tools.batch_benchmark: K targets as one POST /smm/batch against K single POST /smm on a
 real server; every batch answer is checked against its single answer, and a differing
 answer is caught by index; each phase's CPU time is the server's and the client's, as the
-kernel counts a process's (`tools.local_server.cpu_seconds`, checked against the clock
+kernel counts a process's (`tools.procfs.cpu_seconds`, checked against the clock
 Python reads for its own process)."""
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from service.pipeline.run import run
 from service.pipeline.types import Query
 from service.wire import SmmBatchResponse, SmmResponse
 from tools.batch_benchmark import batch_against_singles, mismatched_targets
-from tools.local_server import cpu_seconds
+from tools.procfs import cpu_seconds
 from training.evaluate.targets import uniform_configurations
 
 

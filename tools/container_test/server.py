@@ -15,6 +15,7 @@ from typing import Any
 import httpx
 
 from tools.container_test.buildah import tail
+from tools.procfs import stat_fields
 
 STARTUP_TIMEOUT_S = 120.0
 
@@ -24,7 +25,7 @@ def descendants(pid: int) -> list[int]:
     children: dict[int, list[int]] = {}
     for stat in Path("/proc").glob("[0-9]*/stat"):
         with contextlib.suppress(OSError):
-            fields = stat.read_text().rsplit(")", 1)[1].split()
+            fields = stat_fields(stat.read_text())
             children.setdefault(int(fields[1]), []).append(int(stat.parent.name))
     found, pending = [], [pid]
     while pending:
@@ -51,7 +52,7 @@ def server_pid(buildah_pid: int) -> int:
 
 def process_start_boottime_s(pid: int) -> float:
     """When a process started, in seconds on CLOCK_BOOTTIME (from /proc/<pid>/stat)."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    fields = stat_fields(Path(f"/proc/{pid}/stat").read_text())
     return int(fields[19]) / os.sysconf("SC_CLK_TCK")
 
 
