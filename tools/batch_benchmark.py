@@ -137,9 +137,7 @@ def batch_against_singles(
         "singles_over_batch": singles_median / batch_median,
         "singles_ms": singles_ms,
         "batch_ms": batch_ms,
-        "server_batch_median_ms": {
-            span: float(np.median([t[span] for t in server_timings])) for span in server_timings[0]
-        },
+        "server_batch_median_ms": _median_by_key(server_timings),
         "identical": not mismatched,
         "mismatched": sorted(mismatched),
         "cores": os.cpu_count() or 1,
@@ -163,6 +161,7 @@ class ProcessesCpu:
 
 
 def _median_by_key(rounds: Sequence[dict[str, float]]) -> dict[str, float]:
+    """Each key's median over the rounds (every round has the first one's keys)."""
     return {key: float(np.median([r[key] for r in rounds])) for key in rounds[0]}
 
 

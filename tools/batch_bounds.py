@@ -30,7 +30,11 @@ class StageBound:
     stage_ms: dict[str, float]  # each of BATCH_STAGES, the server's total per target
     outside_ms: float  # client wall time less the server's total, per target
     at_once: int  # targets the batch answers at a time
-    floor_ms: float  # sampling over at_once, plus outside
+
+    @property
+    def floor_ms(self) -> float:
+        """Sampling over at_once, plus outside."""
+        return self.stage_ms["sample"] / self.at_once + self.outside_ms
 
     @property
     def most_x(self) -> float:
@@ -41,14 +45,12 @@ def stage_bound(batch: dict[str, Any]) -> StageBound:
     targets, server = batch["targets"], batch["server_batch_median_ms"]
     at_once = int(batch.get("batch_threads", 1))
     stage_ms = {stage: server.get(stage, 0.0) / targets for stage in BATCH_STAGES}
-    outside_ms = max(batch["batch_median_ms"] - server["total"], 0.0) / targets
     return StageBound(
         singles_ms=batch["singles_median_ms"] / targets,
         batch_ms=batch["batch_median_ms"] / targets,
         stage_ms=stage_ms,
-        outside_ms=outside_ms,
+        outside_ms=max(batch["batch_median_ms"] - server["total"], 0.0) / targets,
         at_once=at_once,
-        floor_ms=stage_ms["sample"] / at_once + outside_ms,
     )
 
 
@@ -58,28 +60,32 @@ class CpuBound:
     singles_ms: float  # the singles' client wall time per target
     singles_cpu_ms: float  # their CPU per target, server and client
     batch_cpu_ms: float  # the batch's CPU per target, server and client
-    least_ms: float  # batch_cpu_ms over the cores: the batch's least wall time per target
-    goal_cpu_ms: float  # the most CPU per target a batch at the goal's ratio could spend
+
+    @property
+    def least_ms(self) -> float:
+        """batch_cpu_ms over the cores: the batch's least wall time per target."""
+        return self.batch_cpu_ms / self.cores
 
     @property
     def most_x(self) -> float:
         return self.singles_ms / self.least_ms
+
+    @property
+    def goal_cpu_ms(self) -> float:
+        """The most CPU per target a batch at the goal's ratio could spend."""
+        return self.cores * self.singles_ms / BATCH_GOAL_X
 
 
 def cpu_bound(batch: dict[str, Any]) -> CpuBound | None:
     """None for a result measured without the processes' CPU."""
     if "batch_cpu_median_ms" not in batch:
         return None
-    targets, cores = batch["targets"], int(batch["cores"])
-    singles_ms = batch["singles_median_ms"] / targets
-    batch_cpu_ms = batch["batch_cpu_median_ms"]["total"] / targets
+    targets = batch["targets"]
     return CpuBound(
-        cores=cores,
-        singles_ms=singles_ms,
+        cores=int(batch["cores"]),
+        singles_ms=batch["singles_median_ms"] / targets,
         singles_cpu_ms=batch["singles_cpu_median_ms"]["total"] / targets,
-        batch_cpu_ms=batch_cpu_ms,
-        least_ms=batch_cpu_ms / cores,
-        goal_cpu_ms=cores * singles_ms / BATCH_GOAL_X,
+        batch_cpu_ms=batch["batch_cpu_median_ms"]["total"] / targets,
     )
 
 
