@@ -16,7 +16,7 @@
 # that rounds mtimes to the second (buildah's COPY --from does) would otherwise leave half
 # the modules to be compiled at every start, since a read-only image cannot cache them.
 FROM python:3.11-slim AS build
-# The compiler's version is the base image's Debian release's: it builds one C file and
+# The compiler's version is the base image's Debian release's: it builds the C extensions and
 # stays in this stage.
 # hadolint ignore=DL3008
 RUN apt-get update \

@@ -87,6 +87,13 @@ class Settings(BaseSettings):
         "workers spin only while a call runs, so an idle one holds no core). "
         "`python -m tools.load` measures the trade against 1 thread (docs/operations.md).",
     )
+    compiled_int8: bool = Field(
+        True,
+        description="Evaluate the int8 flow networks with the compiled layers "
+        "(service/models/int8_mlp.py) where the processor has AMX: onnxruntime's arithmetic "
+        "to the bit in fewer passes over the rows (`python -m tools.onnx_threads` times "
+        "both). false, or a processor without AMX: onnxruntime's session.",
+    )
     log_level: LogLevel = Field(
         "info", description="Level of the service's JSON logs and of uvicorn's."
     )

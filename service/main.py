@@ -22,6 +22,7 @@ from service.http.limits import RequestLimitsMiddleware
 from service.http.openapi import served_openapi
 from service.http.paths import API_PATHS, JSON_BODY_ROUTES
 from service.http.request_context import RequestContextMiddleware
+from service.models.int8_mlp import CompiledVelocityField
 from service.models.registry import Registry
 from service.observability.logs import configure_logging, log_event
 from service.observability.metrics import Metrics
@@ -66,10 +67,14 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         # Load and verify every model before serving. A model that fails verification is
         # logged by name and listed by /readyz, which then does not claim readiness.
-        registry = Registry.load(settings.models_dir, settings.onnx_threads_per_session)
+        registry = Registry.load(
+            settings.models_dir, settings.onnx_threads_per_session, settings.compiled_int8
+        )
         for model in registry.all():
             app_metrics.model_ready.labels(model.manifest.model_id).set(1)
-            log_event(logger, logging.INFO, "model loaded", model=model.reference)
+            compiled = isinstance(model.velocity, CompiledVelocityField)
+            flow = "compiled int8 layers (AMX)" if compiled else "onnxruntime"
+            log_event(logger, logging.INFO, "model loaded", model=model.reference, flow=flow)
         for failure in registry.failed:
             app_metrics.model_ready.labels(failure.name).set(0)
             log_event(

@@ -28,25 +28,29 @@ from service.manifest import (
     COLLISION_FILE,
     FLOW_FILE,
     FLOW_FILES,
+    FLOW_INT8_FILE,
     KINEMATICS_FILE,
     MANIFEST_FILE,
+    REFLOW_INT8_FILE,
     ChainSpec,
     CollisionSpec,
     Manifest,
     SamplerSpec,
 )
 from service.models.chain import SerialChainKinematics
+from service.models.int8_mlp import CompiledVelocityField, UnsupportedNetwork, amx_usable
 from service.models.sessions import OnnxKinematics, OnnxVelocityField, open_session
 from service.pipeline.collision.robot import RobotSpheres
 from service.pipeline.connect import find_coaxial_sets
 from service.pipeline.joint_space import JointLimits
-from service.pipeline.types import CoaxialSet, Kinematics
+from service.pipeline.types import CoaxialSet, Kinematics, VelocityField
 
 # chain.json against kinematics.onnx at load: configurations uniform in the joint limits
 # (fixed seed), and the largest difference allowed over position, rotation and Jacobian.
 # Both evaluate the same chain in float64: they agree to ~1e-15.
 CHAIN_CHECK_CONFIGURATIONS = 256
 CHAIN_CHECK_ATOL = 1e-10
+INT8_FLOW_FILES = (FLOW_INT8_FILE, REFLOW_INT8_FILE)
 
 
 def sha256_of(path: Path) -> str:
@@ -60,7 +64,7 @@ def sha256_of(path: Path) -> str:
 @dataclass(frozen=True)
 class ServedModel:
     manifest: Manifest
-    networks: dict[str, OnnxVelocityField]  # by file: every flow network the manifest lists
+    networks: dict[str, VelocityField]  # by file: every flow network the manifest lists
     kinematics: Kinematics  # SerialChainKinematics (chain.json) or OnnxKinematics
     limits: JointLimits  # the manifest's joint limits, as the pipeline's stages take them
     coaxial_sets: tuple[CoaxialSet, ...]  # where twin branches meet (connect/coaxial.py)
@@ -68,7 +72,7 @@ class ServedModel:
     version: str  # first 12 hex digits of the sha256 over the model's file digests
     row_threads: int = 1  # a compiled call's rows split over this many (pipeline/rows.py)
 
-    def network(self, sampler: SamplerSpec) -> OnnxVelocityField:
+    def network(self, sampler: SamplerSpec) -> VelocityField:
         """The flow network `sampler` evaluates (its `flow` and `precision`)."""
         if sampler.file not in self.networks:
             raise ModelVerificationError(
@@ -79,7 +83,7 @@ class ServedModel:
         return self.networks[sampler.file]
 
     @property
-    def velocity(self) -> OnnxVelocityField:
+    def velocity(self) -> VelocityField:
         """The flow network of the default sampler."""
         return self.network(self.manifest.defaults.sampler)
 
@@ -145,7 +149,19 @@ def _load_spheres(model_dir: Path, manifest: Manifest) -> RobotSpheres | None:
         raise ModelVerificationError(f"{path}: unreadable collision model: {error}") from error
 
 
-def load_model(model_dir: Path, threads: int) -> ServedModel:
+def open_flow(path: Path, threads: int, serial: bool, compiled_int8: bool) -> VelocityField:
+    """The flow network at `path`: an int8 one on the compiled layers (int8_mlp.py, the same
+    bits as onnxruntime's) when `compiled_int8` and the processor has AMX, else onnxruntime's
+    session (`threads`, and with `serial` a one-thread session beside it)."""
+    if compiled_int8 and path.name in INT8_FLOW_FILES and amx_usable():
+        try:
+            return CompiledVelocityField.open(path, threads=threads or os.cpu_count() or 1)
+        except UnsupportedNetwork:
+            pass  # a network of other layers: onnxruntime runs any
+    return OnnxVelocityField.open(path, threads, serial=serial)
+
+
+def load_model(model_dir: Path, threads: int, compiled_int8: bool = True) -> ServedModel:
     """Read, verify and open one model directory."""
     manifest_path = model_dir / MANIFEST_FILE
     try:
@@ -169,8 +185,11 @@ def load_model(model_dir: Path, threads: int) -> ServedModel:
         networks={
             # A one-thread session (each holds its weights: ~45 MiB over the seven
             # bundled models' every network) only beside the network the requests use.
-            name: OnnxVelocityField.open(
-                model_dir / name, threads, serial=name == manifest.defaults.sampler.file
+            name: open_flow(
+                model_dir / name,
+                threads,
+                serial=name == manifest.defaults.sampler.file,
+                compiled_int8=compiled_int8,
             )
             for name in FLOW_FILES.values()
             if name in manifest.files
@@ -214,7 +233,7 @@ class Registry:
         self.failed: list[FailedModel] = sorted(failed or [], key=lambda f: f.name)
 
     @classmethod
-    def load(cls, models_dir: Path, threads: int = 0) -> Registry:
+    def load(cls, models_dir: Path, threads: int = 0, compiled_int8: bool = True) -> Registry:
         """Load every directory of `models_dir` that holds a manifest (hidden ones excepted).
 
         A directory that fails verification is recorded in `failed`, not raised; only a
@@ -230,7 +249,7 @@ class Registry:
         models, failed = [], []
         for directory in directories:
             try:
-                models.append(load_model(directory, threads))
+                models.append(load_model(directory, threads, compiled_int8))
             except ModelVerificationError as error:
                 robot, task = _read_identity(directory)
                 # Paths relative to the models directory: the reason is shown to clients.

@@ -43,9 +43,12 @@ def session_options(threads: int) -> ort.SessionOptions:
     return options
 
 
-def open_session(path: Path, threads: int) -> ort.InferenceSession:
-    options = session_options(threads)
-    return ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+def open_session(model: Path | bytes, threads: int) -> ort.InferenceSession:
+    """The model at a path, or given as its bytes, on `threads` intra-op threads."""
+    source = str(model) if isinstance(model, Path) else model
+    return ort.InferenceSession(
+        source, session_options(threads), providers=["CPUExecutionProvider"]
+    )
 
 
 # A flow call of at least this many rows runs on the session's threads, a smaller one on

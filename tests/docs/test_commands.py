@@ -51,8 +51,8 @@ def working_copy(tmp_path_factory: pytest.TempPathFactory) -> Path:
         if source.is_file():  # not a file deleted from the working tree
             (copy / name.decode()).parent.mkdir(parents=True, exist_ok=True)
             shutil.copy2(source, copy / name.decode())
-    for built in (ROOT / "service" / "pipeline").glob("_native*.so"):
-        shutil.copy2(built, copy / "service" / "pipeline" / built.name)
+    for built in (ROOT / "service").glob("*/_*.so"):  # pipeline/_native, models/_int8_mlp
+        shutil.copy2(built, copy / built.relative_to(ROOT))
     return copy
 
 

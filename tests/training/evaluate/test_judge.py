@@ -251,7 +251,7 @@ def test_a_candidate_network_is_judged_at_its_own_defaults(
     assert same.no_worse and same.candidate == same.incumbent
     collapsing = replace(
         planar3r,
-        networks={name: _Collapsing() for name in planar3r.networks},  # type: ignore[misc]
+        networks={name: _Collapsing() for name in planar3r.networks},
     )
     collapsed = SMALL(planar3r, served, served, candidate_model=collapsing)
     assert any(w.startswith("count right") for w in collapsed.worse)

@@ -16,6 +16,7 @@
     <!-- figures: load-models -->                    its latency per model
     <!-- figures: model-default correction_steps --> a served default, every model
     <!-- figures: parallel-min-rows -->              the least rows a flow call runs on all threads
+    <!-- figures: compiled-parallel-min-rows -->     the same, on the compiled int8 layers
 
 Options are `key=value` words: `report=NAME` reads docs/benchmark/NAME.json (default
 `benchmark`, the benchmark of record), `n=N` a size other than the goals' N, `fmt=SPEC` a
@@ -31,6 +32,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from service.models import int8_mlp
 from service.models.sessions import PARALLEL_MIN_ROWS
 from tools.batch_bounds import BATCH_STAGES, cpu_bound, cpu_sentence, stage_bound
 from tools.docs import sources
@@ -189,6 +191,13 @@ def autoscaler_target() -> float:
 def parallel_min_rows() -> str:
     """The fewest rows a flow call runs on every thread (service/models/sessions.py)."""
     return str(PARALLEL_MIN_ROWS)
+
+
+@block("compiled-parallel-min-rows")
+def compiled_parallel_min_rows() -> str:
+    """The fewest rows a call of the compiled int8 layers runs on two threads
+    (service/models/int8_mlp.py)."""
+    return str(int8_mlp.PARALLEL_MIN_ROWS)
 
 
 @block("bench")

@@ -1,0 +1,609 @@
+/* The int8 flow network's layers, each in one pass over its rows (see int8_mlp.py).
+ *
+ * A layer is onnxruntime's DynamicQuantizeMatMul followed by QuickGelu (alpha 1, SiLU),
+ * the last one without: the layer's input x (M, K) float32 is quantised to uint8 with one
+ * scale and zero point for the whole call (min and max over all of x, widened to hold 0),
+ * multiplied by the int8 weights W (K, N) (zero point 0, a scale per column) in int32,
+ * then y = float(acc - zp * colsum(W)) * (scale * w_scale) + bias, and
+ * silu(y) = y * logistic(y) with MLAS's rational logistic (MlasLogisticConstants,
+ * LogisticKernelFma3's fused multiply-adds). Every step is onnxruntime's own arithmetic,
+ * in its order, so a call gives the same bits as the session does (the tests pin it).
+ *
+ * The product runs on AMX (tdpbusd, 16 x 16 tiles of u8 x s8 -> s32) where the processor
+ * and the kernel allow it, else on plain C loops; both are exact integer sums, so the
+ * two give the same bits. The elementwise tail runs on AVX-512 beside AMX (every AMX
+ * processor has it) and in plain C (fmaf: the same correctly rounded fused operation)
+ * otherwise.
+ *
+ * Plain C99, the CPython API and the compiler's intrinsics (target attributes, so the file
+ * builds for any x86-64 and elsewhere without the AMX path); no numpy headers.
+ */
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+#include <math.h>
+#include <pthread.h>
+#include <sched.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && __GNUC__ >= 11
+#define HAVE_AMX_PATH 1
+#include <cpuid.h>
+#include <immintrin.h>
+#include <sys/syscall.h>
+#include <unistd.h>
+#else
+#define HAVE_AMX_PATH 0
+#endif
+
+/* AMX tiles: 16 rows of 64 bytes; a block of the product is 32 rows x 32 columns. */
+#define K_BLOCK 64
+#define N_TILE 16
+#define M_BLOCK 32
+#define N_BLOCK 32
+
+/* MLAS's logistic (onnxruntime/core/mlas/lib/logistic.cpp, MlasLogisticConstants). */
+static const float LOGISTIC_LOWER = -18.0f, LOGISTIC_UPPER = 18.0f;
+static const float ALPHA_9 = 4.37031012579801e-11f, ALPHA_7 = 1.15627324459942e-07f,
+                   ALPHA_5 = 6.08574864600143e-05f, ALPHA_3 = 8.51377133304701e-03f,
+                   ALPHA_1 = 2.48287947061529e-01f;
+static const float BETA_10 = 6.10247389755681e-13f, BETA_8 = 5.76102136993427e-09f,
+                   BETA_6 = 6.29106785017040e-06f, BETA_4 = 1.70198817374094e-03f,
+                   BETA_2 = 1.16817656904453e-01f, BETA_0 = 9.93151921023180e-01f;
+
+typedef struct {
+    Py_ssize_t k, n;       /* the layer's input and output widths */
+    Py_ssize_t k_pad;      /* k rounded up to K_BLOCK: the quantised input's row stride */
+    Py_ssize_t n_pad;      /* n rounded up to N_BLOCK */
+    int silu;              /* 1: SiLU after the affine map; 0: none (the last layer) */
+    Py_buffer weight;      /* int8 (k, n), row-major */
+    Py_buffer packed;      /* int8 (k_pad / 64, n_pad / 16, 16, 64): AMX's B tiles, zero-padded */
+    Py_buffer column_sum;  /* int32 (n,): sum over k of weight */
+    Py_buffer weight_scale;/* float32 (n,) */
+    Py_buffer bias;        /* float32 (n,) */
+} Layer;
+
+typedef struct {
+    Py_ssize_t count;
+    Py_ssize_t widest;     /* the largest n */
+    Py_ssize_t widest_k;   /* the largest k_pad */
+    Layer layers[];
+} Network;
+
+/* ------------------------------------------------------------------ plain C, any CPU */
+
+static float logistic(float x) {
+    float v = fminf(LOGISTIC_UPPER, fmaxf(LOGISTIC_LOWER, x));
+    float v2 = v * v;
+    float p = fmaf(v2, ALPHA_9, ALPHA_7);
+    p = fmaf(v2, p, ALPHA_5);
+    p = fmaf(v2, p, ALPHA_3);
+    p = fmaf(v2, p, ALPHA_1);
+    float q = fmaf(v2, BETA_10, BETA_8);
+    q = fmaf(v2, q, BETA_6);
+    q = fmaf(v2, q, BETA_4);
+    q = fmaf(v2, q, BETA_2);
+    q = fmaf(v2, q, BETA_0);
+    float y = (v * p) / q + 0.5f;
+    return y > 0.0f ? y : 0.0f;
+}
+
+/* onnxruntime's GetQuantizationParameter for uint8: the range widened to hold 0. */
+static void quantisation(float low, float high, float *scale, int32_t *zero_point) {
+    low = low < 0.0f ? low : 0.0f;
+    high = high > 0.0f ? high : 0.0f;
+    float s = high == low ? 1.0f : (high - low) / 255.0f;
+    float z = 0.0f - low / s;
+    z = z < 255.0f ? z : 255.0f;
+    z = z > 0.0f ? z : 0.0f;
+    *scale = s;
+    *zero_point = (int32_t)nearbyintf(z);
+}
+
+static void min_max_plain(const float *x, size_t count, float *low, float *high) {
+    float lo = x[0], hi = x[0];
+    for (size_t i = 1; i < count; ++i) {
+        lo = x[i] < lo ? x[i] : lo;
+        hi = x[i] > hi ? x[i] : hi;
+    }
+    *low = lo, *high = hi;
+}
+
+/* MlasQuantizeLinear: x / scale clamped to [-zp, 255 - zp], rounded to even, plus zp. */
+static void quantise_plain(const float *x, Py_ssize_t M, Py_ssize_t k, Py_ssize_t k_pad,
+                           float scale, int32_t zero_point, uint8_t *a) {
+    float lo = (float)(0 - zero_point), hi = (float)(255 - zero_point);
+    for (Py_ssize_t i = 0; i < M; ++i)
+        for (Py_ssize_t j = 0; j < k; ++j) {
+            float v = x[i * k + j] / scale;
+            v = v > lo ? v : lo;
+            v = v < hi ? v : hi;
+            a[i * k_pad + j] = (uint8_t)((int32_t)nearbyintf(v) + zero_point);
+        }
+}
+
+/* One layer on plain C: out (M, n) from the quantised input a (M, k_pad); low and high
+ * take the outputs' least and greatest value (the next layer's range). */
+static void layer_plain(const Layer *L, const uint8_t *a, Py_ssize_t M, float scale,
+                        int32_t zero_point, float *out, int32_t *row, float *low, float *high) {
+    const int8_t *W = L->weight.buf;
+    const int32_t *colsum = L->column_sum.buf;
+    const float *w_scale = L->weight_scale.buf, *bias = L->bias.buf;
+    Py_ssize_t k = L->k, n = L->n;
+    float lo = INFINITY, hi = -INFINITY;
+    for (Py_ssize_t i = 0; i < M; ++i) {
+        memset(row, 0, (size_t)n * sizeof *row);
+        for (Py_ssize_t kk = 0; kk < k; ++kk) {
+            int32_t aik = a[i * L->k_pad + kk];
+            const int8_t *w = W + kk * n;
+            for (Py_ssize_t j = 0; j < n; ++j) row[j] += aik * (int32_t)w[j];
+        }
+        for (Py_ssize_t j = 0; j < n; ++j) {
+            float multiplier = scale * w_scale[j];
+            float y = (float)(row[j] - zero_point * colsum[j]) * multiplier + bias[j];
+            y = L->silu ? y * logistic(y) : y;
+            out[i * n + j] = y;
+            lo = y < lo ? y : lo;
+            hi = y > hi ? y : hi;
+        }
+    }
+    *low = lo, *high = hi;
+}
+
+/* ------------------------------------------------------------- AMX and AVX-512 path */
+
+#if HAVE_AMX_PATH
+
+#define ARCH_REQ_XCOMP_PERM 0x1023
+#define XFEATURE_XTILEDATA 18
+
+typedef struct {
+    uint8_t palette_id, start_row, reserved[14];
+    uint16_t colsb[16];
+    uint8_t rows[16];
+} __attribute__((packed)) TileConfig;
+
+/* 1 when this process may use AMX-INT8 tiles and AVX-512F (asks the kernel once). */
+static int amx_state = -1;
+
+static int amx_usable(void) {
+    if (amx_state >= 0) return amx_state;
+    unsigned a, b, c, d;
+    int ok = __get_cpuid_count(7, 0, &a, &b, &c, &d) && (d >> 24 & 1) && (d >> 25 & 1) &&
+             (b >> 16 & 1);
+    if (ok) ok = syscall(SYS_arch_prctl, ARCH_REQ_XCOMP_PERM, XFEATURE_XTILEDATA) == 0;
+    amx_state = ok;
+    return ok;
+}
+
+__attribute__((target("avx512f"))) static void min_max_avx512(const float *x, size_t count,
+                                                              float *low, float *high) {
+    __m512 lo = _mm512_set1_ps(x[0]), hi = lo;
+    size_t i = 0;
+    for (; i + 16 <= count; i += 16) {
+        __m512 v = _mm512_loadu_ps(x + i);
+        lo = _mm512_min_ps(lo, v), hi = _mm512_max_ps(hi, v);
+    }
+    if (i < count) {
+        __mmask16 m = (__mmask16)((1u << (count - i)) - 1u);
+        __m512 v = _mm512_maskz_loadu_ps(m, x + i);
+        lo = _mm512_mask_min_ps(lo, m, lo, v), hi = _mm512_mask_max_ps(hi, m, hi, v);
+    }
+    *low = _mm512_reduce_min_ps(lo), *high = _mm512_reduce_max_ps(hi);
+}
+
+/* MlasQuantizeLinear's x / scale, rounded to even, without a division per value: x times
+ * the reciprocal is within 2^-22 relative of the correctly rounded quotient, 6.1e-5 at
+ * the range's 255, so both round to the same integer unless the product lies within
+ * 1e-4 of a half-integer; a vector with such a lane is divided (about one in 300). */
+__attribute__((target("avx512f"))) static void quantise_avx512(const float *x, Py_ssize_t M,
+                                                               Py_ssize_t k, Py_ssize_t k_pad,
+                                                               float scale, int32_t zero_point,
+                                                               uint8_t *a) {
+    __m512 s = _mm512_set1_ps(scale), r = _mm512_set1_ps(1.0f / scale);
+    __m512 near_tie = _mm512_set1_ps(0.5f - 1e-4f);
+    __m512 lo = _mm512_set1_ps((float)(0 - zero_point)), hi = _mm512_set1_ps((float)(255 - zero_point));
+    __m512i z = _mm512_set1_epi32(zero_point);
+    for (Py_ssize_t i = 0; i < M; ++i) {
+        const float *xi = x + i * k;
+        uint8_t *ai = a + i * k_pad;
+        for (Py_ssize_t j = 0; j < k; j += 16) {
+            __mmask16 m = k - j >= 16 ? (__mmask16)0xFFFF : (__mmask16)((1u << (k - j)) - 1u);
+            __m512 value = _mm512_maskz_loadu_ps(m, xi + j);
+            __m512 v = _mm512_mul_ps(value, r);
+            __m512 off = _mm512_abs_ps(_mm512_sub_ps(v, _mm512_roundscale_ps(v, _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC)));
+            if (_mm512_mask_cmp_ps_mask(m, off, near_tie, _CMP_GE_OQ)) v = _mm512_div_ps(value, s);
+            v = _mm512_min_ps(_mm512_max_ps(v, lo), hi);
+            __m512i q = _mm512_add_epi32(_mm512_cvtps_epi32(v), z);
+            _mm512_mask_cvtepi32_storeu_epi8(ai + j, m, q);
+        }
+    }
+}
+
+__attribute__((target("avx512f"))) static __m512 logistic_avx512(__m512 x) {
+    __m512 v = _mm512_min_ps(_mm512_set1_ps(LOGISTIC_UPPER),
+                             _mm512_max_ps(_mm512_set1_ps(LOGISTIC_LOWER), x));
+    __m512 v2 = _mm512_mul_ps(v, v);
+    __m512 p = _mm512_fmadd_ps(v2, _mm512_set1_ps(ALPHA_9), _mm512_set1_ps(ALPHA_7));
+    p = _mm512_fmadd_ps(v2, p, _mm512_set1_ps(ALPHA_5));
+    p = _mm512_fmadd_ps(v2, p, _mm512_set1_ps(ALPHA_3));
+    p = _mm512_fmadd_ps(v2, p, _mm512_set1_ps(ALPHA_1));
+    __m512 q = _mm512_fmadd_ps(v2, _mm512_set1_ps(BETA_10), _mm512_set1_ps(BETA_8));
+    q = _mm512_fmadd_ps(v2, q, _mm512_set1_ps(BETA_6));
+    q = _mm512_fmadd_ps(v2, q, _mm512_set1_ps(BETA_4));
+    q = _mm512_fmadd_ps(v2, q, _mm512_set1_ps(BETA_2));
+    q = _mm512_fmadd_ps(v2, q, _mm512_set1_ps(BETA_0));
+    __m512 y = _mm512_add_ps(_mm512_div_ps(_mm512_mul_ps(v, p), q), _mm512_set1_ps(0.5f));
+    return _mm512_max_ps(_mm512_setzero_ps(), y);
+}
+
+/* The tail of one block: acc (rows, N_BLOCK) int32 for columns j0.. of the layer. */
+__attribute__((target("avx512f"))) static void tail_avx512(const Layer *L, const int32_t *acc,
+                                                           Py_ssize_t rows, Py_ssize_t i0,
+                                                           Py_ssize_t j0, float scale,
+                                                           int32_t zero_point, float *out,
+                                                           __m512 *low, __m512 *high) {
+    const int32_t *colsum = L->column_sum.buf;
+    const float *w_scale = L->weight_scale.buf, *bias = L->bias.buf;
+    Py_ssize_t n = L->n;
+    __m512i z = _mm512_set1_epi32(zero_point);
+    __m512 s = _mm512_set1_ps(scale);
+    for (Py_ssize_t jj = 0; jj < N_BLOCK && j0 + jj < n; jj += N_TILE) {
+        Py_ssize_t j = j0 + jj;
+        __mmask16 m = n - j >= 16 ? (__mmask16)0xFFFF : (__mmask16)((1u << (n - j)) - 1u);
+        __m512i correction = _mm512_mullo_epi32(z, _mm512_maskz_loadu_epi32(m, colsum + j));
+        __m512 multiplier = _mm512_mul_ps(s, _mm512_maskz_loadu_ps(m, w_scale + j));
+        __m512 b = _mm512_maskz_loadu_ps(m, bias + j);
+        for (Py_ssize_t r = 0; r < rows; ++r) {
+            __m512i a = _mm512_loadu_si512(acc + r * N_BLOCK + jj);
+            __m512 y = _mm512_cvtepi32_ps(_mm512_sub_epi32(a, correction));
+            y = _mm512_add_ps(_mm512_mul_ps(y, multiplier), b);
+            if (L->silu) y = _mm512_mul_ps(y, logistic_avx512(y));
+            _mm512_mask_storeu_ps(out + (i0 + r) * n + j, m, y);
+            *low = _mm512_mask_min_ps(*low, m, *low, y);
+            *high = _mm512_mask_max_ps(*high, m, *high, y);
+        }
+    }
+}
+
+/* One layer on AMX: a (M_pad, k_pad) uint8 -> out (M, n) float32. Each 32 x 32 block's
+ * tail runs after the next block's products are issued: reading a block straight after
+ * the tiles store it stalls (the tile stores do not forward to vector loads). */
+__attribute__((target("amx-tile,amx-int8,avx512f"))) static void layer_amx(
+    const Layer *L, const uint8_t *a, Py_ssize_t M, float scale, int32_t zero_point, float *out,
+    float *low, float *high) {
+    const int8_t *B = L->packed.buf;
+    Py_ssize_t k_pad = L->k_pad, n_tiles = L->n_pad / N_TILE, blocks_n = n_tiles / 2;
+    int32_t acc[2][M_BLOCK * N_BLOCK] __attribute__((aligned(64)));
+    __m512 lo = _mm512_set1_ps(INFINITY), hi = _mm512_set1_ps(-INFINITY);
+    Py_ssize_t blocks = (M + M_BLOCK - 1) / M_BLOCK * blocks_n;
+    for (Py_ssize_t block = 0; block <= blocks; ++block) {
+        if (block < blocks) {
+            Py_ssize_t i = block / blocks_n * M_BLOCK, t = block % blocks_n * 2;
+            const uint8_t *a0 = a + i * k_pad, *a1 = a0 + 16 * k_pad;
+            int32_t *c = acc[block % 2];
+            _tile_zero(0);
+            _tile_zero(1);
+            _tile_zero(2);
+            _tile_zero(3);
+            for (Py_ssize_t kb = 0; kb < k_pad / K_BLOCK; ++kb) {
+                const int8_t *b0 = B + (kb * n_tiles + t) * 1024;
+                _tile_loadd(4, a0 + kb * K_BLOCK, k_pad);
+                _tile_loadd(5, a1 + kb * K_BLOCK, k_pad);
+                _tile_loadd(6, b0, 64);
+                _tile_loadd(7, b0 + 1024, 64);
+                _tile_dpbusd(0, 4, 6);
+                _tile_dpbusd(1, 4, 7);
+                _tile_dpbusd(2, 5, 6);
+                _tile_dpbusd(3, 5, 7);
+            }
+            _tile_stored(0, c, N_BLOCK * 4);
+            _tile_stored(1, c + 16, N_BLOCK * 4);
+            _tile_stored(2, c + 16 * N_BLOCK, N_BLOCK * 4);
+            _tile_stored(3, c + 16 * N_BLOCK + 16, N_BLOCK * 4);
+        }
+        if (block > 0) {
+            Py_ssize_t before = block - 1;
+            Py_ssize_t i = before / blocks_n * M_BLOCK, t = before % blocks_n * 2;
+            Py_ssize_t rows = M - i < M_BLOCK ? M - i : M_BLOCK;
+            tail_avx512(L, acc[before % 2], rows, i, t * N_TILE, scale, zero_point, out, &lo, &hi);
+        }
+    }
+    *low = _mm512_reduce_min_ps(lo), *high = _mm512_reduce_max_ps(hi);
+}
+
+/* Palette 1, every tile 16 rows of 64 bytes. Static storage: GCC 12 drops the stores to a
+ * local configuration before ldtilecfg reads it (seen at -O2). */
+static const TileConfig TILES = {
+    .palette_id = 1,
+    .colsb = {64, 64, 64, 64, 64, 64, 64, 64},
+    .rows = {16, 16, 16, 16, 16, 16, 16, 16},
+};
+
+__attribute__((target("amx-tile"))) static void tiles_configure(void) { _tile_loadconfig(&TILES); }
+
+__attribute__((target("amx-tile"))) static void tiles_release(void) { _tile_release(); }
+
+#else
+static int amx_usable(void) { return 0; }
+#endif
+
+/* ------------------------------------------------------------------------ forward */
+
+/* Scratch blocks kept between calls: a call's activations are about 4 kB a row, and a
+ * block of that size freed to glibc goes back to the system (the service's mmap threshold),
+ * so each call would otherwise fault its pages in again. Up to SCRATCH_SLOTS blocks of at
+ * most SCRATCH_KEEP_BYTES each stay (a call of more rows frees its own). */
+#define SCRATCH_SLOTS 4
+#define SCRATCH_KEEP_BYTES ((size_t)8 << 20)
+
+static struct {
+    void *block;
+    size_t bytes;
+} scratch_slots[SCRATCH_SLOTS];
+static PyThread_type_lock scratch_lock;
+
+static void *scratch_take(size_t bytes, size_t *held) {
+    void *block = NULL;
+    size_t size = 0;
+    PyThread_acquire_lock(scratch_lock, WAIT_LOCK);
+    for (int s = 0; s < SCRATCH_SLOTS && block == NULL; ++s)
+        if (scratch_slots[s].block != NULL) {
+            block = scratch_slots[s].block, size = scratch_slots[s].bytes;
+            scratch_slots[s].block = NULL, scratch_slots[s].bytes = 0;
+        }
+    PyThread_release_lock(scratch_lock);
+    if (block != NULL && size < bytes) free(block), block = NULL;
+    if (block == NULL) block = malloc(bytes), size = bytes;
+    *held = size;
+    return block;
+}
+
+static void scratch_give(void *block, size_t bytes) {
+    if (block == NULL) return;
+    if (bytes <= SCRATCH_KEEP_BYTES) {
+        PyThread_acquire_lock(scratch_lock, WAIT_LOCK);
+        for (int s = 0; s < SCRATCH_SLOTS && block != NULL; ++s)
+            if (scratch_slots[s].block == NULL)
+                scratch_slots[s].block = block, scratch_slots[s].bytes = bytes, block = NULL;
+        PyThread_release_lock(scratch_lock);
+    }
+    free(block);
+}
+
+/* A call's rows on one or two threads. Every layer needs the range of its whole input
+ * before quantising any row of it, so the threads meet once a layer: each takes a share
+ * of the rows (whole 32-row blocks), finds its share's range while it writes the layer's
+ * output, and after the meeting both combine the shares' ranges alike. A row's velocity
+ * is the same on one thread and on two (min and max do not depend on the order). */
+#define MAX_LAYERS 64
+#define MAX_THREADS 2
+
+typedef struct {
+    const Network *net;
+    const float *x;
+    float *y;
+    Py_ssize_t M;
+    int amx, threads;
+    uint8_t *a;
+    float *buffers[2];
+    int32_t *rows[MAX_THREADS];
+    float low[MAX_LAYERS][MAX_THREADS], high[MAX_LAYERS][MAX_THREADS];
+    int arrived, generation;
+} Call;
+
+/* Both threads past this point before either goes on (spinning: a layer takes tens of
+ * microseconds, a sleep and a wake-up about as long). */
+static void meet(Call *call) {
+    if (call->threads == 1) return;
+    int generation = __atomic_load_n(&call->generation, __ATOMIC_ACQUIRE);
+    if (__atomic_add_fetch(&call->arrived, 1, __ATOMIC_ACQ_REL) == call->threads) {
+        __atomic_store_n(&call->arrived, 0, __ATOMIC_RELAXED);
+        __atomic_store_n(&call->generation, generation + 1, __ATOMIC_RELEASE);
+        return;
+    }
+    for (long spins = 0; __atomic_load_n(&call->generation, __ATOMIC_ACQUIRE) == generation;
+         ++spins)
+        if (spins > 4096) sched_yield();
+}
+
+static void call_rows(Call *call, int share) {
+    const Network *net = call->net;
+    Py_ssize_t M = call->M, split = (M / 2 + M_BLOCK - 1) / M_BLOCK * M_BLOCK;
+    Py_ssize_t i0 = call->threads == 1 || share == 0 ? 0 : split;
+    Py_ssize_t i1 = call->threads == 1 || share == 1 ? M : split;
+    Py_ssize_t count = i1 - i0, k0 = net->layers[0].k;
+#if HAVE_AMX_PATH
+    if (call->amx) {
+        tiles_configure();
+        min_max_avx512(call->x + i0 * k0, (size_t)(count * k0), &call->low[0][share],
+                       &call->high[0][share]);
+    } else
+#endif
+        min_max_plain(call->x + i0 * k0, (size_t)(count * k0), &call->low[0][share],
+                      &call->high[0][share]);
+    const float *input = call->x;
+    for (Py_ssize_t l = 0; l < net->count; ++l) {
+        const Layer *L = &net->layers[l];
+        float *out = l == net->count - 1 ? call->y : call->buffers[l % 2];
+        meet(call);
+        float low = call->low[l][0], high = call->high[l][0], scale;
+        for (int t = 1; t < call->threads; ++t) {
+            low = call->low[l][t] < low ? call->low[l][t] : low;
+            high = call->high[l][t] > high ? call->high[l][t] : high;
+        }
+        int32_t zero_point;
+        quantisation(low, high, &scale, &zero_point);
+        const float *x = input + i0 * L->k;
+        uint8_t *a = call->a + i0 * L->k_pad;
+        float *o = out + i0 * L->n, *lo = &call->low[l + 1][share], *hi = &call->high[l + 1][share];
+#if HAVE_AMX_PATH
+        if (call->amx) {
+            quantise_avx512(x, count, L->k, L->k_pad, scale, zero_point, a);
+            layer_amx(L, a, count, scale, zero_point, o, lo, hi);
+        } else
+#endif
+        {
+            quantise_plain(x, count, L->k, L->k_pad, scale, zero_point, a);
+            layer_plain(L, a, count, scale, zero_point, o, call->rows[share], lo, hi);
+        }
+        input = out;
+    }
+#if HAVE_AMX_PATH
+    if (call->amx) tiles_release();
+#endif
+}
+
+static void *second_share(void *call) {
+    call_rows(call, 1);
+    return NULL;
+}
+
+/* x (M, k of the first layer) -> y (M, n of the last) on `threads` threads (1 or 2; 1 for
+ * fewer than two blocks of rows); 0, or -1 when out of memory. */
+static int forward(const Network *net, const float *x, Py_ssize_t M, int amx, int threads,
+                   float *y) {
+    Py_ssize_t M_pad = (M + M_BLOCK - 1) / M_BLOCK * M_BLOCK;
+    threads = threads > 1 && M > M_BLOCK ? 2 : 1;
+    size_t a_bytes = (size_t)(M_pad * net->widest_k), act_bytes = (size_t)(M * net->widest) * 4;
+    size_t row_bytes = (size_t)net->widest * 4, held;
+    size_t bytes = a_bytes + 2 * act_bytes + 2 * row_bytes + 5 * 64;
+    char *block = scratch_take(bytes, &held);
+    if (block == NULL) return -1;
+    Call *call = PyMem_RawCalloc(1, sizeof(Call));
+    if (call == NULL) {
+        scratch_give(block, held);
+        return -1;
+    }
+    uintptr_t at = ((uintptr_t)block + 63) & ~(uintptr_t)63;
+    size_t sizes[5] = {a_bytes, act_bytes, act_bytes, row_bytes, row_bytes};
+    void *parts[5];
+    for (int p = 0; p < 5; ++p) parts[p] = (void *)at, at = (at + sizes[p] + 63) & ~(uintptr_t)63;
+    /* AMX multiplies whole 32-row blocks: the rows of `a` past M hold whatever the block
+     * held (integers, so nothing can trap), and their products are never stored. */
+    *call = (Call){.net = net, .x = x, .y = y, .M = M, .amx = amx, .threads = threads,
+                   .a = parts[0], .buffers = {parts[1], parts[2]}, .rows = {parts[3], parts[4]}};
+    pthread_t second;
+    if (threads == 2 && pthread_create(&second, NULL, second_share, call) != 0)
+        call->threads = 1;  /* no thread to be had: all rows here */
+    call_rows(call, 0);
+    if (call->threads == 2) pthread_join(second, NULL);
+    PyMem_RawFree(call);
+    scratch_give(block, held);
+    return 0;
+}
+
+/* --------------------------------------------------------------------- Python API */
+
+static const char *CAPSULE = "smm.int8_mlp.Network";
+
+static void network_free(PyObject *capsule) {
+    Network *net = PyCapsule_GetPointer(capsule, CAPSULE);
+    if (net == NULL) return;
+    for (Py_ssize_t l = 0; l < net->count; ++l) {
+        Layer *L = &net->layers[l];
+        PyBuffer_Release(&L->weight), PyBuffer_Release(&L->packed);
+        PyBuffer_Release(&L->column_sum), PyBuffer_Release(&L->weight_scale);
+        PyBuffer_Release(&L->bias);
+    }
+    PyMem_Free(net);
+}
+
+/* network(layers) -> capsule; layers: a tuple of (k, n, silu, weight, packed, column_sum,
+ * weight_scale, bias), the buffers checked by int8_mlp.py and held until the capsule goes. */
+static PyObject *py_network(PyObject *self, PyObject *args) {
+    PyObject *layers;
+    if (!PyArg_ParseTuple(args, "O!", &PyTuple_Type, &layers)) return NULL;
+    Py_ssize_t count = PyTuple_GET_SIZE(layers);
+    if (count < 1 || count >= MAX_LAYERS)
+        return PyErr_Format(PyExc_ValueError, "a network of %zd layers; 1 to %d taken", count,
+                            MAX_LAYERS - 1);
+    Network *net = PyMem_Calloc(1, sizeof(Network) + (size_t)count * sizeof(Layer));
+    if (net == NULL) return PyErr_NoMemory();
+    for (Py_ssize_t l = 0; l < count; ++l) {
+        Layer *L = &net->layers[l];
+        if (!PyArg_ParseTuple(PyTuple_GET_ITEM(layers, l), "nnpy*y*y*y*y*", &L->k, &L->n,
+                              &L->silu, &L->weight, &L->packed, &L->column_sum,
+                              &L->weight_scale, &L->bias)) {
+            net->count = l;
+            PyObject *partial = PyCapsule_New(net, CAPSULE, network_free);
+            Py_XDECREF(partial);
+            return NULL;
+        }
+        L->k_pad = (L->k + K_BLOCK - 1) / K_BLOCK * K_BLOCK;
+        L->n_pad = (L->n + N_BLOCK - 1) / N_BLOCK * N_BLOCK;
+        net->count = l + 1;
+        net->widest = L->n > net->widest ? L->n : net->widest;
+        net->widest_k = L->k_pad > net->widest_k ? L->k_pad : net->widest_k;
+    }
+    return PyCapsule_New(net, CAPSULE, network_free);
+}
+
+/* forward(network, x, M, amx, threads, y): the network on x's M rows into y. */
+static PyObject *py_forward(PyObject *self, PyObject *args) {
+    PyObject *capsule;
+    Py_buffer x, y;
+    Py_ssize_t M;
+    int amx, threads;
+    if (!PyArg_ParseTuple(args, "Oy*npiw*", &capsule, &x, &M, &amx, &threads, &y)) return NULL;
+    const Network *net = PyCapsule_GetPointer(capsule, CAPSULE);
+    int status = 0;
+    if (net != NULL && M > 0) {
+        amx = amx && amx_usable();
+        Py_BEGIN_ALLOW_THREADS
+        status = forward(net, x.buf, M, amx, threads, y.buf);
+        Py_END_ALLOW_THREADS
+    }
+    PyBuffer_Release(&x), PyBuffer_Release(&y);
+    if (net == NULL) return NULL;
+    if (status != 0) return PyErr_NoMemory();
+    Py_RETURN_NONE;
+}
+
+/* pack(weight, k, n, packed): W (k, n) int8 into AMX's B tiles (k_pad/64, n_pad/16, 16, 64):
+ * tile row r, byte 4 c + i holds W[64 kb + 4 r + i, 16 nb + c], zero past k and n. */
+static PyObject *py_pack(PyObject *self, PyObject *args) {
+    Py_buffer weight, packed;
+    Py_ssize_t k, n;
+    if (!PyArg_ParseTuple(args, "y*nnw*", &weight, &k, &n, &packed)) return NULL;
+    Py_ssize_t k_pad = (k + K_BLOCK - 1) / K_BLOCK * K_BLOCK;
+    Py_ssize_t n_pad = (n + N_BLOCK - 1) / N_BLOCK * N_BLOCK, n_tiles = n_pad / N_TILE;
+    const int8_t *W = weight.buf;
+    int8_t *P = packed.buf;
+    memset(P, 0, (size_t)(k_pad * n_pad));
+    for (Py_ssize_t kk = 0; kk < k; ++kk)
+        for (Py_ssize_t j = 0; j < n; ++j) {
+            Py_ssize_t kb = kk / K_BLOCK, r = kk % K_BLOCK / 4, i = kk % 4;
+            Py_ssize_t nb = j / N_TILE, c = j % N_TILE;
+            P[(kb * n_tiles + nb) * 1024 + r * 64 + c * 4 + i] = W[kk * n + j];
+        }
+    PyBuffer_Release(&weight), PyBuffer_Release(&packed);
+    Py_RETURN_NONE;
+}
+
+static PyObject *py_amx_usable(PyObject *self, PyObject *unused) {
+    return PyBool_FromLong(amx_usable());
+}
+
+static PyMethodDef methods[] = {
+    {"network", py_network, METH_VARARGS,
+     "network(layers) -> capsule: the layers (k, n, silu, weight, packed, column_sum, "
+     "weight_scale, bias), held for forward."},
+    {"forward", py_forward, METH_VARARGS,
+     "forward(network, x, M, amx, threads, y): the network on x's M rows into y (AMX when "
+     "amx and usable; on two threads when threads > 1 and M > 32)."},
+    {"pack", py_pack, METH_VARARGS,
+     "pack(weight, k, n, packed): int8 weights (k, n) into AMX tiles, zero-padded."},
+    {"amx_usable", py_amx_usable, METH_NOARGS,
+     "amx_usable() -> bool: AMX-INT8 and AVX-512F on this processor, allowed by the kernel."},
+    {NULL, NULL, 0, NULL},
+};
+
+static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_int8_mlp", NULL, -1, methods};
+
+PyMODINIT_FUNC PyInit__int8_mlp(void) {
+    scratch_lock = PyThread_allocate_lock();
+    if (scratch_lock == NULL) return PyErr_NoMemory();
+    return PyModule_Create(&module);
+}

@@ -1,0 +1,290 @@
+"""The int8 flow network evaluated by compiled layers: onnxruntime's answer, to the bit, faster.
+
+flow_int8.onnx is the float network with each linear layer's weights quantised to int8
+and its input quantised per call (onnxruntime's dynamic quantisation): onnxruntime fuses
+each layer into DynamicQuantizeMatMul and QuickGelu and runs them as about forty operator
+calls of separate passes over the rows. Its profile at 500 rows on one thread (iiwa14
+pose): ~1.5 ms in DynamicQuantizeMatMul, of which the integer product proper is ~0.6 ms,
+and ~0.45 ms in QuickGelu. int8_mlp.c does each layer in one pass after quantising its
+input: the product on AMX tiles where the processor has them, the dequantisation, bias and
+SiLU on the product's block while it is in cache. It keeps onnxruntime's arithmetic in
+its order (the quantisation's rounding, MLAS's logistic polynomial and its fused
+multiply-adds), so a row's velocity is the same to the bit; what precedes the first
+quantised layer (the time embedding's sin and cos, whose bits are Eigen's) runs in
+onnxruntime, cut from the same file (onnx_file.cut_model).
+
+`python -m tools.onnx_threads` times both. tests/service/models/test_int8_mlp.py pins the
+compiled layers to onnxruntime's session (to the bit, every bundled int8 network, 1 to
+1000 rows, on AMX and on the plain C path) and to the float network they quantise.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from itertools import pairwise
+from pathlib import Path
+
+import numpy as np
+import onnxruntime as ort
+
+from service.models import _int8_mlp  # type: ignore[attr-defined]
+from service.models.onnx_file import (
+    Graph,
+    Node,
+    OnnxFormatError,
+    cut_model,
+    inputs_needed,
+    read_graph,
+)
+from service.models.sessions import FLOW_CALLS, FLOW_INPUTS, FLOW_OUTPUT, open_session
+from service.pipeline.arrays import Float32Array
+
+K_BLOCK, N_BLOCK = 64, 32  # int8_mlp.c's padding of the weights for AMX
+# A call of at least this many rows made while no other runs takes two threads: their
+# meeting once a layer and the second thread's start (~30 us) cost more below it.
+# Measured on a 2-core Intel Xeon (`python -m tools.onnx_threads`).
+PARALLEL_MIN_ROWS = 128
+
+
+class UnsupportedNetwork(OnnxFormatError):
+    """The graph is not a chain of dynamically quantised linear layers this kernel runs."""
+
+
+@dataclass(frozen=True)
+class QuantisedLayer:
+    """y = (x quantised per call) @ weight * weight_scale + bias, then SiLU when `silu`."""
+
+    weight: np.ndarray  # (k, n) int8, zero point 0
+    weight_scale: np.ndarray  # (n,) float32
+    bias: np.ndarray  # (n,) float32
+    silu: bool
+
+
+def _only(nodes: list[Node], op_type: str, after: str) -> Node:
+    if len(nodes) != 1 or nodes[0].op_type != op_type:
+        found = [node.op_type for node in nodes]
+        raise UnsupportedNetwork(f"after {after}: expected one {op_type}, found {found}")
+    return nodes[0]
+
+
+def _other(node: Node, name: str) -> str:
+    (other,) = (x for x in node.inputs if x != name)
+    return other
+
+
+def _initializer(graph: Graph, name: str, dtype: str) -> np.ndarray:
+    if name not in graph.initializers:
+        raise UnsupportedNetwork(f"{name!r} is not an initializer")
+    array = graph.initializers[name]
+    if array.dtype != np.dtype(dtype):
+        raise UnsupportedNetwork(f"{name!r} is {array.dtype}, expected {dtype}")
+    return array
+
+
+def quantised_layers(graph: Graph) -> tuple[str, list[QuantisedLayer]]:
+    """(the first layer's input, the layers): the chain from the graph's first
+    DynamicQuantizeLinear to its output, as onnxruntime's quantiser writes each layer:
+
+    DynamicQuantizeLinear(x) -> (x_q, x_scale, x_zero); Mul(x_scale, w_scale);
+    MatMulInteger(x_q, W, x_zero, w_zero = 0); Cast; Mul(by the scales); Add(bias);
+    then Sigmoid and Mul (SiLU) into the next layer, or the graph's output.
+    """
+    first = next((node for node in graph.nodes if node.op_type == "DynamicQuantizeLinear"), None)
+    if first is None:
+        raise UnsupportedNetwork("no DynamicQuantizeLinear: not a dynamically quantised network")
+    layers, quantise = [], first
+    while True:
+        x_q, x_scale, x_zero = quantise.outputs
+        product = _only(graph.consumers(x_q), "MatMulInteger", quantise.op_type)
+        if product.inputs[0] != x_q or product.inputs[2] != x_zero:
+            raise UnsupportedNetwork(
+                "MatMulInteger does not take the quantised input and zero point"
+            )
+        weight = _initializer(graph, product.inputs[1], "int8")
+        weight_zero = product.inputs[3] if len(product.inputs) > 3 else ""
+        if weight_zero and np.any(_initializer(graph, weight_zero, "int8")):
+            raise UnsupportedNetwork("weights with a non-zero zero point")
+        cast = _only(graph.consumers(product.outputs[0]), "Cast", "MatMulInteger")
+        rescale = _only(graph.consumers(cast.outputs[0]), "Mul", "Cast")
+        scales = graph.producer(_other(rescale, cast.outputs[0]))
+        if scales is None or scales.op_type != "Mul" or x_scale not in scales.inputs:
+            raise UnsupportedNetwork("the product is not rescaled by input scale x weight scale")
+        weight_scale = _initializer(graph, _other(scales, x_scale), "float32")
+        add = _only(graph.consumers(rescale.outputs[0]), "Add", "the rescaling Mul")
+        bias = _initializer(graph, _other(add, rescale.outputs[0]), "float32")
+        k, n = weight.shape
+        if weight_scale.shape != (n,) or bias.shape != (n,):
+            raise UnsupportedNetwork(f"a {k} x {n} layer with scales {weight_scale.shape}")
+        y = add.outputs[0]
+        if y in graph.outputs:
+            layers.append(QuantisedLayer(weight, weight_scale, bias, silu=False))
+            return first.inputs[0], layers
+        gate = _only([c for c in graph.consumers(y) if c.op_type == "Sigmoid"], "Sigmoid", "Add")
+        silu = _only(graph.consumers(gate.outputs[0]), "Mul", "Sigmoid")
+        if sorted(silu.inputs) != sorted((y, gate.outputs[0])) or len(graph.consumers(y)) != 2:
+            raise UnsupportedNetwork("the activation is not SiLU (y * sigmoid(y))")
+        layers.append(QuantisedLayer(weight, weight_scale, bias, silu=True))
+        quantise = _only(graph.consumers(silu.outputs[0]), "DynamicQuantizeLinear", "SiLU")
+
+
+def packed_weight(weight: np.ndarray) -> np.ndarray:
+    """The weights (k, n) int8 as AMX's B tiles, zero-padded (int8_mlp.c `pack`)."""
+    k, n = weight.shape
+    k_pad = -(-k // K_BLOCK) * K_BLOCK
+    n_pad = -(-n // N_BLOCK) * N_BLOCK
+    packed = np.empty(k_pad * n_pad, dtype=np.int8)
+    _int8_mlp.pack(np.ascontiguousarray(weight), k, n, packed)
+    return packed
+
+
+def amx_usable() -> bool:
+    """AMX-INT8 tiles and AVX-512F on this processor, allowed by the kernel."""
+    return bool(_int8_mlp.amx_usable())
+
+
+class QuantisedNetwork:
+    """The layers in compiled code: `forward(x)` of the first layer's input (B, k)."""
+
+    def __init__(self, layers: list[QuantisedLayer]) -> None:
+        if not layers:
+            raise UnsupportedNetwork("no layers")
+        for before, after in pairwise(layers):
+            if before.weight.shape[1] != after.weight.shape[0]:
+                raise UnsupportedNetwork("consecutive layers' widths differ")
+        self.width_in = int(layers[0].weight.shape[0])
+        self.width_out = int(layers[-1].weight.shape[1])
+        self._arrays = tuple(
+            (
+                int(layer.weight.shape[0]),
+                int(layer.weight.shape[1]),
+                layer.silu,
+                np.ascontiguousarray(layer.weight, dtype=np.int8),
+                packed_weight(layer.weight),
+                layer.weight.sum(axis=0, dtype=np.int32),
+                np.ascontiguousarray(layer.weight_scale, dtype=np.float32),
+                np.ascontiguousarray(layer.bias, dtype=np.float32),
+            )
+            for layer in layers
+        )
+        self._network = _int8_mlp.network(self._arrays)
+
+    def forward(
+        self, x: Float32Array, amx: bool = True, threads: int = 1
+    ) -> Float32Array:  # (B, k) -> (B, n)
+        """The layers on x's rows; on AMX when `amx` and usable, else plain C loops; on two
+        threads when `threads` > 1 and there are more than 32 rows (the same bits)."""
+        x = np.ascontiguousarray(x, dtype=np.float32)
+        if x.ndim != 2 or x.shape[1] != self.width_in:
+            raise ValueError(f"x has shape {x.shape}; expected (B, {self.width_in})")
+        y = np.empty((len(x), self.width_out), dtype=np.float32)
+        if len(x):
+            _int8_mlp.forward(self._network, x, len(x), amx, threads, y)
+        return y
+
+
+@dataclass(frozen=True)
+class TimeEmbedding:
+    """A part of the first layer's input computed from t alone, on a model cut from the file:
+    evaluated once per distinct t of a call (a sampler's call has one)."""
+
+    output: str
+    session: ort.InferenceSession
+
+    def __call__(self, t: Float32Array) -> Float32Array:  # (B, 1) -> (B, w)
+        column = t[:, 0]
+        if len(column) and column.min() == column.max():  # one t: one row, broadcast
+            (row,) = self.session.run([self.output], {"t": t[:1]})
+            return np.broadcast_to(row, (len(t), row.shape[1]))
+        values, index = np.unique(column, return_inverse=True)
+        (rows,) = self.session.run([self.output], {"t": values[:, None]})
+        return rows[index.reshape(-1)]
+
+
+Part = str | TimeEmbedding  # a flow input by name, or a part computed from t
+
+
+def _first_input_parts(graph: Graph, first_input: str) -> list[Part] | None:
+    """The first layer's input as the concatenation of flow inputs and parts of t alone, or
+    None when it is not one (then a model cut from the file computes it whole)."""
+    concat = graph.producer(first_input)
+    if concat is None or concat.op_type != "Concat" or concat.ints.get("axis") not in (1, -1):
+        return None
+    parts: list[Part] = []
+    for name in concat.inputs:
+        if name in FLOW_INPUTS:
+            parts.append(name)
+        elif inputs_needed(graph, name) == {"t"}:
+            model = cut_model(graph, name, ("batch", "width"))
+            parts.append(TimeEmbedding(name, open_session(model, 1)))
+        else:
+            return None
+    return parts
+
+
+class CompiledVelocityField:
+    """The int8 flow network: the quantised layers compiled; the first layer's input (the
+    time embedding beside q_t and the condition) in onnxruntime, on models cut from the
+    file: the embedding of each distinct t of a call once, when the input is a
+    concatenation of flow inputs and parts of t alone, else the whole input."""
+
+    def __init__(
+        self,
+        prefix: ort.InferenceSession,
+        prefix_output: str,
+        parts: list[Part] | None,
+        network: QuantisedNetwork,
+        amx: bool = True,
+        threads: int = 1,
+        parallel_min_rows: int = PARALLEL_MIN_ROWS,
+    ) -> None:
+        self._prefix = prefix
+        self._prefix_output = prefix_output
+        self._parts = parts
+        self._network = network
+        self._amx = amx
+        self._threads = threads
+        self._parallel_min_rows = parallel_min_rows
+
+    @classmethod
+    def open(
+        cls, path: Path, amx: bool = True, threads: int = 1, by_time: bool = True
+    ) -> CompiledVelocityField:
+        """The network at `path`; UnsupportedNetwork when it is not a chain of dynamically
+        quantised layers with flow.onnx's inputs and output. A call of at least
+        PARALLEL_MIN_ROWS rows made while no other flow call runs takes two threads when
+        `threads` > 1. `by_time`: the embedding once per distinct t where the graph allows
+        (False: the whole input on every row)."""
+        graph = read_graph(path)
+        if graph.inputs != FLOW_INPUTS or graph.outputs != (FLOW_OUTPUT,):
+            raise UnsupportedNetwork(f"inputs {graph.inputs}, outputs {graph.outputs}")
+        first_input, layers = quantised_layers(graph)
+        network = QuantisedNetwork(layers)
+        prefix = cut_model(graph, first_input, ("batch", network.width_in))
+        parts = _first_input_parts(graph, first_input) if by_time else None
+        return cls(open_session(prefix, 1), first_input, parts, network, amx, threads)
+
+    def first_input(
+        self,
+        q_t: Float32Array,  # (B, n)
+        t: Float32Array,  # (B, 1)
+        condition: Float32Array,  # (B, c)
+    ) -> Float32Array:  # (B, k)
+        """The first quantised layer's input."""
+        feeds = dict(zip(FLOW_INPUTS, (q_t, t, condition), strict=True))
+        if self._parts is None:
+            (x,) = self._prefix.run([self._prefix_output], feeds)
+            return np.asarray(x, dtype=np.float32)
+        pieces = [feeds[p] if isinstance(p, str) else p(t) for p in self._parts]
+        return np.concatenate(pieces, axis=1, dtype=np.float32)
+
+    def __call__(
+        self,
+        q_t: Float32Array,  # (B, n)
+        t: Float32Array,  # (B, 1)
+        condition: Float32Array,  # (B, c)
+    ) -> Float32Array:  # (B, n)
+        x = self.first_input(q_t, t, condition)  # (B, k)
+        with FLOW_CALLS.entered() as others:
+            alone_and_large = others == 0 and len(x) >= self._parallel_min_rows
+            threads = self._threads if alone_and_large else 1
+            return self._network.forward(x, self._amx, threads)

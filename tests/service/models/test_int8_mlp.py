@@ -1,0 +1,206 @@
+"""The compiled int8 flow layers (service/models/int8_mlp.py) give onnxruntime's velocities
+to the bit: every bundled int8 network, from 1 row to more than a tile block's, on AMX
+where the processor has it and on the plain C path everywhere, from concurrent threads;
+the layers read from the file are the file's (the `onnx` package reads them too); a
+network of other layers is refused, naming what it found; the registry serves an int8
+network on the compiled layers only where AMX is usable and the setting allows.
+"""
+
+import threading
+from pathlib import Path
+
+import numpy as np
+import onnx
+import pytest
+from onnx import numpy_helper
+
+from service.manifest import FLOW_FILE, FLOW_INT8_FILE, REPO_MODELS_DIR
+from service.models.int8_mlp import (
+    PARALLEL_MIN_ROWS,
+    CompiledVelocityField,
+    QuantisedNetwork,
+    UnsupportedNetwork,
+    amx_usable,
+    quantised_layers,
+)
+from service.models.onnx_file import read_graph
+from service.models.registry import INT8_FLOW_FILES, load_model, open_flow
+from service.models.sessions import FLOW_CALLS, FLOW_INPUTS, OnnxVelocityField, open_session
+from tests.support.app import PLANAR3R_DIR
+from tests.support.bundled import bundled_model_ids
+
+IIWA14_POSE_INT8 = REPO_MODELS_DIR / "iiwa14-pose" / FLOW_INT8_FILE
+needs_amx = pytest.mark.skipif(not amx_usable(), reason="no AMX-INT8 on this processor")
+
+
+def _int8_flows() -> list[Path]:
+    return [
+        REPO_MODELS_DIR / model_id / name
+        for model_id in bundled_model_ids()
+        for name in INT8_FLOW_FILES
+        if (REPO_MODELS_DIR / model_id / name).is_file()
+    ]
+
+
+def _inputs(path: Path, rows: int, seed: int) -> dict[str, np.ndarray]:
+    """Inputs like a sampler's: q_t ~ N(0, I) with a few far draws, one t, a condition."""
+    n, c = (open_session(path, 1).get_inputs()[k].shape[1] for k in (0, 2))
+    rng = np.random.default_rng(seed)
+    q_t = rng.standard_normal((rows, n)).astype(np.float32)
+    q_t[:: max(1, rows // 5)] *= 4.0
+    t = np.full((rows, 1), rng.uniform(0, 1), dtype=np.float32)
+    condition = rng.uniform(-1, 1, (rows, c)).astype(np.float32)
+    return dict(zip(FLOW_INPUTS, (q_t, t, condition), strict=True))
+
+
+@pytest.mark.parametrize("path", _int8_flows(), ids=lambda p: f"{p.parent.name}/{p.name}")
+def test_the_compiled_layers_give_onnxruntimes_velocities_to_the_bit(path: Path) -> None:
+    """Row counts below, at and past the 32-row blocks' edges, and a sampler's 500 rows
+    (1.3 million quantised values per call: a rounding that differs from onnxruntime's on
+    one in 10^5 of them, as x * (1 / scale) for x / scale does, shows)."""
+    session = open_session(path, 1)
+    flow = CompiledVelocityField.open(path, amx=True)
+    plain = CompiledVelocityField.open(path, amx=False)
+    for rows in (1, 2, 31, 32, 33, 500):
+        inputs = _inputs(path, rows, seed=rows)
+        (expected,) = session.run(["velocity"], inputs)
+        np.testing.assert_array_equal(flow(**inputs), expected)
+        np.testing.assert_array_equal(plain(**inputs), expected)
+
+
+def test_the_embedding_once_per_distinct_t_is_the_embedding_of_every_row() -> None:
+    """Rows of one t, rows of many (and repeated) t: the first layer's input, built from
+    the embedding of each distinct t, is the cut model's on every row, to the bit."""
+    by_time = CompiledVelocityField.open(IIWA14_POSE_INT8)
+    whole = CompiledVelocityField.open(IIWA14_POSE_INT8, by_time=False)
+    assert by_time._parts is not None and whole._parts is None
+    session = open_session(IIWA14_POSE_INT8, 1)
+    rng = np.random.default_rng(11)
+    for rows in (1, 7, 500):
+        inputs = _inputs(IIWA14_POSE_INT8, rows, seed=rows)
+        for t in (inputs["t"], rng.choice([0.0, 0.25, 0.9], (rows, 1)).astype(np.float32)):
+            inputs["t"] = t
+            np.testing.assert_array_equal(
+                by_time.first_input(**inputs), whole.first_input(**inputs)
+            )
+            (expected,) = session.run(["velocity"], inputs)
+            np.testing.assert_array_equal(by_time(**inputs), expected)
+
+
+@needs_amx
+def test_amx_and_the_plain_loops_agree_to_the_bit() -> None:
+    """Two implementations of the integer product and of the elementwise tail."""
+    flow = CompiledVelocityField.open(IIWA14_POSE_INT8, amx=True)
+    plain = CompiledVelocityField.open(IIWA14_POSE_INT8, amx=False)
+    inputs = _inputs(IIWA14_POSE_INT8, 100, seed=7)
+    np.testing.assert_array_equal(flow(**inputs), plain(**inputs))
+
+
+@pytest.mark.parametrize("amx", [True, False])
+def test_two_threads_give_one_threads_bits(amx: bool) -> None:
+    """The rows split at a 32-row block, each share's range met once a layer: every row
+    count, around the split and the blocks' edges, gives the one-thread velocities."""
+    _, layers = quantised_layers(read_graph(IIWA14_POSE_INT8))
+    network = QuantisedNetwork(layers)
+    rng = np.random.default_rng(5)
+    for rows in (1, 32, 33, 63, 64, 65, 97, 500) if amx else (33, 65, 97):
+        x = rng.standard_normal((rows, network.width_in)).astype(np.float32)
+        x[rows // 2] *= 8.0  # the range from one share only
+        one = network.forward(x, amx=amx, threads=1)
+        np.testing.assert_array_equal(network.forward(x, amx=amx, threads=2), one)
+
+
+def test_concurrent_calls_of_different_sizes_give_their_single_answers() -> None:
+    """Calls share the kernel's kept scratch blocks: none may see another's, on one thread
+    or on two."""
+    _, layers = quantised_layers(read_graph(IIWA14_POSE_INT8))
+    network = QuantisedNetwork(layers)
+    rng = np.random.default_rng(9)
+    calls = [
+        rng.standard_normal((rows, network.width_in)).astype(np.float32)
+        for rows in (3, 40, 500, 1200, 64, 900)
+    ]
+    expected = [network.forward(x) for x in calls]
+    results: dict[int, list[np.ndarray]] = {k: [] for k in range(len(calls))}
+
+    def run(k: int) -> None:
+        for repeat in range(6):
+            results[k].append(network.forward(calls[k], threads=1 + repeat % 2))
+
+    threads = [threading.Thread(target=run, args=(k,)) for k in range(len(calls))]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    for k, velocities in results.items():
+        for velocity in velocities:
+            np.testing.assert_array_equal(velocity, expected[k])
+
+
+def test_the_layers_read_are_the_files_weights_scales_and_biases() -> None:
+    """Against the `onnx` package's reading of the same file: each layer's int8 weight,
+    its per-column scale and its bias, in order, SiLU after all but the last."""
+    first_input, layers = quantised_layers(read_graph(IIWA14_POSE_INT8))
+    model = onnx.load(IIWA14_POSE_INT8)
+    arrays = {i.name: numpy_helper.to_array(i) for i in model.graph.initializer}
+    products = [node for node in model.graph.node if node.op_type == "MatMulInteger"]
+    quantise = next(n for n in model.graph.node if n.op_type == "DynamicQuantizeLinear")
+    assert first_input == quantise.input[0]
+    assert len(layers) == len(products)
+    adds = [node for node in model.graph.node if node.op_type == "Add"]
+    scales = [
+        node
+        for node in model.graph.node
+        if node.op_type == "Mul" and any(name.endswith("weight_scale") for name in node.input)
+    ]
+    for layer, product, add, scale in zip(layers, products, adds, scales, strict=True):
+        np.testing.assert_array_equal(layer.weight, arrays[product.input[1]])
+        np.testing.assert_array_equal(layer.bias, arrays[add.input[1]])
+        np.testing.assert_array_equal(layer.weight_scale, arrays[scale.input[1]])
+    assert [layer.silu for layer in layers] == [True] * (len(layers) - 1) + [False]
+
+
+def test_a_network_of_other_layers_is_refused_naming_what_it_found() -> None:
+    with pytest.raises(UnsupportedNetwork, match="no DynamicQuantizeLinear"):
+        CompiledVelocityField.open(PLANAR3R_DIR / FLOW_FILE)
+
+
+def test_a_call_of_the_wrong_width_is_refused() -> None:
+    _, layers = quantised_layers(read_graph(IIWA14_POSE_INT8))
+    network = QuantisedNetwork(layers)
+    with pytest.raises(ValueError, match=r"expected \(B, 80\)"):
+        network.forward(np.zeros((4, 79), np.float32))
+    assert network.forward(np.zeros((0, 80), np.float32)).shape == (0, 7)
+
+
+def test_a_large_call_takes_two_threads_only_when_no_other_runs() -> None:
+    """As onnxruntime's sessions (sessions.FLOW_CALLS): a second thread for a call made
+    beside another would take a core from it."""
+    flow = CompiledVelocityField.open(IIWA14_POSE_INT8, threads=2)
+    taken: list[int] = []
+    network = flow._network
+    real = network.forward
+
+    def spy(x: np.ndarray, amx: bool = True, threads: int = 1) -> np.ndarray:
+        taken.append(threads)
+        return real(x, amx, threads)
+
+    network.forward = spy  # type: ignore[method-assign]
+    large, small = (_inputs(IIWA14_POSE_INT8, rows, seed=1) for rows in (PARALLEL_MIN_ROWS, 8))
+    flow(**large)
+    flow(**small)
+    with FLOW_CALLS.entered():
+        flow(**large)
+    assert taken == [2, 1, 1]
+
+
+def test_the_registry_serves_int8_on_the_compiled_layers_where_amx_is_usable() -> None:
+    compiled = open_flow(IIWA14_POSE_INT8, threads=1, serial=False, compiled_int8=True)
+    expected = CompiledVelocityField if amx_usable() else OnnxVelocityField
+    assert isinstance(compiled, expected)
+    session = open_flow(IIWA14_POSE_INT8, threads=1, serial=False, compiled_int8=False)
+    assert isinstance(session, OnnxVelocityField)
+    float_flow = open_flow(PLANAR3R_DIR / FLOW_FILE, threads=1, serial=False, compiled_int8=True)
+    assert isinstance(float_flow, OnnxVelocityField)
+    model = load_model(REPO_MODELS_DIR / "iiwa14-pose", threads=1)
+    assert isinstance(model.networks[FLOW_INT8_FILE], expected)
