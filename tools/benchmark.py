@@ -61,6 +61,7 @@ import numpy as np
 from service.client import RetryPolicy, SmmClient
 from service.config import Settings
 from service.manifest import REPO_MODELS_DIR, Manifest
+from service.models.int8_mlp import amx_usable
 from service.models.registry import ServedModel, load_model
 from service.pipeline.joint_space import JointLimits
 from service.wire import SmmRequest
@@ -316,7 +317,13 @@ def markdown(report: dict) -> str:
         "",
         f"Produced by `{report['command']}`{commit} on {machine.describe()}. "
         f"onnxruntime threads per session: {report['onnx_threads']} "
-        "(the service's own setting on this machine). Targets per model: "
+        "(the service's own setting on this machine)"
+        + (
+            "; the int8 flow networks on the compiled layers (AMX)"
+            if report.get("compiled_int8")
+            else ""
+        )
+        + ". Targets per model: "
         f"{report['targets']} held-out (seed {report['seed']}). Times are comparable only "
         "within this report.",
         "",
@@ -687,6 +694,8 @@ def main() -> None:
         "command": " ".join(["python -m tools.benchmark", *sys.argv[1:]]),
         "git_commit": git_commit(),  # the code measured, at the run's start
         "onnx_threads": threads,
+        # The int8 flow networks on the compiled layers (the same bits as onnxruntime's).
+        "compiled_int8": Settings().compiled_int8 and amx_usable(),
         "targets": args.targets,
         "seed": args.seed,
         "models": {},

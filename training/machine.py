@@ -50,12 +50,17 @@ class Machine:
         """The same record with the load average at the end of the run."""
         return replace(self, load_1min_end=load_average_1min())
 
-    def describe(self) -> str:
+    def describe(self, own_load: str | None = None) -> str:
+        """CPU, cores, Python and the load average at the start and the end. Above the core
+        count the load is other work's, which inflates times, unless `own_load` says what
+        of the run's own loads the cores (a soak's clients and server, by design)."""
         text = f"{self.cpu}, {self.cores} cores, Python {self.python}"
         loads = [x for x in (self.load_1min_start, self.load_1min_end) if x is not None]
         if loads:
             text += f"; 1-min load average {' -> '.join(f'{x:g}' for x in loads)}"
-            if max(loads) > self.cores + 0.5:
+            if own_load is not None:
+                text += f" ({own_load})"
+            elif max(loads) > self.cores + 0.5:
                 text += " (above the core count: other work shared the cores, times inflated)"
         return text
 

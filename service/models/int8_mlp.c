@@ -334,9 +334,11 @@ static int amx_usable(void) { return 0; }
 /* Scratch blocks kept between calls: a call's activations are about 4 kB a row, and a
  * block of that size freed to glibc goes back to the system (the service's mmap threshold),
  * so each call would otherwise fault its pages in again. Up to SCRATCH_SLOTS blocks of at
- * most SCRATCH_KEEP_BYTES each stay (a call of more rows frees its own). */
-#define SCRATCH_SLOTS 4
-#define SCRATCH_KEEP_BYTES ((size_t)8 << 20)
+ * most SCRATCH_KEEP_BYTES each stay, as many as flow calls run at once in the service
+ * (SMM_MAX_IN_FLIGHT's 2); a block fits a call of up to about 1300 rows of 512, one of more
+ * rows frees its own. The process holds at most 12 MiB more for them. */
+#define SCRATCH_SLOTS 2
+#define SCRATCH_KEEP_BYTES ((size_t)6 << 20)
 
 static struct {
     void *block;

@@ -40,6 +40,12 @@ def test_the_description_flags_a_load_above_the_cores(
     assert Machine.from_json(machine.as_json()) == machine
 
 
+def test_a_run_that_loads_the_cores_itself_says_so_instead() -> None:
+    """A soak's or a load test's own clients and server load the cores by design."""
+    text = Machine("Test CPU", 2, "3.11.9", 2.8, 3.1).describe("its own clients")
+    assert text.endswith("1-min load average 2.8 -> 3.1 (its own clients)")
+
+
 def test_a_run_records_its_start_and_end() -> None:
     started = Machine.now()
     assert started.cores == os.cpu_count() and started.load_1min_end is None

@@ -218,7 +218,11 @@ def bench_machine(*arguments: str) -> str:
     page says what is measured, not the history of the code)."""
     chosen = options(arguments, {"report": "benchmark"})
     report = sources.benchmark(chosen["report"])
-    text = Machine.from_json(report["machine"]).describe()
+    own = str(report.get("command", "")).startswith(
+        ("python -m tools.soak", "python -m tools.load")
+    )
+    own_load = "the run's own server and clients load the cores, by design" if own else None
+    text = Machine.from_json(report["machine"]).describe(own_load)
     if "onnx_threads" in report:
         threads = report["onnx_threads"]
         text += f", {threads} onnxruntime thread{'s' if threads != 1 else ''} per session"
