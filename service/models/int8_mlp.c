@@ -58,7 +58,9 @@ typedef struct {
     Py_ssize_t n_pad;      /* n rounded up to N_BLOCK */
     int silu;              /* 1: SiLU after the affine map; 0: none (the last layer) */
     Py_buffer weight;      /* int8 (k, n), row-major */
-    Py_buffer packed;      /* int8 (k_pad / 64, n_pad / 16, 16, 64): AMX's B tiles, zero-padded */
+    int8_t *packed;        /* (k_pad / 64, n_pad / 16, 16, 64): AMX's B tiles, zero-padded,
+                            * 64-byte aligned (a tile row across two cache lines halves the
+                            * product's speed) */
     Py_buffer column_sum;  /* int32 (n,): sum over k of weight */
     Py_buffer weight_scale;/* float32 (n,) */
     Py_buffer bias;        /* float32 (n,) */
@@ -238,9 +240,11 @@ __attribute__((target("avx512f"))) static __m512 logistic_avx512(__m512 x) {
     return _mm512_max_ps(_mm512_setzero_ps(), y);
 }
 
-/* The tail of one block: acc (rows, N_BLOCK) int32 for columns j0.. of the layer. */
+/* The tail of rows [r0, rows) of one block: acc (32, N_BLOCK) int32 for the layer's rows
+ * i0.. and columns j0... */
 __attribute__((target("avx512f"))) static void tail_avx512(const Layer *L, const int32_t *acc,
-                                                           Py_ssize_t rows, Py_ssize_t i0,
+                                                           Py_ssize_t r0, Py_ssize_t rows,
+                                                           Py_ssize_t i0,
                                                            Py_ssize_t j0, float scale,
                                                            int32_t zero_point, float *out,
                                                            __m512 *low, __m512 *high) {
@@ -255,7 +259,7 @@ __attribute__((target("avx512f"))) static void tail_avx512(const Layer *L, const
         __m512i correction = _mm512_mullo_epi32(z, _mm512_maskz_loadu_epi32(m, colsum + j));
         __m512 multiplier = _mm512_mul_ps(s, _mm512_maskz_loadu_ps(m, w_scale + j));
         __m512 b = _mm512_maskz_loadu_ps(m, bias + j);
-        for (Py_ssize_t r = 0; r < rows; ++r) {
+        for (Py_ssize_t r = r0; r < rows; ++r) {
             __m512i a = _mm512_loadu_si512(acc + r * N_BLOCK + jj);
             __m512 y = _mm512_cvtepi32_ps(_mm512_sub_epi32(a, correction));
             y = _mm512_add_ps(_mm512_mul_ps(y, multiplier), b);
@@ -267,13 +271,14 @@ __attribute__((target("avx512f"))) static void tail_avx512(const Layer *L, const
     }
 }
 
-/* One layer on AMX: a (M_pad, k_pad) uint8 -> out (M, n) float32. Each 32 x 32 block's
- * tail runs after the next block's products are issued: reading a block straight after
- * the tiles store it stalls (the tile stores do not forward to vector loads). */
+/* One layer on AMX: a (M_pad, k_pad) uint8 -> out (M, n) float32. The products of a
+ * 32 x 32 block are issued to the tiles, then the vector units do the tail of the block
+ * before, then the tiles store this one: a block read straight after the tiles store it
+ * stalls (tile stores do not forward to vector loads). */
 __attribute__((target("amx-tile,amx-int8,avx512f"))) static void layer_amx(
     const Layer *L, const uint8_t *a, Py_ssize_t M, float scale, int32_t zero_point, float *out,
     float *low, float *high) {
-    const int8_t *B = L->packed.buf;
+    const int8_t *B = L->packed;
     Py_ssize_t k_pad = L->k_pad, n_tiles = L->n_pad / N_TILE, blocks_n = n_tiles / 2;
     int32_t acc[2][M_BLOCK * N_BLOCK] __attribute__((aligned(64)));
     __m512 lo = _mm512_set1_ps(INFINITY), hi = _mm512_set1_ps(-INFINITY);
@@ -282,7 +287,6 @@ __attribute__((target("amx-tile,amx-int8,avx512f"))) static void layer_amx(
         if (block < blocks) {
             Py_ssize_t i = block / blocks_n * M_BLOCK, t = block % blocks_n * 2;
             const uint8_t *a0 = a + i * k_pad, *a1 = a0 + 16 * k_pad;
-            int32_t *c = acc[block % 2];
             _tile_zero(0);
             _tile_zero(1);
             _tile_zero(2);
@@ -298,16 +302,19 @@ __attribute__((target("amx-tile,amx-int8,avx512f"))) static void layer_amx(
                 _tile_dpbusd(2, 5, 6);
                 _tile_dpbusd(3, 5, 7);
             }
+        }
+        if (block > 0) {
+            Py_ssize_t before = block - 1, i = before / blocks_n * M_BLOCK;
+            Py_ssize_t rows = M - i < M_BLOCK ? M - i : M_BLOCK;
+            tail_avx512(L, acc[before % 2], 0, rows, i, before % blocks_n * 2 * N_TILE, scale,
+                        zero_point, out, &lo, &hi);
+        }
+        if (block < blocks) {
+            int32_t *c = acc[block % 2];
             _tile_stored(0, c, N_BLOCK * 4);
             _tile_stored(1, c + 16, N_BLOCK * 4);
             _tile_stored(2, c + 16 * N_BLOCK, N_BLOCK * 4);
             _tile_stored(3, c + 16 * N_BLOCK + 16, N_BLOCK * 4);
-        }
-        if (block > 0) {
-            Py_ssize_t before = block - 1;
-            Py_ssize_t i = before / blocks_n * M_BLOCK, t = before % blocks_n * 2;
-            Py_ssize_t rows = M - i < M_BLOCK ? M - i : M_BLOCK;
-            tail_avx512(L, acc[before % 2], rows, i, t * N_TILE, scale, zero_point, out, &lo, &hi);
         }
     }
     *low = _mm512_reduce_min_ps(lo), *high = _mm512_reduce_max_ps(hi);
@@ -505,15 +512,29 @@ static void network_free(PyObject *capsule) {
     if (net == NULL) return;
     for (Py_ssize_t l = 0; l < net->count; ++l) {
         Layer *L = &net->layers[l];
-        PyBuffer_Release(&L->weight), PyBuffer_Release(&L->packed);
+        PyBuffer_Release(&L->weight), free(L->packed);
         PyBuffer_Release(&L->column_sum), PyBuffer_Release(&L->weight_scale);
         PyBuffer_Release(&L->bias);
     }
     PyMem_Free(net);
 }
 
-/* network(layers) -> capsule; layers: a tuple of (k, n, silu, weight, packed, column_sum,
- * weight_scale, bias), the buffers checked by int8_mlp.py and held until the capsule goes. */
+/* W (k, n) int8 into AMX's B tiles (k_pad / 64, n_pad / 16, 16, 64): tile row r, byte
+ * 4 c + i holds W[64 kb + 4 r + i, 16 nb + c], zero past k and n. */
+static void pack(const int8_t *W, Py_ssize_t k, Py_ssize_t n, Py_ssize_t n_pad, int8_t *P) {
+    Py_ssize_t n_tiles = n_pad / N_TILE, k_pad = (k + K_BLOCK - 1) / K_BLOCK * K_BLOCK;
+    memset(P, 0, (size_t)(k_pad * n_pad));
+    for (Py_ssize_t kk = 0; kk < k; ++kk)
+        for (Py_ssize_t j = 0; j < n; ++j) {
+            Py_ssize_t kb = kk / K_BLOCK, r = kk % K_BLOCK / 4, i = kk % 4;
+            Py_ssize_t nb = j / N_TILE, c = j % N_TILE;
+            P[(kb * n_tiles + nb) * 1024 + r * 64 + c * 4 + i] = W[kk * n + j];
+        }
+}
+
+/* network(layers) -> capsule; layers: a tuple of (k, n, silu, weight, column_sum,
+ * weight_scale, bias), the buffers checked by int8_mlp.py and held until the capsule goes;
+ * the weights packed for AMX here. */
 static PyObject *py_network(PyObject *self, PyObject *args) {
     PyObject *layers;
     if (!PyArg_ParseTuple(args, "O!", &PyTuple_Type, &layers)) return NULL;
@@ -525,9 +546,9 @@ static PyObject *py_network(PyObject *self, PyObject *args) {
     if (net == NULL) return PyErr_NoMemory();
     for (Py_ssize_t l = 0; l < count; ++l) {
         Layer *L = &net->layers[l];
-        if (!PyArg_ParseTuple(PyTuple_GET_ITEM(layers, l), "nnpy*y*y*y*y*", &L->k, &L->n,
-                              &L->silu, &L->weight, &L->packed, &L->column_sum,
-                              &L->weight_scale, &L->bias)) {
+        if (!PyArg_ParseTuple(PyTuple_GET_ITEM(layers, l), "nnpy*y*y*y*", &L->k, &L->n,
+                              &L->silu, &L->weight, &L->column_sum, &L->weight_scale,
+                              &L->bias)) {
             net->count = l;
             PyObject *partial = PyCapsule_New(net, CAPSULE, network_free);
             Py_XDECREF(partial);
@@ -536,6 +557,14 @@ static PyObject *py_network(PyObject *self, PyObject *args) {
         L->k_pad = (L->k + K_BLOCK - 1) / K_BLOCK * K_BLOCK;
         L->n_pad = (L->n + N_BLOCK - 1) / N_BLOCK * N_BLOCK;
         net->count = l + 1;
+        void *packed = NULL;
+        if (posix_memalign(&packed, 64, (size_t)(L->k_pad * L->n_pad)) != 0) {
+            PyObject *partial = PyCapsule_New(net, CAPSULE, network_free);
+            Py_XDECREF(partial);
+            return PyErr_NoMemory();
+        }
+        L->packed = packed;
+        pack(L->weight.buf, L->k, L->n, L->n_pad, L->packed);
         net->widest = L->n > net->widest ? L->n : net->widest;
         net->widest_k = L->k_pad > net->widest_k ? L->k_pad : net->widest_k;
     }
@@ -563,40 +592,17 @@ static PyObject *py_forward(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
-/* pack(weight, k, n, packed): W (k, n) int8 into AMX's B tiles (k_pad/64, n_pad/16, 16, 64):
- * tile row r, byte 4 c + i holds W[64 kb + 4 r + i, 16 nb + c], zero past k and n. */
-static PyObject *py_pack(PyObject *self, PyObject *args) {
-    Py_buffer weight, packed;
-    Py_ssize_t k, n;
-    if (!PyArg_ParseTuple(args, "y*nnw*", &weight, &k, &n, &packed)) return NULL;
-    Py_ssize_t k_pad = (k + K_BLOCK - 1) / K_BLOCK * K_BLOCK;
-    Py_ssize_t n_pad = (n + N_BLOCK - 1) / N_BLOCK * N_BLOCK, n_tiles = n_pad / N_TILE;
-    const int8_t *W = weight.buf;
-    int8_t *P = packed.buf;
-    memset(P, 0, (size_t)(k_pad * n_pad));
-    for (Py_ssize_t kk = 0; kk < k; ++kk)
-        for (Py_ssize_t j = 0; j < n; ++j) {
-            Py_ssize_t kb = kk / K_BLOCK, r = kk % K_BLOCK / 4, i = kk % 4;
-            Py_ssize_t nb = j / N_TILE, c = j % N_TILE;
-            P[(kb * n_tiles + nb) * 1024 + r * 64 + c * 4 + i] = W[kk * n + j];
-        }
-    PyBuffer_Release(&weight), PyBuffer_Release(&packed);
-    Py_RETURN_NONE;
-}
-
 static PyObject *py_amx_usable(PyObject *self, PyObject *unused) {
     return PyBool_FromLong(amx_usable());
 }
 
 static PyMethodDef methods[] = {
     {"network", py_network, METH_VARARGS,
-     "network(layers) -> capsule: the layers (k, n, silu, weight, packed, column_sum, "
-     "weight_scale, bias), held for forward."},
+     "network(layers) -> capsule: the layers (k, n, silu, weight, column_sum, weight_scale, "
+     "bias), held for forward, the weights packed for AMX."},
     {"forward", py_forward, METH_VARARGS,
      "forward(network, x, M, amx, threads, y): the network on x's M rows into y (AMX when "
      "amx and usable; on two threads when threads > 1 and M > 32)."},
-    {"pack", py_pack, METH_VARARGS,
-     "pack(weight, k, n, packed): int8 weights (k, n) into AMX tiles, zero-padded."},
     {"amx_usable", py_amx_usable, METH_NOARGS,
      "amx_usable() -> bool: AMX-INT8 and AVX-512F on this processor, allowed by the kernel."},
     {NULL, NULL, 0, NULL},

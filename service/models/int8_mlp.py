@@ -39,11 +39,12 @@ from service.models.onnx_file import (
 from service.models.sessions import FLOW_CALLS, FLOW_INPUTS, FLOW_OUTPUT, open_session
 from service.pipeline.arrays import Float32Array
 
-K_BLOCK, N_BLOCK = 64, 32  # int8_mlp.c's padding of the weights for AMX
-# A call of at least this many rows made while no other runs takes two threads: their
-# meeting once a layer and the second thread's start (~30 us) cost more below it.
-# Measured on a 2-core Intel Xeon (`python -m tools.onnx_threads`).
-PARALLEL_MIN_ROWS = 128
+# A call made while no other runs takes two threads when its rows times its widest layer
+# reach this: 192 rows of the 512-wide networks, 384 of the 256-wide planar 3R. Below it
+# the second thread's start (~30 us) and the meetings cost more than the thread saves.
+# Measured on a 2-core Intel Xeon (one thread against two, at 500 rows: iiwa14 pose 1.05
+# against 0.67 ms, planar 3R 0.35 against 0.28; at 128 rows and 256 rows equal).
+PARALLEL_MIN_WORK = 192 * 512
 
 
 class UnsupportedNetwork(OnnxFormatError):
@@ -127,16 +128,6 @@ def quantised_layers(graph: Graph) -> tuple[str, list[QuantisedLayer]]:
         quantise = _only(graph.consumers(silu.outputs[0]), "DynamicQuantizeLinear", "SiLU")
 
 
-def packed_weight(weight: np.ndarray) -> np.ndarray:
-    """The weights (k, n) int8 as AMX's B tiles, zero-padded (int8_mlp.c `pack`)."""
-    k, n = weight.shape
-    k_pad = -(-k // K_BLOCK) * K_BLOCK
-    n_pad = -(-n // N_BLOCK) * N_BLOCK
-    packed = np.empty(k_pad * n_pad, dtype=np.int8)
-    _int8_mlp.pack(np.ascontiguousarray(weight), k, n, packed)
-    return packed
-
-
 def amx_usable() -> bool:
     """AMX-INT8 tiles and AVX-512F on this processor, allowed by the kernel."""
     return bool(_int8_mlp.amx_usable())
@@ -153,13 +144,13 @@ class QuantisedNetwork:
                 raise UnsupportedNetwork("consecutive layers' widths differ")
         self.width_in = int(layers[0].weight.shape[0])
         self.width_out = int(layers[-1].weight.shape[1])
+        self.widest = max(int(layer.weight.shape[1]) for layer in layers)
         self._arrays = tuple(
             (
                 int(layer.weight.shape[0]),
                 int(layer.weight.shape[1]),
                 layer.silu,
                 np.ascontiguousarray(layer.weight, dtype=np.int8),
-                packed_weight(layer.weight),
                 layer.weight.sum(axis=0, dtype=np.int32),
                 np.ascontiguousarray(layer.weight_scale, dtype=np.float32),
                 np.ascontiguousarray(layer.bias, dtype=np.float32),
@@ -235,7 +226,7 @@ class CompiledVelocityField:
         network: QuantisedNetwork,
         amx: bool = True,
         threads: int = 1,
-        parallel_min_rows: int = PARALLEL_MIN_ROWS,
+        parallel_min_work: int = PARALLEL_MIN_WORK,
     ) -> None:
         self._prefix = prefix
         self._prefix_output = prefix_output
@@ -243,16 +234,16 @@ class CompiledVelocityField:
         self._network = network
         self._amx = amx
         self._threads = threads
-        self._parallel_min_rows = parallel_min_rows
+        self._parallel_min_work = parallel_min_work
 
     @classmethod
     def open(
         cls, path: Path, amx: bool = True, threads: int = 1, by_time: bool = True
     ) -> CompiledVelocityField:
         """The network at `path`; UnsupportedNetwork when it is not a chain of dynamically
-        quantised layers with flow.onnx's inputs and output. A call of at least
-        PARALLEL_MIN_ROWS rows made while no other flow call runs takes two threads when
-        `threads` > 1. `by_time`: the embedding once per distinct t where the graph allows
+        quantised layers with flow.onnx's inputs and output. A call of PARALLEL_MIN_WORK
+        (rows times the widest layer) made while no other flow call runs takes two threads
+        when `threads` > 1. `by_time`: the embedding once per distinct t where the graph allows
         (False: the whole input on every row)."""
         graph = read_graph(path)
         if graph.inputs != FLOW_INPUTS or graph.outputs != (FLOW_OUTPUT,):
@@ -285,6 +276,7 @@ class CompiledVelocityField:
     ) -> Float32Array:  # (B, n)
         x = self.first_input(q_t, t, condition)  # (B, k)
         with FLOW_CALLS.entered() as others:
-            alone_and_large = others == 0 and len(x) >= self._parallel_min_rows
+            work = len(x) * self._network.widest
+            alone_and_large = others == 0 and work >= self._parallel_min_work
             threads = self._threads if alone_and_large else 1
             return self._network.forward(x, self._amx, threads)

@@ -16,7 +16,7 @@ from onnx import numpy_helper
 
 from service.manifest import FLOW_FILE, FLOW_INT8_FILE, REPO_MODELS_DIR
 from service.models.int8_mlp import (
-    PARALLEL_MIN_ROWS,
+    PARALLEL_MIN_WORK,
     CompiledVelocityField,
     QuantisedNetwork,
     UnsupportedNetwork,
@@ -186,7 +186,8 @@ def test_a_large_call_takes_two_threads_only_when_no_other_runs() -> None:
         return real(x, amx, threads)
 
     network.forward = spy  # type: ignore[method-assign]
-    large, small = (_inputs(IIWA14_POSE_INT8, rows, seed=1) for rows in (PARALLEL_MIN_ROWS, 8))
+    least = PARALLEL_MIN_WORK // network.widest  # the fewest rows of this 512-wide network
+    large, small = (_inputs(IIWA14_POSE_INT8, rows, seed=1) for rows in (least, least - 1))
     flow(**large)
     flow(**small)
     with FLOW_CALLS.entered():

@@ -16,7 +16,7 @@
     <!-- figures: load-models -->                    its latency per model
     <!-- figures: model-default correction_steps --> a served default, every model
     <!-- figures: parallel-min-rows -->              the least rows a flow call runs on all threads
-    <!-- figures: compiled-parallel-min-rows -->     the same, on the compiled int8 layers
+    <!-- figures: compiled-parallel-min-rows -->     the same, on the compiled 512-wide int8 layers
 
 Options are `key=value` words: `report=NAME` reads docs/benchmark/NAME.json (default
 `benchmark`, the benchmark of record), `n=N` a size other than the goals' N, `fmt=SPEC` a
@@ -195,9 +195,9 @@ def parallel_min_rows() -> str:
 
 @block("compiled-parallel-min-rows")
 def compiled_parallel_min_rows() -> str:
-    """The fewest rows a call of the compiled int8 layers runs on two threads
+    """The fewest rows a call of the compiled 512-wide int8 layers runs on two threads
     (service/models/int8_mlp.py)."""
-    return str(int8_mlp.PARALLEL_MIN_ROWS)
+    return str(int8_mlp.PARALLEL_MIN_WORK // 512)
 
 
 @block("bench")
