@@ -173,18 +173,33 @@ class QuantisedNetwork:
         return y
 
 
-@dataclass(frozen=True)
 class TimeEmbedding:
     """A part of the first layer's input computed from t alone, on a model cut from the file:
-    evaluated once per distinct t of a call (a sampler's call has one)."""
+    evaluated once per distinct t of a call (a sampler's call has one), and kept for the
+    last KEPT_TIMES values of t (a sampler's time grid has a few dozen at most), since a
+    request's steps and rounds ask for the same few."""
 
-    output: str
-    session: ort.InferenceSession
+    KEPT_TIMES = 64
+
+    def __init__(self, output: str, session: ort.InferenceSession) -> None:
+        self.output = output
+        self.session = session
+        self._kept: dict[bytes, Float32Array] = {}  # t's float32 bits -> its row (1, w)
+
+    def row(self, t: Float32Array) -> Float32Array:  # (1, 1) -> (1, w)
+        key = t.tobytes()
+        row = self._kept.get(key)
+        if row is None:
+            (row,) = self.session.run([self.output], {"t": t})
+            if len(self._kept) >= self.KEPT_TIMES:
+                self._kept.clear()
+            self._kept[key] = row
+        return row
 
     def __call__(self, t: Float32Array) -> Float32Array:  # (B, 1) -> (B, w)
         column = t[:, 0]
         if len(column) and column.min() == column.max():  # one t: one row, broadcast
-            (row,) = self.session.run([self.output], {"t": t[:1]})
+            row = self.row(np.ascontiguousarray(t[:1]))
             return np.broadcast_to(row, (len(t), row.shape[1]))
         values, index = np.unique(column, return_inverse=True)
         (rows,) = self.session.run([self.output], {"t": values[:, None]})

@@ -19,6 +19,7 @@ from service.models.int8_mlp import (
     PARALLEL_MIN_WORK,
     CompiledVelocityField,
     QuantisedNetwork,
+    TimeEmbedding,
     UnsupportedNetwork,
     amx_usable,
     quantised_layers,
@@ -85,6 +86,13 @@ def test_the_embedding_once_per_distinct_t_is_the_embedding_of_every_row() -> No
             )
             (expected,) = session.run(["velocity"], inputs)
             np.testing.assert_array_equal(by_time(**inputs), expected)
+    # The rows kept for the t already seen are the ones the cut model gives.
+    for part in by_time._parts:
+        if isinstance(part, TimeEmbedding):
+            assert part._kept
+            for key, row in part._kept.items():
+                t = np.frombuffer(key, dtype=np.float32).reshape(1, 1)
+                np.testing.assert_array_equal(row, part.session.run([part.output], {"t": t})[0])
 
 
 @needs_amx
