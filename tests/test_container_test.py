@@ -28,12 +28,17 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
+from service.models.int8_mlp import amx_usable
 from tools.container_test import FIGURES, ROOT
 from tools.container_test.__main__ import parse_arguments
 from tools.container_test.http_checks import API_KEY, MAX_NUM_SAMPLES, run_http_checks
 from tools.container_test.image import baked_model_differences, scan_image, tree_bytes
 from tools.container_test.outcomes import Checks
-from tools.container_test.read_only import deployment_env, deployment_memory_limit_bytes
+from tools.container_test.read_only import (
+    check_flow_kernels,
+    deployment_env,
+    deployment_memory_limit_bytes,
+)
 from tools.container_test.report import finish
 from tools.container_test.server import descendants, json_lines
 from tools.container_test.server_checks import check_access_log, check_graceful_stop
@@ -141,6 +146,28 @@ def test_a_child_process_is_found_below_its_parent() -> None:
     finally:
         child.kill()
         child.wait()
+
+
+def test_the_flow_kernel_check_reads_each_models_start_up_line(tmp_path: Path) -> None:
+    """Passes when every bundled model names what the machine gives an int8 network, fails
+    on a model served otherwise or missing."""
+    expected = "compiled int8 layers (AMX)" if amx_usable() else "onnxruntime"
+    lines = [
+        json.dumps({"message": "model loaded", "model": f"{m}@0123", "flow": expected})
+        for m in bundled_models()
+    ]
+    log = tmp_path / "server.log"
+    log.write_text("\n".join(["INFO: started", *lines]))
+    passed = Checks()
+    check_flow_kernels(log, passed)
+    assert passed.failed == []
+    other = "onnxruntime" if amx_usable() else "compiled int8 layers (AMX)"
+    log.write_text("\n".join([*lines[1:], lines[0].replace(expected, other)]))
+    wrong = Checks()
+    check_flow_kernels(log, wrong)
+    log.write_text("\n".join(lines[1:]))
+    check_flow_kernels(log, wrong)
+    assert len(wrong.failed) == 2
 
 
 def test_checks_record_each_outcome_and_go_on() -> None:

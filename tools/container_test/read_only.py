@@ -14,11 +14,20 @@ from typing import Any
 import httpx
 import yaml
 
+from service.manifest import MANIFEST_FILE, REPO_MODELS_DIR
+from service.models.int8_mlp import amx_usable
 from tools.container_test import ROOT
 from tools.container_test.buildah import IMAGE, Buildah, image_config, tail
 from tools.container_test.http_checks import post_and_check
 from tools.container_test.outcomes import Checks
-from tools.container_test.server import peak_rss_bytes, root_mounts, server_pid, stop, wait_ready
+from tools.container_test.server import (
+    json_lines,
+    peak_rss_bytes,
+    root_mounts,
+    server_pid,
+    stop,
+    wait_ready,
+)
 from tools.container_test.server_checks import check_graceful_stop
 from tools.container_test.targets import TARGETS, bundled_models
 from tools.local_server import LOOPBACK, free_port
@@ -92,6 +101,7 @@ def run_read_only_checks(buildah: Buildah, store: Path, checks: Checks) -> dict[
             )
             try:
                 wait_ready(url, server, log_path)
+                check_flow_kernels(log_path, checks)
                 pid = server_pid(server.pid)
                 figures["read_only_rss_ready_bytes"] = peak_rss_bytes(pid)
                 check_read_only_mounts(pid, checks)
@@ -151,6 +161,31 @@ def check_read_only_probes(buildah: Buildah, container: str, checks: Checks) -> 
         note["detail"] = (
             f"{probe_out['modules']} modules from source files; without current bytecode: "
             f"0 in /opt/venv, {len(probe_out['stale'])} of the base's Python"
+        )
+
+
+def check_flow_kernels(log_path: Path, checks: Checks) -> None:
+    """Each model's start-up line names what evaluates its flow network: the compiled int8
+    layers where the processor has AMX (the container's is this machine's, and the kernel
+    must grant the tiles inside it too), onnxruntime for a float32 network or without."""
+    amx = amx_usable()
+    with checks.check(
+        "read-only root: int8 flow networks on the compiled layers where AMX is"
+    ) as note:
+        loaded = [
+            line
+            for line in json_lines(log_path.read_text(errors="replace"))
+            if line.get("message") == "model loaded"
+        ]
+        flows = {str(line["model"]).split("@")[0]: line.get("flow") for line in loaded}
+        assert sorted(flows) == bundled_models(), f"loaded {sorted(flows)}"
+        for model_id, flow in flows.items():
+            manifest = json.loads((REPO_MODELS_DIR / model_id / MANIFEST_FILE).read_text())
+            int8 = manifest["defaults"]["sampler"]["precision"] == "int8"
+            expected = "compiled int8 layers (AMX)" if int8 and amx else "onnxruntime"
+            assert flow == expected, f"{model_id}: {flow!r}, expected {expected!r}"
+        note["detail"] = f"AMX {'usable' if amx else 'not usable'} here: " + ", ".join(
+            sorted(f"{m} {f}" for m, f in flows.items())
         )
 
 
