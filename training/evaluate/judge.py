@@ -68,6 +68,7 @@ from training.evaluate.methods import MethodTarget, served_target
 from training.evaluate.metrics import (
     component_agreement,
     counted_components,
+    coverage_p95,
     found_components,
     nearest_distance,
 )
@@ -127,7 +128,7 @@ def figures(
     )
     result = {
         "count_right": float(np.mean([g.right for g in known])),
-        "coverage_p95_rad": float(np.percentile(coverage, 95)),
+        "coverage_p95_rad": coverage_p95(coverage),
     }
     if known and known[0].splits is not None:
         # Recall over the components the count counts: every one of a 1-D SMM, those of

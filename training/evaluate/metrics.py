@@ -29,6 +29,15 @@ def nearest_distance(query: FloatArray, data: FloatArray, periodic: BoolArray) -
     return box.tree(data).query(box.points(query))[0]
 
 
+def coverage_p95(coverage_rad: FloatArray) -> float:
+    """The 95th percentile of the exact points' distances to the nearest answer; inf where
+    it falls among points with no answer at all (a target answered with nothing). numpy
+    interpolates between two infinities to NaN, which no comparison finds worse."""
+    with np.errstate(invalid="ignore"):
+        value = float(np.percentile(coverage_rad, 95))
+    return float("inf") if np.isnan(value) else value
+
+
 def errors_in_units(
     position_error_m: np.ndarray, orientation_error_rad: np.ndarray, reach_m: float, pose: bool
 ) -> dict[str, float | None]:

@@ -21,7 +21,7 @@ from service.pipeline.run import run
 from service.pipeline.sampling import sample_configurations
 from service.pipeline.targets import TargetFields, encode_target, fields_reached
 from service.pipeline.types import Query, SmmResult
-from training.evaluate.metrics import median_stage_ms
+from training.evaluate.metrics import coverage_p95, median_stage_ms
 from training.evaluate.quality import summarise_raw
 from training.evaluate.served import stage_times_ms, with_defaults
 from training.evaluate.targets import held_out_targets
@@ -241,7 +241,7 @@ def summarise(answers: Sequence[TargetAgreement]) -> Measures:
         count_right=float(np.mean([a.count_right for a in answers])),
         merges_per_target=float(np.mean([a.merges for a in answers])),
         recall=sum(a.found for a in answers) / counted if counted else None,
-        coverage_p95_rad=float(np.percentile(coverage, 95)) if len(coverage) else None,
+        coverage_p95_rad=coverage_p95(coverage) if len(coverage) else None,
         median_total_ms=stage_ms["total"],
         median_stage_ms=stage_ms,
     )

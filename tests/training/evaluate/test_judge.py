@@ -255,6 +255,9 @@ def test_a_candidate_network_is_judged_at_its_own_defaults(
     )
     collapsed = SMALL(planar3r, served, served, candidate_model=collapsing)
     assert any(w.startswith("count right") for w in collapsed.worse)
+    # Exact points with no answer near them at all: coverage is unbounded, and worse.
+    assert collapsed.candidate["coverage_p95_rad"] == float("inf")
+    assert any(w.startswith("coverage p95") for w in collapsed.worse)
     with pytest.raises(ValueError, match="differs from planar3r-position in robot"):
         judging.check_same_problem(iiwa14_pose_model, planar3r)
 
