@@ -238,7 +238,7 @@ class CompiledVelocityField:
 
     def __init__(
         self,
-        prefix: ort.InferenceSession,
+        prefix: ort.InferenceSession | None,
         prefix_output: str,
         parts: list[Part] | None,
         network: QuantisedNetwork,
@@ -268,9 +268,11 @@ class CompiledVelocityField:
             raise UnsupportedNetwork(f"inputs {graph.inputs}, outputs {graph.outputs}")
         first_input, layers = quantised_layers(graph)
         network = QuantisedNetwork(layers)
-        prefix = cut_model(graph, first_input, ("batch", network.width_in))
         parts = _first_input_parts(graph, first_input) if by_time else None
-        return cls(open_session(prefix, 1), first_input, parts, network, amx, threads)
+        prefix = None  # the whole first input cut from the file, only where no parts are
+        if parts is None:
+            prefix = open_session(cut_model(graph, first_input, ("batch", network.width_in)), 1)
+        return cls(prefix, first_input, parts, network, amx, threads)
 
     def first_input(
         self,
@@ -280,9 +282,10 @@ class CompiledVelocityField:
     ) -> Float32Array:  # (B, k)
         """The first quantised layer's input."""
         feeds = dict(zip(FLOW_INPUTS, (q_t, t, condition), strict=True))
-        if self._parts is None:
+        if self._prefix is not None:
             (x,) = self._prefix.run([self._prefix_output], feeds)
             return np.asarray(x, dtype=np.float32)
+        assert self._parts is not None  # one or the other, by `open`
         pieces = [feeds[p] if isinstance(p, str) else p(t) for p in self._parts]
         return np.concatenate(pieces, axis=1, dtype=np.float32)
 

@@ -149,13 +149,18 @@ def _load_spheres(model_dir: Path, manifest: Manifest) -> RobotSpheres | None:
         raise ModelVerificationError(f"{path}: unreadable collision model: {error}") from error
 
 
+def threads_meant(threads: int) -> int:
+    """The threads a `threads` setting gives a call: 0 means every core."""
+    return threads or os.cpu_count() or 1
+
+
 def open_flow(path: Path, threads: int, serial: bool, compiled_int8: bool) -> VelocityField:
     """The flow network at `path`: an int8 one on the compiled layers (int8_mlp.py, the same
     bits as onnxruntime's) when `compiled_int8` and the processor has AMX, else onnxruntime's
     session (`threads`, and with `serial` a one-thread session beside it)."""
     if compiled_int8 and path.name in INT8_FLOW_FILES and amx_usable():
         try:
-            return CompiledVelocityField.open(path, threads=threads or os.cpu_count() or 1)
+            return CompiledVelocityField.open(path, threads=threads_meant(threads))
         except UnsupportedNetwork:
             pass  # a network of other layers: onnxruntime runs any
     return OnnxVelocityField.open(path, threads, serial=serial)
@@ -200,7 +205,7 @@ def load_model(model_dir: Path, threads: int, compiled_int8: bool = True) -> Ser
         robot_spheres=_load_spheres(model_dir, manifest),
         version=hashlib.sha256(combined.encode()).hexdigest()[:12],
         # The network's threads (0: onnxruntime's default, every core) for the rows too.
-        row_threads=threads or os.cpu_count() or 1,
+        row_threads=threads_meant(threads),
     )
 
 
