@@ -4,7 +4,7 @@
 
 Over HTTP, as a planner would ask (`smm-serve` as a real uvicorn process on 127.0.0.1,
 `tools.local_server.LocalServer`, asked through the project's client `service.client`,
-like tools/benchmark.py's `over_http`): the targets are
+like tools/benchmark.py's `OverHttp`): the targets are
 the FK of configurations uniform in the joint limits (the evaluation's held-out targets,
 seed 7), target i with seed i. Each round sends the K single requests one after another,
 then the one batch; the client's wall time of each, median over the rounds, and their

@@ -11,12 +11,19 @@ SERVICE, PAPER, RESTART = "service", "paper (100 Euler, 3 DLS)", "random-restart
 FLOAT32 = "service, float32 network"
 BASE = "service, base flow"  # the reflowed sampler's base flow at the steps it replaced
 SSIK = "ssik charts (closed form)"  # full pose of the arms ssik covers, when it is installed
-CONFIGURATIONS = (SERVICE, FLOAT32, BASE, PAPER, RESTART, SSIK)  # in the report's order
+# The service asked as a client asks without options: self-collision checked (on a model
+# with collision geometry), as over HTTP. SERVICE asks for the kinematic fibre, the
+# question the paper's configuration, restart DLS, ssik and the exact truth answer.
+DEFAULT_REQUEST = "service, default request"
+CONFIGURATIONS = (SERVICE, DEFAULT_REQUEST, FLOAT32, BASE, PAPER, RESTART, SSIK)  # report order
 
 GOAL_NUM_SAMPLES = 1000  # the N of the speed goals
 # The speed goals at N = 1000, in process, median: (model, at most ms, at least x faster
-# than the paper's configuration in the same run or None). Each answer must also be no
-# worse than the paper's configuration's in truth (the goals table's last column).
+# than the paper's configuration in the same run or None). The time is the default
+# request's (`timed_run`), what a client waits for; the ratio to the paper's
+# configuration and the truth compare the kinematic answers, the one question both
+# answer. Each answer must also be no worse than the paper's configuration's in truth
+# (the goals table's last column).
 GOALS: tuple[tuple[str, float, float | None], ...] = (
     ("iiwa14-pose", 15.0, 20.0),
     ("panda-pose", 15.0, None),
@@ -31,3 +38,9 @@ HTTP_GOALS: tuple[tuple[str, float], ...] = (("iiwa14-pose", 20.0), ("panda-pose
 # faster than its targets sent one after another.
 BATCH_NUM_SAMPLES = 1000
 BATCH_GOAL_X = 3.0
+
+
+def timed_run(row: dict) -> dict:
+    """The run of a benchmark row that the time goals read: the default request's, or the
+    kinematic service's in a report from before it timed the default request."""
+    return row.get(DEFAULT_REQUEST) or row[SERVICE]

@@ -26,6 +26,7 @@ BENCHMARK = ROOT / "docs" / "benchmark"
 SERVICE, PAPER, RESTART = "service", "paper (100 Euler, 3 DLS)", "random-restart DLS"
 FLOAT32, BASE = "service, float32 network", "service, base flow"
 SSIK = "ssik charts (closed form)"
+DEFAULT = "service, default request"  # self-collision checked, as a request without options
 
 
 def read(name: str) -> dict[str, Any]:
@@ -48,6 +49,11 @@ def by_model(table: str) -> dict[str, list[str]]:
 
 BENCH = read("benchmark")
 AT_1000 = {m: e["sizes"]["1000"] for m, e in BENCH["models"].items()}
+
+
+def asked(row: dict[str, Any]) -> dict[str, Any]:
+    """What the time goals read: the default request, where the report timed it."""
+    return row.get(DEFAULT) or row[SERVICE]
 
 
 # -- bench ---------------------------------------------------------------------------
@@ -96,21 +102,22 @@ def test_the_speed_table_is_the_reports_medians_at_n_1000() -> None:
     for model_id, row in AT_1000.items():
         cells, service, paper = rows[model_id], row[SERVICE], row[PAPER]
         assert cells[2] == f"**{service['median_ms']:.1f}** ({service['cpu_median_ms']:.1f})"
+        assert cells[3] == ("-" if DEFAULT not in row else f"{row[DEFAULT]['median_ms']:.1f}")
         other = row.get(FLOAT32) or row[BASE]
-        assert cells[3].endswith(f": {other['median_ms']:.1f}")
+        assert cells[4].endswith(f": {other['median_ms']:.1f}")
         x = paper["median_ms"] / service["median_ms"]
-        assert cells[4] == f"{paper['median_ms']:.1f} ({x:.1f}x)"
+        assert cells[5] == f"{paper['median_ms']:.1f} ({x:.1f}x)"
         restart = row.get(RESTART)  # none for an axis task (no restart IK leaves it free)
-        assert cells[5] == ("-" if restart is None else f"{restart['median_ms']:.1f}")
+        assert cells[6] == ("-" if restart is None else f"{restart['median_ms']:.1f}")
         charts = row.get(SSIK)
-        assert cells[6] == (
+        assert cells[7] == (
             "-"
             if charts is None
             else f"{charts['median_ms']:.1f} ({charts['figures']['count_right']:.3g})"
         )
-        assert cells[7] == f"{row['http']['median_ms']:.1f}"
+        assert cells[8] == f"{row['http']['median_ms']:.1f}"
         counts = (service["figures"]["count_right"], paper["figures"]["count_right"])
-        assert cells[8] == f"{counts[0]:.3g} / {counts[1]:.3g}"
+        assert cells[9] == f"{counts[0]:.3g} / {counts[1]:.3g}"
     assert rows["iiwa14-position"][1] == "reflowed, 2 int8 steps"  # the report's sampler
 
 
@@ -132,12 +139,12 @@ def test_the_goals_are_tools_goals_against_the_report() -> None:
     table = body(run_block("speed-goals", []))
     for model_id, most_ms, least_x in GOALS:
         row = AT_1000[model_id]
-        ms = row[SERVICE]["median_ms"]
+        ms = asked(row)["median_ms"]  # what a client waits for
         time_row = next(r for r in table if r[0] == f"`{model_id}`" and r[1].startswith("at most"))
         assert time_row[1:3] == [f"at most {most_ms:g} ms", f"{ms:.1f} ms"]
         assert time_row[3] == ("yes" if ms <= most_ms else f"no, {ms / most_ms:.2f}x the goal")
         if least_x is not None:
-            x = row[PAPER]["median_ms"] / ms
+            x = row[PAPER]["median_ms"] / row[SERVICE]["median_ms"]  # the same question
             x_row = next(r for r in table if r[0] == f"`{model_id}`" and "x faster" in r[1])
             assert x_row[2:] == [f"{x:.1f}x", "yes" if x >= least_x else "no"]
     batch = next(r for r in table if r[0].endswith("default"))
@@ -163,7 +170,7 @@ def test_the_bound_of_a_time_goal_is_its_stages_and_what_they_leave() -> None:
     goals = {model_id: most_ms for model_id, most_ms, _ in GOALS}
     for model_id, most_ms in goals.items():
         entry = BENCH["models"][model_id]
-        service = AT_1000[model_id][SERVICE]
+        service = asked(AT_1000[model_id])
         stage, ms, steps = service["median_stage_ms"], service["median_ms"], entry["sampler_steps"]
         text = run_block("speed-bound", [model_id])
         assert f"**{ms:.1f} ms** against the goal's {most_ms:g} ms" in text
@@ -307,10 +314,8 @@ def pod() -> tuple[float, float]:
 
 
 def t_ms(model_id: str) -> float:
-    row = AT_1000[model_id]
-    return row[SERVICE]["cpu_median_ms"] + max(
-        row["http"]["median_ms"] - row[SERVICE]["median_ms"], 0
-    )
+    run = asked(AT_1000[model_id])
+    return run["cpu_median_ms"] + max(AT_1000[model_id]["http"]["median_ms"] - run["median_ms"], 0)
 
 
 def test_the_replica_table_follows_its_formula() -> None:
@@ -319,9 +324,9 @@ def test_the_replica_table_follows_its_formula() -> None:
     assert f"per {cores:g}-CPU pod" in table
     rows = by_model(table)
     for model_id, row in AT_1000.items():
-        t = t_ms(model_id)
+        t, run = t_ms(model_id), asked(row)
         assert rows[model_id][1:] == [
-            f"{row[SERVICE]['median_ms']:.1f} ({row[SERVICE]['cpu_median_ms']:.1f})",
+            f"{run['median_ms']:.1f} ({run['cpu_median_ms']:.1f})",
             f"{row['http']['median_ms']:.1f}", f"{t:.1f}", f"{1000 / t:.1f}",
             f"{cores * 1000 / t:.1f}",
         ]  # fmt: skip

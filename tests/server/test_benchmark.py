@@ -23,8 +23,11 @@ import pytest
 
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
+from service.pipeline.collision.check import CollisionCheck
+from service.pipeline.collision.scene import Scene
 from tools.benchmark import (
     BASE,
+    DEFAULT_REQUEST,
     FLOAT32,
     PAPER,
     RESTART,
@@ -63,7 +66,10 @@ def test_the_command_writes_every_configuration_and_size(tmp_path: Path) -> None
     names = [SERVICE, PAPER, RESTART] + ([FLOAT32] if entry["sampler_precision"] == "int8" else [])
     names += [BASE] if entry["sampler_flow"] == "reflow" else []
     for n, row in entry["sizes"].items():
-        assert set(row) == {*names, "http"}
+        # The default request beside them: timed, not judged (its components are the free
+        # pieces; the planar 3R has no bodies, so it asks the same question here).
+        assert set(row) == {*names, DEFAULT_REQUEST, "http"}
+        assert row[DEFAULT_REQUEST]["figures"] is None and row[DEFAULT_REQUEST]["median_ms"] > 0
         for name in names:
             run = row[name]
             assert 0 < run["median_ms"] <= run["p95_ms"]
@@ -78,8 +84,8 @@ def test_the_command_writes_every_configuration_and_size(tmp_path: Path) -> None
     assert 0 < profile["kernels_ms"] < profile["connect_ms"] and profile["kernel_calls"] > 0
     text = (tmp_path / "benchmark.md").read_text()
     # every configuration and HTTP at 3 sizes, then its goal row and where its time goes
-    assert text.count("| planar3r-position |") == 3 * len(names) + 3 + 2
-    assert text.count("| planar3r-position | 1000 | ") == len(names) + 1 + 1
+    assert text.count("| planar3r-position |") == 3 * (len(names) + 1) + 3 + 2
+    assert text.count("| planar3r-position | 1000 | ") == len(names) + 1 + 1 + 1
     assert report["machine"]["cores"] >= 1
     assert report["git_commit"] == git_commit() and f"at commit {git_commit()} on " in text
     # The batch against its singles, by default and on one thread: the same answers.
@@ -158,6 +164,21 @@ def test_ssik_charts_answer_the_full_poses_of_the_arms_it_has(planar3r: ServedMo
     for answer in answers:
         assert answer.stage_ms is not None and answer.time_ms == answer.stage_ms["solve"]
         assert answer.stage_ms["points"] > 0
+
+
+def test_the_default_request_checks_self_collision_where_the_service_row_does_not() -> None:
+    """The default request is asked as a client asks without options: on a target whose
+    whole fibre is in self-collision (by the model's own check) the kinematic service row
+    returns its configurations and the default request none."""
+    iiwa14 = load_model(REPO_MODELS_DIR / "iiwa14-pose", threads=1)
+    assert iiwa14.robot_spheres is not None
+    check = CollisionCheck(iiwa14.robot_spheres, Scene(), check_self=True, margin_m=0.0)
+    q_target = uniform_configurations(iiwa14.limits, 400, seed=11)[31:32]
+    assert not check.free(q_target).any()
+    runs = interleaved({SERVICE: iiwa14, DEFAULT_REQUEST: iiwa14}, None, q_target, 200)
+    kinematic, asked = runs[SERVICE].answers[0], runs[DEFAULT_REQUEST].answers[0]
+    assert len(kinematic.returned) > 0 and not check.free(kinematic.returned).any()
+    assert len(asked.returned) == 0
 
 
 def _goal_row(ms: float, stage: dict[str, float], paper_ms: float) -> dict:
@@ -263,3 +284,21 @@ def test_goals_are_read_at_n_1000_and_at_the_served_default() -> None:
     assert [line.split(" | ")[1] for line in lines if line.startswith("| iiwa14-pose |")] == [
         "1000"
     ]
+
+
+def test_the_time_goals_read_the_default_request_and_the_ratio_the_kinematic_answers() -> None:
+    """Where a report timed the default request, a time goal is met or missed on it (what a
+    client waits for), while the ratio to the paper's configuration and the truth compare
+    the kinematic answers, the question both ask; the bounds section follows the same."""
+    figures = {"count_right": 1.0, "splits_per_target": 0.0, "merges_per_target": 0.0,
+               "recall": 1.0, "coverage_p95_rad": 0.02}  # fmt: skip
+    stage = {"sample": 4.0, "correct": 2.0, "connect": 9.0}
+    row = {SERVICE: {"median_ms": 14.0, "median_stage_ms": stage, "figures": figures},
+           DEFAULT_REQUEST: {"median_ms": 17.0, "median_stage_ms": stage, "figures": None},
+           PAPER: {"median_ms": 560.0, "median_stage_ms": {}, "figures": figures}}  # fmt: skip
+    entry = {"sizes": {"1000": row}, "sampler_steps": 4, "judged": []}
+    report = {"models": {"iiwa14-pose": entry}}
+    lines = "\n".join(_goals(report))
+    assert "| iiwa14-pose | 1000 | 17.0 | 15 | 40.0 | 20 | no: 1.13x the goal | no worse |" in lines
+    bounds = "\n".join(_bounds(report))
+    assert "iiwa14-pose, time: 17.0 ms, 2.0 ms (1.13x) over the goal of 15 ms" in bounds

@@ -167,19 +167,26 @@ def flow_target(
 
 
 def served_target(
-    model: ServedModel, q_target: np.ndarray, num_samples: int, seed: int
+    model: ServedModel,
+    q_target: np.ndarray,
+    num_samples: int,
+    seed: int,
+    check_self: bool = False,
 ) -> MethodTarget:
     """The service's pipeline answer to the target q_target reaches, as a client asks it
-    (position, quaternion); no raw-sample errors (empty), its time the pipeline's own."""
+    (position, quaternion); no raw-sample errors (empty), its time the pipeline's own.
+
+    By default the kinematic fibre, as the exact references trace it: collisions aside
+    (the report's scene section asks with them). `check_self`: self-collision checked too,
+    as a request without options asks (on a model with collision geometry), for timing
+    what a client waits for; its components are then the free pieces, not the fibre's."""
     manifest = model.manifest
     target = _target_of(model, q_target)
     query = Query.for_model(
         manifest, position_m=target.fields.position_m,
         orientation_wxyz=target.fields.orientation_wxyz, axis=target.fields.axis,
-        num_samples=num_samples, seed=seed, include_paths=True, check_self=False,
+        num_samples=num_samples, seed=seed, include_paths=True, check_self=check_self,
     )  # fmt: skip
-    # The kinematic fibre, as the exact references trace it: collisions aside (the
-    # report's scene section asks with them).
     result = run(model, query)
     none = np.zeros(0)
     components = [(c.configurations_rad, c.path) for c in result.components]
