@@ -22,8 +22,7 @@ from service.http.limits import RequestLimitsMiddleware
 from service.http.openapi import served_openapi
 from service.http.paths import API_PATHS, JSON_BODY_ROUTES
 from service.http.request_context import RequestContextMiddleware
-from service.models.int8_mlp import CompiledVelocityField
-from service.models.registry import Registry
+from service.models.registry import Registry, flow_kernel
 from service.observability.logs import configure_logging, log_event
 from service.observability.metrics import Metrics
 
@@ -72,8 +71,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         )
         for model in registry.all():
             app_metrics.model_ready.labels(model.manifest.model_id).set(1)
-            compiled = isinstance(model.velocity, CompiledVelocityField)
-            flow = "compiled int8 layers (AMX)" if compiled else "onnxruntime"
+            flow = flow_kernel(model.velocity)
             log_event(logger, logging.INFO, "model loaded", model=model.reference, flow=flow)
         for failure in registry.failed:
             app_metrics.model_ready.labels(failure.name).set(0)

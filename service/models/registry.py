@@ -154,6 +154,15 @@ def threads_meant(threads: int) -> int:
     return threads or os.cpu_count() or 1
 
 
+# What evaluates a model's flow network, as its "model loaded" log line names it.
+COMPILED_FLOW, ONNX_FLOW = "compiled int8 layers (AMX)", "onnxruntime"
+
+
+def flow_kernel(velocity: VelocityField) -> str:
+    """The name of what evaluates `velocity`: the compiled int8 layers or onnxruntime."""
+    return COMPILED_FLOW if isinstance(velocity, CompiledVelocityField) else ONNX_FLOW
+
+
 def open_flow(path: Path, threads: int, serial: bool, compiled_int8: bool) -> VelocityField:
     """The flow network at `path`: an int8 one on the compiled layers (int8_mlp.py, the same
     bits as onnxruntime's) when `compiled_int8` and the processor has AMX, else onnxruntime's

@@ -14,8 +14,9 @@ from typing import Any
 import httpx
 import yaml
 
-from service.manifest import MANIFEST_FILE, REPO_MODELS_DIR
+from service.manifest import MANIFEST_FILE, REPO_MODELS_DIR, Manifest
 from service.models.int8_mlp import amx_usable
+from service.models.registry import COMPILED_FLOW, ONNX_FLOW
 from tools.container_test import ROOT
 from tools.container_test.buildah import IMAGE, Buildah, image_config, tail
 from tools.container_test.http_checks import post_and_check
@@ -180,9 +181,11 @@ def check_flow_kernels(log_path: Path, checks: Checks) -> None:
         flows = {str(line["model"]).split("@")[0]: line.get("flow") for line in loaded}
         assert sorted(flows) == bundled_models(), f"loaded {sorted(flows)}"
         for model_id, flow in flows.items():
-            manifest = json.loads((REPO_MODELS_DIR / model_id / MANIFEST_FILE).read_text())
-            int8 = manifest["defaults"]["sampler"]["precision"] == "int8"
-            expected = "compiled int8 layers (AMX)" if int8 and amx else "onnxruntime"
+            manifest = Manifest.model_validate_json(
+                (REPO_MODELS_DIR / model_id / MANIFEST_FILE).read_bytes()
+            )
+            int8 = manifest.defaults.sampler.precision == "int8"
+            expected = COMPILED_FLOW if int8 and amx else ONNX_FLOW
             assert flow == expected, f"{model_id}: {flow!r}, expected {expected!r}"
         note["detail"] = f"AMX {'usable' if amx else 'not usable'} here: " + ", ".join(
             sorted(f"{m} {f}" for m, f in flows.items())
