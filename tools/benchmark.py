@@ -152,9 +152,9 @@ def interleaved(
     that target (`RESTART`). The HTTP request follows its in-process twin, not restart
     DLS: right after restart DLS the server's answer took about 3 ms longer than the same
     answer in process (iiwa14 pose, N = 500), right after the twin about 0.7 ms. Taking
-    the configurations in turn per target, rather than
-    one after another over all targets, leaves their ratios unmoved by the machine's
-    drift in speed over the run (measured here at up to 29 % between runs)."""
+    the configurations in turn per target, rather than one after another over all
+    targets, leaves their ratios unmoved by the machine's drift in speed over the run
+    (measured here at up to 29 % between runs)."""
     restart = None if restart_model is None else RestartMatch(restart_model, num_samples)
     charts = restart_model is not None and ssik_covers(restart_model)
     for name, model in served.items():  # warm-up
