@@ -27,6 +27,10 @@ from tools.container_test.server import (
 )
 from tools.local_server import LOOPBACK, free_port
 
+# How long the access-log check waits for the lines of requests already answered: each is
+# written once its response has gone out.
+ACCESS_LOG_WAIT_S = 5.0
+
 
 def run_container_checks(buildah: Buildah, store: Path, checks: Checks) -> dict[str, Any]:
     """Start the image's CMD in a working container and check it; the measured figures."""
@@ -129,11 +133,20 @@ def check_graceful_stop(
 
 
 def check_access_log(log_path: Path, request_ids: list[str], checks: Checks) -> None:
-    """One JSON access-log line per request (by its X-Request-ID), none from uvicorn."""
+    """One JSON access-log line per request (by its X-Request-ID), none from uvicorn.
+
+    A request's line is written once its response has gone out, so the client can hold the
+    last answer before its line is in the file: the log is read again until every request
+    has one, for up to ACCESS_LOG_WAIT_S."""
     with checks.check("one JSON access-log line per request, none from uvicorn") as note:
-        text = log_path.read_text(errors="replace")
-        access = [line for line in json_lines(text) if line.get("message") == "request"]
-        logged = [line["request_id"] for line in access]
+        deadline_s = time.monotonic() + ACCESS_LOG_WAIT_S
+        while True:
+            text = log_path.read_text(errors="replace")
+            access = [line for line in json_lines(text) if line.get("message") == "request"]
+            logged = [line["request_id"] for line in access]
+            if set(request_ids) <= set(logged) or time.monotonic() > deadline_s:
+                break
+            time.sleep(0.05)
         uvicorn_access = re.findall(r'"(?:GET|POST) \S+ HTTP/1\.1" \d{3}', text)
         assert not uvicorn_access, f"uvicorn access lines: {uvicorn_access[:3]}"
         twice_or_never = [i for i in request_ids if logged.count(i) != 1]
