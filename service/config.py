@@ -77,6 +77,17 @@ class Settings(BaseSettings):
         "take 168 KiB) are reused from the heap; below that size each would be mapped, "
         "faulted in page by page and unmapped again on every answer (CHANGELOG).",
     )
+    flow_scratch_bytes: int = Field(
+        25_165_824,
+        ge=0,
+        description="Largest scratch block the compiled int8 layers keep between flow calls "
+        "(two at most, one per call running at once; service/models/int8_mlp.c). A call "
+        "needs about 4.6 kB a row of a 512-wide network, so 24 MiB keeps a call of up to "
+        "about 5,400 rows; a larger call maps its own block and faults every page of it in "
+        "again. With 6 MiB (about 1,300 rows), an iiwa14 pose request at N = 4000 took "
+        "18,000 page faults and its server total was 84.5 ms; with 24 MiB, 1,700 and 60 ms "
+        "(CHANGELOG). The process holds up to twice this after large requests; 0 keeps none.",
+    )
     onnx_threads: int = Field(
         0,
         ge=0,

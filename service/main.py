@@ -22,6 +22,7 @@ from service.http.limits import RequestLimitsMiddleware
 from service.http.openapi import served_openapi
 from service.http.paths import API_PATHS, JSON_BODY_ROUTES
 from service.http.request_context import RequestContextMiddleware
+from service.models.int8_mlp import keep_scratch
 from service.models.registry import Registry, flow_kernel
 from service.observability.logs import configure_logging, log_event
 from service.observability.metrics import Metrics
@@ -59,6 +60,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     # Before any model starts a thread: an arena is taken at a thread's first allocation.
     limit_malloc_arenas(settings.malloc_arenas)
     fix_mmap_threshold(settings.malloc_mmap_threshold_bytes)
+    keep_scratch(settings.flow_scratch_bytes)
     logger = configure_logging(settings.log_level)
     app_metrics = Metrics()
 

@@ -340,17 +340,19 @@ static int amx_usable(void) { return 0; }
 
 /* Scratch blocks kept between calls: a call's activations are about 4 kB a row, and a
  * block of that size freed to glibc goes back to the system (the service's mmap threshold),
- * so each call would otherwise fault its pages in again. Up to SCRATCH_SLOTS blocks of at
- * most SCRATCH_KEEP_BYTES each stay, as many as flow calls run at once in the service
- * (SMM_MAX_IN_FLIGHT's 2); a block fits a call of up to about 1300 rows of 512, one of more
- * rows frees its own. The process holds at most 12 MiB more for them. */
+ * so each call would otherwise fault its pages in again (about 4,500 faults a call of
+ * 4,000 rows of 512). Up to SCRATCH_SLOTS blocks of at most `scratch_keep_bytes` each
+ * stay, as many as flow calls run at once in the service (SMM_MAX_IN_FLIGHT's 2); a call
+ * that needs more frees its own. keep_scratch sets the bound (the service's
+ * SMM_FLOW_SCRATCH_BYTES); 6 MiB, about 1,300 rows of 512, until it is called. The
+ * process holds at most SCRATCH_SLOTS times the bound for them. */
 #define SCRATCH_SLOTS 2
-#define SCRATCH_KEEP_BYTES ((size_t)6 << 20)
 
 static struct {
     void *block;
     size_t bytes;
 } scratch_slots[SCRATCH_SLOTS];
+static size_t scratch_keep_bytes = (size_t)6 << 20;
 static PyThread_type_lock scratch_lock;
 
 static void *scratch_take(size_t bytes, size_t *held) {
@@ -371,13 +373,12 @@ static void *scratch_take(size_t bytes, size_t *held) {
 
 static void scratch_give(void *block, size_t bytes) {
     if (block == NULL) return;
-    if (bytes <= SCRATCH_KEEP_BYTES) {
-        PyThread_acquire_lock(scratch_lock, WAIT_LOCK);
+    PyThread_acquire_lock(scratch_lock, WAIT_LOCK);
+    if (bytes <= scratch_keep_bytes)
         for (int s = 0; s < SCRATCH_SLOTS && block != NULL; ++s)
             if (scratch_slots[s].block == NULL)
                 scratch_slots[s].block = block, scratch_slots[s].bytes = bytes, block = NULL;
-        PyThread_release_lock(scratch_lock);
-    }
+    PyThread_release_lock(scratch_lock);
     free(block);
 }
 
@@ -592,6 +593,34 @@ static PyObject *py_forward(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
+/* keep_scratch(bytes) -> the bound it replaces; kept blocks above the new bound are freed. */
+static PyObject *py_keep_scratch(PyObject *self, PyObject *args) {
+    Py_ssize_t bytes;
+    if (!PyArg_ParseTuple(args, "n", &bytes)) return NULL;
+    if (bytes < 0) return PyErr_Format(PyExc_ValueError, "bytes must be >= 0, got %zd", bytes);
+    void *dropped[SCRATCH_SLOTS] = {NULL};
+    PyThread_acquire_lock(scratch_lock, WAIT_LOCK);
+    size_t before = scratch_keep_bytes;
+    scratch_keep_bytes = (size_t)bytes;
+    for (int s = 0; s < SCRATCH_SLOTS; ++s)
+        if (scratch_slots[s].block != NULL && scratch_slots[s].bytes > scratch_keep_bytes) {
+            dropped[s] = scratch_slots[s].block;
+            scratch_slots[s].block = NULL, scratch_slots[s].bytes = 0;
+        }
+    PyThread_release_lock(scratch_lock);
+    for (int s = 0; s < SCRATCH_SLOTS; ++s) free(dropped[s]);
+    return PyLong_FromSize_t(before);
+}
+
+/* kept_scratch() -> the bytes the kept blocks hold now. */
+static PyObject *py_kept_scratch(PyObject *self, PyObject *unused) {
+    size_t held = 0;
+    PyThread_acquire_lock(scratch_lock, WAIT_LOCK);
+    for (int s = 0; s < SCRATCH_SLOTS; ++s) held += scratch_slots[s].bytes;
+    PyThread_release_lock(scratch_lock);
+    return PyLong_FromSize_t(held);
+}
+
 static PyObject *py_amx_usable(PyObject *self, PyObject *unused) {
     return PyBool_FromLong(amx_usable());
 }
@@ -603,6 +632,11 @@ static PyMethodDef methods[] = {
     {"forward", py_forward, METH_VARARGS,
      "forward(network, x, M, amx, threads, y): the network on x's M rows into y (AMX when "
      "amx and usable; on two threads when threads > 1 and M > 32)."},
+    {"keep_scratch", py_keep_scratch, METH_VARARGS,
+     "keep_scratch(bytes) -> int: keep scratch blocks of at most `bytes` between calls; "
+     "returns the bound it replaces."},
+    {"kept_scratch", py_kept_scratch, METH_NOARGS,
+     "kept_scratch() -> int: the bytes of the scratch blocks kept now."},
     {"amx_usable", py_amx_usable, METH_NOARGS,
      "amx_usable() -> bool: AMX-INT8 and AVX-512F on this processor, allowed by the kernel."},
     {NULL, NULL, 0, NULL},

@@ -14,6 +14,8 @@ import onnx
 import pytest
 from onnx import numpy_helper
 
+from service.config import Settings
+from service.main import create_app
 from service.manifest import FLOW_FILE, FLOW_INT8_FILE, REPO_MODELS_DIR
 from service.models.int8_mlp import (
     PARALLEL_MIN_WORK,
@@ -22,6 +24,8 @@ from service.models.int8_mlp import (
     TimeEmbedding,
     UnsupportedNetwork,
     amx_usable,
+    keep_scratch,
+    kept_scratch_bytes,
     quantised_layers,
 )
 from service.models.onnx_file import read_graph
@@ -143,6 +147,49 @@ def test_concurrent_calls_of_different_sizes_give_their_single_answers() -> None
     for k, velocities in results.items():
         for velocity in velocities:
             np.testing.assert_array_equal(velocity, expected[k])
+
+
+def test_scratch_blocks_are_kept_up_to_the_bound_and_the_answers_do_not_depend_on_it() -> None:
+    """A call's scratch block stays for the next call when it is no larger than the bound
+    (`keep_scratch`, the service's SMM_FLOW_SCRATCH_BYTES), and is freed otherwise;
+    lowering the bound frees the kept blocks above it. The velocities are the same bits
+    whether a call reuses a kept block (holding an earlier call's rows) or maps its own."""
+    _, layers = quantised_layers(read_graph(IIWA14_POSE_INT8))
+    network = QuantisedNetwork(layers)
+    rng = np.random.default_rng(13)
+    small, large = (
+        rng.standard_normal((rows, network.width_in)).astype(np.float32) for rows in (300, 3000)
+    )
+    before = keep_scratch(0)  # nothing kept: every call maps and frees its own block
+    try:
+        assert kept_scratch_bytes() == 0
+        expected_small, expected_large = network.forward(small), network.forward(large)
+        assert kept_scratch_bytes() == 0
+        # 3,000 rows of 512 need about 14 MB: kept under a 16 MiB bound, not under 1 MiB.
+        keep_scratch(1 << 20)
+        network.forward(large)
+        assert kept_scratch_bytes() == 0
+        keep_scratch(16 << 20)
+        np.testing.assert_array_equal(network.forward(large), expected_large)
+        held = kept_scratch_bytes()
+        assert 3000 * 4 * 512 < held <= 16 << 20
+        # The kept block serves the smaller call, its bytes left from the larger one.
+        np.testing.assert_array_equal(network.forward(small), expected_small)
+        np.testing.assert_array_equal(network.forward(large), expected_large)
+        assert kept_scratch_bytes() == held
+        keep_scratch(1 << 20)  # lowered below the kept block: freed
+        assert kept_scratch_bytes() == 0
+    finally:
+        keep_scratch(before)
+
+
+def test_the_service_sets_the_bound_from_its_settings() -> None:
+    before = keep_scratch(0)
+    try:
+        create_app(Settings(flow_scratch_bytes=3 << 20))
+        assert keep_scratch(before) == 3 << 20
+    finally:
+        keep_scratch(before)
 
 
 def test_the_layers_read_are_the_files_weights_scales_and_biases() -> None:
