@@ -147,7 +147,8 @@ def interleaved(
     """Each configuration's answers, target by target: for each target, every configuration
     in `served` in turn (with the process CPU time of each answer; `DEFAULT_REQUEST` asks
     with self-collision checked, as a request without options does, and with `over_http`
-    the same request goes over HTTP right after it, its times kept there), then, with
+    the same request goes over HTTP right after it, cold then warm, its times kept
+    there), then, with
     `restart_model`, random-restart DLS to the first configuration's valid count for
     that target (`RESTART`). The HTTP request follows its in-process twin, not restart
     DLS: right after restart DLS the server's answer took about 3 ms longer than the same
@@ -175,7 +176,7 @@ def interleaved(
             answers[name].append(served_target(model, q, num_samples, seed=i, check_self=asked))
             cpu_ms[name].append((time.process_time() - start_s) * 1e3)
             if asked and over_http is not None:
-                over_http(q, seed=i)
+                over_http(q, seed=i, q_before=q_targets[i - 1])
         if restart is not None:
             restarts.append(restart(q, answers[first][-1].kept, seed=i))
         if charts and restart_model is not None:
@@ -227,18 +228,30 @@ class RestartMatch:
 
 class OverHttp:
     """One model's requests over HTTP at one N: the client's wall time per answer and the
-    server's own total, one request at a time.
+    server's own total, one request at a time, on a warm server and on a cold one.
 
     The client is the project's (`service.client.SmmClient`, retries off): a wall time
     ends with the answer parsed into its typed model, as a Python planner gets it. The
     request is the default one (no options but N and the seed), the question
     `DEFAULT_REQUEST` asks in process; `interleaved` sends it right after that one, target
-    by target, so a drift in the machine's speed moves the two alike."""
+    by target, so a drift in the machine's speed moves the two alike.
+
+    Each target is asked twice. Cold: first, right after the in-process runs, which share
+    the server's two cores and leave its caches holding the benchmark process's data, not
+    the server's (a server of its own never sees that). Warm: after the server has just
+    answered another target (the previous one, with a seed of its own, untimed), as a
+    server answering a planner's stream of requests is, and as the in-process rows are
+    timed (each after other work of the same model in the same process). The goals read the
+    warm figure; the report gives both."""
+
+    WARM_UP_SEED = 1_000_000  # + the target's index: a seed no timed request uses
 
     def __init__(self, client: SmmClient, model: ServedModel, num_samples: int) -> None:
         self.client, self.model, self.num_samples = client, model, num_samples
         self.wall_ms: list[float] = []
         self.server_total_ms: list[float] = []
+        self.cold_wall_ms: list[float] = []
+        self.cold_server_total_ms: list[float] = []
 
     def request(self, q_target: np.ndarray, seed: int) -> SmmRequest:
         manifest = self.model.manifest
@@ -251,18 +264,26 @@ class OverHttp:
     def warm_up(self, q_target: np.ndarray) -> None:
         self.client.smm(self.request(q_target, seed=0))
 
-    def __call__(self, q_target: np.ndarray, seed: int) -> None:
-        request = self.request(q_target, seed)
+    def _timed(self, request: SmmRequest, wall_ms: list[float], server_ms: list[float]) -> None:
         start = time.perf_counter()
         answer = self.client.smm(request)
-        self.wall_ms.append((time.perf_counter() - start) * 1e3)
-        self.server_total_ms.append(float(answer.timings_ms["total"]))
+        wall_ms.append((time.perf_counter() - start) * 1e3)
+        server_ms.append(float(answer.timings_ms["total"]))
+
+    def __call__(self, q_target: np.ndarray, seed: int, q_before: np.ndarray) -> None:
+        """Target `q_target` cold, then warm: after an untimed request for `q_before`."""
+        request = self.request(q_target, seed)
+        self._timed(request, self.cold_wall_ms, self.cold_server_total_ms)
+        self.client.smm(self.request(q_before, self.WARM_UP_SEED + seed))
+        self._timed(request, self.wall_ms, self.server_total_ms)
 
     def times(self) -> dict[str, float]:
         return {
             "median_ms": float(np.median(self.wall_ms)),
             "p95_ms": float(np.percentile(self.wall_ms, 95)),
             "server_median_ms": float(np.median(self.server_total_ms)),
+            "cold_median_ms": float(np.median(self.cold_wall_ms)),
+            "cold_server_median_ms": float(np.median(self.cold_server_total_ms)),
         }
 
 
@@ -395,10 +416,14 @@ def markdown(report: dict) -> str:
             "",
             "Over HTTP (`smm-serve` on 127.0.0.1, default settings, one request at a time; "
             "client wall time, and the server's own `timings_ms.total`; in process: the same "
-            "default request, self-collision checked):",
+            "default request, self-collision checked). Warm: right after the server answered "
+            "another target, as a server answering a stream of requests is (the goals read "
+            "it); cold: right after the in-process runs, which share the server's cores and "
+            "caches:",
             "",
-            "| model | N | median ms | p95 ms | server median ms | in process median ms |",
-            "|---|---|---|---|---|---|",
+            "| model | N | median ms | p95 ms | server median ms | cold median ms | "
+            "cold server median ms | in process median ms |",
+            "|---|---|---|---|---|---|---|---|",
         ]
         for model_id, entry in report["models"].items():
             for n, row in entry["sizes"].items():
@@ -406,7 +431,9 @@ def markdown(report: dict) -> str:
                     h = row["http"]
                     lines.append(
                         f"| {model_id} | {n} | {h['median_ms']:.1f} | {h['p95_ms']:.1f} | "
-                        f"{h['server_median_ms']:.1f} | {timed_run(row)['median_ms']:.1f} |"
+                        f"{h['server_median_ms']:.1f} | {_ms(h.get('cold_median_ms'))} | "
+                        f"{_ms(h.get('cold_server_median_ms'))} | "
+                        f"{timed_run(row)['median_ms']:.1f} |"
                     )
     lines += ["", *_goals(report), "", *_bounds(report), "", *_where_the_time_goes(report)]
     if "batch" in report:
