@@ -91,14 +91,8 @@ from tools.goals import (
 )
 from tools.local_server import LocalServer
 from training.checkout import git_commit
-from training.evaluate.compare import figure_pair
-from training.evaluate.judge import (
-    JUDGED_SEPARATOR,
-    TRUTH_FIGURES,
-    figures,
-    paper_defaults,
-    worse_than,
-)
+from training.evaluate.compare import better_than, worse_than
+from training.evaluate.judge import JUDGED_SEPARATOR, figures, paper_defaults
 from training.evaluate.methods import MethodTarget, restart_target, served_target, ssik_target
 from training.evaluate.metrics import median_stage_ms, p95_stage_ms
 from training.evaluate.references.ssik_charts import supported as ssik_supports
@@ -620,14 +614,7 @@ def _truth_bound(entry: dict, worse: list[str]) -> str:
         return text
     service, paper = judgement["service"], judgement["paper"]
     defaults = "the served" if judgement["judged_the_served_defaults"] else "earlier"
-    worse_there: list[str] = []
-    better_there: list[str] = []
-    for key, name, more_is_better in TRUTH_FIGURES:
-        ours, theirs = service.get(key), paper.get(key)
-        if ours is None or theirs is None or ours == theirs:
-            continue
-        side = better_there if (ours > theirs) == more_is_better else worse_there
-        side.append(f"{name} {figure_pair(ours, theirs)}")
+    worse_there, better_there = worse_than(service, paper), better_than(service, paper)
     return text + (
         f" On the judge's {judgement['targets']} targets ({judgement['record']}, "
         f"{defaults} defaults), service vs paper: worse on "

@@ -1,10 +1,23 @@
-"""Two figures side by side in words, as the judge, the benchmark and the docs write them.
+"""Truth figures side by side in words, as the judge, the benchmark and the docs write them.
 
 `figure_pair` gives "ours vs theirs" at three significant digits, or at as many more (up
 to six) as tell the two apart: two figures said to differ never print the same.
+`worse_than` and `better_than` read two sets of truth figures (`TRUTH_FIGURES`) the one
+way all three do: a figure either set lacks is skipped, equal figures are neither.
 """
 
 from __future__ import annotations
+
+from collections.abc import Mapping
+
+# The truth figures, their names, and whether more is better.
+TRUTH_FIGURES = (
+    ("count_right", "count right", True),
+    ("splits_per_target", "splits", False),
+    ("merges_per_target", "merges", False),
+    ("recall", "recall", True),
+    ("coverage_p95_rad", "coverage p95 rad", False),
+)
 
 MIN_DIGITS, MAX_DIGITS = 3, 6
 
@@ -17,3 +30,36 @@ def figure_pair(ours: float, theirs: float) -> str:
         if left != right:
             break
     return f"{left} vs {right}"
+
+
+Figures = Mapping[str, float | None]
+
+
+def worse_than(candidate: Figures, incumbent: Figures, coverage_margin: float = 0.0) -> list[str]:
+    """The figures on which `candidate` is worse than `incumbent`, each as "name candidate
+    vs incumbent"; coverage p95 only beyond (1 + coverage_margin) times the incumbent's."""
+    worse = []
+    for key, name, more_is_better in TRUTH_FIGURES:
+        ours, theirs = candidate.get(key), incumbent.get(key)
+        if ours is None or theirs is None:
+            continue
+        if key == "coverage_p95_rad":
+            is_worse = ours > theirs * (1.0 + coverage_margin)
+        else:
+            is_worse = (ours < theirs) if more_is_better else (ours > theirs)
+        if is_worse:
+            worse.append(f"{name} {figure_pair(ours, theirs)}")
+    return worse
+
+
+def better_than(candidate: Figures, incumbent: Figures) -> list[str]:
+    """The figures on which `candidate` is better than `incumbent`, as `worse_than` writes
+    them."""
+    better = []
+    for key, name, more_is_better in TRUTH_FIGURES:
+        ours, theirs = candidate.get(key), incumbent.get(key)
+        if ours is None or theirs is None or ours == theirs:
+            continue
+        if (ours > theirs) == more_is_better:
+            better.append(f"{name} {figure_pair(ours, theirs)}")
+    return better

@@ -51,7 +51,7 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -63,7 +63,7 @@ from service.pipeline.arrays import FloatArray
 from service.pipeline.correction import jacobian_on_fibre
 from service.pipeline.joint_space import JointLimits
 from training.defaults import write_defaults
-from training.evaluate.compare import figure_pair
+from training.evaluate.compare import worse_than
 from training.evaluate.methods import MethodTarget, served_target
 from training.evaluate.metrics import (
     component_agreement,
@@ -88,15 +88,6 @@ JUDGED = "judged"
 JUDGED_SEPARATOR = " | "  # between the verdicts of reasons["judged"], earliest first
 # The paper's configuration (seed Table 4): 100 Euler steps on the uniform grid, 3 DLS.
 PAPER_DLS_STEPS = 3
-
-# The evaluation's figures, and whether more is better.
-TRUTH_FIGURES = (
-    ("count_right", "count right", True),
-    ("splits_per_target", "splits", False),
-    ("merges_per_target", "merges", False),
-    ("recall", "recall", True),
-    ("coverage_p95_rad", "coverage p95 rad", False),
-)
 
 
 def near_singular_for(targets: int) -> int:
@@ -138,29 +129,6 @@ def figures(
         result["merges_per_target"] = float(np.mean([g.merges for g in known]))
         result["recall"] = float(np.concatenate(found).mean())
     return result
-
-
-def worse_than(
-    candidate: Mapping[str, float | None],
-    incumbent: Mapping[str, float | None],
-    coverage_margin: float = 0.0,
-) -> list[str]:
-    """The figures on which `candidate` is worse than `incumbent`, each as "name candidate
-    vs incumbent" (a figure either lacks is skipped); coverage p95 only beyond
-    (1 + coverage_margin) times the incumbent's."""
-    worse = []
-    for key, name, more_is_better in TRUTH_FIGURES:
-        ours, theirs = candidate.get(key), incumbent.get(key)
-        if ours is None or theirs is None:
-            continue
-        if key == "coverage_p95_rad":
-            theirs_allowed = theirs * (1.0 + coverage_margin)
-            is_worse = ours > theirs_allowed
-        else:
-            is_worse = (ours < theirs) if more_is_better else (ours > theirs)
-        if is_worse:
-            worse.append(f"{name} {figure_pair(ours, theirs)}")
-    return worse
 
 
 def near_singular_configurations(

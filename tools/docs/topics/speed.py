@@ -52,7 +52,7 @@ from tools.goals import (
     SSIK,
     timed_run,
 )
-from training.evaluate.compare import figure_pair
+from training.evaluate.compare import worse_than
 from training.machine import Machine
 
 # Short names for the configurations a report keys by their long names.
@@ -67,13 +67,13 @@ ALIASES = {
     "http": "http",
 }
 STAGES = ("sample", "correct", "connect")
-# The truth figures, their names, and whether more is better (as the judge reads them).
+# The truth figures and their names in the tables (training.evaluate.compare reads them).
 TRUTH = (
-    ("count_right", "count right", True),
-    ("splits_per_target", "splits / target", False),
-    ("merges_per_target", "merges / target", False),
-    ("recall", "recall", True),
-    ("coverage_p95_rad", "coverage p95 rad", False),
+    ("count_right", "count right"),
+    ("splits_per_target", "splits / target"),
+    ("merges_per_target", "merges / target"),
+    ("recall", "recall"),
+    ("coverage_p95_rad", "coverage p95 rad"),
 )
 DEPLOYMENT = sources.ROOT / "deploy" / "base" / "deployment.yaml"
 AUTOSCALER = sources.ROOT / "deploy" / "base" / "hpa.yaml"
@@ -151,18 +151,6 @@ def sampler_words(flow: str, steps: int, precision: str) -> str:
     """`base flow, 4 int8 steps`."""
     kind = "reflowed" if flow == "reflow" else "base flow"
     return f"{kind}, {steps} {precision} step{'s' if steps != 1 else ''}"
-
-
-def worse(service: dict[str, Any], other: dict[str, Any]) -> list[str]:
-    """The truth figures on which `service` is worse than `other`: `name ours vs theirs`."""
-    found = []
-    for key, name, more_is_better in TRUTH:
-        ours, theirs = service.get(key), other.get(key)
-        if ours is None or theirs is None or ours == theirs:
-            continue
-        if (ours < theirs) == more_is_better:
-            found.append(f"{name} {figure_pair(ours, theirs)}")
-    return found
 
 
 def cpu_time_ms(row: dict[str, Any]) -> float:
@@ -334,7 +322,7 @@ def speed_goals(*arguments: str) -> str:
                 f"{over_http:.1f} ms",
                 "yes" if over_http <= http_goal else f"no, {over_http / http_goal:.2f}x the goal",
             ])  # fmt: skip
-        lost = worse(service["figures"], paper["figures"])
+        lost = worse_than(service["figures"], paper["figures"])
         rows.append([
             f"`{model_id}`", "truth no worse than the paper's configuration",
             "; ".join(lost) if lost else "no worse", "no" if lost else "yes",
@@ -520,7 +508,7 @@ def speed_judged(name: str) -> str:
     rows = [["defaults", defaults("incumbent"), defaults("candidate")]]
     if record.get("candidate_model"):
         rows.append(["model", "served", f"`{record['candidate_model']}`"])
-    for key, label, _ in TRUTH:
+    for key, label in TRUTH:
         if key in record["incumbent"] or key in record["candidate"]:
             rows.append([
                 label, auto(record["incumbent"].get(key)), auto(record["candidate"].get(key))
@@ -568,10 +556,10 @@ def bench_rows(n: str, *arguments: str) -> str:
                 f"`{model_id}`", label, f"{run['median_ms']:.1f}", f"{run['p95_ms']:.1f}",
                 ms(stage.get("sample", stage.get("solve"))), ms(stage.get("correct")),
                 ms(stage.get("connect")),
-                *(auto((run["figures"] or {}).get(key)) for key, _, _ in TRUTH),
+                *(auto((run["figures"] or {}).get(key)) for key, _ in TRUTH),
             ])  # fmt: skip
     header = ["model", "configuration", "median ms", "p95 ms", "sample", "correct", "connect",
-              *(label for _, label, _ in TRUTH)]  # fmt: skip
+              *(label for _, label in TRUTH)]  # fmt: skip
     return table(header, rows)
 
 
