@@ -35,7 +35,6 @@ from training.collision.pairs import (
     tagged,
 )
 from training.collision.spheres import DEFAULT_SPHERES_PER_BODY, cover_body
-from training.evaluate.references.collision import CoalRobot
 
 
 @dataclass(frozen=True)
@@ -69,6 +68,11 @@ def build_collision_model(
     if not bodies:
         return None
     covered = [cover_body(body, spheres_per_body, seed) for body in bodies]
+    # coal is imported here, not with the module: `smm-train train` imports this module
+    # through the export, and a machine that only trains (a GPU lent for the epochs)
+    # need not have coal's 300 MB of libraries until a collision model is built.
+    from training.evaluate.references.collision import CoalRobot
+
     robot = CoalRobot(chain, bodies)
     limits = JointLimits.of(joints)
     q = np.random.default_rng(seed).uniform(

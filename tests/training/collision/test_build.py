@@ -6,10 +6,14 @@ itself on the build's configurations (seeded, uniform in the limits): of those c
 finds free over the pairs not disabled, the fraction the service's check calls colliding;
 that check never calls free what coal calls colliding, and loses no more than the spheres
 alone. A URDF whose chain has no collision geometry (only visuals) has no collision model.
+Importing the training command (and this module with it) does not import coal: a machine
+that only trains needs coal only where a collision model is built.
 """
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -55,3 +59,12 @@ def test_a_urdf_without_collision_geometry_has_no_collision_model(tmp_path: Path
     urdf = write_arm(tmp_path)
     chain = load_chain(urdf, "tool", "base")
     assert build_collision_model(urdf, chain_spec(chain), joint_spec(chain)) is None
+
+
+def test_the_training_command_imports_without_coal() -> None:
+    imported = subprocess.run(
+        [sys.executable, "-c", "import sys, training.cli, training.collision.build; "
+         "print('coal' in sys.modules)"],
+        capture_output=True, text=True, check=True,
+    )  # fmt: skip
+    assert imported.stdout.strip() == "False"
