@@ -16,8 +16,13 @@ sleeping its Retry-After (unless `--no-backoff`).
 Every `--interval-s` seconds it reads the server's resident set size (VmRSS, /proc) and
 prints one line for the window that ended: requests, statuses by kind (single, batch,
 bad), p50/p99 latency of the answered (200) single requests and of the answered batches,
-separately. At the end it compares the window ending at `--settle-s` (5 minutes by
-default) with what follows, against the goals of a flat server:
+separately, and the probe: the time a fixed piece of Python work takes in this process
+right then (`speed_probe_ms`), a reading of the machine's speed under the run's own load.
+The server is CPU-bound on every core, so its CPU time per request moves with the
+machine's speed as much as with its own work; the probe, the same work under the same
+load all along, moves with the machine's speed.
+At the end it compares the window ending at `--settle-s` (5 minutes by default) with what
+follows, against the goals of a flat server:
 
 - RSS: no window after the settle window more than 5 % above the RSS at settle (the
   report gives the largest and the smallest RSS after it and their ratios to it);
@@ -71,6 +76,10 @@ KINDS: tuple[Kind, ...] = ("single", "batch", "bad")
 
 RSS_GOAL = 0.05  # no RSS after the settle window over 5 % above the RSS at settle
 P99_GOAL = 0.10  # the last window's single-request p99 at most 10 % above the settle window's
+# The speed probe: a loop of PROBE_LOOP multiply-adds in Python, its least time of
+# PROBE_REPEATS runs (about 6 ms of the event loop's time a window).
+PROBE_LOOP = 50_000
+PROBE_REPEATS = 3
 BAD_PER_CYCLE = 2
 BATCHES_PER_MODEL = 8
 # Environment variables that change how the server's process holds memory: recorded.
@@ -120,6 +129,7 @@ class Window:
     single_p99_ms: float | None
     batch_p50_ms: float | None
     batch_p99_ms: float | None
+    probe_ms: float | None = None  # speed_probe_ms at the window's end; None: not taken
     # The answered single requests' latencies, for the p99 over several windows (not
     # written to the record).
     single_latencies_ms: list[float] = field(default_factory=list, repr=False)
@@ -271,8 +281,27 @@ def _ms(value: float) -> float | None:
     return None if math.isnan(value) else round(value, 1)
 
 
+def speed_probe_ms(repeats: int = PROBE_REPEATS) -> float:
+    """The least time, in ms, of `repeats` runs of the same pure-Python work (about 2 ms
+    each on a 2-core Intel Xeon): the least, so that a run cut short by a thread switch
+    does not read as a slower machine."""
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        total = 0
+        for i in range(PROBE_LOOP):
+            total += i * i
+        times.append(time.perf_counter() - start)
+    return round(min(times) * 1e3, 3)
+
+
 def window_of(
-    index: int, start_s: float, end_s: float, outcomes: list[Outcome], rss_bytes: int | None
+    index: int,
+    start_s: float,
+    end_s: float,
+    outcomes: list[Outcome],
+    rss_bytes: int | None,
+    probe_ms: float | None = None,
 ) -> Window:
     """The statistics of the outcomes of one window (those that finished in it)."""
     statuses: dict[str, Counter[str]] = {kind: Counter() for kind in KINDS}
@@ -295,6 +324,7 @@ def window_of(
         single_p99_ms=_ms(single_p99),
         batch_p50_ms=_ms(batch_p50),
         batch_p99_ms=_ms(batch_p99),
+        probe_ms=probe_ms,
         single_latencies_ms=[latency * 1e3 for latency in single],
     )
 
@@ -387,6 +417,7 @@ def format_window(window: Window) -> str:
         f"single p50 {_figure(window.single_p50_ms, 'ms')} "
         f"p99 {_figure(window.single_p99_ms, 'ms')}  "
         f"batch p50 {_figure(window.batch_p50_ms, 'ms')} p99 {_figure(window.batch_p99_ms, 'ms')}"
+        f"  probe {_figure(window.probe_ms, 'ms', 2)}"
     )
 
 
@@ -424,10 +455,12 @@ async def run_soak(
     timeout_s: float = 60.0,
     headers: dict[str, str] | None = None,
     report: Callable[[Window], None] | None = None,
+    probe: Callable[[], float] | None = speed_probe_ms,
 ) -> list[Window]:
     """`clients` concurrent loops over the mix for `duration_s` seconds; a window of
-    statistics (and an RSS reading, with `rss`) every `interval_s`, the last one when
-    every client has finished. `report` is called with each window as it closes."""
+    statistics (and an RSS reading, with `rss`, and a speed reading, with `probe`) every
+    `interval_s`, the last one when every client has finished. `report` is called with
+    each window as it closes."""
     outcomes: list[Outcome] = []
     windows: list[Window] = []
     limits = httpx.Limits(max_connections=clients, max_keepalive_connections=clients)
@@ -445,7 +478,12 @@ async def run_soak(
                 upto += 1
             start_s = windows[-1].end_s if windows else 0.0
             window = window_of(
-                len(windows), start_s, end_s, outcomes[closed:upto], rss() if rss else None
+                len(windows),
+                start_s,
+                end_s,
+                outcomes[closed:upto],
+                rss() if rss else None,
+                probe() if probe else None,
             )
             closed = upto
             windows.append(window)

@@ -10,11 +10,12 @@
   fails, one at -5.3 % passes: the goals bound growth); the last window's single p99 at
   most 10 % above the settle window's (+9.5 % passes, +10.5 % fails, -20 % passes); a
   run shorter than --settle-s measures neither.
+- The speed probe times its work: four times the loop reads more than twice the time.
 - Every bad request of the mix gets its documented 4xx from a real server with the
   default settings (docs/bad-inputs.md), and the mix covers every bundled model with
   single requests and batches.
 - A 20 s soak of 2 clients against that server (--url with --pid) runs end to end: one
-  printed line and one RSS reading per 5 s window, single requests, batches and bad
+  printed line, one RSS reading and one speed probe per 5 s window, single requests, batches and bad
   requests all answered as they should be, no errors, exit code 0, and the JSON record
   with the command, the commit, the machine, the windows and the verdicts.
 """
@@ -30,9 +31,19 @@ import httpx
 import pytest
 
 from tests.support.bundled import bundled_model_ids
+from tools import soak
 from tools.load import request_bodies
 from tools.local_server import LocalServer
-from tools.soak import Mix, Outcome, Window, main, verdicts_of, window_of
+from tools.soak import (
+    Mix,
+    Outcome,
+    Window,
+    format_window,
+    main,
+    speed_probe_ms,
+    verdicts_of,
+    window_of,
+)
 
 
 def test_window_statistics_from_synthetic_outcomes() -> None:
@@ -50,9 +61,10 @@ def test_window_statistics_from_synthetic_outcomes() -> None:
         Outcome("bad", "oversized-body", 503, 0.002, 1.0),  # no error
         Outcome("bad", "unknown-field", 200, 0.002, 1.0),  # a bad request answered: error
     ]
-    window = window_of(3, 60.0, 90.0, outcomes, rss_bytes=300 * 2**20 + 2**19)
+    window = window_of(3, 60.0, 90.0, outcomes, rss_bytes=300 * 2**20 + 2**19, probe_ms=2.5)
     assert (window.index, window.start_s, window.end_s) == (3, 60.0, 90.0)
-    assert window.rss_mib == 300.5
+    assert window.rss_mib == 300.5 and window.probe_ms == 2.5
+    assert "probe 2.50 ms" in format_window(window)
     assert window.requests == 11 + 4 + 3 + 4
     assert window.statuses == {
         "single": {"0": 1, "200": 11, "404": 1, "500": 1, "503": 1},
@@ -68,6 +80,14 @@ def test_window_statistics_from_synthetic_outcomes() -> None:
     # Batches 1000 and 2000 ms: p50 1500; p99 at rank 0.99: 1000 + 0.99 * 1000 = 1990.
     assert window.batch_p50_ms == pytest.approx(1500.0)
     assert window.batch_p99_ms == pytest.approx(1990.0)
+
+
+def test_the_speed_probe_times_its_work(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Four times the loop reads at least twice the time: the probe times the work, not a
+    fixed overhead (the least of its repeats, so a slow run does not move it)."""
+    base = speed_probe_ms()
+    monkeypatch.setattr(soak, "PROBE_LOOP", 4 * soak.PROBE_LOOP)
+    assert speed_probe_ms() > 2 * base > 0
 
 
 def test_a_window_without_answers_has_no_percentiles() -> None:
@@ -203,7 +223,7 @@ def test_a_short_soak_runs_end_to_end(
     assert isinstance(record["server_environment"], dict)  # MALLOC_ARENA_MAX and the like
     assert [w["end_s"] for w in record["windows"]] == [5.0, 10.0, 15.0, 20.0]
     assert sum(" s  RSS " in line for line in printed.splitlines()) == 4
-    assert all(w["rss_mib"] > 0 for w in record["windows"])
+    assert all(w["rss_mib"] > 0 and w["probe_ms"] > 0 for w in record["windows"])
     verdicts = record["verdicts"]
     assert verdicts["errors"] == 0 and verdicts["server_errors_goal_met"] is True
     assert verdicts["settle_window"] == 0 and verdicts["rss_goal_met"] is not None
