@@ -281,12 +281,12 @@ def _ms(value: float) -> float | None:
     return None if math.isnan(value) else round(value, 1)
 
 
-def speed_probe_ms(repeats: int = PROBE_REPEATS) -> float:
-    """The least time, in ms, of `repeats` runs of the same pure-Python work (about 2 ms
+def speed_probe_ms() -> float:
+    """The least time, in ms, of PROBE_REPEATS runs of the same pure-Python work (about 2 ms
     each on a 2-core Intel Xeon): the least, so that a run cut short by a thread switch
     does not read as a slower machine."""
     times = []
-    for _ in range(repeats):
+    for _ in range(PROBE_REPEATS):
         start = time.perf_counter()
         total = 0
         for i in range(PROBE_LOOP):

@@ -15,9 +15,9 @@
   default settings (docs/bad-inputs.md), and the mix covers every bundled model with
   single requests and batches.
 - A 20 s soak of 2 clients against that server (--url with --pid) runs end to end: one
-  printed line, one RSS reading and one speed probe per 5 s window, single requests, batches and bad
-  requests all answered as they should be, no errors, exit code 0, and the JSON record
-  with the command, the commit, the machine, the windows and the verdicts.
+  printed line, one RSS reading and one speed probe per 5 s window, single requests,
+  batches and bad requests all answered as they should be, no errors, exit code 0, and
+  the JSON record with the command, the commit, the machine, the windows and the verdicts.
 """
 
 from __future__ import annotations

@@ -8,7 +8,7 @@ way all three do: a figure either set lacks is skipped, equal figures are neithe
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 
 # The truth figures, their names, and whether more is better.
 TRUTH_FIGURES = (
@@ -35,31 +35,28 @@ def figure_pair(ours: float, theirs: float) -> str:
 Figures = Mapping[str, float | None]
 
 
-def worse_than(candidate: Figures, incumbent: Figures, coverage_margin: float = 0.0) -> list[str]:
-    """The figures on which `candidate` is worse than `incumbent`, each as "name candidate
-    vs incumbent"; coverage p95 only beyond (1 + coverage_margin) times the incumbent's."""
-    worse = []
+def _sides(
+    candidate: Figures, incumbent: Figures, coverage_margin: float
+) -> Iterator[tuple[str, bool, bool]]:
+    """Each figure both sets have, written "name candidate vs incumbent", with whether the
+    candidate is worse (coverage p95 only beyond (1 + coverage_margin) times the
+    incumbent's) and whether it is better."""
     for key, name, more_is_better in TRUTH_FIGURES:
         ours, theirs = candidate.get(key), incumbent.get(key)
         if ours is None or theirs is None:
             continue
-        if key == "coverage_p95_rad":
-            is_worse = ours > theirs * (1.0 + coverage_margin)
-        else:
-            is_worse = (ours < theirs) if more_is_better else (ours > theirs)
-        if is_worse:
-            worse.append(f"{name} {figure_pair(ours, theirs)}")
-    return worse
+        gain = ours - theirs if more_is_better else theirs - ours
+        worse = ours > theirs * (1.0 + coverage_margin) if key == "coverage_p95_rad" else gain < 0
+        yield f"{name} {figure_pair(ours, theirs)}", worse, gain > 0
+
+
+def worse_than(candidate: Figures, incumbent: Figures, coverage_margin: float = 0.0) -> list[str]:
+    """The figures on which `candidate` is worse than `incumbent`, each as "name candidate
+    vs incumbent"; coverage p95 only beyond (1 + coverage_margin) times the incumbent's."""
+    return [pair for pair, worse, _ in _sides(candidate, incumbent, coverage_margin) if worse]
 
 
 def better_than(candidate: Figures, incumbent: Figures) -> list[str]:
     """The figures on which `candidate` is better than `incumbent`, as `worse_than` writes
     them."""
-    better = []
-    for key, name, more_is_better in TRUTH_FIGURES:
-        ours, theirs = candidate.get(key), incumbent.get(key)
-        if ours is None or theirs is None or ours == theirs:
-            continue
-        if (ours > theirs) == more_is_better:
-            better.append(f"{name} {figure_pair(ours, theirs)}")
-    return better
+    return [pair for pair, _, better in _sides(candidate, incumbent, 0.0) if better]
