@@ -149,6 +149,11 @@ class Verdicts:
     single_p99_last_ms: float | None
     single_p99_ratio: float | None  # last / at settle
     p99_goal_met: bool | None
+    # The speed probe's median over the same two spans (no goal: it tells a slower machine
+    # from a slower server); None where no window of a span took it.
+    probe_at_settle_ms: float | None
+    probe_last_ms: float | None
+    probe_ratio: float | None  # last / at settle
     server_errors: int
     server_errors_goal_met: bool
     errors: int
@@ -371,6 +376,8 @@ def verdicts_of(windows: list[Window], settle_s: float, p99_span_s: float = 0.0)
     p99_met = None
     if p99_settle is not None and p99_last is not None:
         p99_met = _at_most_above(p99_last, p99_settle, P99_GOAL)
+    probe_settle = None if settle is None else _median_probe_ms(span_before(settle))
+    probe_last = _median_probe_ms(last_span)
     totals: dict[str, Counter[str]] = {kind: Counter() for kind in KINDS}
     for w in windows:
         for kind, counts in w.statuses.items():
@@ -393,12 +400,21 @@ def verdicts_of(windows: list[Window], settle_s: float, p99_span_s: float = 0.0)
         single_p99_last_ms=p99_last,
         single_p99_ratio=ratio(p99_last, p99_settle),
         p99_goal_met=p99_met,
+        probe_at_settle_ms=probe_settle,
+        probe_last_ms=probe_last,
+        probe_ratio=ratio(probe_last, probe_settle),
         server_errors=server_errors,
         server_errors_goal_met=server_errors == 0,
         errors=sum(w.errors for w in windows),
         requests=sum(w.requests for w in windows),
         statuses={kind: dict(sorted(counts.items())) for kind, counts in totals.items()},
     )
+
+
+def _median_probe_ms(windows: list[Window]) -> float | None:
+    """The median speed probe of the windows that took one; None if none did."""
+    probes = [w.probe_ms for w in windows if w.probe_ms is not None]
+    return round(float(np.median(probes)), 3) if probes else None
 
 
 def _figure(value: float | None, unit: str, digits: int = 0) -> str:
@@ -439,6 +455,9 @@ def format_verdicts(v: Verdicts) -> str:
             f"{_figure(v.single_p99_last_ms, 'ms')} in the last window "
             f"({ratio(v.single_p99_ratio)}); at most {P99_GOAL:.0%} above: "
             f"{met(v.p99_goal_met)}",
+            f"speed probe (no goal): {_figure(v.probe_at_settle_ms, 'ms', 2)} at "
+            f"{v.settle_s:.0f} s, {_figure(v.probe_last_ms, 'ms', 2)} in the last window "
+            f"({ratio(v.probe_ratio)})",
             f"5xx other than 503: {v.server_errors}; none: {met(v.server_errors_goal_met)}",
         ]
     )

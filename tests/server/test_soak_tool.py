@@ -11,6 +11,8 @@
   most 10 % above the settle window's (+9.5 % passes, +10.5 % fails, -20 % passes); a
   run shorter than --settle-s measures neither.
 - The speed probe times its work: four times the loop reads more than twice the time.
+  The verdicts give its median over the same two spans as the p99 (no goal), and none
+  where no window of a span took it.
 - Every bad request of the mix gets its documented 4xx from a real server with the
   default settings (docs/bad-inputs.md), and the mix covers every bundled model with
   single requests and batches.
@@ -38,6 +40,7 @@ from tools.soak import (
     Mix,
     Outcome,
     Window,
+    format_verdicts,
     format_window,
     main,
     speed_probe_ms,
@@ -165,6 +168,23 @@ def test_the_p99_goal_is_taken_over_a_span_of_windows() -> None:
     assert verdicts_of(made, 180.0, p99_span_s=120.0).p99_goal_met is False
     # One window alone (span 0) compares window 2 with window 5: 240 / 300.
     assert verdicts_of(made, 180.0).single_p99_ratio == pytest.approx(0.8)
+
+
+def test_the_probe_is_read_over_the_p99_spans() -> None:
+    # Settle at 180 s (window 2), span 120 s: windows 1 and 2 (probes 2.0 and 2.2: median
+    # 2.1) against windows 4 and 5 (2.4 and 2.6: 2.5); window 3's 9.0 is in neither.
+    made = windows([300] * 6, [200] * 6)
+    for w, probe in zip(made, [1.0, 2.0, 2.2, 9.0, 2.4, 2.6], strict=True):
+        w.probe_ms = probe
+    verdicts = verdicts_of(made, 180.0, p99_span_s=120.0)
+    assert (verdicts.probe_at_settle_ms, verdicts.probe_last_ms) == (2.1, 2.5)
+    assert verdicts.probe_ratio == pytest.approx(2.5 / 2.1, abs=1e-4)
+    assert "speed probe (no goal): 2.10 ms at 180 s, 2.50 ms" in format_verdicts(verdicts)
+    # Windows without a probe (a record from before it) give none.
+    untaken = verdicts_of(windows([300] * 6, [200] * 6), 180.0, p99_span_s=120.0)
+    assert (untaken.probe_at_settle_ms, untaken.probe_last_ms, untaken.probe_ratio) == (
+        None, None, None,
+    )  # fmt: skip
 
 
 def test_a_run_shorter_than_the_settle_time_measures_no_goal() -> None:

@@ -691,6 +691,13 @@ def soak_goals(*arguments: str) -> str:
             met(v["p99_goal_met"]),
         ],
         [
+            "(no goal) the machine's speed: the speed probe's median over the same two spans "
+            "(the same Python work in the soak's own process; a slower machine slows it, a "
+            "slower server does not)",
+            _probe(v),
+            "-",
+        ],
+        [
             f"(no goal) RSS trend after {settle_min:g} min: least-squares slope, and the median "
             "RSS of the first and last ten minutes after it",
             _rss_trend(record["windows"], v["settle_s"]),
@@ -703,6 +710,14 @@ def soak_goals(*arguments: str) -> str:
         ],
     ]
     return table(["goal", "measured", "met"], rows)
+
+
+def _probe(v: dict[str, Any]) -> str:
+    if v.get("probe_at_settle_ms") is None or v.get("probe_last_ms") is None:
+        return "not taken in this run"
+    return (
+        f"{v['probe_at_settle_ms']:.2f} ms -> {v['probe_last_ms']:.2f} ms (x{v['probe_ratio']:.3f})"
+    )
 
 
 def _rss_trend(windows: list[dict[str, Any]], settle_s: float) -> str:
@@ -721,7 +736,8 @@ def _rss_trend(windows: list[dict[str, Any]], settle_s: float) -> str:
 @block("soak-timeline")
 def soak_timeline(*arguments: str) -> str:
     """docs/benchmark/soak.json: every `every`-th window (default 10): its end, the
-    server's RSS, requests, single p50/p99 and batch p50/p99 in that window."""
+    server's RSS, requests, single p50/p99 and batch p50/p99 in that window, and the
+    speed probe taken at its end."""
     chosen = options(arguments, {"report": "soak", "every": "10"})
     record = sources.benchmark(chosen["report"])
     every = int(chosen["every"])
@@ -734,11 +750,12 @@ def soak_timeline(*arguments: str) -> str:
             f"{w['end_s'] / 60:g}", _whole(w["rss_mib"]), str(w["requests"]),
             _whole(w["single_p50_ms"]), _whole(w["single_p99_ms"]),
             _whole(w["batch_p50_ms"]), _whole(w["batch_p99_ms"]),
+            "-" if w.get("probe_ms") is None else f"{w['probe_ms']:.2f}",
         ]
         for w in shown
     ]  # fmt: skip
     return table(
         ["minute", "RSS MiB", "requests", "single p50 ms", "single p99 ms", "batch p50 ms",
-         "batch p99 ms"],
+         "batch p99 ms", "probe ms"],
         rows,
     )  # fmt: skip
