@@ -66,8 +66,12 @@ from training.robots import RobotSpec
 from training.staging import staged_copy
 from training.sweep import AXES, Axis, judged_sweep, sweep_defaults
 
-# float32 network: velocities reach a few hundred near t = 1, where float32 rounding
-# differences between torch and onnxruntime are ~1e-6 relative; compare like np.allclose.
+# float32 network: torch and onnxruntime sum each layer's products in another order, so
+# they differ by float32 rounding of the activations a row carries (~1e-6 relative), and
+# an output row is compared at its own scale, its largest |output|: off the data (the
+# check's inputs), a row can hold velocities in the thousands beside one of about 1,
+# which that rounding moves by ~1e-3 (a reflowed iiwa14 pose flow: 1.8e-3 at |output| 2
+# in a row reaching 2.5e3, 8.6e-6 of it). A wrong network is off by its output's size.
 FLOW_PARITY_ATOL = 1e-4
 FLOW_PARITY_RTOL = 1e-5
 KINEMATICS_PARITY_ATOL = 1e-10  # float64; observed ~1e-15
@@ -127,13 +131,20 @@ def check_flow_parity(model: VelocityField, path: Path, joint_dim: int, conditio
     (actual,) = session.run(
         [FLOW_OUTPUT], {"q_t": q_t.numpy(), "t": t.numpy(), "condition": condition.numpy()}
     )
-    excess = np.abs(actual - expected) - (FLOW_PARITY_ATOL + FLOW_PARITY_RTOL * np.abs(expected))
-    if not np.max(excess) <= 0:
+    if not np.max(flow_parity_excess(actual, expected)) <= 0:
         error = float(np.max(np.abs(actual - expected)))
         raise ExportParityError(
             f"{path}: flow differs from torch by up to {error:.3g}, beyond "
-            f"atol {FLOW_PARITY_ATOL} + rtol {FLOW_PARITY_RTOL} x |torch output|"
+            f"atol {FLOW_PARITY_ATOL} + rtol {FLOW_PARITY_RTOL} x the row's largest "
+            "|torch output|"
         )
+
+
+def flow_parity_excess(actual: np.ndarray, expected: np.ndarray) -> np.ndarray:
+    """(B, n): how far each output of onnxruntime (`actual`, (B, n)) is from torch's
+    beyond the bound, atol + rtol x the largest |output| of its row; <= 0 is within."""
+    scale = np.max(np.abs(expected), axis=1, keepdims=True)  # (B, 1)
+    return np.abs(actual - expected) - (FLOW_PARITY_ATOL + FLOW_PARITY_RTOL * scale)
 
 
 def export_kinematics(fk: ForwardKinematics, path: Path, joints: JointSpec) -> None:

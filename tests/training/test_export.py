@@ -1,6 +1,9 @@
 """export: parity with torch is checked for every exported file, and a mismatch fails loudly.
 
-flow.onnx and kinematics.onnx against torch through onnxruntime; chain.json through the
+flow.onnx and kinematics.onnx against torch through onnxruntime; a flow's outputs within
+1e-4 + 1e-5 x the largest |output| of their row (worked by hand: rounding of a row in
+the thousands passes at an output of about 1, the same error in a row of ones fails);
+chain.json through the
 service's numpy kernel against pytorch-kinematics (1e-12), for the planar 3R and for a
 URDF with fixed joints, oblique axes and a continuous joint. `refresh_kinematics` writes
 kinematics.onnx and chain.json into an existing model directory (the flow, and the
@@ -43,6 +46,7 @@ from training.export import (
     export_chain,
     export_flow,
     export_kinematics,
+    flow_parity_excess,
     refresh_kinematics,
 )
 from training.kinematics import ForwardKinematics, joint_spec, load_chain
@@ -59,6 +63,18 @@ def test_flow_export_reproduces_torch_and_refuses_another_network(tmp_path: Path
     check_flow_parity(exported, path, 3, 2)
     with pytest.raises(ExportParityError, match=r"flow\.onnx: flow differs from torch"):
         check_flow_parity(other, path, 3, 2)
+
+
+def test_flow_parity_is_bounded_at_each_rows_scale() -> None:
+    expected = np.array([[2500.0, 2.0, -1.0], [1.0, 2.0, -1.0]])
+    off = np.array([[0.0, 1.8e-3, 0.0], [0.0, 1.8e-3, 0.0]])
+    excess = flow_parity_excess(expected + off, expected)  # (2, 3)
+    # Row 0: bound 1e-4 + 1e-5 x 2500 = 0.0251, so 1.8e-3 is within; row 1: bound 1e-4 +
+    # 1e-5 x 2 = 1.2e-4, so 1.8e-3 is 1.68e-3 beyond.
+    assert np.max(excess[0]) <= 0
+    assert excess[1, 1] == pytest.approx(1.8e-3 - 1.2e-4)
+    # A row is its own scale: a large output elsewhere does not widen it.
+    assert np.max(flow_parity_excess(expected[1:] + off[1:], expected[1:])) > 0
 
 
 def test_kinematics_export_reproduces_pytorch_kinematics_and_refuses_another_arm(
