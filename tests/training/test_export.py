@@ -3,14 +3,14 @@
 flow.onnx and kinematics.onnx against torch through onnxruntime; a flow's outputs within
 1e-4 + 1e-5 x the largest |output| of their row (worked by hand: rounding of a row in
 the thousands passes at an output of about 1, the same error in a row of ones fails);
-chain.json through the
-service's numpy kernel against pytorch-kinematics (1e-12), for the planar 3R and for a
-URDF with fixed joints, oblique axes and a continuous joint. `refresh_kinematics` writes
-kinematics.onnx and chain.json into an existing model directory (the flow, and the
-manifest but for its `files` digests, untouched) and the registry then serves the chain,
-equal to kinematics.onnx; it refuses a URDF that is not the one the model was trained on
-and leaves the directory as it was. It rebuilds the chain from the base link chain.json
-records, not from the URDF's root, when the URDF has links above it.
+chain.json through the service's numpy kernel against pytorch-kinematics (1e-12), for
+the planar 3R and for a URDF with fixed joints, oblique axes and a continuous joint.
+`refresh_kinematics` writes kinematics.onnx and chain.json into an existing model
+directory (the flow, and the manifest but for its `files` digests, untouched) and the
+registry then serves the chain, equal to kinematics.onnx; it refuses a URDF that is not
+the one the model was trained on and leaves the directory as it was. It rebuilds the
+chain from the base link chain.json records, not from the URDF's root, when the URDF has
+links above it.
 """
 
 import json
