@@ -82,11 +82,12 @@ class Settings(BaseSettings):
         ge=0,
         description="Largest scratch block the compiled int8 layers keep between flow calls "
         "(two at most, one per call running at once; service/models/int8_mlp.c). A call "
-        "needs about 4.6 kB a row of a 512-wide network, so 24 MiB keeps a call of up to "
-        "about 5,400 rows; a larger call maps its own block and faults every page of it in "
-        "again. With 6 MiB (about 1,300 rows), an iiwa14 pose request at N = 4000 took "
-        "18,000 page faults and its server total was 84.5 ms; with 24 MiB, 1,700 and 60 ms "
-        "(CHANGELOG). The process holds up to twice this after large requests; 0 keeps none.",
+        "needs about 4.6 kB a row of a 512-wide network (5.1 kB on AVX2), so 24 MiB keeps a "
+        "call of up to about 5,400 rows (4,900 on AVX2); a larger call maps its own block "
+        "and faults every page of it in again. With 6 MiB (about 1,300 rows), an iiwa14 "
+        "pose request at N = 4000 took 18,000 page faults and its server total was 84.5 ms; "
+        "with 24 MiB, 1,700 and 60 ms (CHANGELOG). The process holds up to twice this "
+        "after large requests; 0 keeps none.",
     )
     onnx_threads: int = Field(
         0,
@@ -102,9 +103,11 @@ class Settings(BaseSettings):
     compiled_int8: bool = Field(
         True,
         description="Evaluate the int8 flow networks with the compiled layers "
-        "(service/models/int8_mlp.py) where the processor has AMX: onnxruntime's arithmetic "
-        "to the bit in fewer passes over the rows (`python -m tools.onnx_threads` times "
-        "both). false, or a processor without AMX: onnxruntime's session.",
+        "(service/models/int8_mlp.py) where the processor has AMX or AVX2: the exact integer "
+        "product, so every replica gives the same answer whatever its processor "
+        "(onnxruntime's product saturates on AVX2 without VNNI), in fewer passes over the "
+        "rows (`python -m tools.onnx_threads` times both). false, or a processor with "
+        "neither: onnxruntime's session.",
     )
     log_level: LogLevel = Field(
         "info", description="Level of the service's JSON logs and of uvicorn's."

@@ -28,7 +28,7 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from service.models.int8_mlp import amx_usable
+from service.models.registry import int8_flow_here
 from tools.container_test import FIGURES, ROOT
 from tools.container_test.__main__ import parse_arguments
 from tools.container_test.http_checks import API_KEY, MAX_NUM_SAMPLES, run_http_checks
@@ -151,7 +151,7 @@ def test_a_child_process_is_found_below_its_parent() -> None:
 def test_the_flow_kernel_check_reads_each_models_start_up_line(tmp_path: Path) -> None:
     """Passes when every bundled model names what the machine gives an int8 network, fails
     on a model served otherwise or missing."""
-    expected = "compiled int8 layers (AMX)" if amx_usable() else "onnxruntime"
+    expected = int8_flow_here()
     lines = [
         json.dumps({"message": "model loaded", "model": f"{m}@0123", "flow": expected})
         for m in bundled_models()
@@ -161,7 +161,7 @@ def test_the_flow_kernel_check_reads_each_models_start_up_line(tmp_path: Path) -
     passed = Checks()
     check_flow_kernels(log, passed)
     assert passed.failed == []
-    other = "onnxruntime" if amx_usable() else "compiled int8 layers (AMX)"
+    other = "onnxruntime" if expected != "onnxruntime" else "compiled int8 layers (AVX2)"
     log.write_text("\n".join([*lines[1:], lines[0].replace(expected, other)]))
     wrong = Checks()
     check_flow_kernels(log, wrong)

@@ -65,8 +65,14 @@ import numpy as np
 from service.client import RetryPolicy, SmmClient
 from service.config import Settings
 from service.manifest import REPO_MODELS_DIR, Manifest
-from service.models.int8_mlp import amx_usable
-from service.models.registry import ServedModel, load_model
+from service.models.registry import (
+    ONNX_FLOW,
+    ServedModel,
+    compiled_flow,
+    int8_flow_here,
+    int8_on_compiled_layers,
+    load_model,
+)
 from service.pipeline.joint_space import JointLimits
 from service.wire import SmmRequest
 from tools.batch_benchmark import batch_against_singles, target_of
@@ -106,6 +112,7 @@ from training.robots import robot_spec
 ROOT = Path(__file__).resolve().parents[1]
 OUT_DIR = ROOT / "docs" / "benchmark"
 SIZES = (250, 1000, 4000)
+COMPILED_ON_AMX = compiled_flow("amx")
 MATCH_ROUNDS = 4  # rescaled restart runs at most, to reach the service's valid count
 
 
@@ -368,7 +375,8 @@ def markdown(report: dict) -> str:
         f"onnxruntime threads per session: {report['onnx_threads']} "
         "(the service's own setting on this machine)"
         + (
-            "; the int8 flow networks on the compiled layers (AMX)"
+            # A report without "int8_flow" predates the AVX2 kernel: compiled meant AMX then.
+            f"; the int8 flow networks on the {report.get('int8_flow', COMPILED_ON_AMX)}"
             if report.get("compiled_int8")
             else ""
         )
@@ -749,14 +757,16 @@ def main() -> None:
     )
     parser.add_argument("--out", type=Path, default=OUT_DIR)
     args = parser.parse_args()
-    threads = Settings().onnx_threads_per_session
+    settings = Settings()
+    threads = settings.onnx_threads_per_session
     machine = Machine.now()
     report: dict = {
         "command": " ".join(["python -m tools.benchmark", *sys.argv[1:]]),
         "git_commit": git_commit(),  # the code measured, at the run's start
         "onnx_threads": threads,
-        # The int8 flow networks on the compiled layers (the same bits as onnxruntime's).
-        "compiled_int8": Settings().compiled_int8 and amx_usable(),
+        # The int8 flow networks on the compiled layers (the exact product), and on which kernel.
+        "compiled_int8": settings.compiled_int8 and int8_on_compiled_layers(),
+        "int8_flow": int8_flow_here() if settings.compiled_int8 else ONNX_FLOW,
         "targets": args.targets,
         "seed": args.seed,
         "models": {},
@@ -767,7 +777,7 @@ def main() -> None:
         client = SmmClient(server.url, timeout=120.0, retry=RetryPolicy(max_attempts=1))
     try:
         for model_id in args.models:
-            model = load_model(REPO_MODELS_DIR / model_id, threads=threads)
+            model = load_model(REPO_MODELS_DIR / model_id, threads, settings.compiled_int8)
             report["models"][model_id] = benchmark_model(
                 model, args.targets, args.sizes, args.seed, client,
                 lambda line: print(line, flush=True),
@@ -778,12 +788,12 @@ def main() -> None:
         if server is not None:
             server.stop()
     if args.batch_targets > 0 and not args.no_http and args.batch_model in args.models:
-        model = load_model(REPO_MODELS_DIR / args.batch_model, threads=threads)
+        model = load_model(REPO_MODELS_DIR / args.batch_model, threads, settings.compiled_int8)
         limits = model.limits
         q_targets = uniform_configurations(limits, args.batch_targets, args.seed)
         print(f"{args.batch_model}: batch of {args.batch_targets} against singles", flush=True)
         report["batch"] = batch_against_singles(model, q_targets, BATCH_NUM_SAMPLES)
-        report["batch"]["batch_threads"] = Settings().batch_threads_per_request
+        report["batch"]["batch_threads"] = settings.batch_threads_per_request
         # The same with the batch's targets answered one after another.
         report["batch_one_thread"] = batch_against_singles(
             model, q_targets, BATCH_NUM_SAMPLES, batch_threads=1

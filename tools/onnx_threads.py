@@ -9,8 +9,8 @@ opens it (workers that spin only while a call runs): with one intra-op thread, a
 the threads the service gives a session on this machine (`Settings`). At each row count the two take
 turns, a block of calls each per round, so a load that comes and goes falls on both
 alike. An int8 network is timed on the compiled layers as well (service/models/int8_mlp.py,
-one thread, the same bits), where the processor has AMX: the service serves it there
-(`Settings.compiled_int8`). Prints the median time per call of each, which is faster,
+one thread, the exact product), where the processor has AMX or AVX2: the service serves
+it there (`Settings.compiled_int8`). Prints the median time per call of each, which is faster,
 and what the service runs that row count on (every thread from `sessions.PARALLEL_MIN_ROWS`
 rows). Compare figures only within one run (the CPU differs between machines).
 """
@@ -29,7 +29,7 @@ import onnxruntime as ort
 from service.config import Settings
 from service.manifest import MANIFEST_FILE, REPO_MODELS_DIR, Manifest
 from service.models.int8_mlp import CompiledVelocityField
-from service.models.registry import open_flow
+from service.models.registry import int8_flow_here, open_flow
 from service.models.sessions import FLOW_INPUTS, FLOW_OUTPUT, PARALLEL_MIN_ROWS, open_session
 from training.machine import cpu_model
 
@@ -112,7 +112,7 @@ def main() -> None:
     ]
     print(f"{cpu_model()}; service threads per session: {threads}; onnxruntime runs a call")
     print(f"of at least {PARALLEL_MIN_ROWS} rows on every thread, a smaller one on one; an int8")
-    print("network is served on the compiled layers where this processor has AMX\n")
+    print(f"network is served on {int8_flow_here()} on this processor\n")
     print(
         f"| model | network | rows | 1 thread ms | {threads} threads ms | compiled ms | "
         "fastest | served on |"

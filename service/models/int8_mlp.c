@@ -9,11 +9,15 @@
  * LogisticKernelFma3's fused multiply-adds). Every step is onnxruntime's own arithmetic,
  * in its order, so a call gives the same bits as the session does (the tests pin it).
  *
- * The product runs on AMX (tdpbusd, 16 x 16 tiles of u8 x s8 -> s32) where the processor
- * and the kernel allow it, else on plain C loops; both are exact integer sums, so the
- * two give the same bits. The elementwise tail runs on AVX-512 beside AMX (every AMX
- * processor has it) and in plain C (fmaf: the same correctly rounded fused operation)
- * otherwise.
+ * The product is the exact integer sum on every path: on AMX (tdpbusd, 16 x 16 tiles of
+ * u8 x s8 -> s32) where the processor and the kernel allow it, else on AVX2 (vpmaddwd on
+ * the operands widened to int16: each pair's sum is exact in int32), else on plain C
+ * loops; so every path gives the same bits. onnxruntime's own kernel is exact only on
+ * processors with VNNI or AMX: on AVX2 alone it multiplies with vpmaddubsw, whose int16
+ * pair sums saturate (an input near 255 against two weights near 127), and its velocities
+ * differ from the exact ones by up to hundreds on such a network. The elementwise tail
+ * runs on AVX-512 beside AMX (every AMX processor has it), on AVX2 with FMA beside AVX2,
+ * and in plain C (fmaf) otherwise: the same correctly rounded operations in the same order.
  *
  * Plain C99, the CPython API and the compiler's intrinsics (target attributes, so the file
  * builds for any x86-64 and elsewhere without the AMX path); no numpy headers.
@@ -28,13 +32,13 @@
 #include <string.h>
 
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && __GNUC__ >= 11
-#define HAVE_AMX_PATH 1
+#define HAVE_X86_PATHS 1
 #include <cpuid.h>
 #include <immintrin.h>
 #include <sys/syscall.h>
 #include <unistd.h>
 #else
-#define HAVE_AMX_PATH 0
+#define HAVE_X86_PATHS 0
 #endif
 
 /* AMX tiles: 16 rows of 64 bytes; a block of the product is 32 rows x 32 columns. */
@@ -61,6 +65,9 @@ typedef struct {
     int8_t *packed;        /* (k_pad / 64, n_pad / 16, 16, 64): AMX's B tiles, zero-padded,
                             * 64-byte aligned (a tile row across two cache lines halves the
                             * product's speed) */
+    int16_t *pairs;        /* (n_pad / C, k_pad / 2, C, 2), C = AVX2_COLUMNS: W widened for
+                            * vpmaddwd, pairs of rows side by side, zero-padded, 64-byte
+                            * aligned; NULL without AVX2 */
     Py_buffer column_sum;  /* int32 (n,): sum over k of weight */
     Py_buffer weight_scale;/* float32 (n,) */
     Py_buffer bias;        /* float32 (n,) */
@@ -72,6 +79,9 @@ typedef struct {
     Py_ssize_t widest_k;   /* the largest k_pad */
     Layer layers[];
 } Network;
+
+/* The product's paths, best first where the processor has them. */
+enum { KERNEL_PLAIN = 0, KERNEL_AVX2 = 1, KERNEL_AMX = 2 };
 
 /* ------------------------------------------------------------------ plain C, any CPU */
 
@@ -153,9 +163,197 @@ static void layer_plain(const Layer *L, const uint8_t *a, Py_ssize_t M, float sc
     *low = lo, *high = hi;
 }
 
+/* ---------------------------------------------------------------- AVX2 and FMA path */
+
+#if HAVE_X86_PATHS
+
+static int avx2_state = -1;
+
+/* 1 when this processor (and the system's saving of its registers) has AVX2 and FMA. */
+static int avx2_usable(void) {
+    if (avx2_state >= 0) return avx2_state;
+    __builtin_cpu_init();
+    avx2_state = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
+    return avx2_state;
+}
+
+/* A block of the product: R rows (at most AVX2_ROWS) by AVX2_COLUMNS columns, in
+ * AVX2_VECTORS vectors of 8 int32 sums each. */
+#define AVX2_ROWS 4
+#define AVX2_VECTORS 2
+#define AVX2_COLUMNS (8 * AVX2_VECTORS)
+_Static_assert(N_BLOCK % AVX2_COLUMNS == 0, "a layer's n_pad holds whole blocks");
+
+__attribute__((target("avx2,fma"))) static inline __m256 logistic_avx2(__m256 x) {
+    __m256 v = _mm256_min_ps(_mm256_max_ps(x, _mm256_set1_ps(LOGISTIC_LOWER)),
+                             _mm256_set1_ps(LOGISTIC_UPPER));
+    __m256 v2 = _mm256_mul_ps(v, v);
+    __m256 p = _mm256_fmadd_ps(v2, _mm256_set1_ps(ALPHA_9), _mm256_set1_ps(ALPHA_7));
+    p = _mm256_fmadd_ps(v2, p, _mm256_set1_ps(ALPHA_5));
+    p = _mm256_fmadd_ps(v2, p, _mm256_set1_ps(ALPHA_3));
+    p = _mm256_fmadd_ps(v2, p, _mm256_set1_ps(ALPHA_1));
+    __m256 q = _mm256_fmadd_ps(v2, _mm256_set1_ps(BETA_10), _mm256_set1_ps(BETA_8));
+    q = _mm256_fmadd_ps(v2, q, _mm256_set1_ps(BETA_6));
+    q = _mm256_fmadd_ps(v2, q, _mm256_set1_ps(BETA_4));
+    q = _mm256_fmadd_ps(v2, q, _mm256_set1_ps(BETA_2));
+    q = _mm256_fmadd_ps(v2, q, _mm256_set1_ps(BETA_0));
+    __m256 y = _mm256_add_ps(_mm256_div_ps(_mm256_mul_ps(v, p), q), _mm256_set1_ps(0.5f));
+    return _mm256_max_ps(y, _mm256_setzero_ps());
+}
+
+__attribute__((target("avx2,fma"))) static void min_max_avx2(const float *x, size_t count,
+                                                            float *low, float *high) {
+    __m256 lo = _mm256_set1_ps(x[0]), hi = lo;
+    size_t i = 0;
+    for (; i + 8 <= count; i += 8) {
+        __m256 v = _mm256_loadu_ps(x + i);
+        lo = _mm256_min_ps(lo, v), hi = _mm256_max_ps(hi, v);
+    }
+    float l[8], h[8];
+    _mm256_storeu_ps(l, lo), _mm256_storeu_ps(h, hi);
+    float a = l[0], b = h[0];
+    for (int j = 1; j < 8; ++j) a = l[j] < a ? l[j] : a, b = h[j] > b ? h[j] : b;
+    for (; i < count; ++i) a = x[i] < a ? x[i] : a, b = x[i] > b ? x[i] : b;
+    *low = a, *high = b;
+}
+
+/* quantise_plain's arithmetic (a true division, rounding to even) into int16 (M, k_pad). */
+__attribute__((target("avx2,fma"))) static void quantise_avx2(const float *x, Py_ssize_t M,
+                                                             Py_ssize_t k, Py_ssize_t k_pad,
+                                                             float scale, int32_t zero_point,
+                                                             int16_t *a) {
+    __m256 s = _mm256_set1_ps(scale);
+    float flo = (float)(0 - zero_point), fhi = (float)(255 - zero_point);
+    __m256 lo = _mm256_set1_ps(flo), hi = _mm256_set1_ps(fhi);
+    __m256i z = _mm256_set1_epi32(zero_point);
+    for (Py_ssize_t i = 0; i < M; ++i) {
+        const float *xi = x + i * k;
+        int16_t *ai = a + i * k_pad;
+        Py_ssize_t j = 0;
+        for (; j + 8 <= k; j += 8) {
+            __m256 v = _mm256_div_ps(_mm256_loadu_ps(xi + j), s);
+            v = _mm256_min_ps(_mm256_max_ps(v, lo), hi);
+            v = _mm256_round_ps(v, _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC);
+            __m256i q = _mm256_add_epi32(_mm256_cvtps_epi32(v), z);
+            __m256i packed = _mm256_permute4x64_epi64(_mm256_packs_epi32(q, q), 0x08);
+            _mm_storeu_si128((__m128i *)(ai + j), _mm256_castsi256_si128(packed));
+        }
+        for (; j < k; ++j) {
+            float v = xi[j] / scale;
+            v = v > flo ? v : flo;
+            v = v < fhi ? v : fhi;
+            ai[j] = (int16_t)((int32_t)nearbyintf(v) + zero_point);
+        }
+        for (; j < k_pad; ++j) ai[j] = 0;
+    }
+}
+
+/* Rows [i, i + R) by columns [j0, j0 + AVX2_COLUMNS) of one layer: the exact product on
+ * vpmaddwd, then the tail of layer_plain in its order (mul, add; SiLU's fused
+ * multiply-adds). Inlined with R constant, so the sums stay in registers. */
+__attribute__((target("avx2,fma"), always_inline)) static inline void block_avx2(
+    const Layer *L, const int16_t *a, Py_ssize_t i, int R, Py_ssize_t j0, float scale,
+    int32_t zero_point, float *out, __m256 *low, __m256 *high) {
+    Py_ssize_t k_pad = L->k_pad, n = L->n;
+    const int16_t *w = L->pairs + j0 * k_pad;  /* this block's (k_pad / 2, AVX2_COLUMNS, 2) */
+    __m256i acc[AVX2_ROWS][AVX2_VECTORS];
+#pragma GCC unroll 8
+    for (int r = 0; r < R; ++r)
+#pragma GCC unroll 8
+        for (int h = 0; h < AVX2_VECTORS; ++h) acc[r][h] = _mm256_setzero_si256();
+#pragma GCC unroll 2
+    for (Py_ssize_t p = 0; p < k_pad / 2; ++p) {
+        __m256i wv[AVX2_VECTORS];
+#pragma GCC unroll 8
+        for (int h = 0; h < AVX2_VECTORS; ++h)
+            wv[h] = _mm256_load_si256((const __m256i *)(w + (p * AVX2_VECTORS + h) * 16));
+#pragma GCC unroll 8
+        for (int r = 0; r < R; ++r) {
+            int32_t pair;
+            memcpy(&pair, a + (i + r) * k_pad + 2 * p, sizeof pair);
+            __m256i x = _mm256_set1_epi32(pair);
+#pragma GCC unroll 8
+            for (int h = 0; h < AVX2_VECTORS; ++h)
+                acc[r][h] = _mm256_add_epi32(acc[r][h], _mm256_madd_epi16(x, wv[h]));
+        }
+    }
+    const int32_t *colsum = L->column_sum.buf;
+    const float *w_scale = L->weight_scale.buf, *bias = L->bias.buf;
+    __m256i z = _mm256_set1_epi32(zero_point);
+    __m256 s = _mm256_set1_ps(scale);
+    for (int h = 0; h < AVX2_VECTORS; ++h) {
+        Py_ssize_t j = j0 + 8 * h;
+        if (j >= n) break;
+        int whole = n - j >= 8;
+        int32_t cs[8] = {0};
+        float ws[8] = {0}, bs[8] = {0};
+        memcpy(cs, colsum + j, (size_t)(whole ? 8 : n - j) * sizeof *cs);
+        memcpy(ws, w_scale + j, (size_t)(whole ? 8 : n - j) * sizeof *ws);
+        memcpy(bs, bias + j, (size_t)(whole ? 8 : n - j) * sizeof *bs);
+        __m256i correction = _mm256_mullo_epi32(z, _mm256_loadu_si256((const __m256i *)cs));
+        __m256 multiplier = _mm256_mul_ps(s, _mm256_loadu_ps(ws));
+        __m256 b = _mm256_loadu_ps(bs);
+#pragma GCC unroll 8
+        for (int r = 0; r < R; ++r) {
+            __m256 y = _mm256_cvtepi32_ps(_mm256_sub_epi32(acc[r][h], correction));
+            y = _mm256_add_ps(_mm256_mul_ps(y, multiplier), b);
+            if (L->silu) y = _mm256_mul_ps(y, logistic_avx2(y));
+            float *o = out + (i + r) * n + j;
+            if (whole) {
+                _mm256_storeu_ps(o, y);
+                *low = _mm256_min_ps(*low, y), *high = _mm256_max_ps(*high, y);
+            } else {
+                float part[8];
+                _mm256_storeu_ps(part, y);
+                for (Py_ssize_t c = 0; c < n - j; ++c) o[c] = part[c];
+                for (Py_ssize_t c = n - j; c < 8; ++c) part[c] = part[0];  /* past n: one of n's */
+                y = _mm256_loadu_ps(part);
+                *low = _mm256_min_ps(*low, y), *high = _mm256_max_ps(*high, y);
+            }
+        }
+    }
+}
+
+/* One layer on AVX2: a (M, k_pad) int16 -> out (M, n) float32, a 16-column block of the
+ * weights (k_pad * 64 bytes: in the first-level cache) against every row in turn. */
+__attribute__((target("avx2,fma"))) static void layer_avx2(const Layer *L, const int16_t *a,
+                                                          Py_ssize_t M, float scale,
+                                                          int32_t zero_point, float *out,
+                                                          float *low, float *high) {
+    __m256 lo = _mm256_set1_ps(INFINITY), hi = _mm256_set1_ps(-INFINITY);
+    for (Py_ssize_t j0 = 0; j0 < L->n; j0 += AVX2_COLUMNS) {
+        Py_ssize_t i = 0;
+        for (; i + AVX2_ROWS <= M; i += AVX2_ROWS)
+            block_avx2(L, a, i, AVX2_ROWS, j0, scale, zero_point, out, &lo, &hi);
+        for (; i < M; ++i) block_avx2(L, a, i, 1, j0, scale, zero_point, out, &lo, &hi);
+    }
+    float l[8], h[8];
+    _mm256_storeu_ps(l, lo), _mm256_storeu_ps(h, hi);
+    float a0 = l[0], b0 = h[0];
+    for (int j = 1; j < 8; ++j) a0 = l[j] < a0 ? l[j] : a0, b0 = h[j] > b0 ? h[j] : b0;
+    *low = a0, *high = b0;
+}
+
+/* W (k, n) int8 into vpmaddwd's pairs (n_pad / C, k_pad / 2, C, 2), C = AVX2_COLUMNS:
+ * block jb, pair p, column c holds W[2p, C jb + c] and W[2p + 1, C jb + c], zero past k
+ * and n. */
+static void pack_pairs(const int8_t *W, Py_ssize_t k, Py_ssize_t n, Py_ssize_t k_pad,
+                       Py_ssize_t n_pad, int16_t *P) {
+    memset(P, 0, (size_t)(k_pad * n_pad) * sizeof *P);
+    for (Py_ssize_t kk = 0; kk < k; ++kk)
+        for (Py_ssize_t j = 0; j < n; ++j) {
+            Py_ssize_t jb = j / AVX2_COLUMNS, c = j % AVX2_COLUMNS, p = kk / 2;
+            P[(jb * (k_pad / 2) + p) * 2 * AVX2_COLUMNS + c * 2 + kk % 2] = W[kk * n + j];
+        }
+}
+
+#else
+static int avx2_usable(void) { return 0; }
+#endif
+
 /* ------------------------------------------------------------- AMX and AVX-512 path */
 
-#if HAVE_AMX_PATH
+#if HAVE_X86_PATHS
 
 #define ARCH_REQ_XCOMP_PERM 0x1023
 #define XFEATURE_XTILEDATA 18
@@ -395,8 +593,8 @@ typedef struct {
     const float *x;
     float *y;
     Py_ssize_t M;
-    int amx, threads;
-    uint8_t *a;
+    int kernel, threads;  /* kernel: KERNEL_AMX, KERNEL_AVX2 or KERNEL_PLAIN */
+    uint8_t *a;           /* the quantised input: uint8 (M_pad, k_pad), int16 on AVX2 */
     float *buffers[2];
     int32_t *rows[MAX_THREADS];
     float low[MAX_LAYERS][MAX_THREADS], high[MAX_LAYERS][MAX_THREADS];
@@ -424,12 +622,15 @@ static void call_rows(Call *call, int share) {
     Py_ssize_t i0 = call->threads == 1 || share == 0 ? 0 : split;
     Py_ssize_t i1 = call->threads == 1 || share == 1 ? M : split;
     Py_ssize_t count = i1 - i0, k0 = net->layers[0].k;
-#if HAVE_AMX_PATH
-    if (call->amx) {
+#if HAVE_X86_PATHS
+    if (call->kernel == KERNEL_AMX) {
         tiles_configure();
         min_max_avx512(call->x + i0 * k0, (size_t)(count * k0), &call->low[0][share],
                        &call->high[0][share]);
-    } else
+    } else if (call->kernel == KERNEL_AVX2)
+        min_max_avx2(call->x + i0 * k0, (size_t)(count * k0), &call->low[0][share],
+                     &call->high[0][share]);
+    else
 #endif
         min_max_plain(call->x + i0 * k0, (size_t)(count * k0), &call->low[0][share],
                       &call->high[0][share]);
@@ -448,10 +649,14 @@ static void call_rows(Call *call, int share) {
         const float *x = input + i0 * L->k;
         uint8_t *a = call->a + i0 * L->k_pad;
         float *o = out + i0 * L->n, *lo = &call->low[l + 1][share], *hi = &call->high[l + 1][share];
-#if HAVE_AMX_PATH
-        if (call->amx) {
+#if HAVE_X86_PATHS
+        if (call->kernel == KERNEL_AMX) {
             quantise_avx512(x, count, L->k, L->k_pad, scale, zero_point, a);
             layer_amx(L, a, count, scale, zero_point, o, lo, hi);
+        } else if (call->kernel == KERNEL_AVX2) {
+            int16_t *a16 = (int16_t *)call->a + i0 * L->k_pad;
+            quantise_avx2(x, count, L->k, L->k_pad, scale, zero_point, a16);
+            layer_avx2(L, a16, count, scale, zero_point, o, lo, hi);
         } else
 #endif
         {
@@ -460,8 +665,8 @@ static void call_rows(Call *call, int share) {
         }
         input = out;
     }
-#if HAVE_AMX_PATH
-    if (call->amx) tiles_release();
+#if HAVE_X86_PATHS
+    if (call->kernel == KERNEL_AMX) tiles_release();
 #endif
 }
 
@@ -472,11 +677,13 @@ static void *second_share(void *call) {
 
 /* x (M, k of the first layer) -> y (M, n of the last) on `threads` threads (1 or 2; 1 for
  * fewer than two blocks of rows); 0, or -1 when out of memory. */
-static int forward(const Network *net, const float *x, Py_ssize_t M, int amx, int threads,
+static int forward(const Network *net, const float *x, Py_ssize_t M, int kernel, int threads,
                    float *y) {
     Py_ssize_t M_pad = (M + M_BLOCK - 1) / M_BLOCK * M_BLOCK;
     threads = threads > 1 && M > M_BLOCK ? 2 : 1;
-    size_t a_bytes = (size_t)(M_pad * net->widest_k), act_bytes = (size_t)(M * net->widest) * 4;
+    size_t a_width = kernel == KERNEL_AVX2 ? sizeof(int16_t) : sizeof(uint8_t);
+    size_t a_bytes = (size_t)(M_pad * net->widest_k) * a_width;
+    size_t act_bytes = (size_t)(M * net->widest) * 4;
     size_t row_bytes = (size_t)net->widest * 4, held;
     size_t bytes = a_bytes + 2 * act_bytes + 2 * row_bytes + 5 * 64;
     char *block = scratch_take(bytes, &held);
@@ -492,7 +699,7 @@ static int forward(const Network *net, const float *x, Py_ssize_t M, int amx, in
     for (int p = 0; p < 5; ++p) parts[p] = (void *)at, at = (at + sizes[p] + 63) & ~(uintptr_t)63;
     /* AMX multiplies whole 32-row blocks: the rows of `a` past M hold whatever the block
      * held (integers, so nothing can trap), and their products are never stored. */
-    *call = (Call){.net = net, .x = x, .y = y, .M = M, .amx = amx, .threads = threads,
+    *call = (Call){.net = net, .x = x, .y = y, .M = M, .kernel = kernel, .threads = threads,
                    .a = parts[0], .buffers = {parts[1], parts[2]}, .rows = {parts[3], parts[4]}};
     pthread_t second;
     if (threads == 2 && pthread_create(&second, NULL, second_share, call) != 0)
@@ -513,7 +720,7 @@ static void network_free(PyObject *capsule) {
     if (net == NULL) return;
     for (Py_ssize_t l = 0; l < net->count; ++l) {
         Layer *L = &net->layers[l];
-        PyBuffer_Release(&L->weight), free(L->packed);
+        PyBuffer_Release(&L->weight), free(L->packed), free(L->pairs);
         PyBuffer_Release(&L->column_sum), PyBuffer_Release(&L->weight_scale);
         PyBuffer_Release(&L->bias);
     }
@@ -566,25 +773,45 @@ static PyObject *py_network(PyObject *self, PyObject *args) {
         }
         L->packed = packed;
         pack(L->weight.buf, L->k, L->n, L->n_pad, L->packed);
+#if HAVE_X86_PATHS
+        if (avx2_usable()) {
+            void *pairs = NULL;
+            if (posix_memalign(&pairs, 64, (size_t)(L->k_pad * L->n_pad) * sizeof(int16_t))) {
+                PyObject *partial = PyCapsule_New(net, CAPSULE, network_free);
+                Py_XDECREF(partial);
+                return PyErr_NoMemory();
+            }
+            L->pairs = pairs;
+            pack_pairs(L->weight.buf, L->k, L->n, L->k_pad, L->n_pad, L->pairs);
+        }
+#endif
         net->widest = L->n > net->widest ? L->n : net->widest;
         net->widest_k = L->k_pad > net->widest_k ? L->k_pad : net->widest_k;
     }
     return PyCapsule_New(net, CAPSULE, network_free);
 }
 
-/* forward(network, x, M, amx, threads, y): the network on x's M rows into y. */
+static int kernel_usable(int kernel) {
+    return kernel == KERNEL_PLAIN || (kernel == KERNEL_AVX2 && avx2_usable()) ||
+           (kernel == KERNEL_AMX && amx_usable());
+}
+
+/* forward(network, x, M, kernel, threads, y): the network on x's M rows into y. */
 static PyObject *py_forward(PyObject *self, PyObject *args) {
     PyObject *capsule;
     Py_buffer x, y;
     Py_ssize_t M;
-    int amx, threads;
-    if (!PyArg_ParseTuple(args, "Oy*npiw*", &capsule, &x, &M, &amx, &threads, &y)) return NULL;
+    int kernel, threads;
+    if (!PyArg_ParseTuple(args, "Oy*niiw*", &capsule, &x, &M, &kernel, &threads, &y)) return NULL;
     const Network *net = PyCapsule_GetPointer(capsule, CAPSULE);
     int status = 0;
+    if (net != NULL && !kernel_usable(kernel)) {
+        PyBuffer_Release(&x), PyBuffer_Release(&y);
+        return PyErr_Format(PyExc_ValueError, "kernel %d is not usable on this processor", kernel);
+    }
     if (net != NULL && M > 0) {
-        amx = amx && amx_usable();
         Py_BEGIN_ALLOW_THREADS
-        status = forward(net, x.buf, M, amx, threads, y.buf);
+        status = forward(net, x.buf, M, kernel, threads, y.buf);
         Py_END_ALLOW_THREADS
     }
     PyBuffer_Release(&x), PyBuffer_Release(&y);
@@ -621,8 +848,24 @@ static PyObject *py_kept_scratch(PyObject *self, PyObject *unused) {
     return PyLong_FromSize_t(held);
 }
 
-static PyObject *py_amx_usable(PyObject *self, PyObject *unused) {
-    return PyBool_FromLong(amx_usable());
+/* kernels() -> the kernels usable here, best first: a tuple of (name, code). */
+static PyObject *py_kernels(PyObject *self, PyObject *unused) {
+    PyObject *names = PyList_New(0);
+    if (names == NULL) return NULL;
+    static const struct { const char *name; int code; } all[] = {
+        {"amx", KERNEL_AMX}, {"avx2", KERNEL_AVX2}, {"plain", KERNEL_PLAIN}};
+    for (int i = 0; i < 3; ++i) {
+        if (!kernel_usable(all[i].code)) continue;
+        PyObject *item = Py_BuildValue("(si)", all[i].name, all[i].code);
+        if (item == NULL || PyList_Append(names, item) != 0) {
+            Py_XDECREF(item), Py_DECREF(names);
+            return NULL;
+        }
+        Py_DECREF(item);
+    }
+    PyObject *kernels = PyList_AsTuple(names);
+    Py_DECREF(names);
+    return kernels;
 }
 
 static PyMethodDef methods[] = {
@@ -630,15 +873,17 @@ static PyMethodDef methods[] = {
      "network(layers) -> capsule: the layers (k, n, silu, weight, column_sum, weight_scale, "
      "bias), held for forward, the weights packed for AMX."},
     {"forward", py_forward, METH_VARARGS,
-     "forward(network, x, M, amx, threads, y): the network on x's M rows into y (AMX when "
-     "amx and usable; on two threads when threads > 1 and M > 32)."},
+     "forward(network, x, M, kernel, threads, y): the network on x's M rows into y on "
+     "`kernel` (a code from kernels()); on two threads when threads > 1 and M > 32."},
     {"keep_scratch", py_keep_scratch, METH_VARARGS,
      "keep_scratch(bytes) -> int: keep scratch blocks of at most `bytes` between calls; "
      "returns the bound it replaces."},
     {"kept_scratch", py_kept_scratch, METH_NOARGS,
      "kept_scratch() -> int: the bytes of the scratch blocks kept now."},
-    {"amx_usable", py_amx_usable, METH_NOARGS,
-     "amx_usable() -> bool: AMX-INT8 and AVX-512F on this processor, allowed by the kernel."},
+    {"kernels", py_kernels, METH_NOARGS,
+     "kernels() -> ((name, code), ...): the product's kernels usable on this processor, "
+     "best first (amx: AMX-INT8 and AVX-512F allowed by the kernel; avx2: AVX2 and FMA; "
+     "plain: any)."},
     {NULL, NULL, 0, NULL},
 };
 

@@ -1,4 +1,5 @@
-"""The int8 flow network evaluated by compiled layers: onnxruntime's answer, to the bit, faster.
+"""The int8 flow network evaluated by compiled layers: the quantised network's exact answer,
+the same bits on every processor, faster than onnxruntime.
 
 flow_int8.onnx is the float network with each linear layer's weights quantised to int8
 and its input quantised per call (onnxruntime's dynamic quantisation): onnxruntime fuses
@@ -6,19 +7,29 @@ each layer into DynamicQuantizeMatMul and QuickGelu and runs them as about forty
 calls of separate passes over the rows. Its profile at 500 rows on one thread (iiwa14
 pose): ~1.5 ms in DynamicQuantizeMatMul, of which the integer product proper is ~0.6 ms,
 and ~0.45 ms in QuickGelu. int8_mlp.c does each layer in one pass after quantising its
-input: the product on AMX tiles where the processor has them, the dequantisation, bias and
-SiLU on the product's block while it is in cache, the output's range found as it is
-written. It keeps onnxruntime's arithmetic in
-its order (the quantisation's rounding, MLAS's logistic polynomial and its fused
-multiply-adds), so a row's velocity is the same to the bit; what precedes the first
-quantised layer (the time embedding's sin and cos, whose bits are Eigen's) runs in
-onnxruntime, cut from the same file (onnx_file.cut_model).
+input: the product on AMX tiles where the processor has them, else on AVX2, the
+dequantisation, bias and SiLU on the product's block while it is in cache, the output's
+range found as it is written. It keeps onnxruntime's arithmetic in its order (the
+quantisation's rounding, MLAS's logistic polynomial and its fused multiply-adds); what
+precedes the first quantised layer (the time embedding's sin and cos, whose bits are
+Eigen's) runs in onnxruntime, cut from the same file (onnx_file.cut_model).
+
+The integer product is exact on every kernel, and that is why an int8 network is served
+here wherever AVX2 is: onnxruntime's product is exact only on processors with VNNI or AMX.
+On AVX2 alone (AMD EPYC before Zen 4, Intel before Cascade Lake) MLAS multiplies u8 by s8
+with vpmaddubsw, whose int16 sums of two products saturate, and the iiwa14 pose network's
+velocities then differ from the exact ones by up to hundreds on about half of a sampler's
+rows (`python -m tools.int8_exactness` measures it on the machine it runs on): the same
+request would get another answer from a replica on another processor. Here every replica
+gives the exact network's answer, which is onnxruntime's to the bit where onnxruntime's
+product is exact.
 
 `python -m tools.onnx_threads` times both (at 500 rows on a 2-core Intel Xeon: 1.05 ms on
 one thread and 0.67 on two, against onnxruntime's 1.83 and 1.52).
-tests/service/models/test_int8_mlp.py pins the compiled layers to onnxruntime's session
-(to the bit, every bundled int8 network, 1 to 1200 rows, on AMX and on the plain C path,
-on one thread and two) and the layers read to the `onnx` package's reading of the file.
+tests/service/models/test_int8_mlp.py pins every kernel to the others (to the bit, every
+bundled int8 network, 1 to 1200 rows, on one thread and two), to onnxruntime's session where
+its product is exact, to the exact integer product computed apart, and the layers read to
+the `onnx` package's reading of the file.
 """
 
 from __future__ import annotations
@@ -48,6 +59,13 @@ from service.pipeline.arrays import Float32Array
 # Measured on a 2-core Intel Xeon (one thread against two, at 500 rows: iiwa14 pose 1.05
 # against 0.67 ms, planar 3R 0.35 against 0.28; at 128 rows and 256 rows equal).
 PARALLEL_MIN_WORK = 192 * 512
+
+
+# The product's kernels, best first: AMX tiles (with AVX-512 for the rest), AVX2 with FMA,
+# plain C. All give the same bits; the plain loops are ~50x slower than AVX2, so a
+# processor with neither AMX nor AVX2 keeps onnxruntime's session (SERVED_KERNELS).
+KERNELS = ("amx", "avx2", "plain")
+SERVED_KERNELS = ("amx", "avx2")
 
 
 class UnsupportedNetwork(OnnxFormatError):
@@ -131,16 +149,35 @@ def quantised_layers(graph: Graph) -> tuple[str, list[QuantisedLayer]]:
         quantise = _only(graph.consumers(silu.outputs[0]), "DynamicQuantizeLinear", "SiLU")
 
 
-def amx_usable() -> bool:
-    """AMX-INT8 tiles and AVX-512F on this processor, allowed by the kernel."""
-    return bool(_int8_mlp.amx_usable())
+def usable_kernels() -> tuple[str, ...]:
+    """The product's kernels this processor runs, best first ("plain" always): "amx" needs
+    AMX-INT8 tiles and AVX-512F allowed by the operating system, "avx2" AVX2 and FMA."""
+    return tuple(name for name, _ in _int8_mlp.kernels())
+
+
+def best_kernel() -> str:
+    """The fastest kernel usable here."""
+    return usable_kernels()[0]
+
+
+def kernel_code(kernel: str | None) -> int:
+    """The compiled code of `kernel` (None: the best usable here); ValueError naming the
+    usable ones for a kernel unknown or not usable on this processor."""
+    codes = dict(_int8_mlp.kernels())
+    name = best_kernel() if kernel is None else kernel
+    if name not in codes:
+        raise ValueError(
+            f"kernel {name!r} is not usable on this processor; usable here: "
+            f"{', '.join(codes)} (of {', '.join(KERNELS)})"
+        )
+    return int(codes[name])
 
 
 def keep_scratch(size_bytes: int) -> int:
     """Keep the compiled layers' scratch blocks of at most `size_bytes` between calls (two
     at most, one per flow call running at once), so that a call of up to that size reuses
     its pages rather than mapping and faulting them in again; returns the bound it
-    replaces. A call needs about 4.6 kB a row of a 512-wide network."""
+    replaces. A call needs about 4.6 kB a row of a 512-wide network (5.1 kB on AVX2)."""
     return int(_int8_mlp.keep_scratch(size_bytes))
 
 
@@ -176,16 +213,17 @@ class QuantisedNetwork:
         self._network = _int8_mlp.network(self._arrays)
 
     def forward(
-        self, x: Float32Array, amx: bool = True, threads: int = 1
+        self, x: Float32Array, kernel: str | None = None, threads: int = 1
     ) -> Float32Array:  # (B, k) -> (B, n)
-        """The layers on x's rows; on AMX when `amx` and usable, else plain C loops; on two
-        threads when `threads` > 1 and there are more than 32 rows (the same bits)."""
+        """The layers on x's rows, on `kernel` (one of KERNELS usable here; None: the best);
+        on two threads when `threads` > 1 and there are more than 32 rows (the same bits)."""
+        code = kernel_code(kernel)
         x = np.ascontiguousarray(x, dtype=np.float32)
         if x.ndim != 2 or x.shape[1] != self.width_in:
             raise ValueError(f"x has shape {x.shape}; expected (B, {self.width_in})")
         y = np.empty((len(x), self.width_out), dtype=np.float32)
         if len(x):
-            _int8_mlp.forward(self._network, x, len(x), amx, threads, y)
+            _int8_mlp.forward(self._network, x, len(x), code, threads, y)
         return y
 
 
@@ -255,7 +293,7 @@ class CompiledVelocityField:
         prefix_output: str,
         parts: list[Part] | None,
         network: QuantisedNetwork,
-        amx: bool = True,
+        kernel: str | None = None,
         threads: int = 1,
         parallel_min_work: int = PARALLEL_MIN_WORK,
     ) -> None:
@@ -263,16 +301,18 @@ class CompiledVelocityField:
         self._prefix_output = prefix_output
         self._parts = parts
         self._network = network
-        self._amx = amx
+        self.kernel = usable_kernels()[0] if kernel is None else kernel
+        kernel_code(self.kernel)  # refused here, naming the usable ones, if not usable
         self._threads = threads
         self._parallel_min_work = parallel_min_work
 
     @classmethod
     def open(
-        cls, path: Path, amx: bool = True, threads: int = 1, by_time: bool = True
+        cls, path: Path, kernel: str | None = None, threads: int = 1, by_time: bool = True
     ) -> CompiledVelocityField:
-        """The network at `path`; UnsupportedNetwork when it is not a chain of dynamically
-        quantised layers with flow.onnx's inputs and output. A call of PARALLEL_MIN_WORK
+        """The network at `path` on `kernel` (None: the best usable here); UnsupportedNetwork
+        when it is not a chain of dynamically quantised layers with flow.onnx's inputs and
+        output. A call of PARALLEL_MIN_WORK
         (rows times the widest layer) made while no other flow call runs takes two threads
         when `threads` > 1. `by_time`: the embedding once per distinct t where the graph allows
         (False: the whole input on every row)."""
@@ -285,7 +325,7 @@ class CompiledVelocityField:
         prefix = None  # the whole first input cut from the file, only where no parts are
         if parts is None:
             prefix = open_session(cut_model(graph, first_input, ("batch", network.width_in)), 1)
-        return cls(prefix, first_input, parts, network, amx, threads)
+        return cls(prefix, first_input, parts, network, kernel, threads)
 
     def first_input(
         self,
@@ -313,4 +353,4 @@ class CompiledVelocityField:
             work = len(x) * self._network.widest
             alone_and_large = others == 0 and work >= self._parallel_min_work
             threads = self._threads if alone_and_large else 1
-            return self._network.forward(x, self._amx, threads)
+            return self._network.forward(x, self.kernel, threads)

@@ -38,7 +38,12 @@ from service.manifest import (
     SamplerSpec,
 )
 from service.models.chain import SerialChainKinematics
-from service.models.int8_mlp import CompiledVelocityField, UnsupportedNetwork, amx_usable
+from service.models.int8_mlp import (
+    SERVED_KERNELS,
+    CompiledVelocityField,
+    UnsupportedNetwork,
+    best_kernel,
+)
 from service.models.sessions import OnnxKinematics, OnnxVelocityField, open_session
 from service.pipeline.collision.robot import RobotSpheres
 from service.pipeline.connect import find_coaxial_sets
@@ -155,19 +160,38 @@ def threads_meant(threads: int) -> int:
 
 
 # What evaluates a model's flow network, as its "model loaded" log line names it.
-COMPILED_FLOW, ONNX_FLOW = "compiled int8 layers (AMX)", "onnxruntime"
+ONNX_FLOW = "onnxruntime"
+
+
+def compiled_flow(kernel: str) -> str:
+    """The log's name of the compiled int8 layers on `kernel` ("amx", "avx2", ...)."""
+    return f"compiled int8 layers ({kernel.upper()})"
+
+
+def int8_on_compiled_layers() -> bool:
+    """Whether this processor serves an int8 network on the compiled layers (with the
+    setting on): where it has AMX or AVX2 (int8_mlp.SERVED_KERNELS)."""
+    return best_kernel() in SERVED_KERNELS
+
+
+def int8_flow_here() -> str:
+    """What evaluates an int8 flow network on this processor, with the setting on."""
+    return compiled_flow(best_kernel()) if int8_on_compiled_layers() else ONNX_FLOW
 
 
 def flow_kernel(velocity: VelocityField) -> str:
     """The name of what evaluates `velocity`: the compiled int8 layers or onnxruntime."""
-    return COMPILED_FLOW if isinstance(velocity, CompiledVelocityField) else ONNX_FLOW
+    if isinstance(velocity, CompiledVelocityField):
+        return compiled_flow(velocity.kernel)
+    return ONNX_FLOW
 
 
 def open_flow(path: Path, threads: int, serial: bool, compiled_int8: bool) -> VelocityField:
-    """The flow network at `path`: an int8 one on the compiled layers (int8_mlp.py, the same
-    bits as onnxruntime's) when `compiled_int8` and the processor has AMX, else onnxruntime's
-    session (`threads`, and with `serial` a one-thread session beside it)."""
-    if compiled_int8 and path.name in INT8_FLOW_FILES and amx_usable():
+    """The flow network at `path`: an int8 one on the compiled layers (int8_mlp.py: the
+    exact product, the same bits on every processor) when `compiled_int8` and the processor
+    has AMX or AVX2, else onnxruntime's session (`threads`, and with `serial` a one-thread
+    session beside it)."""
+    if compiled_int8 and path.name in INT8_FLOW_FILES and int8_on_compiled_layers():
         try:
             return CompiledVelocityField.open(path, threads=threads_meant(threads))
         except UnsupportedNetwork:

@@ -13,7 +13,7 @@ import time
 import httpx
 import pytest
 
-from service.models.int8_mlp import amx_usable
+from service.models.registry import int8_flow_here
 from tests.server.conftest import FUZZ_MAX_NUM_SAMPLES
 from tests.support.bad_inputs import BadInput, catalogue, check_answer
 from tests.support.bundled import bundled_model_ids
@@ -52,6 +52,5 @@ def test_answers_and_log_lines_share_the_request_id(server: LocalServer) -> None
     assert access["route"] == "/smm" and access["model"] == "iiwa14-position"
     started = [line for line in server.log_lines() if line.get("message") == "model loaded"]
     assert len(started) == len(bundled_model_ids())
-    # Every bundled model serves int8: on the compiled layers exactly where AMX is usable.
-    flow = "compiled int8 layers (AMX)" if amx_usable() else "onnxruntime"
-    assert {line["flow"] for line in started} == {flow}
+    # Every bundled model serves int8: on the compiled layers where AMX or AVX2 is, naming it.
+    assert {line["flow"] for line in started} == {int8_flow_here()}

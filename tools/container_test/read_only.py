@@ -15,8 +15,7 @@ import httpx
 import yaml
 
 from service.manifest import MANIFEST_FILE, REPO_MODELS_DIR, Manifest
-from service.models.int8_mlp import amx_usable
-from service.models.registry import COMPILED_FLOW, ONNX_FLOW
+from service.models.registry import ONNX_FLOW, int8_flow_here
 from tools.container_test import ROOT
 from tools.container_test.buildah import IMAGE, Buildah, image_config, tail
 from tools.container_test.http_checks import post_and_check
@@ -167,11 +166,12 @@ def check_read_only_probes(buildah: Buildah, container: str, checks: Checks) -> 
 
 def check_flow_kernels(log_path: Path, checks: Checks) -> None:
     """Each model's start-up line names what evaluates its flow network: the compiled int8
-    layers where the processor has AMX (the container's is this machine's, and the kernel
-    must grant the tiles inside it too), onnxruntime for a float32 network or without."""
-    amx = amx_usable()
+    layers on the kernel this processor gives them (the container's is this machine's, and
+    for AMX the kernel must grant the tiles inside it too), onnxruntime for a float32
+    network or on a processor with neither AMX nor AVX2."""
+    int8_flow = int8_flow_here()
     with checks.check(
-        "read-only root: int8 flow networks on the compiled layers where AMX is"
+        "read-only root: int8 flow networks on the compiled layers where AMX or AVX2 is"
     ) as note:
         loaded = [
             line
@@ -185,9 +185,9 @@ def check_flow_kernels(log_path: Path, checks: Checks) -> None:
                 (REPO_MODELS_DIR / model_id / MANIFEST_FILE).read_bytes()
             )
             int8 = manifest.defaults.sampler.precision == "int8"
-            expected = COMPILED_FLOW if int8 and amx else ONNX_FLOW
+            expected = int8_flow if int8 else ONNX_FLOW
             assert flow == expected, f"{model_id}: {flow!r}, expected {expected!r}"
-        note["detail"] = f"AMX {'usable' if amx else 'not usable'} here: " + ", ".join(
+        note["detail"] = f"int8 on {int8_flow} here: " + ", ".join(
             sorted(f"{m} {f}" for m, f in flows.items())
         )
 

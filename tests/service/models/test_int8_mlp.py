@@ -1,9 +1,13 @@
-"""The compiled int8 flow layers (service/models/int8_mlp.py) give onnxruntime's velocities
-to the bit: every bundled int8 network, from 1 row to more than a tile block's, on AMX
-where the processor has it and on the plain C path everywhere, from concurrent threads;
-the layers read from the file are the file's (the `onnx` package reads them too); a
-network of other layers is refused, naming what it found; the registry serves an int8
-network on the compiled layers only where AMX is usable and the setting allows.
+"""The compiled int8 flow layers (service/models/int8_mlp.py) compute the quantised network
+exactly: a layer's output is, to the bit, the one worked out here with numpy's int64
+product (where a saturating product, onnxruntime's on AVX2 without VNNI, differs); every
+kernel this processor has (AMX, AVX2, plain C) gives the same bits on every bundled int8
+network from 1 row to more than a block's, on one thread and two, from concurrent threads;
+and onnxruntime's velocities to the bit where its product is exact (VNNI or AMX). The layers
+read from the file are the file's (the `onnx` package reads them too); a network of other
+layers or a kernel the processor lacks is refused, naming what it found or what is usable;
+the registry serves an int8 network on the compiled layers where AMX or AVX2 is and the
+setting allows.
 """
 
 import threading
@@ -20,22 +24,33 @@ from service.manifest import FLOW_FILE, FLOW_INT8_FILE, REPO_MODELS_DIR
 from service.models.int8_mlp import (
     PARALLEL_MIN_WORK,
     CompiledVelocityField,
+    QuantisedLayer,
     QuantisedNetwork,
     TimeEmbedding,
     UnsupportedNetwork,
-    amx_usable,
+    best_kernel,
     keep_scratch,
     kept_scratch_bytes,
     quantised_layers,
+    usable_kernels,
 )
 from service.models.onnx_file import read_graph
-from service.models.registry import INT8_FLOW_FILES, load_model, open_flow
+from service.models.registry import (
+    INT8_FLOW_FILES,
+    int8_on_compiled_layers,
+    load_model,
+    open_flow,
+)
 from service.models.sessions import FLOW_CALLS, FLOW_INPUTS, OnnxVelocityField, open_session
 from tests.support.app import PLANAR3R_DIR
 from tests.support.bundled import bundled_model_ids
+from tools.int8_exactness import onnxruntime_product_exact
 
 IIWA14_POSE_INT8 = REPO_MODELS_DIR / "iiwa14-pose" / FLOW_INT8_FILE
-needs_amx = pytest.mark.skipif(not amx_usable(), reason="no AMX-INT8 on this processor")
+KERNELS_HERE = usable_kernels()
+needs_exact_onnxruntime = pytest.mark.skipif(
+    not onnxruntime_product_exact(), reason="onnxruntime's int8 product saturates here"
+)
 
 
 def _int8_flows() -> list[Path]:
@@ -58,19 +73,82 @@ def _inputs(path: Path, rows: int, seed: int) -> dict[str, np.ndarray]:
     return dict(zip(FLOW_INPUTS, (q_t, t, condition), strict=True))
 
 
+@needs_exact_onnxruntime
 @pytest.mark.parametrize("path", _int8_flows(), ids=lambda p: f"{p.parent.name}/{p.name}")
 def test_the_compiled_layers_give_onnxruntimes_velocities_to_the_bit(path: Path) -> None:
     """Row counts below, at and past the 32-row blocks' edges, and a sampler's 500 rows
     (1.3 million quantised values per call: a rounding that differs from onnxruntime's on
     one in 10^5 of them, as x * (1 / scale) for x / scale does, shows)."""
     session = open_session(path, 1)
-    flow = CompiledVelocityField.open(path, amx=True)
-    plain = CompiledVelocityField.open(path, amx=False)
+    flows = [CompiledVelocityField.open(path, kernel=kernel) for kernel in KERNELS_HERE]
     for rows in (1, 2, 31, 32, 33, 500):
         inputs = _inputs(path, rows, seed=rows)
         (expected,) = session.run(["velocity"], inputs)
-        np.testing.assert_array_equal(flow(**inputs), expected)
-        np.testing.assert_array_equal(plain(**inputs), expected)
+        for flow in flows:
+            np.testing.assert_array_equal(flow(**inputs), expected, err_msg=flow.kernel)
+
+
+@pytest.mark.parametrize("path", _int8_flows(), ids=lambda p: f"{p.parent.name}/{p.name}")
+def test_every_kernel_here_gives_the_same_bits(path: Path) -> None:
+    """Row counts around the AVX2 kernel's 4-row and AMX's 32-row blocks, a sampler's 500
+    and 1200 rows, on one thread and two: every kernel against the plain C loops."""
+    flows = {kernel: CompiledVelocityField.open(path, kernel=kernel) for kernel in KERNELS_HERE}
+    for rows in (1, 2, 3, 4, 5, 31, 32, 33, 500, 1200):
+        inputs = _inputs(path, rows, seed=rows)
+        expected = flows["plain"](**inputs)
+        for kernel, flow in flows.items():
+            for threads in (1, 2):
+                velocity = flow._network.forward(flow.first_input(**inputs), kernel, threads)
+                np.testing.assert_array_equal(velocity, expected, err_msg=f"{kernel} {threads}")
+
+
+def _quantised(x: np.ndarray) -> tuple[np.ndarray, np.float32, int]:
+    """onnxruntime's DynamicQuantizeLinear in float32: (uint8 values as int64, scale, zp)."""
+    low, high = min(np.float32(x.min()), np.float32(0)), max(np.float32(x.max()), np.float32(0))
+    scale = np.float32(1) if high == low else np.float32(high - low) / np.float32(255)
+    zero_point = int(np.rint(np.clip(np.float32(0) - low / scale, 0, 255)))
+    q = np.rint(np.clip(x / scale, np.float32(-zero_point), np.float32(255 - zero_point)))
+    return q.astype(np.int64) + zero_point, scale, zero_point
+
+
+def _layer_by_numpy(x: np.ndarray, layer: QuantisedLayer, saturate: bool) -> np.ndarray:
+    """One layer without SiLU: the int64 product (each pair of products clipped to int16
+    when `saturate`, as vpmaddubsw does), then (acc - zp colsum) * (scale w_scale) + bias in
+    float32, a multiply and an add."""
+    a, scale, zero_point = _quantised(x)
+    weight = layer.weight.astype(np.int64)
+    if saturate:
+        k = len(weight) + len(weight) % 2
+        a2 = np.zeros((len(a), k), np.int64)
+        a2[:, : a.shape[1]] = a
+        w2 = np.zeros((k, weight.shape[1]), np.int64)
+        w2[: len(weight)] = weight
+        pairs = a2[:, 0::2, None] * w2[None, 0::2] + a2[:, 1::2, None] * w2[None, 1::2]
+        acc = np.clip(pairs, -32768, 32767).sum(axis=1)
+    else:
+        acc = a @ weight
+    shifted = (acc - zero_point * weight.sum(axis=0)).astype(np.float32)
+    return shifted * (scale * layer.weight_scale) + layer.bias
+
+
+def test_each_layers_product_is_exact_where_a_saturating_one_is_not() -> None:
+    """Each layer of the iiwa14 pose network alone (SiLU off), on inputs a layer sees (the
+    network's own activations at a sampler's rows): every kernel gives numpy's exact int64
+    product to the bit, and on these rows a product saturating at int16 pairs gives other
+    values, so a saturating kernel would fail here."""
+    _, layers = quantised_layers(read_graph(IIWA14_POSE_INT8))
+    inputs = _inputs(IIWA14_POSE_INT8, 500, seed=3)
+    x = CompiledVelocityField.open(IIWA14_POSE_INT8).first_input(**inputs)
+    saturated_somewhere = False
+    for layer in layers:
+        alone = QuantisedNetwork([QuantisedLayer(layer.weight, layer.weight_scale,
+                                                 layer.bias, silu=False)])  # fmt: skip
+        exact = _layer_by_numpy(x, layer, saturate=False)
+        for kernel in KERNELS_HERE:
+            np.testing.assert_array_equal(alone.forward(x, kernel), exact, err_msg=kernel)
+        saturated_somewhere |= not np.array_equal(_layer_by_numpy(x, layer, True), exact)
+        x = QuantisedNetwork([layer]).forward(x)  # the next layer's input, SiLU on
+    assert saturated_somewhere
 
 
 def test_the_embedding_once_per_distinct_t_is_the_embedding_of_every_row() -> None:
@@ -79,7 +157,6 @@ def test_the_embedding_once_per_distinct_t_is_the_embedding_of_every_row() -> No
     by_time = CompiledVelocityField.open(IIWA14_POSE_INT8)
     whole = CompiledVelocityField.open(IIWA14_POSE_INT8, by_time=False)
     assert by_time._parts is not None and whole._parts is None
-    session = open_session(IIWA14_POSE_INT8, 1)
     rng = np.random.default_rng(11)
     for rows in (1, 7, 500):
         inputs = _inputs(IIWA14_POSE_INT8, rows, seed=rows)
@@ -88,8 +165,7 @@ def test_the_embedding_once_per_distinct_t_is_the_embedding_of_every_row() -> No
             np.testing.assert_array_equal(
                 by_time.first_input(**inputs), whole.first_input(**inputs)
             )
-            (expected,) = session.run(["velocity"], inputs)
-            np.testing.assert_array_equal(by_time(**inputs), expected)
+            np.testing.assert_array_equal(by_time(**inputs), whole(**inputs))
     # The rows kept for the t already seen are the ones the cut model gives.
     for part in by_time._parts:
         if isinstance(part, TimeEmbedding):
@@ -99,27 +175,31 @@ def test_the_embedding_once_per_distinct_t_is_the_embedding_of_every_row() -> No
                 np.testing.assert_array_equal(row, part.session.run([part.output], {"t": t})[0])
 
 
-@needs_amx
-def test_amx_and_the_plain_loops_agree_to_the_bit() -> None:
-    """Two implementations of the integer product and of the elementwise tail."""
-    flow = CompiledVelocityField.open(IIWA14_POSE_INT8, amx=True)
-    plain = CompiledVelocityField.open(IIWA14_POSE_INT8, amx=False)
-    inputs = _inputs(IIWA14_POSE_INT8, 100, seed=7)
-    np.testing.assert_array_equal(flow(**inputs), plain(**inputs))
-
-
-@pytest.mark.parametrize("amx", [True, False])
-def test_two_threads_give_one_threads_bits(amx: bool) -> None:
+@pytest.mark.parametrize("kernel", KERNELS_HERE)
+def test_two_threads_give_one_threads_bits(kernel: str) -> None:
     """The rows split at a 32-row block, each share's range met once a layer: every row
     count, around the split and the blocks' edges, gives the one-thread velocities."""
     _, layers = quantised_layers(read_graph(IIWA14_POSE_INT8))
     network = QuantisedNetwork(layers)
     rng = np.random.default_rng(5)
-    for rows in (1, 32, 33, 63, 64, 65, 97, 500) if amx else (33, 65, 97):
+    for rows in (1, 32, 33, 63, 64, 65, 97, 500) if kernel != "plain" else (33, 65, 97):
         x = rng.standard_normal((rows, network.width_in)).astype(np.float32)
         x[rows // 2] *= 8.0  # the range from one share only
-        one = network.forward(x, amx=amx, threads=1)
-        np.testing.assert_array_equal(network.forward(x, amx=amx, threads=2), one)
+        one = network.forward(x, kernel, threads=1)
+        np.testing.assert_array_equal(network.forward(x, kernel, threads=2), one)
+
+
+def test_a_kernel_this_processor_lacks_is_refused_naming_the_usable_ones() -> None:
+    _, layers = quantised_layers(read_graph(IIWA14_POSE_INT8))
+    network = QuantisedNetwork(layers)
+    x = np.zeros((2, 80), np.float32)
+    usable = ", ".join(KERNELS_HERE)
+    for kernel in ("sse9", *(k for k in ("amx", "avx2") if k not in KERNELS_HERE)):
+        with pytest.raises(ValueError, match=f"kernel '{kernel}' is not usable.*{usable}"):
+            network.forward(x, kernel)
+        with pytest.raises(ValueError, match=f"usable here: {usable}"):
+            CompiledVelocityField.open(IIWA14_POSE_INT8, kernel=kernel)
+    assert KERNELS_HERE[-1] == "plain" and best_kernel() == KERNELS_HERE[0]
 
 
 def test_concurrent_calls_of_different_sizes_give_their_single_answers() -> None:
@@ -236,9 +316,9 @@ def test_a_large_call_takes_two_threads_only_when_no_other_runs() -> None:
     network = flow._network
     real = network.forward
 
-    def spy(x: np.ndarray, amx: bool = True, threads: int = 1) -> np.ndarray:
+    def spy(x: np.ndarray, kernel: str | None = None, threads: int = 1) -> np.ndarray:
         taken.append(threads)
-        return real(x, amx, threads)
+        return real(x, kernel, threads)
 
     network.forward = spy  # type: ignore[method-assign]
     least = PARALLEL_MIN_WORK // network.widest  # the fewest rows of this 512-wide network
@@ -250,9 +330,10 @@ def test_a_large_call_takes_two_threads_only_when_no_other_runs() -> None:
     assert taken == [2, 1, 1]
 
 
-def test_the_registry_serves_int8_on_the_compiled_layers_where_amx_is_usable() -> None:
+def test_the_registry_serves_int8_on_the_compiled_layers_where_amx_or_avx2_is() -> None:
     compiled = open_flow(IIWA14_POSE_INT8, threads=1, serial=False, compiled_int8=True)
-    expected = CompiledVelocityField if amx_usable() else OnnxVelocityField
+    assert int8_on_compiled_layers() == (best_kernel() in ("amx", "avx2"))
+    expected = CompiledVelocityField if int8_on_compiled_layers() else OnnxVelocityField
     assert isinstance(compiled, expected)
     session = open_flow(IIWA14_POSE_INT8, threads=1, serial=False, compiled_int8=False)
     assert isinstance(session, OnnxVelocityField)
