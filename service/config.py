@@ -104,10 +104,10 @@ class Settings(BaseSettings):
         True,
         description="Evaluate the int8 flow networks with the compiled layers "
         "(service/models/int8_mlp.py) where the processor has AMX or AVX2: the exact integer "
-        "product, so every replica gives the same answer whatever its processor "
-        "(onnxruntime's product saturates on AVX2 without VNNI), in fewer passes over the "
-        "rows (`python -m tools.onnx_threads` times both). false, or a processor with "
-        "neither: onnxruntime's session.",
+        "product on every processor (onnxruntime's saturates on AVX2 without VNNI, and a "
+        "replica there would answer otherwise), in fewer passes over the rows (`python -m "
+        "tools.onnx_threads` times both). false, or a processor with neither: onnxruntime's "
+        "session.",
     )
     log_level: LogLevel = Field(
         "info", description="Level of the service's JSON logs and of uvicorn's."

@@ -1,5 +1,5 @@
-"""The int8 flow network evaluated by compiled layers: the quantised network's exact answer,
-the same bits on every processor, faster than onnxruntime.
+"""The int8 flow network evaluated by compiled layers: the quantised network's exact answer
+on every processor, faster than onnxruntime.
 
 flow_int8.onnx is the float network with each linear layer's weights quantised to int8
 and its input quantised per call (onnxruntime's dynamic quantisation): onnxruntime fuses
@@ -18,11 +18,13 @@ The integer product is exact on every kernel, and that is why an int8 network is
 here wherever AVX2 is: onnxruntime's product is exact only on processors with VNNI or AMX.
 On AVX2 alone (AMD EPYC before Zen 4, Intel before Cascade Lake) MLAS multiplies u8 by s8
 with vpmaddubsw, whose int16 sums of two products saturate, and the iiwa14 pose network's
-velocities then differ from the exact ones by up to hundreds on about half of a sampler's
-rows (`python -m tools.int8_exactness` measures it on the machine it runs on): the same
-request would get another answer from a replica on another processor. Here every replica
-gives the exact network's answer, which is onnxruntime's to the bit where onnxruntime's
-product is exact.
+velocities then differ from the exact ones on nearly every row of a sampler's call, by up
+to hundreds (`python -m tools.int8_exactness` measures it on the machine it runs on): the
+same request would get another answer from a replica on another processor. Here every
+replica computes the exact network (the same integer sums, the same float32 operations in
+the same order), which is onnxruntime's to the bit where onnxruntime's product is exact;
+only the time embedding, computed by onnxruntime before the first quantised layer, may
+round differently on another instruction set.
 
 `python -m tools.onnx_threads` times both (at 500 rows on a 2-core Intel Xeon: 1.05 ms on
 one thread and 0.67 on two, against onnxruntime's 1.83 and 1.52).

@@ -188,7 +188,7 @@ def flow_kernel(velocity: VelocityField) -> str:
 
 def open_flow(path: Path, threads: int, serial: bool, compiled_int8: bool) -> VelocityField:
     """The flow network at `path`: an int8 one on the compiled layers (int8_mlp.py: the
-    exact product, the same bits on every processor) when `compiled_int8` and the processor
+    exact integer product on every processor) when `compiled_int8` and the processor
     has AMX or AVX2, else onnxruntime's session (`threads`, and with `serial` a one-thread
     session beside it)."""
     if compiled_int8 and path.name in INT8_FLOW_FILES and int8_on_compiled_layers():
