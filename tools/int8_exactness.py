@@ -2,7 +2,7 @@
 processor, and so why the service evaluates them on its compiled layers.
 
     python -m tools.int8_exactness                 # every bundled int8 network, 500 rows
-    python -m tools.int8_exactness --rows 1000 --json /tmp/exactness.json
+    python -m tools.int8_exactness --json docs/benchmark/int8-exactness.json
 
 Each bundled int8 network is called on a sampler's kind of rows (q_t ~ N(0, I), the
 condition ~ U(-1, 1), one t per call as an Euler step has, at t = 0, 0.25, 0.5 and 0.75)
@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -28,7 +29,7 @@ import numpy as np
 from service.manifest import MANIFEST_FILE, REPO_MODELS_DIR, Manifest
 from service.models.int8_mlp import CompiledVelocityField, best_kernel
 from service.models.sessions import FLOW_INPUTS, FLOW_OUTPUT, open_session
-from training.machine import cpu_model
+from training.machine import Machine, cpu_model
 
 # MLAS's u8 x s8 product runs on VNNI (vpdpbusd) or AMX where the processor has them, both
 # exact; on AVX2 alone (and AVX-512 without VNNI) on vpmaddubsw, which saturates.
@@ -103,6 +104,7 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", type=Path, help="write the figures here too")
     args = parser.parse_args()
+    machine = Machine.now()
     results = [measure(path, args.rows, args.seed) for path in int8_networks()]
     exact = "exact" if onnxruntime_product_exact() else "saturating (no VNNI or AMX)"
     print(f"{cpu_model()}; onnxruntime's int8 product here: {exact}; compiled layers on "
@@ -115,9 +117,16 @@ def main() -> None:
             f"{r['largest_velocity']:.3g} | {100 * float(r['rows_differing_share']):.1f} % |"  # type: ignore[arg-type]
         )
     if args.json:
-        machine = {"cpu": cpu_model(), "kernel": best_kernel(),
-                   "onnxruntime_exact": onnxruntime_product_exact()}  # fmt: skip
-        args.json.write_text(json.dumps({"machine": machine, "results": results}, indent=2))
+        report = {
+            "command": " ".join(["python -m tools.int8_exactness", *sys.argv[1:]]),
+            "machine": machine.ended().as_json(),
+            "kernel": best_kernel(),
+            "onnxruntime_exact": onnxruntime_product_exact(),
+            "rows_per_call": args.rows,
+            "times": list(TIMES),
+            "results": results,
+        }
+        args.json.write_text(json.dumps(report, indent=2) + "\n")
 
 
 if __name__ == "__main__":

@@ -407,3 +407,24 @@ def test_the_soak_timeline_shows_every_tenth_minute_and_the_last() -> None:
     assert len(rows) == len(expected)
     for row, window in zip(rows, expected, strict=True):
         assert row.startswith(f"| {window['end_s'] / 60:g} | {window['rss_mib']:.0f} |")
+
+
+def test_the_int8_exactness_table_is_the_reports_rows_and_says_which_product_it_met() -> None:
+    """One row per measured network, its figures from docs/benchmark/int8-exactness.json;
+    the lead names the machine, onnxruntime's product there (exact or saturating, as the
+    report records it) and the kernel the compiled layers ran on. On a processor whose
+    product saturates, onnxruntime moved rows; on an exact one it moved none."""
+    report = read("int8-exactness")
+    text = run_block("int8-exactness", [])
+    rows = body(text.split("\n\n", 1)[1])
+    assert len(rows) == len(report["results"])
+    for row, result in zip(rows, report["results"], strict=True):
+        assert row[0] == result["model"] and row[1] == f"`{result['network']}`"
+        assert float(row[2]) == pytest.approx(result["largest_difference"], rel=5e-3)
+        assert float(row[4].rstrip(" %")) == pytest.approx(
+            100 * result["rows_differing_share"], abs=0.05
+        )
+    word = "exact" if report["onnxruntime_exact"] else "saturating"
+    assert f"product there is {word}" in text and report["kernel"].upper() in text
+    moved = any(r["rows_differing_share"] > 0 for r in report["results"])
+    assert moved is not report["onnxruntime_exact"]

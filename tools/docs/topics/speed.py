@@ -17,6 +17,7 @@
     <!-- figures: model-default correction_steps --> a served default, every model
     <!-- figures: parallel-min-rows -->              the least rows a flow call runs on all threads
     <!-- figures: compiled-parallel-min-rows -->     the same, on the compiled 512-wide int8 layers
+    <!-- figures: int8-exactness -->                 onnxruntime's int8 against the exact network
 
 Options are `key=value` words: `report=NAME` reads docs/benchmark/NAME.json (default
 `benchmark`, the benchmark of record), `n=N` a size other than the goals' N, `fmt=SPEC` a
@@ -185,6 +186,28 @@ def compiled_parallel_min_rows() -> str:
     """The fewest rows a call of the compiled 512-wide int8 layers runs on two threads
     (service/models/int8_mlp.py)."""
     return str(int8_mlp.PARALLEL_MIN_WORK // 512)
+
+
+@block("int8-exactness")
+def int8_exactness() -> str:
+    """onnxruntime's int8 velocities against the exact quantised network's, per bundled
+    network, on the machine of docs/benchmark/int8-exactness.json (`tools.int8_exactness`)."""
+    report = sources.benchmark("int8-exactness")
+    machine = Machine.from_json(report["machine"]).describe()
+    product = "exact" if report["onnxruntime_exact"] else "saturating (neither VNNI nor AMX)"
+    times = ", ".join(f"{t:g}" for t in report["times"])
+    lead = (
+        f"Measured by `{report['command']}` on {machine}: onnxruntime's int8 product there "
+        f"is {product}, the compiled layers run on {report['kernel'].upper()}; "
+        f"{report['rows_per_call']} rows per call at t = {times}:\n\n"
+    )
+    rows = [
+        [r["model"], f"`{r['network']}`", f"{r['largest_difference']:.3g}",
+         f"{r['largest_velocity']:.3g}", f"{100 * r['rows_differing_share']:.1f} %"]
+        for r in report["results"]
+    ]  # fmt: skip
+    header = ["model", "network", "largest difference", "largest velocity", "rows differing"]
+    return lead + table(header, rows)
 
 
 @block("bench")
