@@ -182,6 +182,7 @@ static int avx2_usable(void) {
 #define AVX2_ROWS 4
 #define AVX2_VECTORS 2
 #define AVX2_COLUMNS (8 * AVX2_VECTORS)
+#define AVX2_CHUNK 32
 _Static_assert(N_BLOCK % AVX2_COLUMNS == 0, "a layer's n_pad holds whole blocks");
 
 __attribute__((target("avx2,fma"))) static inline __m256 logistic_avx2(__m256 x) {
@@ -314,18 +315,25 @@ __attribute__((target("avx2,fma"), always_inline)) static inline void block_avx2
     }
 }
 
-/* One layer on AVX2: a (M, k_pad) int16 -> out (M, n) float32, a 16-column block of the
- * weights (k_pad * 64 bytes: in the first-level cache) against every row in turn. */
+/* One layer on AVX2: a (M, k_pad) int16 -> out (M, n) float32, AVX2_CHUNK rows at a time:
+ * each block of AVX2_COLUMNS columns of the weights (k_pad * 64 bytes: in the first-level
+ * cache) against the chunk's rows in turn. The chunk keeps a thread's working set (its
+ * rows' input and output, the widened weights, 512 kB for a 512-wide layer) within its
+ * core's second-level cache: a whole 250-row share at once does not fit, and a call of 500
+ * rows on two threads then takes 8.1 ms instead of 6.0-7.0 (2-core AMD EPYC; CHANGELOG). */
 __attribute__((target("avx2,fma"))) static void layer_avx2(const Layer *L, const int16_t *a,
                                                           Py_ssize_t M, float scale,
                                                           int32_t zero_point, float *out,
                                                           float *low, float *high) {
     __m256 lo = _mm256_set1_ps(INFINITY), hi = _mm256_set1_ps(-INFINITY);
-    for (Py_ssize_t j0 = 0; j0 < L->n; j0 += AVX2_COLUMNS) {
-        Py_ssize_t i = 0;
-        for (; i + AVX2_ROWS <= M; i += AVX2_ROWS)
-            block_avx2(L, a, i, AVX2_ROWS, j0, scale, zero_point, out, &lo, &hi);
-        for (; i < M; ++i) block_avx2(L, a, i, 1, j0, scale, zero_point, out, &lo, &hi);
+    for (Py_ssize_t i0 = 0; i0 < M; i0 += AVX2_CHUNK) {
+        Py_ssize_t i1 = M - i0 < AVX2_CHUNK ? M : i0 + AVX2_CHUNK;
+        for (Py_ssize_t j0 = 0; j0 < L->n; j0 += AVX2_COLUMNS) {
+            Py_ssize_t i = i0;
+            for (; i + AVX2_ROWS <= i1; i += AVX2_ROWS)
+                block_avx2(L, a, i, AVX2_ROWS, j0, scale, zero_point, out, &lo, &hi);
+            for (; i < i1; ++i) block_avx2(L, a, i, 1, j0, scale, zero_point, out, &lo, &hi);
+        }
     }
     float l[8], h[8];
     _mm256_storeu_ps(l, lo), _mm256_storeu_ps(h, hi);
