@@ -28,26 +28,15 @@ import numpy as np
 
 from service.manifest import MANIFEST_FILE, REPO_MODELS_DIR, Manifest
 from service.models.int8_mlp import CompiledVelocityField, best_kernel
+from service.models.registry import INT8_FLOW_FILES
 from service.models.sessions import FLOW_INPUTS, FLOW_OUTPUT, open_session
-from training.machine import Machine, cpu_model
+from training.machine import Machine, cpu_flags, cpu_model
 
 # MLAS's u8 x s8 product runs on VNNI (vpdpbusd) or AMX where the processor has them, both
 # exact; on AVX2 alone (and AVX-512 without VNNI) on vpmaddubsw, which saturates.
 EXACT_ONNXRUNTIME_FLAGS = frozenset({"avx512_vnni", "avx_vnni", "amx_int8"})
 TIMES = (0.0, 0.25, 0.5, 0.75)  # one t per call, as a sampler's Euler steps
 ROW_ROUND_OFF = 1e-5  # of a row's largest |velocity|: float32 round-off at the row's scale
-
-
-def cpu_flags() -> frozenset[str]:
-    """The processor's feature flags as Linux lists them (none elsewhere)."""
-    try:
-        lines = Path("/proc/cpuinfo").read_text().splitlines()
-    except OSError:
-        return frozenset()
-    for line in lines:
-        if line.startswith("flags"):
-            return frozenset(line.split(":", 1)[1].split())
-    return frozenset()
 
 
 def onnxruntime_product_exact() -> bool:
@@ -61,7 +50,7 @@ def int8_networks() -> list[Path]:
     for manifest_path in sorted(REPO_MODELS_DIR.glob(f"*/{MANIFEST_FILE}")):
         manifest = Manifest.model_validate_json(manifest_path.read_bytes())
         for name in sorted(manifest.files):
-            if name.endswith("_int8.onnx"):
+            if name in INT8_FLOW_FILES:
                 paths.append(manifest_path.parent / name)
     return paths
 

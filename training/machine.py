@@ -14,16 +14,26 @@ from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 
-def cpu_model() -> str:
-    """The CPU's model name (/proc/cpuinfo), else what the platform module knows."""
+def _cpuinfo(key: str) -> str | None:
+    """The first /proc/cpuinfo value of `key` ("model name", "flags"), None without one."""
     try:
         with open("/proc/cpuinfo") as handle:
             for line in handle:
-                if line.startswith("model name"):
+                if line.startswith(key):
                     return line.split(":", 1)[1].strip()
     except OSError:
         pass
-    return platform.processor() or platform.machine() or "unknown"
+    return None
+
+
+def cpu_model() -> str:
+    """The CPU's model name (/proc/cpuinfo), else what the platform module knows."""
+    return _cpuinfo("model name") or platform.processor() or platform.machine() or "unknown"
+
+
+def cpu_flags() -> frozenset[str]:
+    """The processor's feature flags as Linux lists them (none elsewhere)."""
+    return frozenset((_cpuinfo("flags") or "").split())
 
 
 def load_average_1min() -> float | None:

@@ -202,6 +202,16 @@ __attribute__((target("avx2,fma"))) static inline __m256 logistic_avx2(__m256 x)
     return _mm256_max_ps(y, _mm256_setzero_ps());
 }
 
+/* The least of lo's lanes and the greatest of hi's. */
+__attribute__((target("avx2,fma"))) static void reduce_avx2(__m256 lo, __m256 hi, float *low,
+                                                           float *high) {
+    float l[8], h[8];
+    _mm256_storeu_ps(l, lo), _mm256_storeu_ps(h, hi);
+    float a = l[0], b = h[0];
+    for (int j = 1; j < 8; ++j) a = l[j] < a ? l[j] : a, b = h[j] > b ? h[j] : b;
+    *low = a, *high = b;
+}
+
 __attribute__((target("avx2,fma"))) static void min_max_avx2(const float *x, size_t count,
                                                             float *low, float *high) {
     __m256 lo = _mm256_set1_ps(x[0]), hi = lo;
@@ -210,10 +220,8 @@ __attribute__((target("avx2,fma"))) static void min_max_avx2(const float *x, siz
         __m256 v = _mm256_loadu_ps(x + i);
         lo = _mm256_min_ps(lo, v), hi = _mm256_max_ps(hi, v);
     }
-    float l[8], h[8];
-    _mm256_storeu_ps(l, lo), _mm256_storeu_ps(h, hi);
-    float a = l[0], b = h[0];
-    for (int j = 1; j < 8; ++j) a = l[j] < a ? l[j] : a, b = h[j] > b ? h[j] : b;
+    float a, b;
+    reduce_avx2(lo, hi, &a, &b);
     for (; i < count; ++i) a = x[i] < a ? x[i] : a, b = x[i] > b ? x[i] : b;
     *low = a, *high = b;
 }
@@ -335,11 +343,7 @@ __attribute__((target("avx2,fma"))) static void layer_avx2(const Layer *L, const
             for (; i < i1; ++i) block_avx2(L, a, i, 1, j0, scale, zero_point, out, &lo, &hi);
         }
     }
-    float l[8], h[8];
-    _mm256_storeu_ps(l, lo), _mm256_storeu_ps(h, hi);
-    float a0 = l[0], b0 = h[0];
-    for (int j = 1; j < 8; ++j) a0 = l[j] < a0 ? l[j] : a0, b0 = h[j] > b0 ? h[j] : b0;
-    *low = a0, *high = b0;
+    reduce_avx2(lo, hi, low, high);
 }
 
 /* W (k, n) int8 into vpmaddwd's pairs (n_pad / C, k_pad / 2, C, 2), C = AVX2_COLUMNS:
@@ -879,7 +883,7 @@ static PyObject *py_kernels(PyObject *self, PyObject *unused) {
 static PyMethodDef methods[] = {
     {"network", py_network, METH_VARARGS,
      "network(layers) -> capsule: the layers (k, n, silu, weight, column_sum, weight_scale, "
-     "bias), held for forward, the weights packed for AMX."},
+     "bias), held for forward, the weights packed for AMX (and widened for AVX2 where it is)."},
     {"forward", py_forward, METH_VARARGS,
      "forward(network, x, M, kernel, threads, y): the network on x's M rows into y on "
      "`kernel` (a code from kernels()); on two threads when threads > 1 and M > 32."},

@@ -151,10 +151,15 @@ def quantised_layers(graph: Graph) -> tuple[str, list[QuantisedLayer]]:
         quantise = _only(graph.consumers(silu.outputs[0]), "DynamicQuantizeLinear", "SiLU")
 
 
+# name -> compiled code of each kernel this processor runs, best first: asked once, since
+# the processor does not change under a process.
+_KERNEL_CODES: dict[str, int] = dict(_int8_mlp.kernels())
+
+
 def usable_kernels() -> tuple[str, ...]:
     """The product's kernels this processor runs, best first ("plain" always): "amx" needs
     AMX-INT8 tiles and AVX-512F allowed by the operating system, "avx2" AVX2 and FMA."""
-    return tuple(name for name, _ in _int8_mlp.kernels())
+    return tuple(_KERNEL_CODES)
 
 
 def best_kernel() -> str:
@@ -165,14 +170,13 @@ def best_kernel() -> str:
 def kernel_code(kernel: str | None) -> int:
     """The compiled code of `kernel` (None: the best usable here); ValueError naming the
     usable ones for a kernel unknown or not usable on this processor."""
-    codes = dict(_int8_mlp.kernels())
     name = best_kernel() if kernel is None else kernel
-    if name not in codes:
+    if name not in _KERNEL_CODES:
         raise ValueError(
             f"kernel {name!r} is not usable on this processor; usable here: "
-            f"{', '.join(codes)} (of {', '.join(KERNELS)})"
+            f"{', '.join(_KERNEL_CODES)} (of {', '.join(KERNELS)})"
         )
-    return int(codes[name])
+    return _KERNEL_CODES[name]
 
 
 def keep_scratch(size_bytes: int) -> int:
@@ -303,7 +307,7 @@ class CompiledVelocityField:
         self._prefix_output = prefix_output
         self._parts = parts
         self._network = network
-        self.kernel = usable_kernels()[0] if kernel is None else kernel
+        self.kernel = best_kernel() if kernel is None else kernel
         kernel_code(self.kernel)  # refused here, naming the usable ones, if not usable
         self._threads = threads
         self._parallel_min_work = parallel_min_work
