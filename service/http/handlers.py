@@ -8,6 +8,8 @@ errors name their field and what it allows; an unparseable body says why.
 from __future__ import annotations
 
 import math
+from functools import cache
+from typing import Any
 
 from fastapi import FastAPI, Request
 from fastapi.encoders import jsonable_encoder
@@ -27,6 +29,19 @@ REQUEST_MODELS: dict[str, type[BaseModel]] = {
     "/smm/batch": SmmBatchRequest,
     "/smm/self-motion": SelfMotionRequest,
 }
+
+
+def request_schema(path: str) -> dict[str, Any]:
+    """The JSON schema of the body of the route at `path` (SmmRequest's for any other)."""
+    return _schema_of(REQUEST_MODELS.get(path, SmmRequest))
+
+
+@cache
+def _schema_of(model: type[BaseModel]) -> dict[str, Any]:
+    # Built once per model: pydantic takes milliseconds to generate it, several times the
+    # rest of a 422's handling, and a stream of malformed requests would pay it each time.
+    # Read only (service/http/validation.py never writes to it).
+    return model.model_json_schema()
 
 
 def _field_error(error: RequestFieldError) -> dict[str, object]:
@@ -68,7 +83,7 @@ def _validation_error_response(request: Request, error: Exception) -> JSONRespon
     settings: Settings = request.app.state.settings
     per_query = f"<= {settings.max_num_samples} (this server's limit)"
     limits = {"num_samples": per_query, "targets.num_samples": per_query}
-    schema = REQUEST_MODELS.get(request.url.path, SmmRequest).model_json_schema()
+    schema = request_schema(request.url.path)
     errors = [explain(e, schema, limits) for e in jsonable_encoder(error.errors())]
     return JSONResponse({"detail": _json_safe(errors)}, status_code=422)
 

@@ -47,3 +47,13 @@ def test_messages_keep_the_error_and_add_field_and_allowance() -> None:
         {},
     )
     assert unknown["msg"].endswith("allowed: only the fields position, orientation")
+
+
+def test_a_routes_schema_is_its_request_models_built_once() -> None:
+    from service.http.handlers import request_schema
+    from service.wire import SmmBatchRequest
+
+    assert request_schema("/smm/batch") == SmmBatchRequest.model_json_schema()
+    assert request_schema("/smm") == SCHEMA
+    # Any other path reads SmmRequest's; a repeated 422 reuses the schema, not a new one.
+    assert request_schema("/elsewhere") is request_schema("/smm")
