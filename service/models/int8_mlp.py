@@ -22,9 +22,11 @@ velocities then differ from the exact ones on nearly every row of a sampler's ca
 to hundreds (`python -m tools.int8_exactness` measures it on the machine it runs on): the
 same request would get another answer from a replica on another processor. Here every
 replica computes the exact network (the same integer sums, the same float32 operations in
-the same order), which is onnxruntime's to the bit where onnxruntime's product is exact;
-only the time embedding, computed by onnxruntime before the first quantised layer, may
-round differently on another instruction set.
+the same order), which is onnxruntime's to the bit where onnxruntime's product is exact.
+The time embedding, computed by onnxruntime before the first quantised layer, is the same
+on every x86 processor too: its sin and cos are Eigen's, compiled into onnxruntime for the
+baseline instruction set without fused multiply-adds and with no dispatch by processor
+(a test pins every bundled network's embedding to that arithmetic, worked out in numpy).
 
 `python -m tools.onnx_threads` times both (at 500 rows on a 2-core Intel Xeon: 1.05 ms on
 one thread and 0.67 on two, against onnxruntime's 1.83 and 1.52).

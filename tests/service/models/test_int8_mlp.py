@@ -34,7 +34,7 @@ from service.models.int8_mlp import (
     quantised_layers,
     usable_kernels,
 )
-from service.models.onnx_file import read_graph
+from service.models.onnx_file import cut_model, read_graph
 from service.models.registry import (
     INT8_FLOW_FILES,
     int8_on_compiled_layers,
@@ -173,6 +173,85 @@ def test_the_embedding_once_per_distinct_t_is_the_embedding_of_every_row() -> No
             for key, row in part._kept.items():
                 t = np.frombuffer(key, dtype=np.float32).reshape(1, 1)
                 np.testing.assert_array_equal(row, part.session.run([part.output], {"t": t})[0])
+
+
+def _eigen_sincos(x: np.ndarray, sine: bool) -> np.ndarray:
+    """Eigen's psincos_float without fused multiply-adds (Eigen/src/Core/arch/Default/
+    GenericPacketMathFunctions.h): rounding to the nearest quarter turn, a four-part
+    reduction, the sine or cosine polynomial on [-pi/4, pi/4], the sign from the quadrant.
+    Each float32 operation rounds on its own (numpy's), as SSE's separate mul and add do.
+    Arguments under 18838, where it reduces without its fallback for huge ones."""
+    f32 = np.float32
+
+    def madd(a: np.ndarray, b: np.float32 | np.ndarray, c: np.float32 | np.ndarray) -> np.ndarray:
+        return (a * b).astype(f32) + c
+
+    x = np.asarray(x, dtype=f32)
+    assert np.abs(x).max() < 18838.0
+    y_round = np.abs(x) * f32(0.636619746685028076171875) + f32(12582912)  # 2/pi, 2^23 + 2^22
+    quadrant = y_round.view(np.int32)
+    y = y_round - f32(12582912)
+    r = np.abs(x)
+    for part in (-1.5703125, -0.000483989715576171875, 1.62865035235881805419921875e-07,
+                 5.5644315544167710640977020375430583953857421875e-11):  # fmt: skip
+        r = madd(y, f32(part), r)
+    r2 = r * r
+    cosine = np.full_like(r, f32(2.4372266125283204019069671630859375e-05))
+    for c in (-0.00138865201734006404876708984375, 0.041666619479656219482421875, -0.5, 1.0):
+        cosine = madd(cosine, r2, f32(c))
+    sine_ = np.full_like(
+        r, f32(-0.0001959234114083702898469196984621021329076029360294342041015625)
+    )
+    for c in (0.0083326873655616851693794799871284340042620897293090820312500000,
+              -0.1666666203982298255503735617821803316473960876464843750000000000):  # fmt: skip
+        sine_ = madd(sine_, r2, f32(c))
+    sine_ = madd(sine_ * r2, r, r)
+    even = (quadrant & 1) == 0
+    value = np.where(even, sine_, cosine) if sine else np.where(even, cosine, sine_)
+    sign = (x.view(np.int32) ^ (quadrant << 30)) if sine else ((quadrant + 1) << 30)
+    return (value.view(np.int32) ^ (sign & np.int32(-(2**31)))).view(f32)
+
+
+@pytest.mark.parametrize("path", _int8_flows(), ids=lambda p: f"{p.parent.name}/{p.name}")
+def test_the_time_embedding_is_eigens_sin_and_cos_without_fused_multiply_adds(
+    path: Path,
+) -> None:
+    """What the compiled layers take from onnxruntime, sin and cos of t times the
+    frequencies, is Eigen's arithmetic without fused multiply-adds, to the bit, on a
+    sampler's every t and 40,000 more: code compiled into onnxruntime for the baseline
+    instruction set, with no dispatch by processor, so the same bits on every x86
+    processor (this one has FMA and the bits show none). A change of onnxruntime's (or a
+    processor that computed otherwise) fails here before it moves an answer."""
+    graph = read_graph(path)
+    (concat,) = [node for node in graph.nodes if node.op_type == "Concat" and "q_t" in node.inputs]
+    embedding = next(name for name in concat.inputs if name not in FLOW_INPUTS)
+    sin_and_cos = graph.producer(embedding)
+    assert sin_and_cos is not None and sin_and_cos.op_type == "Concat"
+    sin, cos = (graph.producer(name) for name in sin_and_cos.inputs)
+    assert sin is not None and cos is not None and (sin.op_type, cos.op_type) == ("Sin", "Cos")
+    product = graph.producer(sin.inputs[0])
+    assert product is not None and product.op_type == "Mul" and product.inputs[0] == "t"
+    frequencies = graph.initializers[product.inputs[1]].astype(np.float32)  # (1, F)
+    f32 = np.float32
+    steps = (np.arange(101) / f32(100)).astype(f32)
+    t = np.unique(
+        np.concatenate(
+            [
+                steps,
+                steps**2,  # a time power of 2, as the iiwa14 pose's sampler spaces its steps
+                np.linspace(0, 1, 20_001, dtype=f32),
+                np.random.default_rng(5).uniform(0, 1, 20_000).astype(f32),
+            ]
+        ).astype(f32)
+    )[:, None]  # (T, 1)
+    session = open_session(cut_model(graph, embedding, ("batch", "width")), 1)
+    (onnxruntime,) = session.run([embedding], {"t": t})
+    argument = (t * frequencies).astype(f32)  # Mul: one float32 rounding
+    expected = np.concatenate([_eigen_sincos(argument, True), _eigen_sincos(argument, False)], 1)
+    np.testing.assert_array_equal(onnxruntime.view(np.int32), expected.view(np.int32))
+    # Not libm's: the correctly rounded sine differs in some (so this test can tell).
+    libm = np.sin(argument.astype(np.float64)).astype(f32)
+    assert (libm != expected[:, : frequencies.shape[1]]).any()
 
 
 @pytest.mark.parametrize("kernel", KERNELS_HERE)
