@@ -6,15 +6,20 @@ and each row's result depends on that row alone, so the rows of one call can run
 several threads at once and give the same numbers. A chunk is worth a thread only when it
 is long enough to repay the hand-off (tens of microseconds): below `MIN_CHUNK_ROWS` rows a
 call stays on the caller's thread.
+
+A call whose result is needed only later, and which does not feed what comes before
+that, runs beside the caller instead (`Aside`): the trace's least sigma_min and the
+closest approach of two strands only flag the structure, so they overlap the rest of the
+trace and the cutting into free pieces.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from functools import cache
 from itertools import pairwise
-from typing import TypeVar
+from typing import Generic, TypeVar
 
 T = TypeVar("T")
 
@@ -50,3 +55,28 @@ def over_rows(
     helpers = [_pool(threads).submit(call, part) for part in parts[:-1]]
     last = call(parts[-1])
     return [future.result() for future in helpers] + [last]
+
+
+@cache
+def _aside_pool() -> ThreadPoolExecutor:
+    """The process's thread for work set aside while the caller goes on."""
+    return ThreadPoolExecutor(max_workers=1, thread_name_prefix="smm-aside")
+
+
+class Aside(Generic[T]):
+    """`call()` on a thread of its own while the caller goes on (`threads` > 1), or at once
+    on the caller's (`threads` 1); `result()` waits for it. `call` must release the GIL
+    for its work (a compiled kernel) to overlap anything."""
+
+    def __init__(self, call: Callable[[], T], threads: int) -> None:
+        self._future: Future[T] | None = None
+        self._value: T | None = None
+        if threads > 1:
+            self._future = _aside_pool().submit(call)
+        else:
+            self._value = call()
+
+    def result(self) -> T:
+        if self._future is not None:
+            return self._future.result()
+        return self._value  # type: ignore[return-value]

@@ -43,6 +43,7 @@ from service.pipeline.connect.splicing import attach_by_walk, open_ends, splice_
 from service.pipeline.connect.trace import MEET_FACTOR, closest_strands_rad
 from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.fibre import min_singular_value
+from service.pipeline.rows import Aside
 from service.pipeline.space import FibreSpace
 from service.pipeline.types import (
     Acceptance,
@@ -93,6 +94,7 @@ def connect(
         if space.collision.active:
             components = free_pieces(space, components, spec.path_spacing_rad)
             leftover = leftover[acceptance.collision_free[leftover]]
+        complete &= not np.isfinite(found.strands_rad.result())
     if len(leftover):
         q_leftover = correction.q_rad[leftover]
         planner, roadmap = planner_settings(spec), roadmap_settings(spec)
@@ -115,8 +117,12 @@ class _Curves:
 
     components: list[Component]
     leftover: IntArray  # (L,) rows of the correction
-    complete: bool
+    complete: bool  # the strands' closest approach aside
     min_singular_value: float
+    # The closest approach of two strands of the curves (trace.closest_strands_rad), worked
+    # out on another thread while the free pieces are cut: finite, the curves are not
+    # resolved there.
+    strands_rad: Aside[float]
 
 
 def _curve_components(
@@ -154,15 +160,17 @@ def _curve_components(
     # Strands closer than the fronts' meeting distance may have been joined or told
     # apart wrongly: the structure there is not resolved (trace.closest_strands_rad).
     meeting_rad = MEET_FACTOR * spec.trace_step_rad
-    strands_rad = closest_strands_rad([(p.q_rad, p.closed) for p in paths], limits, meeting_rad)
-    complete &= not np.isfinite(strands_rad)
+    strands = [(p.q_rad, p.closed) for p in paths]
+    strands_rad = Aside(
+        lambda: closest_strands_rad(strands, limits, meeting_rad), space.fibre.threads
+    )
     components = [
         _component(correction, acceptance, accepted[owner == index], path)
         for index, path in enumerate(paths)
     ]
     leftover = accepted[owner < 0]
     complete &= len(leftover) == 0
-    return _Curves(components, leftover, bool(complete), sigma)
+    return _Curves(components, leftover, bool(complete), sigma, strands_rad)
 
 
 def _component(

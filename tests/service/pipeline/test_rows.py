@@ -1,6 +1,8 @@
 """rows: the chunks cover every row once, in order, none shorter than MIN_CHUNK_ROWS unless
 there is only one; a call over rows runs its chunks on helper threads and returns their
-results in the chunks' order; the compiled correction, Newton projection and
+results in the chunks' order; work set aside runs on a thread of its own while the caller
+goes on (on the caller's when there is one thread) and gives its value, or raises its
+error, when asked; the compiled correction, Newton projection and
 self-clearance give the same numbers bitwise whatever the threads their rows are split
 over."""
 
@@ -18,7 +20,7 @@ from service.pipeline.collision.check import CollisionCheck
 from service.pipeline.collision.scene import Scene
 from service.pipeline.correction import correct
 from service.pipeline.fibre import project, unit_tangent
-from service.pipeline.rows import MIN_CHUNK_ROWS, chunks, over_rows
+from service.pipeline.rows import MIN_CHUNK_ROWS, Aside, chunks, over_rows
 from service.pipeline.run import fibre_of
 from service.pipeline.targets import Target
 
@@ -49,6 +51,38 @@ def test_a_call_over_rows_runs_on_helper_threads_in_order() -> None:
     assert threading.current_thread().name in seen
     assert sum(name.startswith("smm-rows") for name in seen) == 2
     assert over_rows(call, 10, 3) == [(0, 10)]  # too few rows: the caller's thread alone
+
+
+def test_work_set_aside_runs_beside_the_caller_and_gives_its_value() -> None:
+    started, release = threading.Event(), threading.Event()
+
+    def call() -> str:
+        started.set()
+        assert release.wait(10.0)  # only returns once the caller has gone on past it
+        return threading.current_thread().name
+
+    aside = Aside(call, threads=2)
+    assert started.wait(10.0)
+    release.set()
+    assert aside.result().startswith("smm-aside")
+    # One thread: at once, on the caller's.
+    assert Aside(lambda: threading.current_thread().name, 1).result() == (
+        threading.current_thread().name
+    )
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_an_error_set_aside_is_raised_when_its_value_is_asked(threads: int) -> None:
+    def call() -> int:
+        raise ValueError("no value")
+
+    if threads == 1:
+        with pytest.raises(ValueError, match="no value"):
+            Aside(call, threads)
+        return
+    aside = Aside(call, threads)
+    with pytest.raises(ValueError, match="no value"):
+        aside.result()
 
 
 @pytest.fixture(scope="module")

@@ -39,6 +39,7 @@ from service.pipeline.connect.trace.seeds import spread_seeds
 from service.pipeline.connect.trace.walk import walk_fronts
 from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.fibre import evaluate, min_singular_value, unit_tangent
+from service.pipeline.rows import Aside
 from service.pipeline.space import FibreSpace
 
 
@@ -61,8 +62,10 @@ def trace_fibre(
     reached_rad = evaluated.q_rad  # (R, n) the whole curves, before the limits cut them
     # sigma_min over the seeds and every point the fronts reached.
     reached_jacobian = np.concatenate([start.jacobian, evaluated.jacobian[len(seeds) :]])
-    sigma = min_singular_value(reached_jacobian, fibre.threads)
+    sigma = Aside(lambda: min_singular_value(reached_jacobian), fibre.threads)
     evaluated, curves = refine_near_limits(fibre, evaluated, curves, limits, settings)
     runs = cut_by_limits(curves, limits)
     dense = densify(fibre, evaluated, runs, limits, settings)
-    return Trace(pieces=dense, complete=complete, min_singular_value=sigma, reached_rad=reached_rad)
+    return Trace(
+        pieces=dense, complete=complete, min_singular_value=sigma.result(), reached_rad=reached_rad
+    )

@@ -3,9 +3,12 @@ cut by the limits, ordered paths that are exact, inside the limits and finely sp
 checked against the closed forms (planar 3R) and the S-R-S IK components (iiwa pose),
 also where twin curves run a few hundredths of a radian apart and where one piece was
 traced twice; where twins run closer than the trace can resolve (the planar 3R within
-1e-4 of rho = 1) the answer says near_singular; a traced loop is cut only where a step
-is longer than a continuation step (2 h); r > 1: the roadmap joins one component
-across sampling gaps and keeps two apart."""
+1e-4 of rho = 1) the answer says near_singular; the answer is the same on one thread and
+on two (where sigma_min and the strands' closest approach run beside the rest); a traced
+loop is cut only where a step is longer than a continuation step (2 h); r > 1: the
+roadmap joins one component across sampling gaps and keeps two apart."""
+
+import dataclasses
 
 import numpy as np
 import pytest
@@ -107,6 +110,49 @@ def test_planar_twins_closer_than_the_trace_resolves_are_flagged(
     for component in result.components:
         reached = planar3r_position(component.path.q_rad)  # type: ignore[union-attr]
         assert np.abs(reached - target).max() <= 1e-6
+
+
+def _same_answer(one: SmmResult, two: SmmResult) -> None:
+    assert one.structure == two.structure and one.counts == two.counts
+    assert len(one.components) == len(two.components)
+    for a, b in zip(one.components, two.components, strict=True):
+        np.testing.assert_array_equal(a.configurations_rad, b.configurations_rad)
+        assert (a.path is None) == (b.path is None) and a.clearance_m == b.clearance_m
+        if a.path is not None and b.path is not None:
+            np.testing.assert_array_equal(a.path.q_rad, b.path.q_rad)
+
+
+def test_the_answer_is_the_same_on_one_thread_and_two(
+    iiwa14_pose: ServedModel, planar3r: ServedModel
+) -> None:
+    """The least sigma_min and the strands' closest approach run on a thread of their own
+    beside the trace and the free pieces when there are two: the same answers, flags and
+    all, as one thread gives. On these two targets (a planar 3R just outside rho = 1, an
+    iiwa14 pose with the elbow 0.04 rad from straight and self-collision checked) two
+    strands pass closer than the trace resolves while sigma_min stays above 0.005: only
+    the strands' closest approach flags them near_singular."""
+    manifest = iiwa14_pose.manifest
+    q_target = np.array(
+        [-0.5664007844289922, -1.262865606030502, -2.4285203146198207, -0.03995694610587773,
+         -1.1945611949644335, 0.720450460057029, -1.8355556989518227]
+    )  # fmt: skip
+    fk = iiwa14_pose.kinematics(q_target[None])
+    elbow = Query.for_model(
+        manifest, position_m=fk.position_m[0].tolist(),
+        orientation_wxyz=orientation_wxyz(fk.rotation[0]), seed=7, check_self=True,
+    )  # fmt: skip
+    angle = -2.5998599473973916
+    twins = Query.for_model(
+        planar3r.manifest,
+        position_m=(1.003341579814633 * np.array([np.cos(angle), np.sin(angle)])).tolist(),
+        seed=47,
+    )
+    for model, query in ((planar3r, twins), (iiwa14_pose, elbow)):
+        one = run(dataclasses.replace(model, row_threads=1), query)
+        two = run(dataclasses.replace(model, row_threads=2), query)
+        _same_answer(one, two)
+        sigma = two.structure.min_singular_value
+        assert two.structure.near_singular and sigma is not None and sigma > 0.005
 
 
 @pytest.mark.parametrize("seed", [3, 4, 5, 6])
