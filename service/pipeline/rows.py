@@ -69,14 +69,11 @@ class Aside(Generic[T]):
     for its work (a compiled kernel) to overlap anything."""
 
     def __init__(self, call: Callable[[], T], threads: int) -> None:
-        self._future: Future[T] | None = None
-        self._value: T | None = None
         if threads > 1:
             self._future = _aside_pool().submit(call)
         else:
-            self._value = call()
+            self._future = Future()
+            self._future.set_result(call())
 
     def result(self) -> T:
-        if self._future is not None:
-            return self._future.result()
-        return self._value  # type: ignore[return-value]
+        return self._future.result()
