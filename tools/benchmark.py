@@ -604,7 +604,8 @@ def _time_bound(entry: dict, ms: float, most_ms: float, stage: dict[str, float])
         at = "the model's default N" if n is None else f"N = {n}"
         text += (
             f"The connect stage profiled alone (`tools.connect_profile`, the same targets at "
-            f"{at}, one thread): {profile['connect_ms']:.1f} ms, of which the compiled kernels "
+            f"{at}, the service's threads): {profile['connect_ms']:.1f} ms, of which the "
+            "compiled kernels on its own thread "
             f"{profile['kernels_ms']:.1f} ms in {profile['kernel_calls']:.0f} calls, and "
             f"{profile['connect_ms'] - profile['kernels_ms']:.1f} ms the stage's own Python "
             "and numpy between those calls (steps, neighbour searches, bookkeeping on a few "

@@ -7,8 +7,13 @@ then stage 5 with every compiled kernel (`service.pipeline.native`: the task res
 Newton steps, bordered solves, frames, clearances...) and the model's kinematics behind
 timers, and prints per target the connect stage's wall time, the kernel calls inside it
 and their time; then medians. What is left is the stage's own Python and numpy between
-those calls. One thread, in process. Compare figures only within one run (the CPU, and
-what else runs on it, differ between runs and machines).
+those calls. In process, on `--threads` row threads (the model's, in the benchmark):
+with more than one, a kernel call's rows may be split over them and two calls run beside
+the stage (`rows.Aside`); only the calls made on the stage's own thread are counted, the
+ones beside it overlap it. `--repeats`: each target's stage timed that many times, its
+least time and that run's kernels kept (the least is the machine's speed with the least
+interference). Compare figures only within one run (the CPU, and what else runs on it,
+differ between runs and machines).
 """
 
 from __future__ import annotations
@@ -16,6 +21,7 @@ from __future__ import annotations
 import argparse
 import inspect
 import json
+import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -45,6 +51,8 @@ class KernelTimer:
 
     @contextmanager
     def timing(self) -> Iterator[None]:
+        """Count the kernels called on this thread (those set aside run beside it)."""
+        owner = threading.get_ident()
         originals = {
             name: getattr(native, name)
             for name in dir(native)
@@ -55,6 +63,8 @@ class KernelTimer:
 
         def timed(kernel: Callable[..., Any]) -> Callable[..., Any]:
             def call(*args: Any, **kwargs: Any) -> Any:
+                if threading.get_ident() != owner:
+                    return kernel(*args, **kwargs)
                 start = time.perf_counter()
                 try:
                     return kernel(*args, **kwargs)
@@ -74,11 +84,11 @@ class KernelTimer:
 
 
 def profile_connect(
-    model: ServedModel, q_targets: FloatArray, num_samples: int | None = None
+    model: ServedModel, q_targets: FloatArray, num_samples: int | None = None, repeats: int = 1
 ) -> list[dict[str, float]]:
     """Per target (FK of each row of q_targets (T, n), seed i for target i): stages 1-4
     with the model's defaults at `num_samples` (None: the model's default), then stage 5
-    with its kinematics behind a timer."""
+    with its kinematics behind a timer, `repeats` times (the least time kept)."""
     manifest, defaults = model.manifest, model.manifest.defaults
     rows: list[dict[str, float]] = []
     for i, q in enumerate(q_targets):
@@ -97,20 +107,23 @@ def profile_connect(
         space = space_of(model, target, query.tolerance, collision_of(model, query))
         correction = correct_samples(model, space, sample(model, query, target))
         acceptance = space.accept(correction)
-        timer = KernelTimer()
-        with timer.timing():
-            start = time.perf_counter()
-            connection = connect(space, correction, acceptance, defaults.connectivity)
-            connect_ms = (time.perf_counter() - start) * 1e3
-        rows.append(
-            {
-                "target": i,
-                "components": len(connection.components),
-                "connect_ms": round(connect_ms, 1),
-                "kernels_ms": round(timer.seconds * 1e3, 1),
-                "kernel_calls": timer.calls,
-            }
-        )
+        best: dict[str, float] | None = None
+        for _ in range(repeats):
+            timer = KernelTimer()
+            with timer.timing():
+                start = time.perf_counter()
+                connection = connect(space, correction, acceptance, defaults.connectivity)
+                connect_ms = (time.perf_counter() - start) * 1e3
+            if best is None or connect_ms < best["connect_ms"]:
+                best = {
+                    "target": i,
+                    "components": len(connection.components),
+                    "connect_ms": round(connect_ms, 1),
+                    "kernels_ms": round(timer.seconds * 1e3, 1),
+                    "kernel_calls": timer.calls,
+                }
+        assert best is not None, "repeats must be at least 1"
+        rows.append(best)
     return rows
 
 
@@ -132,11 +145,15 @@ def main() -> None:
     parser.add_argument("--targets", type=int, default=20)
     parser.add_argument("--seed", type=int, default=11)
     parser.add_argument("--num-samples", type=int, help="default: the model's num_samples")
+    parser.add_argument("--threads", type=int, default=1, help="row threads (0: every core)")
+    parser.add_argument("--repeats", type=int, default=1, help="timings per target, least kept")
     args = parser.parse_args()
-    model = load_model(REPO_MODELS_DIR / args.model, threads=1)
+    if args.repeats < 1 or args.threads < 0:
+        parser.error("--repeats must be at least 1 and --threads at least 0")
+    model = load_model(REPO_MODELS_DIR / args.model, threads=args.threads)
     limits = model.limits
     q_targets = uniform_configurations(limits, args.targets, args.seed)
-    rows = profile_connect(model, q_targets, args.num_samples)
+    rows = profile_connect(model, q_targets, args.num_samples, args.repeats)
     for row in rows:
         print(json.dumps(row))
     print(json.dumps({"median": summarise(rows)}))

@@ -213,7 +213,7 @@ def test_bounds_name_the_stage_past_the_goal_or_the_evaluations_left_for_samplin
     position = next(line for line in lines if line.startswith("- iiwa14-position, time"))
     assert "60.0 ms (2.50x) over the goal of 40 ms" in position
     assert "The connect stage alone takes 1.8x the goal" in position
-    assert "of which the compiled kernels 20.0 ms in 100 calls" in position
+    assert "of which the compiled kernels on its own thread 20.0 ms in 100 calls" in position
     assert "and 30.0 ms the stage's own Python and numpy" in position
     assert "  - refused: fewer steps lost a target" in lines
     planar = next(line for line in lines if line.startswith("- planar3r-position, time"))

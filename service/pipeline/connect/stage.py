@@ -110,6 +110,10 @@ def connect(
     return Connection(components=components, structure=structure)
 
 
+# Path points the strands' closest approach must sweep to run beside the free pieces.
+MIN_ASIDE_POINTS = 1000
+
+
 @dataclass(frozen=True)
 class _Curves:
     """r = 1: the traced components, the accepted samples on none of them, whether the
@@ -162,7 +166,10 @@ def _curve_components(
     meeting_rad = MEET_FACTOR * spec.trace_step_rad
     strands = [(p.q_rad, p.closed) for p in paths]
     strands_rad = Aside(
-        lambda: closest_strands_rad(strands, limits, meeting_rad), space.fibre.threads
+        lambda: closest_strands_rad(strands, limits, meeting_rad),
+        space.fibre.threads,
+        rows=sum(len(q) for q, _ in strands),
+        min_rows=MIN_ASIDE_POINTS,
     )
     components = [
         _component(correction, acceptance, accepted[owner == index], path)

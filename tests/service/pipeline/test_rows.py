@@ -1,8 +1,8 @@
 """rows: the chunks cover every row once, in order, none shorter than MIN_CHUNK_ROWS unless
 there is only one; a call over rows runs its chunks on helper threads and returns their
 results in the chunks' order; work set aside runs on a thread of its own while the caller
-goes on (on the caller's when there is one thread) and gives its value, or raises its
-error, when asked; the compiled correction, Newton projection and
+goes on (on the caller's when there is one thread or it has too few rows) and gives its
+value, or raises its error, when asked; the compiled correction, Newton projection and
 self-clearance give the same numbers bitwise whatever the threads their rows are split
 over."""
 
@@ -20,7 +20,7 @@ from service.pipeline.collision.check import CollisionCheck
 from service.pipeline.collision.scene import Scene
 from service.pipeline.correction import correct
 from service.pipeline.fibre import project, unit_tangent
-from service.pipeline.rows import MIN_CHUNK_ROWS, Aside, chunks, over_rows
+from service.pipeline.rows import MIN_ASIDE_ROWS, MIN_CHUNK_ROWS, Aside, chunks, over_rows
 from service.pipeline.run import fibre_of
 from service.pipeline.targets import Target
 
@@ -61,14 +61,14 @@ def test_work_set_aside_runs_beside_the_caller_and_gives_its_value() -> None:
         assert release.wait(10.0)  # only returns once the caller has gone on past it
         return threading.current_thread().name
 
-    aside = Aside(call, threads=2)
+    aside = Aside(call, threads=2, rows=MIN_ASIDE_ROWS)
     assert started.wait(10.0)
     release.set()
     assert aside.result().startswith("smm-aside")
-    # One thread: at once, on the caller's.
-    assert Aside(lambda: threading.current_thread().name, 1).result() == (
-        threading.current_thread().name
-    )
+    # One thread, or too few rows to repay the hand-off: at once, on the caller's.
+    here = threading.current_thread().name
+    assert Aside(lambda: threading.current_thread().name, 1, MIN_ASIDE_ROWS).result() == here
+    assert Aside(lambda: threading.current_thread().name, 2, MIN_ASIDE_ROWS - 1).result() == here
 
 
 @pytest.mark.parametrize("threads", [1, 2])
@@ -78,9 +78,9 @@ def test_an_error_set_aside_is_raised_when_its_value_is_asked(threads: int) -> N
 
     if threads == 1:
         with pytest.raises(ValueError, match="no value"):
-            Aside(call, threads)
+            Aside(call, threads, MIN_ASIDE_ROWS)
         return
-    aside = Aside(call, threads)
+    aside = Aside(call, threads, MIN_ASIDE_ROWS)
     with pytest.raises(ValueError, match="no value"):
         aside.result()
 

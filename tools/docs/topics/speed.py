@@ -409,12 +409,13 @@ def speed_bound(model_id: str, *arguments: str) -> str:
         n = profile.get("num_samples")
         at = "the model's default N" if n is None else f"N = {n}"
         head = (
-            f"- The connect stage profiled alone (one thread, the same targets at {at}): "
+            f"- The connect stage profiled alone (the service's threads, the same targets at "
+            f"{at}): "
             f"{profile['connect_ms']:.1f} ms, of which "
         )
         if "kernels_ms" in profile:  # tools/connect_profile times the compiled kernels
             lines.append(
-                f"{head}the compiled kernels {profile['kernels_ms']:.1f} ms in "
+                f"{head}the compiled kernels on its own thread {profile['kernels_ms']:.1f} ms in "
                 f"{profile['kernel_calls']:.0f} calls; the rest is the stage's own Python and "
                 "numpy between those calls."
             )

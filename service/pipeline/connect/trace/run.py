@@ -62,7 +62,9 @@ def trace_fibre(
     reached_rad = evaluated.q_rad  # (R, n) the whole curves, before the limits cut them
     # sigma_min over the seeds and every point the fronts reached.
     reached_jacobian = np.concatenate([start.jacobian, evaluated.jacobian[len(seeds) :]])
-    sigma = Aside(lambda: min_singular_value(reached_jacobian), fibre.threads)
+    sigma = Aside(
+        lambda: min_singular_value(reached_jacobian), fibre.threads, len(reached_jacobian)
+    )
     evaluated, curves = refine_near_limits(fibre, evaluated, curves, limits, settings)
     runs = cut_by_limits(curves, limits)
     dense = densify(fibre, evaluated, runs, limits, settings)
