@@ -13,6 +13,7 @@ setup(
         Extension(
             "service.pipeline._native",
             sources=["service/pipeline/native.c"],
+            depends=["service/pipeline/row_helper.h"],
             extra_compile_args=["-O2", "-std=c99", "-fno-fast-math"],
         ),
         # The int8 flow network (service/models/int8_mlp.c): onnxruntime's arithmetic to

@@ -21,7 +21,6 @@ from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.joint_space import JointLimits
 from service.pipeline.native import AxisTarget
 from service.pipeline.rotations import axis_error, normal_basis, rotation_error
-from service.pipeline.rows import over_rows
 from service.pipeline.targets import Target, kernel_orientation
 from service.pipeline.types import (
     ChainKinematics,
@@ -145,25 +144,14 @@ def compiled_newton(
     threads: int = 1,
     fresh: BoolArray | None = None,  # (B,) rows not yet evaluated (evaluated first)
 ) -> tuple[FloatArray, FloatArray, FloatArray]:  # q (B, n), error (B, m), jacobian (B, m, n)
-    """`native.newton` on a serial chain's rows, split over `threads` (rows.py): the same
-    steps row by row, so the same numbers on any count."""
-    per_row = locked is not None and np.ndim(locked) == 2
+    """`native.newton` on a serial chain's rows, the first part on the row helper with
+    `threads` > 1 (rows.helper_rows): the same steps row by row, so the same numbers on any
+    count."""
     rotation = kernel_orientation(task, target)
-
-    def chunk(rows: slice) -> tuple[FloatArray, FloatArray, FloatArray]:
-        return native.newton(
-            chain.fixed, chain.tip, task.position_axes, target.position_m, rotation,
-            q_rad[rows], error[rows], jacobian[rows], iterations, damping, until,
-            locked[rows] if per_row and locked is not None else locked,
-            None if tangent is None else tangent[rows],
-            None if fresh is None else fresh[rows],
-        )  # fmt: skip
-
-    parts = over_rows(chunk, len(q_rad), threads)
-    if len(parts) == 1:
-        return parts[0]
-    q, e, j = (np.concatenate(part) for part in zip(*parts, strict=True))
-    return q, e, j
+    return native.newton(
+        chain.fixed, chain.tip, task.position_axes, target.position_m, rotation, q_rad, error,
+        jacobian, iterations, damping, until, locked, tangent, fresh, threads,
+    )  # fmt: skip
 
 
 # J (A, m, n), e (A, m) of the rows still moving, and which rows they are (an index (A,),

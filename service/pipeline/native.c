@@ -15,6 +15,8 @@
 #include <string.h>
 #include <time.h>
 
+#include "row_helper.h"
+
 /* ---------------------------------------------------------------- chain kinematics */
 
 /* fixed (n, 4, 4): joint i's fixed transform from the previous joint's frame, its axis
@@ -2315,22 +2317,51 @@ static PyObject *py_task_residual(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
+/* newton_rows' arguments, for a part of its rows (split_rows). */
+typedef struct {
+    const double *fixed, *tip, *target_position, *target_rotation, *tangent;
+    const long long *rows;
+    const unsigned char *locked, *fresh;
+    double *q, *error, *jacobian, *scratch;
+    Py_ssize_t n, m, m_position, iterations, scratch_size;
+    double until, damping;
+} NewtonRows;
+
+static void newton_part(void *context, Py_ssize_t start, Py_ssize_t stop, int on_helper) {
+    const NewtonRows *a = context;
+    Py_ssize_t n = a->n, m = a->m;
+    /* The helper's part works in the second half of the scratch. */
+    double *scratch = a->scratch + (on_helper ? a->scratch_size : 0);
+    newton_rows(a->fixed, a->tip, n, a->rows, m, a->m_position, a->target_position,
+                a->target_rotation, a->q + start * n, a->error + start * m,
+                a->jacobian + start * m * n, stop - start, a->iterations, a->until, a->damping,
+                a->locked != NULL ? a->locked + start * n : NULL,
+                a->tangent != NULL ? a->tangent + start * n : NULL,
+                a->fresh != NULL ? a->fresh + start : NULL, scratch);
+}
+
 static PyObject *py_newton(PyObject *self, PyObject *args) {
     Py_buffer fixed, tip, rows, target_position, target_rotation, q, error, jacobian, locked,
         tangent, fresh, scratch;
-    Py_ssize_t n, m, m_position, batch, iterations;
+    Py_ssize_t n, m, m_position, batch, iterations, first;
     int orientation, has_locked, has_tangent, has_fresh;
     double until, damping;
-    if (!PyArg_ParseTuple(args, "y*y*ny*nny*y*pw*w*w*nnddy*py*py*pw*", &fixed, &tip, &n, &rows,
+    if (!PyArg_ParseTuple(args, "y*y*ny*nny*y*pw*w*w*nnddy*py*py*pw*n", &fixed, &tip, &n, &rows,
                           &m, &m_position, &target_position, &target_rotation, &orientation, &q,
                           &error, &jacobian, &batch, &iterations, &until, &damping, &locked,
-                          &has_locked, &tangent, &has_tangent, &fresh, &has_fresh, &scratch))
+                          &has_locked, &tangent, &has_tangent, &fresh, &has_fresh, &scratch,
+                          &first))
         return NULL;
+    NewtonRows a = {
+        .fixed = fixed.buf, .tip = tip.buf, .target_position = target_position.buf,
+        .target_rotation = orientation ? target_rotation.buf : NULL,
+        .tangent = has_tangent ? tangent.buf : NULL, .rows = rows.buf,
+        .locked = has_locked ? locked.buf : NULL, .fresh = has_fresh ? fresh.buf : NULL,
+        .q = q.buf, .error = error.buf, .jacobian = jacobian.buf, .scratch = scratch.buf,
+        .n = n, .m = m, .m_position = m_position, .iterations = iterations,
+        .scratch_size = (m + 3) * n, .until = until, .damping = damping};
     Py_BEGIN_ALLOW_THREADS
-    newton_rows(fixed.buf, tip.buf, n, rows.buf, m, m_position, target_position.buf,
-                orientation ? target_rotation.buf : NULL, q.buf, error.buf, jacobian.buf, batch,
-                iterations, until, damping, has_locked ? locked.buf : NULL,
-                has_tangent ? tangent.buf : NULL, has_fresh ? fresh.buf : NULL, scratch.buf);
+    split_rows(newton_part, &a, batch, first);
     Py_END_ALLOW_THREADS
     Py_buffer *all[] = {&fixed,  &tip,     &rows,   &target_position, &target_rotation,
                         &q,      &error,   &jacobian, &locked,        &tangent,
@@ -2399,18 +2430,39 @@ static PyObject *py_least_singular_value(PyObject *self, PyObject *args) {
     return PyFloat_FromDouble(least);
 }
 
+/* self_clearance_at_rows' arguments, for a part of its rows (split_rows). */
+typedef struct {
+    const double *origin, *axis, *q, *centre, *radius, *bound, *bound_radius;
+    const long long *frame, *own, *pair_a, *pair_b;
+    double *clearance, *scratch;
+    Py_ssize_t n, K, S, P, scratch_size;
+} ClearanceRows;
+
+static void self_clearance_part(void *context, Py_ssize_t start, Py_ssize_t stop,
+                                int on_helper) {
+    const ClearanceRows *a = context;
+    double *scratch = a->scratch + (on_helper ? a->scratch_size : 0);
+    self_clearance_at_rows(a->origin, a->axis, a->n, a->q + start * a->n, stop - start, a->frame,
+                           a->K, a->S, a->centre, a->radius, a->own, a->bound, a->bound_radius,
+                           a->pair_a, a->pair_b, a->P, a->clearance + start, scratch);
+}
+
 static PyObject *py_self_clearance_at(PyObject *self, PyObject *args) {
     Py_buffer origin, axis, q, frame, centre, radius, own, bound, bound_radius, pair_a, pair_b;
     Py_buffer clearance, scratch;
-    Py_ssize_t n, batch, K, S, P;
-    if (!PyArg_ParseTuple(args, "y*y*ny*ny*nny*y*y*y*y*y*y*nw*w*", &origin, &axis, &n, &q, &batch,
-                          &frame, &K, &S, &centre, &radius, &own, &bound, &bound_radius, &pair_a,
-                          &pair_b, &P, &clearance, &scratch))
+    Py_ssize_t n, batch, K, S, P, first;
+    if (!PyArg_ParseTuple(args, "y*y*ny*ny*nny*y*y*y*y*y*y*nw*w*n", &origin, &axis, &n, &q,
+                          &batch, &frame, &K, &S, &centre, &radius, &own, &bound, &bound_radius,
+                          &pair_a, &pair_b, &P, &clearance, &scratch, &first))
         return NULL;
+    ClearanceRows a = {
+        .origin = origin.buf, .axis = axis.buf, .q = q.buf, .centre = centre.buf,
+        .radius = radius.buf, .bound = bound.buf, .bound_radius = bound_radius.buf,
+        .frame = frame.buf, .own = own.buf, .pair_a = pair_a.buf, .pair_b = pair_b.buf,
+        .clearance = clearance.buf, .scratch = scratch.buf, .n = n, .K = K, .S = S, .P = P,
+        .scratch_size = (n + 1) * 16 + K * 12 + K * S * 3 + K * 3 + 1};
     Py_BEGIN_ALLOW_THREADS
-    self_clearance_at_rows(origin.buf, axis.buf, n, q.buf, batch, frame.buf, K, S, centre.buf,
-                           radius.buf, own.buf, bound.buf, bound_radius.buf, pair_a.buf,
-                           pair_b.buf, P, clearance.buf, scratch.buf);
+    split_rows(self_clearance_part, &a, batch, first);
     Py_END_ALLOW_THREADS
     Py_buffer *all[] = {&origin, &axis, &q, &frame, &centre, &radius, &own, &bound,
                         &bound_radius, &pair_a, &pair_b, &clearance, &scratch};
@@ -2565,49 +2617,82 @@ static int parse_walk(PyObject *args, Py_buffer *buffers, Py_ssize_t read, Py_ss
     return 1;
 }
 
+/* A projected or steered walk's edges, for a part of them (split_rows): the planner, the
+ * call's buffers, the scratch of one part (the helper's part works past it) and each
+ * part's status (1 when the deadline passed). */
+typedef struct {
+    const Planner *p;
+    Py_buffer *io;
+    const long long *size;
+    const double *number;
+    Py_ssize_t record, scratch_size;
+    int status[2];
+} Walks;
+
+static void projected_walk_part(void *context, Py_ssize_t start, Py_ssize_t stop, int on_helper) {
+    Walks *w = context;
+    const Planner *p = w->p;
+    Py_buffer *io = w->io; /* q_from, goal, chord, reached, points, counts, work */
+    Py_ssize_t n = p->n;
+    double *work = (double *)io[6].buf + (on_helper ? w->scratch_size : 0);
+    int status = 0;
+    for (Py_ssize_t edge = start; edge < stop && status == 0; ++edge) {
+        Py_ssize_t count = 0;
+        int result = walk_edge(p, (const double *)io[0].buf + edge * n,
+                               (const double *)io[1].buf + edge * n, ((const double *)io[2].buf)[edge],
+                               w->record ? (double *)io[4].buf + edge * p->max_steps * n : NULL,
+                               &count, work);
+        if (result < 0) status = 1;
+        ((unsigned char *)io[3].buf)[edge] = result == 1;
+        ((long long *)io[5].buf)[edge] = count;
+    }
+    w->status[on_helper] = status;
+}
+
+/* size[14] edges, size[15] record, size[16] the edges before it on the row helper. */
 static PyObject *py_projected_walk(PyObject *self, PyObject *args) {
     Py_buffer b[2 + SPACE_BUFFERS + 7];
     if (!parse_walk(args, b, 3, 7)) return NULL;
     const long long *size = b[1].buf;
     Planner p = planner_of(b[0].buf, size, b + 2);
-    Py_buffer *io = b + 2 + SPACE_BUFFERS; /* q_from, goal, chord, reached, points, counts, work */
-    Py_ssize_t edges = size[14], record = size[15], n = p.n;
-    int status = 0;
+    Walks w = {.p = &p, .io = b + 2 + SPACE_BUFFERS, .size = size, .number = b[0].buf,
+               .record = size[15], .scratch_size = planner_scratch(&p)};
     Py_BEGIN_ALLOW_THREADS
-    for (Py_ssize_t edge = 0; edge < edges && status == 0; ++edge) {
-        Py_ssize_t count = 0;
-        int result = walk_edge(&p, (const double *)io[0].buf + edge * n,
-                               (const double *)io[1].buf + edge * n, ((const double *)io[2].buf)[edge],
-                               record ? (double *)io[4].buf + edge * p.max_steps * n : NULL, &count,
-                               io[6].buf);
-        if (result < 0) status = 1;
-        ((unsigned char *)io[3].buf)[edge] = result == 1;
-        ((long long *)io[5].buf)[edge] = count;
-    }
+    split_rows(projected_walk_part, &w, size[14], size[16]);
     Py_END_ALLOW_THREADS
     for (size_t i = 0; i < sizeof b / sizeof *b; ++i) PyBuffer_Release(&b[i]);
-    return PyLong_FromLong(status);
+    return PyLong_FromLong(w.status[0] || w.status[1]);
 }
 
+static void steer_walk_part(void *context, Py_ssize_t start, Py_ssize_t stop, int on_helper) {
+    Walks *w = context;
+    const Planner *p = w->p;
+    Py_buffer *io = w->io; /* goal, q, arrived, work */
+    Py_ssize_t n = p->n;
+    double *work = (double *)io[3].buf + (on_helper ? w->scratch_size : 0);
+    int status = 0;
+    for (Py_ssize_t k = start; k < stop && status == 0; ++k) {
+        int result = steer_one(p, w->size[11], w->number[6], (const double *)io[0].buf + k * n,
+                               (double *)io[1].buf + k * n, work);
+        if (result < 0) status = 1;
+        ((unsigned char *)io[2].buf)[k] = result == 1;
+    }
+    w->status[on_helper] = status;
+}
+
+/* size[14] walks, size[16] the walks before it on the row helper. */
 static PyObject *py_steer_walk(PyObject *self, PyObject *args) {
     Py_buffer b[2 + SPACE_BUFFERS + 4];
     if (!parse_walk(args, b, 1, 4)) return NULL;
     const long long *size = b[1].buf;
-    const double *number = b[0].buf;
-    Planner p = planner_of(number, size, b + 2);
-    Py_buffer *io = b + 2 + SPACE_BUFFERS; /* goal, q, arrived, work */
-    Py_ssize_t walks = size[14], n = p.n;
-    int status = 0;
+    Planner p = planner_of(b[0].buf, size, b + 2);
+    Walks w = {.p = &p, .io = b + 2 + SPACE_BUFFERS, .size = size, .number = b[0].buf,
+               .scratch_size = planner_scratch(&p)};
     Py_BEGIN_ALLOW_THREADS
-    for (Py_ssize_t w = 0; w < walks && status == 0; ++w) {
-        int result = steer_one(&p, size[11], number[6], (const double *)io[0].buf + w * n,
-                               (double *)io[1].buf + w * n, io[3].buf);
-        if (result < 0) status = 1;
-        ((unsigned char *)io[2].buf)[w] = result == 1;
-    }
+    split_rows(steer_walk_part, &w, size[14], size[16]);
     Py_END_ALLOW_THREADS
     for (size_t i = 0; i < sizeof b / sizeof *b; ++i) PyBuffer_Release(&b[i]);
-    return PyLong_FromLong(status);
+    return PyLong_FromLong(w.status[0] || w.status[1]);
 }
 
 static PyObject *py_refined_self_clearance(PyObject *self, PyObject *args) {
@@ -2624,6 +2709,10 @@ static PyObject *py_refined_self_clearance(PyObject *self, PyObject *args) {
     Py_END_ALLOW_THREADS
     for (size_t i = 0; i < sizeof b / sizeof *b; ++i) PyBuffer_Release(&b[i]);
     Py_RETURN_NONE;
+}
+
+static PyObject *py_helper_parts(PyObject *self, PyObject *args) {
+    return PyLong_FromLong(__atomic_load_n(&row_helper.finished, __ATOMIC_ACQUIRE));
 }
 
 static PyObject *py_walk_scratch(PyObject *self, PyObject *args) {
@@ -2932,16 +3021,36 @@ static PyObject *py_spread_seeds(PyObject *self, PyObject *args) {
     return PyLong_FromSsize_t(count);
 }
 
+/* nearest_of_sets_rows' arguments, for a part of its rows (split_rows). */
+typedef struct {
+    const double *points, *box, *grouped;
+    const long long *set_of, *member, *start;
+    long long *best;
+    double *distance, radius;
+    Py_ssize_t n, M, x0;
+} SetRows;
+
+static void nearest_of_sets_part(void *context, Py_ssize_t start, Py_ssize_t stop, int on_helper) {
+    const SetRows *a = context;
+    (void)on_helper;
+    nearest_of_sets_rows(a->points, a->n, a->box, a->set_of, a->grouped, a->member, a->start,
+                         a->M, a->radius, a->x0 + start, a->x0 + stop, a->best + start * a->M,
+                         a->distance + start * a->M);
+}
+
 static PyObject *py_nearest_of_sets(PyObject *self, PyObject *args) {
     Py_buffer points, box, set_of, grouped, member, start, best, distance;
-    Py_ssize_t n, M, x0, x1;
+    Py_ssize_t n, M, x0, x1, first;
     double radius;
-    if (!PyArg_ParseTuple(args, "y*ny*y*y*y*y*ndnnw*w*", &points, &n, &box, &set_of, &grouped,
-                          &member, &start, &M, &radius, &x0, &x1, &best, &distance))
+    if (!PyArg_ParseTuple(args, "y*ny*y*y*y*y*ndnnw*w*n", &points, &n, &box, &set_of, &grouped,
+                          &member, &start, &M, &radius, &x0, &x1, &best, &distance, &first))
         return NULL;
+    SetRows a = {.points = points.buf, .box = box.buf, .grouped = grouped.buf,
+                 .set_of = set_of.buf, .member = member.buf, .start = start.buf,
+                 .best = best.buf, .distance = distance.buf, .radius = radius, .n = n, .M = M,
+                 .x0 = x0};
     Py_BEGIN_ALLOW_THREADS
-    nearest_of_sets_rows(points.buf, n, box.buf, set_of.buf, grouped.buf, member.buf, start.buf,
-                         M, radius, x0, x1, best.buf, distance.buf);
+    split_rows(nearest_of_sets_part, &a, x1 - x0, first);
     Py_END_ALLOW_THREADS
     Py_buffer *all[] = {&points, &box, &set_of, &grouped, &member, &start, &best, &distance};
     for (size_t i = 0; i < sizeof all / sizeof *all; ++i) PyBuffer_Release(all[i]);
@@ -2997,8 +3106,8 @@ static PyMethodDef methods[] = {
     {"newton", py_newton, METH_VARARGS,
      "newton(fixed, tip, n, rows, m, m_position, target_position, target_rotation, orientation, "
      "q, error, jacobian, batch, iterations, until, damping, locked, has_locked, tangent, "
-     "has_tangent, fresh, has_fresh, scratch): Newton steps onto the fibre per row, in place "
-     "(a fresh row evaluated first)."},
+     "has_tangent, fresh, has_fresh, scratch, first): Newton steps onto the fibre per row, in "
+     "place (a fresh row evaluated first); rows before `first` on the row helper."},
     {"walk", py_walk, METH_VARARGS,
      "walk(fixed, tip, n, rows, m, m_position, target_position, target_rotation, orientation, "
      "fronts, q, tangent, jacobian, step, alive, partner, h, damping, meet_factor, twin_sigma, "
@@ -3015,13 +3124,16 @@ static PyMethodDef methods[] = {
      "steering.py's walks on the fibre, walk by walk: 1 when the deadline passed"},
     {"refined_self_clearance", py_refined_self_clearance, METH_VARARGS,
      "robot.py's refined self-clearance at joint values, row by row"},
+    {"helper_parts", py_helper_parts, METH_NOARGS,
+     "helper_parts() -> the parts the row helper (row_helper.h) has done in this process"},
     {"walk_scratch", py_walk_scratch, METH_VARARGS,
      "doubles of scratch one projected or steered walk needs"},
     {"hull_separation", py_hull_separation, METH_VARARGS,
      "GJK lower bounds of the distance between pairs of placed hulls"},
     {"self_clearance_at", py_self_clearance_at, METH_VARARGS,
      "self_clearance_at(origin, axis, n, q, batch, frame, K, S, centre, radius, own, bound, "
-     "bound_radius, pair_a, pair_b, P, clearance, scratch): self_clearance at joint values."},
+     "bound_radius, pair_a, pair_b, P, clearance, scratch, first): self_clearance at joint "
+     "values; rows before `first` on the row helper."},
     {"nearest_segment", py_nearest_segment, METH_VARARGS,
      "nearest_segment(q, points, before, after, nearest, periodic, K, k, n, distance, point): "
      "the least distance to the path segments beside each row's nearest points."},

@@ -32,7 +32,7 @@ import numpy as np
 
 from service.pipeline import _native  # type: ignore[attr-defined]
 from service.pipeline.arrays import BoolArray, FloatArray, IntArray
-from service.pipeline.rows import over_rows
+from service.pipeline.rows import helper_rows
 
 # The C code keeps a chain's joint frames on the stack.
 MAX_JOINTS = 64
@@ -191,9 +191,11 @@ def self_clearance_at_m(
     bound_radius_m: FloatArray,  # (K,)
     pair_a: IntArray,  # (P,)
     pair_b: IntArray,  # (P,)
+    threads: int = 1,
 ) -> FloatArray:  # (B,)
     """`self_clearance_m` with each body in chain frame frame[k] at q_rad (`chain_frames`),
-    row by row: the same numbers, without storing every frame of every row."""
+    row by row: the same numbers, without storing every frame of every row. With `threads`
+    > 1 and enough rows (`helper_rows`) the first part runs on the row helper."""
     n, batch, count = len(joint_origin), len(q_rad), len(centre_local_m)
     bodies = _Bodies.of(centre_local_m, radius_m, own_spheres, bound_local_m, bound_radius_m,
                         pair_a, pair_b)  # fmt: skip
@@ -201,13 +203,15 @@ def self_clearance_at_m(
     if count and (frames.min() < 0 or frames.max() > n):
         raise ValueError(f"body frames must lie in 0 to {n}")
     clearance = np.empty(batch)
-    scratch = np.empty((n + 1) * 16 + count * 12 + count * bodies.spheres * 3 + count * 3 + 1)
+    first = helper_rows(batch, threads)
+    per_thread = (n + 1) * 16 + count * 12 + count * bodies.spheres * 3 + count * 3 + 1
+    scratch = np.empty(per_thread * (2 if first else 1))
     if batch:
         _native.self_clearance_at(
             _float64(joint_origin, "joint_origin", (n, 4, 4)),
             _float64(joint_axis, "joint_axis", (n, 3)), n,
             _float64(q_rad, "q_rad", (batch, n)), batch, frames, count,
-            *bodies.arguments, clearance, scratch,
+            *bodies.arguments, clearance, scratch, first,
         )  # fmt: skip
     return clearance
 
@@ -388,13 +392,15 @@ def newton(
     locked: BoolArray | None = None,  # (B, n) joints a row holds fixed (DLS steps)
     tangent: FloatArray | None = None,  # (B, n) bordered steps [J; t^T] dq = [e; 0] (r = 1)
     fresh: BoolArray | None = None,  # (B,) rows not yet evaluated: their error and J unread
+    threads: int = 1,
 ) -> tuple[FloatArray, FloatArray, FloatArray]:  # q (B, n), error (B, m), jacobian (B, m, n)
     """Up to `iterations` Newton steps per row, each evaluated by the task residual, as
     `correction.iterate` takes them with `fibre`'s step rules: a DLS step with the locked
     joints' columns zeroed, or with `tangent` the bordered step; with `until`, a row stops
     once |e| <= until (a NaN |e| never does); a step entry that is not finite makes its
     joint NaN. A `fresh` row is evaluated first (its given error and Jacobian are not
-    read). The inputs are not changed."""
+    read). The inputs are not changed. With `threads` > 1 and enough rows (`helper_rows`)
+    the first part of the rows runs on the row helper: the same numbers."""
     n = len(fixed)
     orientation_rows, rotation = _orientation(target_rotation)
     rows = [*position_axes, *orientation_rows]
@@ -415,11 +421,12 @@ def newton(
         else np.ascontiguousarray(np.broadcast_to(locked, (batch, n)), dtype=np.uint8)
     )
     border = np.zeros(1) if tangent is None else _float64(tangent, "tangent", (batch, n))
-    first = (
+    fresh_rows = (
         np.zeros(1, dtype=np.uint8)
         if fresh is None
         else np.ascontiguousarray(np.broadcast_to(fresh, (batch,)), dtype=np.uint8)
     )
+    first = helper_rows(batch, threads)
     if batch and (iterations > 0 or fresh is not None):
         _native.newton(
             _float64(fixed, "fixed", (n, 4, 4)), _float64(tip, "tip", (4, 4)), n,
@@ -427,7 +434,8 @@ def newton(
             _float64(target_position_m, "target_position_m", (m_position,)), rotation,
             target_rotation is not None, q, e, j, batch, iterations,
             -1.0 if until is None else float(until), float(damping), lock, locked is not None,
-            border, tangent is not None, first, fresh is not None, np.empty((m + 3) * n),
+            border, tangent is not None, fresh_rows, fresh is not None,
+            np.empty((m + 3) * n * (2 if first else 1)), first,
         )  # fmt: skip
     return q, e, j
 
@@ -443,6 +451,11 @@ def smallest_singular_values(jacobian: FloatArray) -> FloatArray:  # (B, m, n), 
         j = _float64(jacobian, "jacobian", (batch, m, n))
         _native.smallest_singular_values(j, batch, m, n, sigma, np.empty(m * n))
     return sigma
+
+
+def helper_parts() -> int:
+    """The parts of split calls the row helper (row_helper.h) has done in this process."""
+    return int(_native.helper_parts())
 
 
 def least_singular_value(jacobian: FloatArray) -> float:  # (B, m, n), m <= n
@@ -682,7 +695,8 @@ def projected_walk(
     projected steps and validity tests (space.py's motion_valid with its coaxial crossings,
     and collision/check.py's `free` for self-collision, the hulls deciding where the
     spheres are within the margin), in the same order, as its numpy loop, which is the
-    reference it is pinned to. The edges are split over `threads` (each walk is its own)."""
+    reference it is pinned to. With `threads` > 1 the first edges run on the row helper
+    (rows.helper_rows; each walk is its own)."""
     arguments, sizes = space.arguments()
     n, m = sizes[0], sizes[1]
     edges = len(q_from_rad)
@@ -698,20 +712,16 @@ def projected_walk(
     goal = _float64(goal_rad, "goal_rad", (edges, n))
     chord = _float64(chord_rad, "chord_rad", (edges,))
 
-    def walk_part(part: slice) -> int:
-        size = part.stop - part.start
-        part_sizes = np.array([*sizes, *counts_of, size, record], dtype=np.int64)
-        work = np.empty(_native.walk_scratch(n, m, sizes[6], sizes[7]))
-        written = points[part] if record else np.empty((1, n))
-        return int(
-            _native.projected_walk(
-                numbers, part_sizes, *arguments, q_from[part], goal[part], chord[part],
-                reached[part], written, counts[part], work,
-            )
-        )  # fmt: skip
-
-    statuses = over_rows(walk_part, edges, threads, MIN_CHUNK_WALKS) if edges else [0]
-    expired = any(statuses)
+    # The first edges on the row helper (rows.helper_rows), with scratch of their own.
+    first = helper_rows(edges, threads, MIN_CHUNK_WALKS)
+    call_sizes = np.array([*sizes, *counts_of, edges, record, first], dtype=np.int64)
+    work = np.empty(_native.walk_scratch(n, m, sizes[6], sizes[7]) * (2 if first else 1))
+    written = points if record else np.empty((1, n))
+    expired = bool(edges) and bool(
+        _native.projected_walk(
+            numbers, call_sizes, *arguments, q_from, goal, chord, reached, written, counts, work
+        )
+    )
     if not record:
         return PlannedWalks(reached.astype(bool), [], expired)
     return PlannedWalks(
@@ -754,8 +764,9 @@ def steer_walk(
     """steering.py's `steer`, each walk whole in compiled code: the direction to the goal
     projected onto J's null space with the joints pushed out of a limit held, the step
     clipped to the limits and projected back with those joints locked, and the planner's
-    validity tests, in the same order as its numpy loop, which it is pinned to. The walks
-    are split over `threads` (each is its own)."""
+    validity tests, in the same order as its numpy loop, which it is pinned to. With
+    `threads` > 1 the first walks run on the row helper (rows.helper_rows; each is its
+    own)."""
     arguments, sizes = space.arguments()
     n, m = sizes[0], sizes[1]
     walks = len(q_from_rad)
@@ -768,17 +779,13 @@ def steer_walk(
     goal = _float64(goal_rad, "goal_rad", (walks, n))
     arrived = np.zeros(walks, dtype=np.uint8)
 
-    def walk_part(part: slice) -> int:
-        part_sizes = np.array([*sizes, *counts_of, part.stop - part.start, 0], dtype=np.int64)
-        work = np.empty(_native.walk_scratch(n, m, sizes[6], sizes[7]))
-        return int(
-            _native.steer_walk(
-                numbers, part_sizes, *arguments, goal[part], q[part], arrived[part], work
-            )
-        )
-
-    statuses = over_rows(walk_part, walks, threads, MIN_CHUNK_WALKS) if walks else [0]
-    return Steered(q, arrived.astype(bool), any(statuses))
+    first = helper_rows(walks, threads, MIN_CHUNK_WALKS)
+    call_sizes = np.array([*sizes, *counts_of, walks, 0, first], dtype=np.int64)
+    work = np.empty(_native.walk_scratch(n, m, sizes[6], sizes[7]) * (2 if first else 1))
+    expired = bool(walks) and bool(
+        _native.steer_walk(numbers, call_sizes, *arguments, goal, q, arrived, work)
+    )
+    return Steered(q, arrived.astype(bool), expired)
 
 
 def _body_arguments(bodies: SelfBodies, n: int) -> tuple[tuple[object, ...], list[int]]:
@@ -1331,14 +1338,10 @@ def nearest_of_sets(
         best = np.empty((size, sets), dtype=np.int64)
         distance = np.empty((size, sets))
 
-        def rows(part: slice, first: int = first, best: IntArray = best,
-                 distance: FloatArray = distance) -> None:  # fmt: skip
-            _native.nearest_of_sets(
-                coordinates, n, widths, members, grouped, member, start, sets, float(radius),
-                first + part.start, first + part.stop, best[part], distance[part],
-            )  # fmt: skip
-
-        over_rows(rows, size, threads)
+        _native.nearest_of_sets(
+            coordinates, n, widths, members, grouped, member, start, sets, float(radius),
+            first, first + size, best, distance, helper_rows(size, threads),
+        )  # fmt: skip
         x, m = np.nonzero(best >= 0)
         found.append((m, first + x, best[x, m], distance[x, m]))
     set_index, x, y, length = (np.concatenate(column) for column in zip(*found, strict=True))

@@ -7,6 +7,14 @@ several threads at once and give the same numbers. A chunk is worth a thread onl
 is long enough to repay the hand-off (tens of microseconds): below `MIN_CHUNK_ROWS` rows a
 call stays on the caller's thread.
 
+The two kernels a request splits most (the Newton steps and the self-clearance at joint
+values) hand their first chunk over in C instead (`helper_rows`, row_helper.h): one
+persistent helper thread that spins for a few milliseconds after each part, so a request's
+split calls find it running. Through Python (this module's thread pool and the GIL) a
+hand-off to a thread idle for a millisecond took 100-200 us on a 2-core VM, the idle
+core's wake-up and the GIL's hand-offs, against about 11 us hot; between two C threads,
+under 1 us.
+
 A call whose result is needed only later, and which does not feed what comes before
 that, runs beside the caller instead (`Aside`): the trace's least sigma_min and the
 closest approach of two strands only flag the structure, so they overlap the rest of the
@@ -40,6 +48,14 @@ def chunks(rows: int, threads: int, min_rows: int = MIN_CHUNK_ROWS) -> list[slic
     count = max(1, min(threads, rows // max(min_rows, 1)))
     bounds = [rows * k // count for k in range(count + 1)]
     return [slice(a, b) for a, b in pairwise(bounds)]
+
+
+def helper_rows(rows: int, threads: int, min_rows: int = MIN_CHUNK_ROWS) -> int:
+    """How many of a compiled call's first rows go to its row helper (row_helper.h): the
+    first of `chunks(rows, 2)` when `threads` > 1 and the rows split, else 0 (every row on
+    the caller's thread)."""
+    parts = chunks(rows, min(threads, 2), min_rows)
+    return parts[0].stop if len(parts) > 1 else 0
 
 
 def over_rows(

@@ -16,7 +16,6 @@ import numpy as np
 from service.pipeline.arrays import BoolArray, FloatArray
 from service.pipeline.collision.robot import RobotSpheres
 from service.pipeline.collision.scene import Scene
-from service.pipeline.rows import over_rows
 
 # Configurations placed per pass: the spheres' temporaries stay a few MB.
 CHUNK = 1024
@@ -88,12 +87,9 @@ class CollisionCheck:
         return clearance
 
     def _self_clearance_m(self, robot: RobotSpheres, q_rad: FloatArray) -> FloatArray:
-        """The robot's self-clearance at joint values (B,), the rows split over the threads."""
-
-        def of_rows(rows: slice) -> FloatArray:
-            return robot.self_clearance_at_m(q_rad[rows])
-
-        return np.concatenate(over_rows(of_rows, len(q_rad), self.threads))
+        """The robot's self-clearance at joint values (B,), the first part of the rows on the
+        row helper with more than one thread (rows.helper_rows)."""
+        return robot.self_clearance_at_m(q_rad, self.threads)
 
     def clearances_m(self, parts: list[FloatArray]) -> list[FloatArray]:
         """`clearance_m` of several arrays (k_i, n) in one call (each call costs a few

@@ -222,13 +222,17 @@ class RobotSpheres:
             self.own_spheres, self.bound_local_m, self.bound_radius_m, self.pair_a, self.pair_b,
         )  # fmt: skip
 
-    def self_clearance_at_m(self, q_rad: FloatArray) -> FloatArray:  # (B, n) -> (B,)
+    def self_clearance_at_m(
+        self, q_rad: FloatArray, threads: int = 1
+    ) -> FloatArray:  # (B, n) -> (B,)
         """`self_clearance_m` of the bodies placed at q_rad, row by row in compiled code
-        (`native.self_clearance_at_m`): the same numbers, no placed frames stored."""
+        (`native.self_clearance_at_m`, on `threads`): the same numbers, no placed frames
+        stored."""
         origin, axis = self.joint_transforms
         return native.self_clearance_at_m(
             origin, axis, q_rad, self.frame, self.centre_local_m, self.radius_m,
             self.own_spheres, self.bound_local_m, self.bound_radius_m, self.pair_a, self.pair_b,
+            threads,
         )  # fmt: skip
 
     def self_bodies(self, margin_m: float) -> native.SelfBodies:

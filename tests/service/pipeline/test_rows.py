@@ -4,23 +4,36 @@ results in the chunks' order; work set aside runs on a thread of its own while t
 goes on (on the caller's when there is one thread or it has too few rows) and gives its
 value, or raises its error, when asked; the compiled correction, Newton projection and
 self-clearance give the same numbers bitwise whatever the threads their rows are split
-over."""
+over; the compiled row helper takes the first chunk of a split call (and none of an unsplit
+one), gives the same numbers to callers racing for it, and starts afresh in a forked
+child."""
 
 from __future__ import annotations
 
 import dataclasses
+import multiprocessing
 import threading
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
 
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
+from service.pipeline import native
+from service.pipeline.arrays import FloatArray
 from service.pipeline.collision.check import CollisionCheck
 from service.pipeline.collision.scene import Scene
-from service.pipeline.correction import correct
-from service.pipeline.fibre import project, unit_tangent
-from service.pipeline.rows import MIN_ASIDE_ROWS, MIN_CHUNK_ROWS, Aside, chunks, over_rows
+from service.pipeline.correction import compiled_newton, correct
+from service.pipeline.fibre import Fibre, project, unit_tangent
+from service.pipeline.rows import (
+    MIN_ASIDE_ROWS,
+    MIN_CHUNK_ROWS,
+    Aside,
+    chunks,
+    helper_rows,
+    over_rows,
+)
 from service.pipeline.run import fibre_of
 from service.pipeline.targets import Target
 
@@ -134,3 +147,82 @@ def test_the_self_clearance_is_the_same_on_any_threads(iiwa14_pose: ServedModel)
     assert np.isfinite(one).all() and (one < 0.01).any()  # some rows go to the refined pass
     for other in many:
         np.testing.assert_array_equal(one, other)
+
+
+def test_the_helpers_rows_are_the_first_of_two_chunks() -> None:
+    assert helper_rows(1000, 2) == chunks(1000, 2)[0].stop == 500
+    assert helper_rows(1001, 16) == 500  # one helper: two chunks at most
+    assert helper_rows(1000, 1) == 0  # one thread: every row on the caller's
+    assert helper_rows(2 * MIN_CHUNK_ROWS - 1, 2) == 0  # too few rows to split
+    assert helper_rows(40, 2, min_rows=8) == 20
+
+
+def _newton_rows(model: ServedModel, rows: int, seed: int) -> tuple[Fibre, FloatArray]:
+    """The fibre of a random iiwa14 pose target and `rows` configurations near it."""
+    limits = model.limits
+    rng = np.random.default_rng(seed)
+    q_target = rng.uniform(limits.lower_rad, limits.upper_rad)
+    fk = model.kinematics(q_target[None])
+    target = Target(
+        position_m=fk.position_m[0], rotation=fk.rotation[0], condition=np.zeros(1, np.float32)
+    )
+    return fibre_of(model, target), q_target + rng.normal(0, 0.05, (rows, limits.count))
+
+
+def _newton(fibre: Fibre, q: FloatArray, threads: int) -> tuple[FloatArray, ...]:
+    """Six compiled DLS steps from q on `threads` (`native.newton` through the correction)."""
+    assert fibre.chain is not None
+    error, jacobian = fibre.residual(q)
+    return compiled_newton(
+        fibre.chain, fibre.target, fibre.task, q, error, jacobian, 6, 1e-3, threads=threads
+    )
+
+
+def test_the_row_helper_takes_the_first_chunk_of_a_split_call(iiwa14_pose: ServedModel) -> None:
+    fibre, q = _newton_rows(iiwa14_pose, 1000, seed=10)
+    before = native.helper_parts()
+    one = _newton(fibre, q, threads=1)
+    assert native.helper_parts() == before  # not split: the helper did nothing
+    two = _newton(fibre, q, threads=2)
+    assert native.helper_parts() == before + 1
+    for x, y in zip(one, two, strict=True):
+        np.testing.assert_array_equal(x, y)
+
+
+def test_callers_racing_for_the_row_helper_get_the_same_numbers(
+    iiwa14_pose: ServedModel,
+) -> None:
+    """Two threads split calls at once: the one that finds the helper taken does every row
+    itself, and each gets its one-thread numbers."""
+    fibre, q = _newton_rows(iiwa14_pose, 600, seed=11)
+    expected = _newton(fibre, q, threads=1)
+    before = native.helper_parts()
+
+    def calls(_: int) -> bool:
+        same = True
+        for _ in range(40):
+            got = _newton(fibre, q, threads=2)
+            same &= all(np.array_equal(x, y) for x, y in zip(expected, got, strict=True))
+        return same
+
+    with ThreadPoolExecutor(2) as pool:
+        assert all(pool.map(calls, range(2)))
+    assert before < native.helper_parts() <= before + 80
+
+
+def _split_in_child(rows: int, seed: int) -> bool:
+    model = load_model(REPO_MODELS_DIR / "iiwa14-pose", threads=1)
+    fibre, q = _newton_rows(model, rows, seed)
+    one, two = (_newton(fibre, q, threads=t) for t in (1, 2))
+    return native.helper_parts() == 1 and all(
+        np.array_equal(x, y) for x, y in zip(one, two, strict=True)
+    )
+
+
+def test_a_forked_child_starts_a_row_helper_of_its_own(iiwa14_pose: ServedModel) -> None:
+    """The parent's helper thread does not survive fork: the child's first split call
+    starts its own instead of waiting on one that is not there."""
+    fibre, q = _newton_rows(iiwa14_pose, 600, seed=12)
+    _newton(fibre, q, threads=2)  # the parent's helper runs
+    with multiprocessing.get_context("fork").Pool(1) as pool:
+        assert pool.apply_async(_split_in_child, (600, 12)).get(timeout=120)
