@@ -21,6 +21,7 @@ setup(
         Extension(
             "service.models._int8_mlp",
             sources=["service/models/int8_mlp.c"],
+            depends=["service/pipeline/row_helper.h"],
             extra_compile_args=["-O2", "-std=c99", "-fno-fast-math", "-ffp-contract=off"],
         ),
     ]

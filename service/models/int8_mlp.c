@@ -31,6 +31,8 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "../pipeline/row_helper.h"
+
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && __GNUC__ >= 11
 #define HAVE_X86_PATHS 1
 #include <cpuid.h>
@@ -682,9 +684,12 @@ static void call_rows(Call *call, int share) {
 #endif
 }
 
-static void *second_share(void *call) {
+/* The second share on the row helper (row_helper.h): a persistent thread, hot between a
+ * sampler's calls, where a thread made per call cost its start on a core that had gone
+ * idle. */
+static void second_share(void *call, Py_ssize_t start, Py_ssize_t stop, int on_helper) {
+    (void)start, (void)stop, (void)on_helper;
     call_rows(call, 1);
-    return NULL;
 }
 
 /* x (M, k of the first layer) -> y (M, n of the last) on `threads` threads (1 or 2; 1 for
@@ -713,11 +718,11 @@ static int forward(const Network *net, const float *x, Py_ssize_t M, int kernel,
      * held (integers, so nothing can trap), and their products are never stored. */
     *call = (Call){.net = net, .x = x, .y = y, .M = M, .kernel = kernel, .threads = threads,
                    .a = parts[0], .buffers = {parts[1], parts[2]}, .rows = {parts[3], parts[4]}};
-    pthread_t second;
-    if (threads == 2 && pthread_create(&second, NULL, second_share, call) != 0)
-        call->threads = 1;  /* no thread to be had: all rows here */
+    if (threads == 2 && !row_helper_claim())
+        call->threads = 1; /* the helper busy with another call, or none to be had: all here */
+    if (call->threads == 2) row_helper_post(second_share, call, 1);
     call_rows(call, 0);
-    if (call->threads == 2) pthread_join(second, NULL);
+    if (call->threads == 2) row_helper_finish();
     PyMem_RawFree(call);
     scratch_give(block, held);
     return 0;

@@ -59,7 +59,8 @@ from service.pipeline.arrays import Float32Array
 
 # A call made while no other runs takes two threads when its rows times its widest layer
 # reach this: 192 rows of the 512-wide networks, 384 of the 256-wide planar 3R. Below it
-# the second thread's start (~30 us) and the meetings cost more than the thread saves.
+# the hand-off to the second thread (the row helper, service/pipeline/row_helper.h) and
+# the meetings cost more than the thread saves.
 # Measured on a 2-core Intel Xeon (one thread against two, at 500 rows: iiwa14 pose 1.05
 # against 0.67 ms, planar 3R 0.35 against 0.28; at 128 rows and 256 rows equal).
 PARALLEL_MIN_WORK = 192 * 512

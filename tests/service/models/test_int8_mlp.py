@@ -282,8 +282,9 @@ def test_a_kernel_this_processor_lacks_is_refused_naming_the_usable_ones() -> No
 
 
 def test_concurrent_calls_of_different_sizes_give_their_single_answers() -> None:
-    """Calls share the kernel's kept scratch blocks: none may see another's, on one thread
-    or on two."""
+    """Calls share the kernel's kept scratch blocks and its one row helper: none may see
+    another's scratch, on one thread or on two (a call that finds the helper taken runs on
+    its caller's thread alone)."""
     _, layers = quantised_layers(read_graph(IIWA14_POSE_INT8))
     network = QuantisedNetwork(layers)
     rng = np.random.default_rng(9)
