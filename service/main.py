@@ -22,10 +22,11 @@ from service.http.limits import RequestLimitsMiddleware
 from service.http.openapi import served_openapi
 from service.http.paths import API_PATHS, JSON_BODY_ROUTES
 from service.http.request_context import RequestContextMiddleware
-from service.models.int8_mlp import keep_scratch
+from service.models import int8_mlp
 from service.models.registry import Registry, flow_kernel
 from service.observability.logs import configure_logging, log_event
 from service.observability.metrics import Metrics
+from service.pipeline import native
 
 # glibc's malloc.h: the parameters of mallopt that cap the number of arenas and fix the
 # size from which a block is mapped on its own (and unmapped when freed).
@@ -60,7 +61,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     # Before any model starts a thread: an arena is taken at a thread's first allocation.
     limit_malloc_arenas(settings.malloc_arenas)
     fix_mmap_threshold(settings.malloc_mmap_threshold_bytes)
-    keep_scratch(settings.flow_scratch_bytes)
+    int8_mlp.keep_scratch(settings.flow_scratch_bytes)
+    spin_s = settings.row_helper_spin_us * 1e-6
+    native.set_helper_spin(spin_s)
+    int8_mlp.set_helper_spin(spin_s)
     logger = configure_logging(settings.log_level)
     app_metrics = Metrics()
 

@@ -190,6 +190,15 @@ def keep_scratch(size_bytes: int) -> int:
     return int(_int8_mlp.keep_scratch(size_bytes))
 
 
+def set_helper_spin(seconds: float) -> float:
+    """How long the layers' row helper (service/pipeline/row_helper.h; the second share of
+    a two-thread call) spins for its next call before it sleeps; returns the value it
+    replaces. ValueError below 0 or above 1 s."""
+    if not 0.0 <= seconds <= 1.0:
+        raise ValueError(f"the row helper's spin must be 0 to 1 s, got {seconds}")
+    return float(_int8_mlp.helper_spin(float(seconds)))
+
+
 def kept_scratch_bytes() -> int:
     """The bytes the kept scratch blocks hold now."""
     return int(_int8_mlp.kept_scratch())

@@ -2711,6 +2711,12 @@ static PyObject *py_refined_self_clearance(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
+static PyObject *py_helper_spin(PyObject *self, PyObject *args) {
+    double seconds;
+    if (!PyArg_ParseTuple(args, "d", &seconds)) return NULL;
+    return PyFloat_FromDouble(row_helper_set_spin(seconds));
+}
+
 static PyObject *py_helper_parts(PyObject *self, PyObject *args) {
     return PyLong_FromLong(__atomic_load_n(&row_helper.finished, __ATOMIC_ACQUIRE));
 }
@@ -3124,6 +3130,8 @@ static PyMethodDef methods[] = {
      "steering.py's walks on the fibre, walk by walk: 1 when the deadline passed"},
     {"refined_self_clearance", py_refined_self_clearance, METH_VARARGS,
      "robot.py's refined self-clearance at joint values, row by row"},
+    {"helper_spin", py_helper_spin, METH_VARARGS,
+     "helper_spin(seconds) -> the spin it replaces: how long the row helper waits hot"},
     {"helper_parts", py_helper_parts, METH_NOARGS,
      "helper_parts() -> the parts the row helper (row_helper.h) has done in this process"},
     {"walk_scratch", py_walk_scratch, METH_VARARGS,

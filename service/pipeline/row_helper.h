@@ -5,10 +5,15 @@
  * idle for a millisecond or more takes 100-200 us, against about 11 us when it is hot and
  * under 1 us between two C threads spinning (measured on a 2-core Intel Xeon KVM guest:
  * the idle core's wake-up and the GIL's hand-offs). A request makes several split calls a
- * few milliseconds apart, each waiting for its helper's part. So the helper here waits for
- * work by spinning for HELPER_SPIN_S after its last part, yielding the core to any other
+ * few milliseconds apart, each waiting for its helper's part. So the helper waits for work
+ * by spinning for `row_helper_spin_s` after its last part, yielding the core to any other
  * runnable thread (sched_yield) after the first few microseconds, and only then sleeps on
- * a condition variable: within a request it is hot, between requests it sleeps.
+ * a condition variable. The spin is CPU time spent on a core nothing else wants: worth it
+ * after the server has been idle (the cores then start cold), not between requests that
+ * come close together (an iiwa14 pose request at N = 500, 20 ms after the last: 17.6-18.3
+ * ms with no spin, 14.5-16.4 with 1 ms, 13.1-15.0 with 4 ms, at 21-23, 22-26 and 29-33 ms
+ * of CPU; 3 ms after the last, 11.8-12.4 ms either way; through Python's pool 17.8-18.9
+ * and 13.0-14.3 ms; ad hoc, in alternating processes).
  *
  * `split_rows(part, context, rows, first)`: part(context, 0, first, 1) on the helper and
  * part(context, first, rows, 0) on the caller, both done when it returns; every row on the
@@ -27,10 +32,9 @@
 #include <time.h>
 #include <unistd.h>
 
-/* Seconds the helper keeps spinning for the next part after finishing one: longer than
- * the gaps between a request's split calls (a few milliseconds), short beside the gaps
- * between requests of an idle server. */
-#define HELPER_SPIN_S 0.004
+/* Seconds the helper keeps spinning for the next part after finishing one, by default
+ * (the service sets it from SMM_ROW_HELPER_SPIN_US; row_helper_set_spin). */
+#define HELPER_SPIN_S 0.001
 /* Pause loops before the spinning starts to yield the core (tens of microseconds). */
 #define HELPER_HOT_SPINS 2048
 
@@ -50,6 +54,14 @@ typedef struct {
 } RowHelper;
 
 static RowHelper row_helper = {PTHREAD_MUTEX_INITIALIZER, PTHREAD_COND_INITIALIZER};
+static double row_helper_spin_s = HELPER_SPIN_S; /* read by the helper (atomic) */
+
+/* Spin this long for the next part (0: sleep at once); returns the value it replaces. */
+static double row_helper_set_spin(double seconds) {
+    double before;
+    __atomic_exchange(&row_helper_spin_s, &seconds, &before, __ATOMIC_ACQ_REL);
+    return before;
+}
 
 static double row_helper_now_s(void) {
     struct timespec now;
@@ -67,7 +79,9 @@ static void *row_helper_main(void *unused) {
     (void)unused;
     long seen = 0;
     for (;;) {
-        double until = row_helper_now_s() + HELPER_SPIN_S;
+        double spin_s;
+        __atomic_load(&row_helper_spin_s, &spin_s, __ATOMIC_ACQUIRE);
+        double until = row_helper_now_s() + spin_s;
         for (long spins = 0; __atomic_load_n(&row_helper.posted, __ATOMIC_ACQUIRE) == seen;
              ++spins) {
             if (spins < HELPER_HOT_SPINS) {

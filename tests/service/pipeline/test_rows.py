@@ -6,7 +6,7 @@ value, or raises its error, when asked; the compiled correction, Newton projecti
 self-clearance give the same numbers bitwise whatever the threads their rows are split
 over; the compiled row helper takes the first chunk of a split call (and none of an unsplit
 one), gives the same numbers to callers racing for it, and starts afresh in a forked
-child."""
+child; the service sets both helpers' spin from its settings."""
 
 from __future__ import annotations
 
@@ -18,7 +18,10 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import pytest
 
+from service.config import Settings
+from service.main import create_app
 from service.manifest import REPO_MODELS_DIR
+from service.models import int8_mlp
 from service.models.registry import ServedModel, load_model
 from service.pipeline import native
 from service.pipeline.arrays import FloatArray
@@ -226,3 +229,21 @@ def test_a_forked_child_starts_a_row_helper_of_its_own(iiwa14_pose: ServedModel)
     _newton(fibre, q, threads=2)  # the parent's helper runs
     with multiprocessing.get_context("fork").Pool(1) as pool:
         assert pool.apply_async(_split_in_child, (600, 12)).get(timeout=120)
+
+
+def test_the_service_sets_both_row_helpers_spin_from_its_settings() -> None:
+    """SMM_ROW_HELPER_SPIN_US reaches the kernels' helper and the int8 layers' helper; a
+    spin outside 0 to 1 s is refused."""
+    before = native.set_helper_spin(0.001), int8_mlp.set_helper_spin(0.001)
+    try:
+        create_app(Settings(row_helper_spin_us=250))
+        assert native.set_helper_spin(0.001) == pytest.approx(250e-6)
+        assert int8_mlp.set_helper_spin(0.001) == pytest.approx(250e-6)
+        for wrong in (-1e-6, 1.5):
+            with pytest.raises(ValueError, match="0 to 1 s"):
+                native.set_helper_spin(wrong)
+            with pytest.raises(ValueError, match="0 to 1 s"):
+                int8_mlp.set_helper_spin(wrong)
+    finally:
+        native.set_helper_spin(before[0])
+        int8_mlp.set_helper_spin(before[1])
