@@ -838,12 +838,6 @@ static PyObject *py_forward(PyObject *self, PyObject *args) {
 }
 
 /* keep_scratch(bytes) -> the bound it replaces; kept blocks above the new bound are freed. */
-static PyObject *py_helper_spin(PyObject *self, PyObject *args) {
-    double seconds;
-    if (!PyArg_ParseTuple(args, "d", &seconds)) return NULL;
-    return PyFloat_FromDouble(row_helper_set_spin(seconds));
-}
-
 static PyObject *py_keep_scratch(PyObject *self, PyObject *args) {
     Py_ssize_t bytes;
     if (!PyArg_ParseTuple(args, "n", &bytes)) return NULL;
@@ -898,7 +892,7 @@ static PyMethodDef methods[] = {
     {"forward", py_forward, METH_VARARGS,
      "forward(network, x, M, kernel, threads, y): the network on x's M rows into y on "
      "`kernel` (a code from kernels()); on two threads when threads > 1 and M > 32."},
-    {"helper_spin", py_helper_spin, METH_VARARGS,
+    {"helper_spin", row_helper_spin, METH_VARARGS,
      "helper_spin(seconds) -> the spin it replaces: how long the row helper waits hot"},
     {"keep_scratch", py_keep_scratch, METH_VARARGS,
      "keep_scratch(bytes) -> int: keep scratch blocks of at most `bytes` between calls; "

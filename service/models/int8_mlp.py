@@ -194,8 +194,6 @@ def set_helper_spin(seconds: float) -> float:
     """How long the layers' row helper (service/pipeline/row_helper.h; the second share of
     a two-thread call) spins for its next call before it sleeps; returns the value it
     replaces. ValueError below 0 or above 1 s."""
-    if not 0.0 <= seconds <= 1.0:
-        raise ValueError(f"the row helper's spin must be 0 to 1 s, got {seconds}")
     return float(_int8_mlp.helper_spin(float(seconds)))
 
 

@@ -2649,21 +2649,6 @@ static void projected_walk_part(void *context, Py_ssize_t start, Py_ssize_t stop
     w->status[on_helper] = status;
 }
 
-/* size[14] edges, size[15] record, size[16] the edges before it on the row helper. */
-static PyObject *py_projected_walk(PyObject *self, PyObject *args) {
-    Py_buffer b[2 + SPACE_BUFFERS + 7];
-    if (!parse_walk(args, b, 3, 7)) return NULL;
-    const long long *size = b[1].buf;
-    Planner p = planner_of(b[0].buf, size, b + 2);
-    Walks w = {.p = &p, .io = b + 2 + SPACE_BUFFERS, .size = size, .number = b[0].buf,
-               .record = size[15], .scratch_size = planner_scratch(&p)};
-    Py_BEGIN_ALLOW_THREADS
-    split_rows(projected_walk_part, &w, size[14], size[16]);
-    Py_END_ALLOW_THREADS
-    for (size_t i = 0; i < sizeof b / sizeof *b; ++i) PyBuffer_Release(&b[i]);
-    return PyLong_FromLong(w.status[0] || w.status[1]);
-}
-
 static void steer_walk_part(void *context, Py_ssize_t start, Py_ssize_t stop, int on_helper) {
     Walks *w = context;
     const Planner *p = w->p;
@@ -2680,19 +2665,31 @@ static void steer_walk_part(void *context, Py_ssize_t start, Py_ssize_t stop, in
     w->status[on_helper] = status;
 }
 
-/* size[14] walks, size[16] the walks before it on the row helper. */
-static PyObject *py_steer_walk(PyObject *self, PyObject *args) {
-    Py_buffer b[2 + SPACE_BUFFERS + 4];
-    if (!parse_walk(args, b, 1, 4)) return NULL;
+/* The walks of a call, parsed by parse_walk (`read` inputs, `more` buffers after the
+ * space's) and split by `part`: size[14] walks, size[15] record, size[16] the walks before
+ * it on the row helper; 1 when the deadline passed in either part. */
+static PyObject *walks_call(PyObject *args, Py_ssize_t read, Py_ssize_t more, RowPart part) {
+    Py_buffer b[2 + SPACE_BUFFERS + 7];
+    if (!parse_walk(args, b, read, more)) return NULL;
     const long long *size = b[1].buf;
     Planner p = planner_of(b[0].buf, size, b + 2);
     Walks w = {.p = &p, .io = b + 2 + SPACE_BUFFERS, .size = size, .number = b[0].buf,
-               .scratch_size = planner_scratch(&p)};
+               .record = size[15], .scratch_size = planner_scratch(&p)};
     Py_BEGIN_ALLOW_THREADS
-    split_rows(steer_walk_part, &w, size[14], size[16]);
+    split_rows(part, &w, size[14], size[16]);
     Py_END_ALLOW_THREADS
-    for (size_t i = 0; i < sizeof b / sizeof *b; ++i) PyBuffer_Release(&b[i]);
+    for (Py_ssize_t i = 0; i < 2 + SPACE_BUFFERS + more; ++i) PyBuffer_Release(&b[i]);
     return PyLong_FromLong(w.status[0] || w.status[1]);
+}
+
+/* io: q_from, goal, chord (read); reached, points, counts, work. */
+static PyObject *py_projected_walk(PyObject *self, PyObject *args) {
+    return walks_call(args, 3, 7, projected_walk_part);
+}
+
+/* io: goal (read); q, arrived, work. */
+static PyObject *py_steer_walk(PyObject *self, PyObject *args) {
+    return walks_call(args, 1, 4, steer_walk_part);
 }
 
 static PyObject *py_refined_self_clearance(PyObject *self, PyObject *args) {
@@ -2709,12 +2706,6 @@ static PyObject *py_refined_self_clearance(PyObject *self, PyObject *args) {
     Py_END_ALLOW_THREADS
     for (size_t i = 0; i < sizeof b / sizeof *b; ++i) PyBuffer_Release(&b[i]);
     Py_RETURN_NONE;
-}
-
-static PyObject *py_helper_spin(PyObject *self, PyObject *args) {
-    double seconds;
-    if (!PyArg_ParseTuple(args, "d", &seconds)) return NULL;
-    return PyFloat_FromDouble(row_helper_set_spin(seconds));
 }
 
 static PyObject *py_helper_parts(PyObject *self, PyObject *args) {
@@ -3130,7 +3121,7 @@ static PyMethodDef methods[] = {
      "steering.py's walks on the fibre, walk by walk: 1 when the deadline passed"},
     {"refined_self_clearance", py_refined_self_clearance, METH_VARARGS,
      "robot.py's refined self-clearance at joint values, row by row"},
-    {"helper_spin", py_helper_spin, METH_VARARGS,
+    {"helper_spin", row_helper_spin, METH_VARARGS,
      "helper_spin(seconds) -> the spin it replaces: how long the row helper waits hot"},
     {"helper_parts", py_helper_parts, METH_NOARGS,
      "helper_parts() -> the parts the row helper (row_helper.h) has done in this process"},

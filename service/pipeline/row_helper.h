@@ -33,7 +33,7 @@
 #include <unistd.h>
 
 /* Seconds the helper keeps spinning for the next part after finishing one, by default
- * (the service sets it from SMM_ROW_HELPER_SPIN_US; row_helper_set_spin). */
+ * (the service sets it from SMM_ROW_HELPER_SPIN_US; row_helper_spin). */
 #define HELPER_SPIN_S 0.001
 /* Pause loops before the spinning starts to yield the core (tens of microseconds). */
 #define HELPER_HOT_SPINS 2048
@@ -56,11 +56,17 @@ typedef struct {
 static RowHelper row_helper = {PTHREAD_MUTEX_INITIALIZER, PTHREAD_COND_INITIALIZER};
 static double row_helper_spin_s = HELPER_SPIN_S; /* read by the helper (atomic) */
 
-/* Spin this long for the next part (0: sleep at once); returns the value it replaces. */
-static double row_helper_set_spin(double seconds) {
-    double before;
+/* Python's helper_spin(seconds) -> the spin it replaces: spin this long for the next part
+ * (0: sleep at once); ValueError outside 0 to 1 s. Each including extension exposes it. */
+static PyObject *row_helper_spin(PyObject *self, PyObject *args) {
+    (void)self;
+    double seconds, before;
+    if (!PyArg_ParseTuple(args, "d", &seconds)) return NULL;
+    if (!(seconds >= 0.0 && seconds <= 1.0))
+        return PyErr_Format(PyExc_ValueError, "the row helper's spin must be 0 to 1 s, got %R",
+                            PyTuple_GET_ITEM(args, 0));
     __atomic_exchange(&row_helper_spin_s, &seconds, &before, __ATOMIC_ACQ_REL);
-    return before;
+    return PyFloat_FromDouble(before);
 }
 
 static double row_helper_now_s(void) {
