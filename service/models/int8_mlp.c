@@ -894,6 +894,9 @@ static PyMethodDef methods[] = {
      "`kernel` (a code from kernels()); on two threads when threads > 1 and M > 32."},
     {"helper_spin", row_helper_spin, METH_VARARGS,
      "helper_spin(seconds) -> the spin it replaces: how long the row helper waits hot"},
+    {"helper_parts", row_helper_parts, METH_NOARGS,
+     "helper_parts() -> the second shares the row helper (row_helper.h) has done in this "
+     "process"},
     {"keep_scratch", py_keep_scratch, METH_VARARGS,
      "keep_scratch(bytes) -> int: keep scratch blocks of at most `bytes` between calls; "
      "returns the bound it replaces."},

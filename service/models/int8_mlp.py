@@ -197,6 +197,12 @@ def set_helper_spin(seconds: float) -> float:
     return float(_int8_mlp.helper_spin(float(seconds)))
 
 
+def helper_parts() -> int:
+    """The second shares of two-thread calls the layers' row helper has done in this
+    process."""
+    return int(_int8_mlp.helper_parts())
+
+
 def kept_scratch_bytes() -> int:
     """The bytes the kept scratch blocks hold now."""
     return int(_int8_mlp.kept_scratch())
@@ -342,6 +348,14 @@ class CompiledVelocityField:
         if parts is None:
             prefix = open_session(cut_model(graph, first_input, ("batch", network.width_in)), 1)
         return cls(prefix, first_input, parts, network, kernel, threads)
+
+    def on_one_thread(self) -> CompiledVelocityField:
+        """This network with every call on the caller's thread: for callers whose own
+        threads already take the cores, a batch's workers (the same bits either way)."""
+        return CompiledVelocityField(
+            self._prefix, self._prefix_output, self._parts, self._network, self.kernel, 1,
+            self._parallel_min_work,
+        )  # fmt: skip
 
     def first_input(
         self,

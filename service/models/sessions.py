@@ -112,6 +112,11 @@ class OnnxVelocityField:
         one = open_session(path, 1) if serial and threads != 1 else None
         return cls(parallel, one)
 
+    def on_one_thread(self) -> OnnxVelocityField:
+        """This network with every call on its one-thread session (where it was opened with
+        one): for callers whose own threads already take the cores, a batch's workers."""
+        return OnnxVelocityField(self._serial, None, self._parallel_min_rows)
+
     def session_for(self, rows: int, others_in_flight: int) -> ort.InferenceSession:
         """The session a call of `rows` rows runs on while `others_in_flight` others run."""
         if rows >= self._parallel_min_rows and others_in_flight == 0:

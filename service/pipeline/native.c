@@ -2708,10 +2708,6 @@ static PyObject *py_refined_self_clearance(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
-static PyObject *py_helper_parts(PyObject *self, PyObject *args) {
-    return PyLong_FromLong(__atomic_load_n(&row_helper.finished, __ATOMIC_ACQUIRE));
-}
-
 static PyObject *py_walk_scratch(PyObject *self, PyObject *args) {
     Py_ssize_t n, m, K, S;
     if (!PyArg_ParseTuple(args, "nnnn", &n, &m, &K, &S)) return NULL;
@@ -3123,7 +3119,7 @@ static PyMethodDef methods[] = {
      "robot.py's refined self-clearance at joint values, row by row"},
     {"helper_spin", row_helper_spin, METH_VARARGS,
      "helper_spin(seconds) -> the spin it replaces: how long the row helper waits hot"},
-    {"helper_parts", py_helper_parts, METH_NOARGS,
+    {"helper_parts", row_helper_parts, METH_NOARGS,
      "helper_parts() -> the parts the row helper (row_helper.h) has done in this process"},
     {"walk_scratch", py_walk_scratch, METH_VARARGS,
      "doubles of scratch one projected or steered walk needs"},

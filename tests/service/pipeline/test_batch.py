@@ -1,8 +1,10 @@
 """batch: every query of a batch gets `run`'s answer to the bit (samples, corrected
 configurations, components, paths, counts), whether one thread answers the queries or
 several answer them at once, on the planar 3R and the iiwa14 pose; a target's timings
-add up its stages; a deadline that passes mid-batch returns the queries answered before
-it, in order, and names the stage it stopped, whatever the threads."""
+add up its stages; a batch's workers split no call's rows (neither row helper takes a
+part) where the same query alone splits them; a deadline that passes mid-batch returns
+the queries answered before it, in order, and names the stage it stopped, whatever the
+threads."""
 
 from __future__ import annotations
 
@@ -13,7 +15,9 @@ import numpy as np
 import pytest
 
 from service.manifest import REPO_MODELS_DIR, Manifest
+from service.models import int8_mlp
 from service.models.registry import ServedModel, load_model
+from service.pipeline import native
 from service.pipeline.batch import run_batch
 from service.pipeline.collision.robot import RobotSpheres
 from service.pipeline.deadline import Deadline
@@ -101,27 +105,53 @@ def iiwa14_pose() -> ServedModel:
 
 
 def test_iiwa14_pose_answers_are_the_single_answers_bitwise(iiwa14_pose: ServedModel) -> None:
-    manifest = iiwa14_pose.manifest
-    limits = JointLimits.of(manifest.joints)
-    q_targets = np.random.default_rng(3).uniform(
-        limits.lower_rad, limits.upper_rad, size=(3, len(limits.lower_rad))
-    )
-    queries = []
-    for seed, q in enumerate(q_targets):
-        fk = iiwa14_pose.kinematics(q[None])
-        queries.append(
-            Query.for_model(
-                manifest,
-                position_m=fk.position_m[0].tolist(),
-                orientation_wxyz=orientation_wxyz(fk.rotation[0]),
-                num_samples=80,
-                seed=seed,
-            )
-        )
+    queries = iiwa14_queries(iiwa14_pose, 3, num_samples=80)
     batch = run_batch(iiwa14_pose, queries, threads=2)
     for query, result in zip(queries, batch.results, strict=True):
         assert result.components  # every target is the FK of a configuration: reachable
         assert_same_answer(result, run(iiwa14_pose, query))
+
+
+def iiwa14_queries(model: ServedModel, count: int, num_samples: int) -> list[Query]:
+    """`count` targets, the FK of configurations uniform in the limits, target i seed i."""
+    limits = JointLimits.of(model.manifest.joints)
+    q_targets = np.random.default_rng(3).uniform(
+        limits.lower_rad, limits.upper_rad, size=(count, len(limits.lower_rad))
+    )
+    queries = []
+    for seed, q in enumerate(q_targets):
+        fk = model.kinematics(q[None])
+        queries.append(
+            Query.for_model(
+                model.manifest,
+                position_m=fk.position_m[0].tolist(),
+                orientation_wxyz=orientation_wxyz(fk.rotation[0]),
+                num_samples=num_samples,
+                seed=seed,
+            )
+        )
+    return queries
+
+
+def test_a_batchs_workers_split_no_rows_where_a_single_query_does() -> None:
+    """On a model whose calls split their rows over two threads, the query alone hands
+    parts to both row helpers (the compiled kernels' and the int8 layers'); answered by a
+    batch's two workers it hands none, and its answer is the same."""
+    model = load_model(REPO_MODELS_DIR / "iiwa14-pose", threads=2)
+    assert model.row_threads == 2
+    queries = iiwa14_queries(model, 2, num_samples=1000)
+
+    def parts() -> tuple[int, int]:
+        return native.helper_parts(), int8_mlp.helper_parts()
+
+    before = parts()
+    singles = [run(model, query) for query in queries]
+    after_singles = parts()
+    assert all(a > b for a, b in zip(after_singles, before, strict=True))
+    batch = run_batch(model, queries, threads=2)
+    assert parts() == after_singles
+    for result, single in zip(batch.results, singles, strict=True):
+        assert_same_answer(result, single)
 
 
 def test_a_targets_timings_add_up_its_stages(planar3r: ServedModel) -> None:
@@ -180,6 +210,9 @@ class SlowSecondTarget:
     @property
     def row_threads(self) -> int:
         return self.model.row_threads
+
+    def on_one_thread(self) -> SlowSecondTarget:
+        return SlowSecondTarget(self.model.on_one_thread(), self.slow_condition, self.deadline)
 
 
 @pytest.mark.parametrize("threads", [1, 2])
