@@ -56,6 +56,7 @@ from service.models.onnx_file import (
 )
 from service.models.sessions import FLOW_CALLS, FLOW_INPUTS, FLOW_OUTPUT, open_session
 from service.pipeline.arrays import Float32Array
+from service.pipeline.rows import ANSWERING
 
 # A call made while no other runs takes two threads when its rows times its widest layer
 # reach this: 192 rows of the 512-wide networks, 384 of the 256-wide planar 3R. Below it
@@ -349,14 +350,6 @@ class CompiledVelocityField:
             prefix = open_session(cut_model(graph, first_input, ("batch", network.width_in)), 1)
         return cls(prefix, first_input, parts, network, kernel, threads)
 
-    def on_one_thread(self) -> CompiledVelocityField:
-        """This network with every call on the caller's thread: for callers whose own
-        threads already take the cores, a batch's workers (the same bits either way)."""
-        return CompiledVelocityField(
-            self._prefix, self._prefix_output, self._parts, self._network, self.kernel, 1,
-            self._parallel_min_work,
-        )  # fmt: skip
-
     def first_input(
         self,
         q_t: Float32Array,  # (B, n)
@@ -381,6 +374,8 @@ class CompiledVelocityField:
         x = self.first_input(q_t, t, condition)  # (B, k)
         with FLOW_CALLS.entered() as others:
             work = len(x) * self._network.widest
-            alone_and_large = others == 0 and work >= self._parallel_min_work
+            alone_and_large = (
+                others == 0 and ANSWERING.count <= 1 and work >= self._parallel_min_work
+            )
             threads = self._threads if alone_and_large else 1
             return self._network.forward(x, self.kernel, threads)

@@ -16,7 +16,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -86,15 +86,6 @@ class ServedModel:
                 f"model's {sorted(self.networks)}"
             )
         return self.networks[sampler.file]
-
-    def on_one_thread(self) -> ServedModel:
-        """The same model with every call on its caller's thread: every flow network's
-        (`one_thread`) and every compiled kernel's rows (row_threads 1). A batch's worker
-        threads answer their targets on it (pipeline/batch.py): they already take the
-        cores, so a call that split its rows would wait for a helper thread the other
-        worker holds the core of. The answers are the same to the bit."""
-        networks = {name: one_thread(network) for name, network in self.networks.items()}
-        return replace(self, networks=networks, row_threads=1)
 
     @property
     def velocity(self) -> VelocityField:
@@ -193,14 +184,6 @@ def flow_kernel(velocity: VelocityField) -> str:
     if isinstance(velocity, CompiledVelocityField):
         return compiled_flow(velocity.kernel)
     return ONNX_FLOW
-
-
-def one_thread(network: VelocityField) -> VelocityField:
-    """`network` with every call on the caller's thread (the compiled layers' and
-    onnxruntime's own `on_one_thread`); any other field as it is."""
-    if isinstance(network, CompiledVelocityField | OnnxVelocityField):
-        return network.on_one_thread()
-    return network
 
 
 def open_flow(path: Path, threads: int, serial: bool, compiled_int8: bool) -> VelocityField:

@@ -6,15 +6,13 @@ kinematics.onnx: q (B, n) f64 -> position (B, 3), rotation (B, 3, 3), jacobian (
 
 from __future__ import annotations
 
-import threading
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 import onnxruntime as ort
 
 from service.pipeline.arrays import Float32Array, FloatArray
+from service.pipeline.rows import ANSWERING, InFlight
 from service.pipeline.types import KinematicsResult
 
 FLOW_INPUTS = ("q_t", "t", "condition")
@@ -63,29 +61,9 @@ def open_session(model: Path | bytes, threads: int) -> ort.InferenceSession:
 PARALLEL_MIN_ROWS = 384
 
 
-class CallsInFlight:
-    """How many flow calls run at this moment in the process: a call that starts while
-    another runs takes one thread, since the cores are already shared (two requests at
-    once, a batch's worker threads)."""
-
-    def __init__(self) -> None:
-        self._lock = threading.Lock()
-        self._count = 0
-
-    @contextmanager
-    def entered(self) -> Iterator[int]:
-        """Counts the caller in while the block runs; yields how many others ran."""
-        with self._lock:
-            others = self._count
-            self._count += 1
-        try:
-            yield others
-        finally:
-            with self._lock:
-                self._count -= 1
-
-
-FLOW_CALLS = CallsInFlight()
+# How many flow calls run at this moment: a call that starts while another runs takes one
+# thread, since the cores are already shared (two requests at once, a batch's workers).
+FLOW_CALLS = InFlight()
 
 
 class OnnxVelocityField:
@@ -112,14 +90,9 @@ class OnnxVelocityField:
         one = open_session(path, 1) if serial and threads != 1 else None
         return cls(parallel, one)
 
-    def on_one_thread(self) -> OnnxVelocityField:
-        """This network with every call on its one-thread session (where it was opened with
-        one): for callers whose own threads already take the cores, a batch's workers."""
-        return OnnxVelocityField(self._serial, None, self._parallel_min_rows)
-
     def session_for(self, rows: int, others_in_flight: int) -> ort.InferenceSession:
         """The session a call of `rows` rows runs on while `others_in_flight` others run."""
-        if rows >= self._parallel_min_rows and others_in_flight == 0:
+        if rows >= self._parallel_min_rows and others_in_flight == 0 and ANSWERING.count <= 1:
             return self._parallel
         return self._serial
 

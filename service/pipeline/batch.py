@@ -3,14 +3,11 @@
 Every query goes through the pieces of `run.py` (target -> sample -> correct -> accept ->
 connect -> components) with its own seed, so its answer is the one `run` gives it, to
 the bit, whichever thread answers it. With `threads` above 1, that many worker threads
-answer the queries at once, each query whole: the flow network and the compiled kernels
-(native.c, int8_mlp.c) release the GIL. The workers answer on `model.on_one_thread()`:
-every call's rows on the worker's own thread. The workers already take the cores, and a
-call that split its rows (rows.py) handed half to a helper thread that had to take a core
-from the other worker while the caller waited for it: measured in process on a 2-core
-Intel Xeon (64 iiwa14 pose targets at 1000 samples, two workers), 1120-1200 ms on the
-model's two-thread calls against 880-920 ms on one-thread ones, and 33-35 against 25-26
-ms of CPU a target. The answers are collected in order.
+answer the queries at once, each query whole: the flow network (onnxruntime) and the
+compiled kernels (native.c) release the GIL, so on two cores two threads answered 64
+iiwa14 pose targets 1.7x as fast as one (in process, one onnxruntime thread per call;
+the rest of each stage's Python holds the GIL and bounds the gain). The answers are
+collected in order.
 
 Why the targets' samples are not concatenated into one network call per Euler step:
 measured with one onnxruntime thread (2-core AMD EPYC), a call costs the same per row
@@ -79,10 +76,9 @@ def run_batch(
     try:
         if pool is None:  # one after another, in the calling thread
             answers = (answer(model, q, target, watch, deadline) for q, target, watch in jobs)
-        else:  # the workers take the cores: each call's rows on its worker's thread
-            worker_model = model.on_one_thread()
+        else:
             futures: list[Future[SmmResult]] = [
-                pool.submit(answer, worker_model, query, target, watch, deadline)
+                pool.submit(answer, model, query, target, watch, deadline)
                 for query, target, watch in jobs
             ]
             answers = (future.result() for future in futures)

@@ -15,6 +15,15 @@ hand-off to a thread idle for a millisecond took 100-200 us on a 2-core VM, the 
 core's wake-up and the GIL's hand-offs, against about 11 us hot; between two C threads,
 under 1 us.
 
+A call splits only while its query is the only one the process is answering
+(`ANSWERING`, counted by `run.answer`): two requests computing at once, or a batch's
+worker threads, already take the cores, and a split call's helper would have to take a
+core from the other query while its caller waited for it. Measured on a 2-core Intel
+Xeon: 4 clients of `python -m tools.load` (two computations at once) got 33.6-34.1
+answers a second with every call splitting and 41.6-41.7 with this rule (p99 331-369 ->
+266-267 ms), and 64 iiwa14 pose targets in one batch on two workers took 1540-1570 ms
+against 1190-1330.
+
 A call whose result is needed only later, and which does not feed what comes before
 that, runs beside the caller instead (`Aside`): the trace's least sigma_min and the
 closest approach of two strands only flag the structure, so they overlap the rest of the
@@ -23,10 +32,12 @@ trace and the cutting into free pieces.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
+from contextlib import contextmanager
 from functools import cache
 from itertools import pairwise
+from threading import Lock
 from typing import Generic, TypeVar
 
 T = TypeVar("T")
@@ -42,6 +53,41 @@ def _pool(threads: int) -> ThreadPoolExecutor:
     return ThreadPoolExecutor(max_workers=threads - 1, thread_name_prefix="smm-rows")
 
 
+class InFlight:
+    """How many of something (queries being answered, flow calls) run at this moment in
+    the process, each counted in by `entered()` while its block runs."""
+
+    def __init__(self) -> None:
+        self._lock = Lock()
+        self._count = 0
+
+    @property
+    def count(self) -> int:
+        return self._count
+
+    @contextmanager
+    def entered(self) -> Iterator[int]:
+        """Counts the caller in while the block runs; yields how many others ran."""
+        with self._lock:
+            others = self._count
+            self._count += 1
+        try:
+            yield others
+        finally:
+            with self._lock:
+                self._count -= 1
+
+    def threads(self, threads: int) -> int:
+        """`threads` while at most one runs (the caller's own), else 1."""
+        return threads if self._count <= 1 else 1
+
+
+# The queries being answered (`run.answer` counts each in): while two or more are, their
+# threads already take the cores, and a call that split its rows would hand half to a
+# helper thread with no core free for it while the caller waited.
+ANSWERING = InFlight()
+
+
 def chunks(rows: int, threads: int, min_rows: int = MIN_CHUNK_ROWS) -> list[slice]:
     """`rows` split into at most `threads` consecutive slices of nearly equal length, none
     shorter than `min_rows` (one slice, all rows, when they are too few to split)."""
@@ -54,7 +100,7 @@ def helper_rows(rows: int, threads: int, min_rows: int = MIN_CHUNK_ROWS) -> int:
     """How many of a compiled call's first rows go to its row helper (row_helper.h): the
     first of `chunks(rows, 2)` when `threads` > 1 and the rows split, else 0 (every row on
     the caller's thread)."""
-    parts = chunks(rows, min(threads, 2), min_rows)
+    parts = chunks(rows, min(ANSWERING.threads(threads), 2), min_rows)
     return parts[0].stop if len(parts) > 1 else 0
 
 
@@ -65,7 +111,7 @@ def over_rows(
     and the last on the caller's, in order of the slices. `call` must release the GIL for
     its work and write only its own rows. A kernel whose rows each cost far more than a
     DLS step (a whole walk on the fibre) passes a smaller `min_rows`."""
-    parts = chunks(rows, threads, min_rows)
+    parts = chunks(rows, ANSWERING.threads(threads), min_rows)
     if len(parts) == 1:
         return [call(parts[0])]
     helpers = [_pool(threads).submit(call, part) for part in parts[:-1]]
@@ -94,7 +140,7 @@ class Aside(Generic[T]):
     def __init__(
         self, call: Callable[[], T], threads: int, rows: int, min_rows: int = MIN_ASIDE_ROWS
     ) -> None:
-        if threads > 1 and rows >= min_rows:
+        if ANSWERING.threads(threads) > 1 and rows >= min_rows:
             self._future = _aside_pool().submit(call)
         else:
             self._future = Future()

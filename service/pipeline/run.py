@@ -29,6 +29,7 @@ from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.fibre import Fibre
 from service.pipeline.limits import pull_into_limits
 from service.pipeline.rounds import draw_in_rounds
+from service.pipeline.rows import ANSWERING
 from service.pipeline.sampling import sample_configurations
 from service.pipeline.space import FibreSpace
 from service.pipeline.targets import Target, encode_target
@@ -259,6 +260,18 @@ def answer(
 ) -> SmmResult:
     """Stages 2-6 for one encoded query, in `space` (default `space_of` the query): drawn
     in rounds where the model samples so (`in_rounds`), else all at once."""
+    with ANSWERING.entered():
+        return _answer(model, query, target, watch, deadline, space)
+
+
+def _answer(
+    model: SmmModel,
+    query: Query,
+    target: Target,
+    watch: Stopwatch,
+    deadline: Deadline,
+    space: FibreSpace | None,
+) -> SmmResult:
     if space is None:
         space = space_of(model, target, query.tolerance, collision_of(model, query))
     if not in_rounds(model, query):

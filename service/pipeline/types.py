@@ -98,8 +98,7 @@ class SmmModel(Protocol):
     """What the pipeline needs of a served model: its manifest, flow and kinematics, its
     joint limits, the coaxial sets of its chain, and its bodies as spheres (None when its
     URDF has no collision geometry), made once when the model is loaded; and how many
-    threads a compiled call's rows may be split over (rows.py), and the model with every
-    call on one thread for callers that already take the cores."""
+    threads a compiled call's rows may be split over (rows.py)."""
 
     @property
     def manifest(self) -> Manifest: ...
@@ -121,10 +120,6 @@ class SmmModel(Protocol):
 
     @property
     def row_threads(self) -> int: ...
-
-    def on_one_thread(self) -> SmmModel:
-        """The same model with every call on its caller's thread (the same answers)."""
-        ...
 
 
 # -- in: one query -----------------------------------------------------------------------------

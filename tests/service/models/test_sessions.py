@@ -25,7 +25,6 @@ from service.manifest import (
 from service.models.registry import load_model
 from service.models.sessions import (
     PARALLEL_MIN_ROWS,
-    CallsInFlight,
     OnnxKinematics,
     OnnxVelocityField,
     open_session,
@@ -135,17 +134,6 @@ def test_a_flow_call_runs_on_every_thread_only_when_large_and_alone() -> None:
     assert flow.session_for(10 * PARALLEL_MIN_ROWS, 1) is serial  # another call runs
     alone = OnnxVelocityField.open(path, threads=1)
     assert alone.session_for(10 * PARALLEL_MIN_ROWS, 0) is alone.session_for(1, 0)
-
-
-def test_flow_calls_in_flight_are_counted_while_they_run() -> None:
-    calls = CallsInFlight()
-    with calls.entered() as first:
-        with calls.entered() as second:
-            assert (first, second) == (0, 1)
-        with calls.entered() as third:
-            assert third == 1
-    with calls.entered() as again:
-        assert again == 0
 
 
 def test_the_registry_opens_a_one_thread_session_only_beside_the_served_network() -> None:

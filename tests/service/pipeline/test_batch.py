@@ -1,10 +1,8 @@
 """batch: every query of a batch gets `run`'s answer to the bit (samples, corrected
 configurations, components, paths, counts), whether one thread answers the queries or
 several answer them at once, on the planar 3R and the iiwa14 pose; a target's timings
-add up its stages; a batch's workers split no call's rows (neither row helper takes a
-part) where the same query alone splits them; a deadline that passes mid-batch returns
-the queries answered before it, in order, and names the stage it stopped, whatever the
-threads."""
+add up its stages; a deadline that passes mid-batch returns the queries answered before
+it, in order, and names the stage it stopped, whatever the threads."""
 
 from __future__ import annotations
 
@@ -15,9 +13,7 @@ import numpy as np
 import pytest
 
 from service.manifest import REPO_MODELS_DIR, Manifest
-from service.models import int8_mlp
 from service.models.registry import ServedModel, load_model
-from service.pipeline import native
 from service.pipeline.batch import run_batch
 from service.pipeline.collision.robot import RobotSpheres
 from service.pipeline.deadline import Deadline
@@ -133,27 +129,6 @@ def iiwa14_queries(model: ServedModel, count: int, num_samples: int) -> list[Que
     return queries
 
 
-def test_a_batchs_workers_split_no_rows_where_a_single_query_does() -> None:
-    """On a model whose calls split their rows over two threads, the query alone hands
-    parts to both row helpers (the compiled kernels' and the int8 layers'); answered by a
-    batch's two workers it hands none, and its answer is the same."""
-    model = load_model(REPO_MODELS_DIR / "iiwa14-pose", threads=2)
-    assert model.row_threads == 2
-    queries = iiwa14_queries(model, 2, num_samples=1000)
-
-    def parts() -> tuple[int, int]:
-        return native.helper_parts(), int8_mlp.helper_parts()
-
-    before = parts()
-    singles = [run(model, query) for query in queries]
-    after_singles = parts()
-    assert all(a > b for a, b in zip(after_singles, before, strict=True))
-    batch = run_batch(model, queries, threads=2)
-    assert parts() == after_singles
-    for result, single in zip(batch.results, singles, strict=True):
-        assert_same_answer(result, single)
-
-
 def test_a_targets_timings_add_up_its_stages(planar3r: ServedModel) -> None:
     batch = run_batch(planar3r, planar_queries(planar3r)[:2])
     for result in batch.results:
@@ -210,9 +185,6 @@ class SlowSecondTarget:
     @property
     def row_threads(self) -> int:
         return self.model.row_threads
-
-    def on_one_thread(self) -> SlowSecondTarget:
-        return SlowSecondTarget(self.model.on_one_thread(), self.slow_condition, self.deadline)
 
 
 @pytest.mark.parametrize("threads", [1, 2])

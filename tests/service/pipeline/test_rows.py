@@ -6,7 +6,10 @@ value, or raises its error, when asked; the compiled correction, Newton projecti
 self-clearance give the same numbers bitwise whatever the threads their rows are split
 over; the compiled row helper takes the first chunk of a split call (and none of an unsplit
 one), gives the same numbers to callers racing for it, and starts afresh in a forked
-child; the service sets both helpers' spin from its settings."""
+child; a count of what runs in flight counts each caller while its block runs; a call splits
+only while its query is the only one being answered (the Python pool's, both row helpers',
+the int8 layers'), with the same answer either way; the service sets both helpers' spin
+from its settings."""
 
 from __future__ import annotations
 
@@ -30,15 +33,19 @@ from service.pipeline.collision.scene import Scene
 from service.pipeline.correction import compiled_newton, correct
 from service.pipeline.fibre import Fibre, project, unit_tangent
 from service.pipeline.rows import (
+    ANSWERING,
     MIN_ASIDE_ROWS,
     MIN_CHUNK_ROWS,
     Aside,
+    InFlight,
     chunks,
     helper_rows,
     over_rows,
 )
-from service.pipeline.run import fibre_of
+from service.pipeline.run import fibre_of, run
 from service.pipeline.targets import Target
+from service.pipeline.types import Query
+from training.evaluate.served import orientation_wxyz
 
 
 @pytest.mark.parametrize(
@@ -247,3 +254,58 @@ def test_the_service_sets_both_row_helpers_spin_from_its_settings() -> None:
     finally:
         native.set_helper_spin(before[0])
         int8_mlp.set_helper_spin(before[1])
+
+
+def test_in_flight_counts_each_caller_while_its_block_runs() -> None:
+    calls = InFlight()
+    with calls.entered() as first:
+        with calls.entered() as second:
+            assert (first, second, calls.count) == (0, 1, 2)
+            assert calls.threads(2) == 1
+        with calls.entered() as third:
+            assert third == 1
+        assert calls.threads(2) == 2  # the caller's own, alone
+    with calls.entered() as again:
+        assert again == 0
+    assert calls.count == 0
+
+
+def test_a_call_splits_only_while_its_query_is_the_only_one_answered() -> None:
+    assert len(over_rows(lambda part: part, 4 * MIN_CHUNK_ROWS, threads=2)) == 2
+    assert helper_rows(4 * MIN_CHUNK_ROWS, threads=2) == 2 * MIN_CHUNK_ROWS
+    with ANSWERING.entered(), ANSWERING.entered():  # two queries answered at once
+        assert over_rows(lambda part: part, 4 * MIN_CHUNK_ROWS, threads=2) == [
+            slice(0, 4 * MIN_CHUNK_ROWS)
+        ]
+        assert helper_rows(4 * MIN_CHUNK_ROWS, threads=2) == 0
+
+
+def test_a_query_answered_beside_another_hands_no_rows_to_the_helpers() -> None:
+    """On a model whose calls split over two threads, a query alone hands parts to both
+    row helpers (the compiled kernels' and the int8 layers'); answered while another
+    query is, it hands none, and its answer is the same to the bit."""
+    model = load_model(REPO_MODELS_DIR / "iiwa14-pose", threads=2)
+    q = model.limits.lower_rad + 0.37 * (model.limits.upper_rad - model.limits.lower_rad)
+    fk = model.kinematics(q[None])
+    query = Query.for_model(
+        model.manifest,
+        position_m=fk.position_m[0].tolist(),
+        orientation_wxyz=orientation_wxyz(fk.rotation[0]),
+        num_samples=1000,
+        seed=4,
+    )
+
+    def parts() -> tuple[int, int]:
+        return native.helper_parts(), int8_mlp.helper_parts()
+
+    before = parts()
+    alone = run(model, query)
+    after_alone = parts()
+    assert all(a > b for a, b in zip(after_alone, before, strict=True))
+    with ANSWERING.entered():  # another query being answered
+        beside = run(model, query)
+    assert parts() == after_alone
+    assert alone.counts == beside.counts and alone.structure == beside.structure
+    assert len(alone.components) == len(beside.components) > 0
+    for a, b in zip(alone.components, beside.components, strict=True):
+        np.testing.assert_array_equal(a.configurations_rad, b.configurations_rad)
