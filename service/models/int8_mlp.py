@@ -374,8 +374,6 @@ class CompiledVelocityField:
         x = self.first_input(q_t, t, condition)  # (B, k)
         with FLOW_CALLS.entered() as others:
             work = len(x) * self._network.widest
-            alone_and_large = (
-                others == 0 and ANSWERING.count <= 1 and work >= self._parallel_min_work
-            )
+            alone_and_large = others == 0 and ANSWERING.alone and work >= self._parallel_min_work
             threads = self._threads if alone_and_large else 1
             return self._network.forward(x, self.kernel, threads)

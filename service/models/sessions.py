@@ -92,7 +92,7 @@ class OnnxVelocityField:
 
     def session_for(self, rows: int, others_in_flight: int) -> ort.InferenceSession:
         """The session a call of `rows` rows runs on while `others_in_flight` others run."""
-        if rows >= self._parallel_min_rows and others_in_flight == 0 and ANSWERING.count <= 1:
+        if rows >= self._parallel_min_rows and others_in_flight == 0 and ANSWERING.alone:
             return self._parallel
         return self._serial
 

@@ -77,9 +77,14 @@ class InFlight:
             with self._lock:
                 self._count -= 1
 
+    @property
+    def alone(self) -> bool:
+        """At most one runs: the caller's own."""
+        return self._count <= 1
+
     def threads(self, threads: int) -> int:
-        """`threads` while at most one runs (the caller's own), else 1."""
-        return threads if self._count <= 1 else 1
+        """`threads` while the caller's runs alone, else 1."""
+        return threads if self.alone else 1
 
 
 # The queries being answered (`run.answer` counts each in): while two or more are, their

@@ -101,32 +101,27 @@ def iiwa14_pose() -> ServedModel:
 
 
 def test_iiwa14_pose_answers_are_the_single_answers_bitwise(iiwa14_pose: ServedModel) -> None:
-    queries = iiwa14_queries(iiwa14_pose, 3, num_samples=80)
+    manifest = iiwa14_pose.manifest
+    limits = JointLimits.of(manifest.joints)
+    q_targets = np.random.default_rng(3).uniform(
+        limits.lower_rad, limits.upper_rad, size=(3, len(limits.lower_rad))
+    )
+    queries = []
+    for seed, q in enumerate(q_targets):
+        fk = iiwa14_pose.kinematics(q[None])
+        queries.append(
+            Query.for_model(
+                manifest,
+                position_m=fk.position_m[0].tolist(),
+                orientation_wxyz=orientation_wxyz(fk.rotation[0]),
+                num_samples=80,
+                seed=seed,
+            )
+        )
     batch = run_batch(iiwa14_pose, queries, threads=2)
     for query, result in zip(queries, batch.results, strict=True):
         assert result.components  # every target is the FK of a configuration: reachable
         assert_same_answer(result, run(iiwa14_pose, query))
-
-
-def iiwa14_queries(model: ServedModel, count: int, num_samples: int) -> list[Query]:
-    """`count` targets, the FK of configurations uniform in the limits, target i seed i."""
-    limits = JointLimits.of(model.manifest.joints)
-    q_targets = np.random.default_rng(3).uniform(
-        limits.lower_rad, limits.upper_rad, size=(count, len(limits.lower_rad))
-    )
-    queries = []
-    for seed, q in enumerate(q_targets):
-        fk = model.kinematics(q[None])
-        queries.append(
-            Query.for_model(
-                model.manifest,
-                position_m=fk.position_m[0].tolist(),
-                orientation_wxyz=orientation_wxyz(fk.rotation[0]),
-                num_samples=num_samples,
-                seed=seed,
-            )
-        )
-    return queries
 
 
 def test_a_targets_timings_add_up_its_stages(planar3r: ServedModel) -> None:
