@@ -484,23 +484,58 @@ class BatchItemOut(BaseModel):
     )
 
 
-class SmmBatchResponse(BaseModel):
+class SmmBatchHead(BaseModel):
+    """The model that answers a batch: SmmBatchResponse's first fields, and the first line
+    of its NDJSON stream."""
+
     robot: str
     task: str
     model: str = Field(description="<model-id>@<first 12 hex of the model files' digest>")
     joint_names: list[str]
     redundancy: int
-    status: Literal["complete", "partial"] = Field(
+
+
+BatchStatus = Annotated[
+    Literal["complete", "partial"],
+    Field(
         description="complete: every target answered; partial: the request's deadline "
         "stopped the batch, and the targets from the first unanswered one on have status "
         "deadline_exceeded."
-    )
-    results: list[BatchItemOut] = Field(description="One per target, in the request's order.")
-    timings_ms: dict[TimedSpan, float] = Field(
+    ),
+]
+BatchTimings = Annotated[
+    dict[TimedSpan, float],
+    Field(
         description="Per stage, the sum over the answered targets, in ms; total: the wall "
         "time of the whole batch (less than the sum of the stages where sampling ran beside "
         "the other stages)."
-    )
+    ),
+]
+
+
+class SmmBatchEnd(BaseModel):
+    """How a batch ended: SmmBatchResponse's last fields, and the last line of its NDJSON
+    stream (a stream without it was cut off)."""
+
+    status: BatchStatus
+    timings_ms: BatchTimings
+
+
+class SmmBatchResponse(SmmBatchHead):
+    """The whole batch as one JSON object. Asked with `Accept: application/x-ndjson`, the
+    same answer comes as lines, each sent once its target is answered: the SmmBatchHead,
+    then one BatchItemOut per target in order, then the SmmBatchEnd."""
+
+    status: BatchStatus
+    results: list[BatchItemOut] = Field(description="One per target, in the request's order.")
+    timings_ms: BatchTimings
+
+    @classmethod
+    def of_lines(
+        cls, head: SmmBatchHead, results: list[BatchItemOut], end: SmmBatchEnd
+    ) -> SmmBatchResponse:
+        """The answer a batch's NDJSON lines make up."""
+        return cls(**dict(head), status=end.status, results=results, timings_ms=end.timings_ms)
 
 
 class RobotOut(BaseModel):

@@ -4,13 +4,26 @@ A planner asks for the SMMs along a path. Each target's answer is exactly POST /
 the body `SmmBatchRequest.request_for(index)` (same checks, same seed, same answer); the
 batch validates every target before it takes a computation slot, reports every bad
 target in one 422, and holds one slot for the whole computation (`pipeline/batch.py`).
+With `Accept: application/x-ndjson` the same answer comes as lines, each target's sent
+as soon as it is answered (`batch_lines.py`).
 """
 
 from __future__ import annotations
 
+import asyncio
+from typing import Any
+
 from fastapi import APIRouter, Request, Response
+from fastapi.responses import StreamingResponse
 
 from service.api.answers import Fields, encode, model_fields
+from service.api.batch_lines import (
+    NDJSON,
+    BatchLines,
+    ClientGone,
+    first_line_or_error,
+    wants_lines,
+)
 from service.api.deps import AdmissionDep, MetricsDep, RegistryDep, SettingsDep
 from service.api.schemas import error_responses
 from service.api.smm import compute_in_slot, query_for_model, smm_fields
@@ -20,11 +33,13 @@ from service.errors import (
     RequestFieldError,
     RequestFieldErrors,
 )
+from service.http.admission import Admission
 from service.http.openapi import operation_id
 from service.models.registry import ServedModel
+from service.observability.metrics import Metrics
 from service.pipeline.batch import BatchResult, run_batch
 from service.pipeline.deadline import Deadline
-from service.pipeline.types import STAGES, Query, TimedSpan
+from service.pipeline.types import STAGES, Query, SmmResult, TimedSpan
 from service.wire import SmmBatchRequest, SmmBatchResponse
 
 router = APIRouter(prefix="/smm", tags=["smm"], generate_unique_id_function=operation_id)
@@ -77,26 +92,34 @@ def to_queries(body: SmmBatchRequest, model: ServedModel, settings: Settings) ->
     return queries
 
 
-def batch_fields(model: ServedModel, queries: list[Query], batch: BatchResult) -> Fields:
-    """The batch's answer as `SmmBatchResponse`, field for field (service/api/answers.py):
-    each answered target's `smm_fields`, the rest marked deadline_exceeded."""
-    results: list[Fields] = []
-    for index, query in enumerate(queries):
-        if index < len(batch.results):
-            answer = smm_fields(model, query, batch.results[index])
-            results.append({"index": index, "status": answer["status"], "answer": answer})
-        else:
-            results.append({"index": index, "status": "deadline_exceeded", "answer": None})
+def item_fields(model: ServedModel, query: Query, index: int, result: SmmResult | None) -> Fields:
+    """Target `index`'s entry of the batch's results, as `BatchItemOut`: its `smm_fields`,
+    or deadline_exceeded when it was not answered (`result` None)."""
+    if result is None:
+        return {"index": index, "status": "deadline_exceeded", "answer": None}
+    answer = smm_fields(model, query, result)
+    return {"index": index, "status": answer["status"], "answer": answer}
+
+
+def end_fields(batch: BatchResult) -> Fields:
+    """How the batch ended, as `SmmBatchEnd`: its status and timings."""
     timings: dict[TimedSpan, float] = {
         stage: sum(r.timings.stage_ms.get(stage, 0.0) for r in batch.results) for stage in STAGES
     }
     timings["total"] = batch.total_ms
-    return {
-        **model_fields(model),
-        "status": "complete" if batch.complete else "partial",
-        "results": results,
-        "timings_ms": timings,
-    }
+    return {"status": "complete" if batch.complete else "partial", "timings_ms": timings}
+
+
+def batch_fields(model: ServedModel, queries: list[Query], batch: BatchResult) -> Fields:
+    """The batch's answer as `SmmBatchResponse`, field for field (service/api/answers.py):
+    the head, each target's `item_fields`, the end: what the NDJSON lines carry."""
+    answered = [*batch.results, *[None] * (len(queries) - len(batch.results))]
+    results = [
+        item_fields(model, query, index, result)
+        for index, (query, result) in enumerate(zip(queries, answered, strict=True))
+    ]
+    end = end_fields(batch)
+    return {**model_fields(model), "status": end["status"], "results": results, **end}
 
 
 def answer_batch(
@@ -111,10 +134,80 @@ def answer_batch(
     return encode(batch_fields(model, queries, batch)), batch
 
 
+def answer_lines(
+    model: ServedModel,
+    queries: list[Query],
+    deadline: Deadline,
+    threads: int,
+    lines: BatchLines,
+    metrics: Metrics,
+) -> None:
+    """In a worker thread, the batch as NDJSON lines: the head with the first answer, each
+    target's `item_fields` as it is answered, those the deadline left unanswered, the
+    `end_fields`. Stopped by the deadline before its first answer, it raises (a 504), as
+    `answer_batch`; stopped by the client leaving, it returns."""
+
+    def on_answer(index: int, result: SmmResult) -> None:
+        if index == 0:
+            lines.put(encode(model_fields(model)) + b"\n")
+        lines.put(encode(item_fields(model, queries[index], index, result)) + b"\n")
+        metrics.observe_pipeline(model.manifest.model_id, result.timings, result.counts)
+
+    try:
+        batch = run_batch(model, queries, deadline, threads, on_answer)
+        if batch.deadline_error is not None and not batch.results:
+            raise batch.deadline_error
+        for index in range(len(batch.results), len(queries)):
+            lines.put(encode(item_fields(model, queries[index], index, None)) + b"\n")
+        lines.put(encode(end_fields(batch)) + b"\n")
+    except ClientGone:
+        pass
+    finally:
+        lines.close()
+
+
+_COMPUTING: set[asyncio.Future[None]] = set()  # the streamed batches' computations, held
+
+
+async def stream_batch(
+    model: ServedModel,
+    queries: list[Query],
+    settings: Settings,
+    deadline: Deadline,
+    admission: Admission,
+    metrics: Metrics,
+) -> StreamingResponse:
+    """The batch as NDJSON lines (batch_lines.py), computed in its slot; returned once the
+    first target is answered, so a 503 or 504 is still the response's status."""
+    lines = BatchLines()
+    threads = settings.batch_threads_per_request
+    computing = compute_in_slot(
+        admission, metrics, deadline, answer_lines, model, queries, deadline, threads, lines,
+        metrics,
+    )  # fmt: skip
+    computation = asyncio.ensure_future(computing)
+    _COMPUTING.add(computation)
+    computation.add_done_callback(_COMPUTING.discard)
+    await first_line_or_error(lines, computation)
+    return StreamingResponse(lines.read(computation), media_type=NDJSON)
+
+
+LINES_RESPONSE: dict[int | str, dict[str, Any]] = {
+    200: {
+        "description": "The batch's answer: one JSON object, or with `Accept: "
+        "application/x-ndjson` the same answer as lines, each sent once its target is answered "
+        "(the SmmBatchHead, one BatchItemOut per target in order, the SmmBatchEnd; a stream "
+        "without the SmmBatchEnd was cut off).",
+        "content": {NDJSON: {"schema": {"type": "string", "description": "JSON lines"}}},
+    }
+}
+
+
 @router.post(
     "/batch",
     response_model=SmmBatchResponse,
-    responses=error_responses(
+    responses=LINES_RESPONSE
+    | error_responses(
         400,
         401,
         404,
@@ -143,6 +236,8 @@ async def post_smm_batch(
     model = registry.get(body.robot, body.task)
     request.state.model = model.manifest.model_id  # the metrics' and access log's model label
     queries = to_queries(body, model, settings)
+    if wants_lines(request):
+        return await stream_batch(model, queries, settings, deadline, admission, metrics)
     content, batch = await compute_in_slot(
         admission, metrics, deadline, answer_batch, model, queries, deadline,
         settings.batch_threads_per_request,

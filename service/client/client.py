@@ -15,7 +15,8 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from types import TracebackType
 from typing import TypeVar
 
@@ -30,12 +31,15 @@ from service.client.retry import (
     parse_retry_after_s,
 )
 from service.wire import (
+    BatchItemOut,
     LivenessResponse,
     ReadinessResponse,
     RobotOut,
     RobotsResponse,
     SelfMotionRequest,
     SelfMotionResponse,
+    SmmBatchEnd,
+    SmmBatchHead,
     SmmBatchRequest,
     SmmBatchResponse,
     SmmRequest,
@@ -44,6 +48,7 @@ from service.wire import (
 
 API_KEY_HEADER = "X-API-Key"  # the header service/http/auth.py reads
 REQUEST_ID_HEADER = "X-Request-ID"
+NDJSON = "application/x-ndjson"  # the batch's answer, one line per target as each is answered
 # Connecting to a server that is up takes milliseconds; an answer can take seconds (the
 # server's own deadline is SMM_REQUEST_DEADLINE_S, 30 s by default).
 DEFAULT_TIMEOUT = httpx.Timeout(60.0, connect=5.0)
@@ -94,8 +99,33 @@ class SmmClient:
     def smm_batch(
         self, request: SmmBatchRequest, *, timeout: float | None = None
     ) -> SmmBatchResponse:
-        """POST /smm/batch: many targets of one model in one request, answered in order."""
-        return self._call("POST", "/smm/batch", SmmBatchResponse, request, timeout)
+        """POST /smm/batch: many targets of one model in one request, answered in order.
+
+        Read as the server sends it, one line per target (NDJSON): each answer is parsed
+        while the server computes the next, so the whole batch arrives parsed soon after
+        its last target is answered (`smm_batch_results` hands each over as it comes)."""
+        head: SmmBatchHead | None = None
+        results: list[BatchItemOut] = []
+        for line in self._batch_lines(request, timeout):
+            if isinstance(line, SmmBatchHead):
+                head = line
+            elif isinstance(line, BatchItemOut):
+                results.append(line)
+            else:
+                assert head is not None, "the head comes first"
+                return SmmBatchResponse.of_lines(head, results, line)
+        raise AssertionError("_batch_lines ends with the SmmBatchEnd")
+
+    def smm_batch_results(
+        self, request: SmmBatchRequest, *, timeout: float | None = None
+    ) -> Iterator[BatchItemOut]:
+        """POST /smm/batch, each target's result handed over as soon as the server has
+        answered it (and those before it), in order; a planner can act on the first
+        targets while the server computes the rest. Leaving the loop early stops the
+        server's computation of the rest. `timeout` bounds the wait for each line."""
+        for line in self._batch_lines(request, timeout):
+            if isinstance(line, BatchItemOut):
+                yield line
 
     def self_motion(
         self, request: SelfMotionRequest, *, timeout: float | None = None
@@ -137,6 +167,37 @@ class SmmClient:
 
     # -- plumbing ----------------------------------------------------------------------
 
+    def _batch_lines(
+        self, request: SmmBatchRequest, timeout: float | None
+    ) -> Iterator[SmmBatchHead | BatchItemOut | SmmBatchEnd]:
+        """POST /smm/batch's NDJSON lines, parsed as each arrives: the head, one item per
+        target, the end. SmmConnectionError when the stream stops before its end."""
+        path = "/smm/batch"
+        with self._open("POST", path, request, timeout, accept=NDJSON) as response:
+            if response.status_code != 200:
+                response.read()
+                raise self._error("POST", path, response)
+            lines = response.iter_lines()
+            try:
+                yield SmmBatchHead.model_validate_json(next(lines))
+                for line in lines:
+                    if line.startswith('{"index"'):  # an item (the server writes index first)
+                        yield BatchItemOut.model_validate_json(line)
+                    else:
+                        yield SmmBatchEnd.model_validate_json(line)
+                        return
+            except httpx.TimeoutException:
+                raise  # SmmTimeoutError, from _open
+            except (StopIteration, httpx.TransportError) as error:
+                cause = f": {type(error).__name__}: {error}" if str(error) else ""
+                raise SmmConnectionError(
+                    f"POST {path}: the answer from {self.http.base_url} stopped before its "
+                    f"last line{cause}"
+                ) from error
+            raise SmmConnectionError(
+                f"POST {path}: the answer from {self.http.base_url} stopped before its last line"
+            )
+
     def _call(
         self,
         method: str,
@@ -155,17 +216,35 @@ class SmmClient:
     ) -> httpx.Response:
         """One request, sent again as the retry policy allows; the last answer, whatever
         its status, or SmmTimeoutError / SmmConnectionError."""
+        with self._open(method, path, body, timeout) as response:
+            response.read()
+            return response
+
+    @contextmanager
+    def _open(
+        self,
+        method: str,
+        path: str,
+        body: BaseModel | None,
+        timeout: float | None,
+        accept: str | None = None,
+    ) -> Iterator[httpx.Response]:
+        """`_send`, with the answer's body left to read from the response while it
+        arrives (closed when the block ends)."""
         # Absent and null mean the same in the contract; absent keeps the body small.
         content = None if body is None else body.model_dump_json(exclude_none=True).encode()
-        headers = {"Content-Type": "application/json"} if content is not None else None
+        headers = {"Content-Type": "application/json"} if content is not None else {}
+        if accept is not None:
+            headers["Accept"] = accept
         per_call = httpx.USE_CLIENT_DEFAULT if timeout is None else httpx.Timeout(timeout)
         attempt = 0
         while True:
             attempt += 1
+            outgoing = self.http.build_request(
+                method, path, content=content, headers=headers, timeout=per_call
+            )
             try:
-                response = self.http.request(
-                    method, path, content=content, headers=headers, timeout=per_call
-                )
+                response = self.http.send(outgoing, stream=True)
             except RETRIED_TRANSPORT_ERRORS as error:
                 if attempt >= self.retry.max_attempts:
                     raise SmmConnectionError(
@@ -176,21 +255,24 @@ class SmmClient:
                 self._before_retry(method, path, attempt, wait_s, type(error).__name__)
                 continue
             except httpx.TimeoutException as error:
-                raise SmmTimeoutError(
-                    f"{method} {path}: no answer from {self.http.base_url} within the "
-                    f"timeout ({type(error).__name__}); not retried, the server may still "
-                    "be computing it"
-                ) from error
+                raise _timeout(method, path, self.http.base_url, error) from error
             except httpx.TransportError as error:
                 raise SmmConnectionError(
                     f"{method} {path}: {type(error).__name__}: {error}"
                 ) from error
-            if response.status_code != 503 or attempt >= self.retry.max_attempts:
-                return response
-            retry_after = response.headers.get("retry-after")
-            wait = self.retry.wait_after_503_s(parse_retry_after_s(retry_after))
-            if wait is None:
-                return response
+            try:
+                wait = None
+                if response.status_code == 503 and attempt < self.retry.max_attempts:
+                    retry_after = response.headers.get("retry-after")
+                    wait = self.retry.wait_after_503_s(parse_retry_after_s(retry_after))
+                if wait is None:
+                    try:
+                        yield response
+                    except httpx.TimeoutException as error:
+                        raise _timeout(method, path, self.http.base_url, error) from error
+                    return
+            finally:
+                response.close()
             self._before_retry(method, path, attempt, wait, f"503 Retry-After: {retry_after}")
 
     def _before_retry(self, method: str, path: str, attempt: int, wait_s: float, why: str) -> None:
@@ -230,3 +312,12 @@ class SmmClient:
         trace: TracebackType | None,
     ) -> None:
         self.close()
+
+
+def _timeout(
+    method: str, path: str, base_url: httpx.URL, error: httpx.TimeoutException
+) -> SmmTimeoutError:
+    return SmmTimeoutError(
+        f"{method} {path}: no answer from {base_url} within the timeout "
+        f"({type(error).__name__}); not retried, the server may still be computing it"
+    )

@@ -22,13 +22,15 @@ per query too: `correct` takes one target, and the kinematics already costs the 
 row from 1,000 rows up (`service/models/chain.py`).
 
 The deadline is shared by the whole batch: the queries answered before it passed are
-returned in order, and the first one it stopped names its stage.
+returned in order, and the first one it stopped names its stage. `on_answer` hears of each
+answer, in order, as soon as it and those before it are done, so a caller can send it on
+while the workers answer the next queries (POST /smm/batch's NDJSON stream).
 """
 
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -56,6 +58,7 @@ def run_batch(
     queries: Sequence[Query],
     deadline: Deadline = NO_DEADLINE,
     threads: int = 1,
+    on_answer: Callable[[int, SmmResult], None] | None = None,
 ) -> BatchResult:
     """Answer every query; `results[i]` equals `run(model, queries[i])` but for its
     timings, whose total is the sum of its stages (they do not run back to back).
@@ -63,6 +66,9 @@ def run_batch(
     `threads`: worker threads answering queries at once (1: one after another in the
     calling thread). Past `deadline`, the batch stops and returns the queries answered so
     far, in order, with the DeadlineExceededError that stopped the first one unanswered.
+    `on_answer(i, results[i])` is called in the calling thread, in order, as each answer
+    is ready; an exception it raises stops the batch (the queries under way finish, the
+    rest are not started) and propagates.
     """
     start_s = time.perf_counter()
     watches = [Stopwatch(total="stages") for _ in queries]
@@ -84,6 +90,8 @@ def run_batch(
             answers = (future.result() for future in futures)
         for result in answers:  # in order
             results.append(result)
+            if on_answer is not None:
+                on_answer(len(results) - 1, result)
     except DeadlineExceededError as error:
         return BatchResult(results, error, (time.perf_counter() - start_s) * 1e3)
     finally:

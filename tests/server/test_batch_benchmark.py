@@ -1,5 +1,6 @@
-"""tools.batch_benchmark: K targets as one POST /smm/batch against K single POST /smm on a
-real server; every batch answer is checked against its single answer, and a differing
+"""tools.batch_benchmark: K targets as one POST /smm/batch (read as lines, and as one JSON
+object) against K single POST /smm on a real server; every batch answer of both forms is
+checked against its single answer, and a differing
 answer is caught by index; each phase's CPU time is the server's and the client's, as the
 kernel counts a process's (`tools.procfs.cpu_seconds`, checked against the clock
 Python reads for its own process)."""
@@ -31,9 +32,12 @@ def test_batch_against_singles_times_both_and_finds_the_answers_identical(
     assert result["identical"] is True and result["mismatched"] == []
     assert result["targets"] == 3 and result["num_samples"] == 100
     assert len(result["singles_ms"]) == len(result["batch_ms"]) == 2
+    assert len(result["batch_json_ms"]) == 2  # the same batch asked as one JSON object
     assert result["singles_median_ms"] > 0 and result["batch_median_ms"] > 0
     ratio = result["singles_median_ms"] / result["batch_median_ms"]
     assert result["singles_over_batch"] == ratio
+    json_ratio = result["singles_median_ms"] / result["batch_json_median_ms"]
+    assert result["singles_over_batch_json"] == json_ratio
     assert result["server_batch_median_ms"]["total"] > 0
     assert result["model"].startswith("planar3r-position@")
     for phase in ("singles_cpu_median_ms", "batch_cpu_median_ms"):

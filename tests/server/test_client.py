@@ -21,6 +21,7 @@ import itertools
 import threading
 import time
 from collections.abc import Iterator
+from typing import Any
 
 import httpx
 import pytest
@@ -111,13 +112,54 @@ def test_the_batch_answers_each_target_as_the_client_smm_does(
     raw = raw_post(keyed, "/smm/batch", batch.model_dump(mode="json", exclude_none=True))
     assert SmmBatchResponse.model_validate_json(raw.content).model_dump(mode="json") == raw.json()
 
-    answer = client.smm_batch(batch)
+    answer = client.smm_batch(batch)  # read as NDJSON lines: the same answer
     assert answer.status == "complete"
     assert [r.status for r in answer.results] == ["ok", "ok", "no_solution"]
     for index, result in enumerate(answer.results):
         assert result.answer is not None
         single = client.smm(batch.request_for(index))
         assert without_timings(result.answer.model_dump()) == without_timings(single.model_dump())
+    assert without_answer_timings(answer.model_dump(mode="json")) == without_answer_timings(
+        raw.json()
+    )
+    handed = [r.model_dump(mode="json") for r in client.smm_batch_results(batch)]
+    assert without_answer_timings({"results": handed}) == without_answer_timings(
+        {"results": raw.json()["results"]}
+    )
+
+
+def without_answer_timings(batch: dict[str, Any]) -> dict[str, Any]:
+    """A batch's JSON without the batch's timings or any answer's."""
+    results = [
+        {**r, "answer": r["answer"] and without_timings(r["answer"])} for r in batch["results"]
+    ]
+    return {**without_timings(batch), "results": results}
+
+
+def test_leaving_the_batchs_lines_early_frees_the_slot() -> None:
+    """The client stops reading after the first target: the server stops the batch (the
+    targets under way finish) and frees its slot, long before the 32 targets are answered."""
+    targets = [BatchTargetIn(target=POSE.target, seed=seed) for seed in range(32)]
+    long_batch = LONG_BATCH.model_copy(update={"targets": targets})
+    with LocalServer(max_in_flight=1, max_queued=0) as server:
+        with SmmClient(server.url) as smm:
+            first = next(iter(smm.smm_batch_results(long_batch)))
+            assert first.index == 0 and first.status == "ok"
+        deadline = time.monotonic() + 60
+        while metric(httpx.get(server.url + "/metrics").text, "smm_pipeline_in_flight") > 0:
+            assert time.monotonic() < deadline, "the batch kept its slot"
+            time.sleep(0.02)
+        exposition = httpx.get(server.url + "/metrics").text
+        answered = metric(
+            exposition,
+            "smm_pipeline_stage_duration_seconds_count",
+            model="iiwa14-pose",
+            stage="total",
+        )
+        assert 1 <= answered < 8, answered  # stopped within a few targets, not all 32
+        assert server.log_lines() and not [
+            line for line in server.log_lines() if line.get("level") == "error"
+        ]
 
 
 def test_a_422_carries_the_servers_field_and_message(client: SmmClient) -> None:

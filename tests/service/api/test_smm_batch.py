@@ -7,21 +7,30 @@ deadline cut short says so per target; the route is in the OpenAPI document."""
 
 from __future__ import annotations
 
+import asyncio
+import time
 from typing import Any
 
+import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
 from service.api.answers import encode
-from service.api.smm_batch import batch_fields
+from service.api.batch_lines import NDJSON, BatchLines, first_line_or_error
+from service.api.smm import smm_fields
+from service.api.smm_batch import answer_lines, batch_fields
+from service.errors import DeadlineExceededError
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel
+from service.observability.metrics import Metrics
 from service.pipeline.batch import BatchResult, run_batch
 from service.pipeline.deadline import Deadline
+from service.pipeline.run import run
 from service.pipeline.types import Query
-from service.wire import SmmBatchResponse
+from service.wire import BatchItemOut, SmmBatchEnd, SmmBatchHead, SmmBatchResponse, SmmResponse
 from tests.support.app import make_client
 from tests.support.bundled import bundled_robots, served_robots_message
+from tests.support.watched import condition_of, watched
 
 PLANAR = {"robot": "planar3r", "task": "position"}
 POSE_TARGETS: list[dict[str, Any]] = [
@@ -256,6 +265,107 @@ def test_a_batch_cut_by_the_deadline_marks_the_targets_left(planar3r: ServedMode
     assert response.results[1].answer is None
 
 
+LINES = {"Accept": NDJSON}
+
+
+def lines_of(response: Any) -> SmmBatchResponse:
+    """The answer an NDJSON response's lines make up (head, one item per target, end)."""
+    assert response.status_code == 200, response.text
+    assert response.headers["content-type"] == NDJSON
+    lines = response.text.splitlines()
+    items = [BatchItemOut.model_validate_json(line) for line in lines[1:-1]]
+    head = SmmBatchHead.model_validate_json(lines[0])
+    return SmmBatchResponse.of_lines(head, items, SmmBatchEnd.model_validate_json(lines[-1]))
+
+
+def answers_without_timings(answer: SmmBatchResponse) -> dict[str, Any]:
+    fields = answer.model_dump(mode="json")
+    for result in fields["results"]:
+        result["answer"] = result["answer"] and without_timings(result["answer"])
+    return without_timings(fields)
+
+
+@pytest.mark.parametrize("robot", ["planar3r", "iiwa14"])
+def test_the_lines_make_up_the_json_answer(client: TestClient, robot: str) -> None:
+    if robot == "planar3r":
+        body: dict[str, Any] = {
+            **PLANAR,
+            "num_samples": 150,
+            "max_configurations_per_component": 4,
+            "targets": [
+                {"target": {"position": [0.5, 0.0]}},
+                {"target": {"position": [3.5, 0.0]}},  # out of reach
+                {"target": {"position": [0.5, 0.2]}, "seed": 9, "include_paths": False},
+            ],
+        }
+    else:
+        targets = [{"target": t, "seed": i} for i, t in enumerate(POSE_TARGETS)]
+        body = {"robot": "iiwa14", "task": "pose", "num_samples": 60, "targets": targets}
+    whole = SmmBatchResponse.model_validate_json(client.post("/smm/batch", json=body).content)
+    streamed = lines_of(client.post("/smm/batch", json=body, headers=LINES))
+    assert answers_without_timings(streamed) == answers_without_timings(whole)
+    assert [r.index for r in streamed.results] == list(range(len(body["targets"])))
+    assert streamed.status == "complete" and set(streamed.timings_ms) == set(whole.timings_ms)
+    if robot == "planar3r":
+        assert [r.status for r in streamed.results] == ["ok", "no_solution", "ok"]
+
+
+class Lines:
+    """`answer_lines` run in a worker thread as the route runs it, its lines read back."""
+
+    def __init__(self, model: ServedModel, queries: list[Query], deadline: Deadline) -> None:
+        self.model, self.queries, self.deadline = model, queries, deadline
+
+    async def read(self) -> list[bytes]:
+        lines = BatchLines()
+        computation = asyncio.ensure_future(
+            asyncio.to_thread(
+                answer_lines, self.model, self.queries, self.deadline, 2, lines, Metrics()
+            )
+        )
+        await first_line_or_error(lines, computation)
+        return [line async for line in lines.read(computation)]
+
+
+def test_a_deadline_mid_batch_sends_the_targets_left_as_deadline_exceeded(
+    planar3r: ServedModel,
+) -> None:
+    queries = [
+        Query.for_model(planar3r.manifest, position_m=[0.5, y], num_samples=50, seed=1)
+        for y in (0.0, 0.2, 0.4)
+    ]
+    deadline = Deadline.after(2.0)
+    second = condition_of(planar3r, [0.5, 0.2])
+
+    def sleep_past_the_deadline_on_the_second(condition: np.ndarray) -> None:
+        if condition.tobytes() == second:
+            time.sleep(max(0.0, deadline.remaining_s()) + 0.01)
+
+    slow = watched(planar3r, sleep_past_the_deadline_on_the_second)
+    lines = asyncio.run(Lines(slow, queries, deadline).read())
+    assert len(lines) == 5 and all(line.endswith(b"\n") for line in lines)
+    head = SmmBatchHead.model_validate_json(lines[0])
+    items = [BatchItemOut.model_validate_json(line) for line in lines[1:4]]
+    end = SmmBatchEnd.model_validate_json(lines[4])
+    assert [(i.index, i.status) for i in items] == [
+        (0, "ok"), (1, "deadline_exceeded"), (2, "deadline_exceeded"),
+    ]  # fmt: skip
+    assert end.status == "partial" and head.model.startswith("planar3r-position@")
+    alone = Query.for_model(planar3r.manifest, position_m=[0.5, 0.0], num_samples=50, seed=1)
+    single = SmmResponse.model_validate_json(
+        encode(smm_fields(planar3r, alone, run(planar3r, alone)))
+    )
+    assert items[0].answer is not None
+    assert without_timings(items[0].answer.model_dump()) == without_timings(single.model_dump())
+
+
+def test_a_deadline_before_the_first_answer_raises_before_any_line(planar3r: ServedModel) -> None:
+    queries = [Query.for_model(planar3r.manifest, position_m=[0.5, 0.0], num_samples=50)]
+    expired = Deadline(budget_s=1.0, expires_at_s=0.0)
+    with pytest.raises(DeadlineExceededError):  # the route's 504, as the JSON answer's
+        asyncio.run(Lines(planar3r, queries, expired).read())
+
+
 def test_the_route_is_documented(client: TestClient) -> None:
     spec = client.get("/openapi.json").json()
     operation = spec["paths"]["/smm/batch"]["post"]
@@ -266,6 +376,8 @@ def test_the_route_is_documented(client: TestClient) -> None:
     assert request["targets"]["minItems"] == 1
     result = spec["components"]["schemas"]["BatchItemOut"]["properties"]
     assert result["status"]["enum"] == ["ok", "no_solution", "deadline_exceeded"]
+    assert set(operation["responses"]["200"]["content"]) == {"application/json", NDJSON}
+    assert "application/x-ndjson" in operation["responses"]["200"]["description"]
 
 
 @pytest.mark.parametrize("threads", [1, 2, 3])

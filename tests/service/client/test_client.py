@@ -8,7 +8,9 @@ attempts allowed; a 503 without one, a Retry-After above the cap and every other
 status are not; a connection error is retried with doubling backoff and then raised as
 SmmConnectionError; a read timeout is raised as SmmTimeoutError at once; a 422 carries
 each field's location and the server's message; the body sent is the request model's
-JSON without nulls, with the API key header.
+JSON without nulls, with the API key header; a batch is asked for as NDJSON lines and
+read back into its response, and lines cut off before their end raise
+SmmConnectionError.
 """
 
 from __future__ import annotations
@@ -20,9 +22,11 @@ import httpx
 import pytest
 
 from service.client import (
+    BatchTargetIn,
     FieldError,
     RetryEvent,
     RetryPolicy,
+    SmmBatchRequest,
     SmmClient,
     SmmConnectionError,
     SmmHTTPError,
@@ -188,3 +192,40 @@ def test_retry_after_reads_seconds_and_http_dates() -> None:
     assert parse_retry_after_s(None) is None
     with pytest.raises(ValueError, match="max_attempts"):
         RetryPolicy(max_attempts=0)
+
+
+HEAD: dict[str, object] = {
+    "robot": "planar3r",
+    "task": "position",
+    "model": "planar3r-position@0",
+    "joint_names": ["a", "b", "c"],
+    "redundancy": 1,
+}
+MISSED: dict[str, object] = {"index": 0, "status": "deadline_exceeded", "answer": None}
+END: dict[str, object] = {"status": "partial", "timings_ms": {"total": 3.0}}
+BATCH = SmmBatchRequest(
+    robot="planar3r", task="position", targets=[BatchTargetIn(target=PLANAR.target)]
+)
+
+
+def ndjson(*lines: dict[str, object]) -> httpx.Response:
+    body = b"".join(json.dumps(line).encode() + b"\n" for line in lines)
+    return httpx.Response(200, content=body, headers={"Content-Type": "application/x-ndjson"})
+
+
+def test_a_batch_is_asked_as_lines_and_read_back_into_the_response() -> None:
+    script = Script(busy("1"), ndjson(HEAD, MISSED, END))
+    client, waits, _ = make(script)
+    answer = client.smm_batch(BATCH)
+    assert waits == [1.0]  # a 503 before the lines is retried as any other
+    assert script.requests[-1].headers["accept"] == "application/x-ndjson"
+    assert answer.model_dump(mode="json") == {**HEAD, **END, "results": [MISSED]}
+
+
+@pytest.mark.parametrize("lines", [(HEAD, MISSED), (HEAD,), ()])
+def test_lines_cut_off_before_the_end_raise_a_connection_error(
+    lines: tuple[dict[str, object], ...],
+) -> None:
+    client, _, _ = make(Script(ndjson(*lines)))
+    with pytest.raises(SmmConnectionError, match="stopped before its last line"):
+        client.smm_batch(BATCH)

@@ -2,30 +2,28 @@
 configurations, components, paths, counts), whether one thread answers the queries or
 several answer them at once, on the planar 3R and the iiwa14 pose; a target's timings
 add up its stages; a deadline that passes mid-batch returns the queries answered before
-it, in order, and names the stage it stopped, whatever the threads."""
+it, in order, and names the stage it stopped, whatever the threads; each answer is handed
+to the listener in order, and an error the listener raises stops the batch, the queries
+not yet started never starting."""
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
 
 import numpy as np
 import pytest
 
-from service.manifest import REPO_MODELS_DIR, Manifest
+from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
 from service.pipeline.batch import run_batch
-from service.pipeline.collision.robot import RobotSpheres
 from service.pipeline.deadline import Deadline
 from service.pipeline.joint_space import JointLimits
 from service.pipeline.run import run
 from service.pipeline.types import (
-    CoaxialSet,
-    Kinematics,
     Query,
     SmmResult,
-    VelocityField,
 )
+from tests.support.watched import condition_of, watched
 from training.evaluate.served import orientation_wxyz
 
 
@@ -85,6 +83,52 @@ def test_each_answer_is_the_single_query_answer_bitwise(
     assert not batch.results[2].components  # out of reach: no_solution, in its place
 
 
+@pytest.mark.parametrize("threads", [1, 2])
+def test_each_answer_is_handed_over_in_order_as_it_is_ready(
+    planar3r: ServedModel, threads: int
+) -> None:
+    queries = planar_queries(planar3r)
+    heard: list[tuple[int, SmmResult]] = []
+    batch = run_batch(
+        planar3r, queries, threads=threads, on_answer=lambda i, r: heard.append((i, r))
+    )
+    assert [i for i, _ in heard] == list(range(len(queries)))
+    assert all(r is result for (_, r), result in zip(heard, batch.results, strict=True))
+
+
+class Enough(Exception):
+    pass
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_an_error_from_the_listener_stops_the_batch(planar3r: ServedModel, threads: int) -> None:
+    queries = [
+        Query.for_model(planar3r.manifest, position_m=[0.5, 0.01 * i], num_samples=50, seed=i)
+        for i in range(12)
+    ]
+    first_two = {condition_of(planar3r, q.position_m) for q in queries[:2]}
+    sampled: set[bytes] = set()  # the conditions of the targets whose sampling began
+
+    def watch(condition: np.ndarray) -> None:
+        sampled.add(condition.tobytes())
+        if condition.tobytes() not in first_two:
+            time.sleep(0.5)  # the workers' next targets are under way when the batch stops
+
+    counted = watched(planar3r, watch)
+    answered: list[int] = []
+
+    def stop_after_the_second(index: int, result: SmmResult) -> None:
+        answered.append(index)
+        if index == 1:
+            raise Enough
+
+    with pytest.raises(Enough):
+        run_batch(counted, queries, threads=threads, on_answer=stop_after_the_second)
+    assert answered == [0, 1]  # nothing is handed over after the error
+    # Those under way finished, the rest were never started.
+    assert 2 <= len(sampled) <= 2 + threads
+
+
 def test_a_changed_seed_changes_only_its_own_answer(planar3r: ServedModel) -> None:
     """The test above can fail: answers are not equal for any two seeds."""
     queries = planar_queries(planar3r)
@@ -140,48 +184,6 @@ def test_a_targets_timings_add_up_its_stages(planar3r: ServedModel) -> None:
     assert batch.total_ms > 0
 
 
-@dataclass(frozen=True)
-class SlowSecondTarget:
-    """The planar model, whose flow sleeps past `deadline` when asked about `slow_condition`."""
-
-    model: ServedModel
-    slow_condition: np.ndarray
-    deadline: Deadline
-
-    @property
-    def manifest(self) -> Manifest:
-        return self.model.manifest
-
-    @property
-    def velocity(self) -> VelocityField:
-        def velocity(q_t: np.ndarray, t: np.ndarray, condition: np.ndarray) -> np.ndarray:
-            if np.array_equal(condition[0], self.slow_condition):
-                time.sleep(max(0.0, self.deadline.remaining_s()) + 0.01)
-            return self.model.velocity(q_t, t, condition)
-
-        return velocity
-
-    @property
-    def kinematics(self) -> Kinematics:
-        return self.model.kinematics
-
-    @property
-    def limits(self) -> JointLimits:
-        return self.model.limits
-
-    @property
-    def coaxial_sets(self) -> tuple[CoaxialSet, ...]:
-        return self.model.coaxial_sets
-
-    @property
-    def robot_spheres(self) -> RobotSpheres | None:
-        return self.model.robot_spheres
-
-    @property
-    def row_threads(self) -> int:
-        return self.model.row_threads
-
-
 @pytest.mark.parametrize("threads", [1, 2])
 def test_a_deadline_mid_batch_returns_the_answers_before_it(
     planar3r: ServedModel, threads: int
@@ -191,8 +193,13 @@ def test_a_deadline_mid_batch_returns_the_answers_before_it(
         for position in ([0.5, 0.0], [0.5, 0.2], [0.5, 0.4])
     ]
     deadline = Deadline.after(2.0)
-    second = planar3r.manifest.condition.normalisation.normalise(np.array([[0.5, 0.2]]))[0]
-    slow = SlowSecondTarget(planar3r, second.astype(np.float32), deadline)
+    second = condition_of(planar3r, [0.5, 0.2])
+
+    def sleep_past_the_deadline_on_the_second(condition: np.ndarray) -> None:
+        if condition.tobytes() == second:
+            time.sleep(max(0.0, deadline.remaining_s()) + 0.01)
+
+    slow = watched(planar3r, sleep_past_the_deadline_on_the_second)
     batch = run_batch(slow, queries, deadline, threads=threads)
     assert not batch.complete and batch.deadline_error is not None
     assert batch.deadline_error.stage == "sample"
