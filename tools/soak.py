@@ -8,7 +8,9 @@ starts a server on 127.0.0.1 (tools.local_server) unless `--url` names a running
 concurrent clients for `--duration-s` seconds. Each client loops over a fixed mix, one
 cycle after another: POST /smm to every bundled model in turn (a reachable target of it,
 as tools.load sends), one POST /smm/batch of `--batch-targets` targets of one model (the
-model changes from cycle to cycle), and two bad requests (malformed JSON, an unknown
+model changes from cycle to cycle; half the batches ask for NDJSON lines, as the Python
+client does, half for one JSON object, and a stream of lines without its end line
+counts as a failed request), and two bad requests (malformed JSON, an unknown
 robot, a target of the wrong shape, num_samples out of range, a wrong content type, an
 oversized body, bad batches...; each must be answered with a 4xx). A 503 is honoured by
 sleeping its Retry-After (unless `--no-backoff`).
@@ -59,6 +61,7 @@ from typing import Any, Literal
 import httpx
 import numpy as np
 
+from service.client.client import NDJSON
 from tools.load import (
     add_client_arguments,
     machine_description,
@@ -104,6 +107,22 @@ class Call:
     content: bytes
     content_type: str | None = "application/json"
     expected_status: int = 200  # a bad one's documented status (docs/bad-inputs.md)
+    accept: str | None = None  # NDJSON: a batch asked for as lines
+
+    @property
+    def headers(self) -> dict[str, str]:
+        headers = {"content-type": self.content_type} if self.content_type else {}
+        return headers | ({"accept": self.accept} if self.accept else {})
+
+
+def whole(call: Call, status: int, body: bytes) -> int:
+    """The status an answer counts as: a 200 stream of lines without its end line (the
+    SmmBatchEnd, `{"status": ...}`) was cut off, a failure like a dropped connection (0)."""
+    if status == 200 and call.accept == NDJSON:
+        last = body.rstrip(b"\n").rsplit(b"\n", 1)[-1]
+        if not last.startswith(b'{"status"'):
+            return 0
+    return status
 
 
 @dataclass
@@ -201,7 +220,8 @@ def batch_calls(bodies: dict[str, list[dict[str, Any]]], targets: int) -> dict[s
                 "max_configurations_per_component": first["max_configurations_per_component"],
                 "targets": [{"target": c["target"], "seed": c["seed"]} for c in chosen],
             }
-            calls[model].append(Call("batch", model, "/smm/batch", _json(body)))
+            accept = NDJSON if b % 2 else None  # every other batch as lines
+            calls[model].append(Call("batch", model, "/smm/batch", _json(body), accept=accept))
     return calls
 
 
@@ -516,11 +536,12 @@ async def run_soak(
                 for call in mix.cycle(number, rng):
                     if time.perf_counter() >= stop_at:
                         break
-                    headers = {"content-type": call.content_type} if call.content_type else {}
                     sent = time.perf_counter()
                     try:
-                        response = await http.post(call.path, content=call.content, headers=headers)
-                        status = response.status_code
+                        response = await http.post(
+                            call.path, content=call.content, headers=call.headers
+                        )
+                        status = whole(call, response.status_code, response.content)
                         retry_after = response.headers.get("retry-after")
                     except httpx.HTTPError:
                         status, retry_after = 0, None

@@ -16,6 +16,8 @@
 - Every bad request of the mix gets its documented 4xx from a real server with the
   default settings (docs/bad-inputs.md), and the mix covers every bundled model with
   single requests and batches.
+- Every other batch asks for NDJSON lines: a real server streams them, and the same
+  lines without their end line count as a failed request.
 - A 20 s soak of 2 clients against that server (--url with --pid) runs end to end: one
   printed line, one RSS reading and one speed probe per 5 s window, single requests,
   batches and bad requests all answered as they should be, no errors, exit code 0, and
@@ -32,6 +34,7 @@ from pathlib import Path
 import httpx
 import pytest
 
+from service.client.client import NDJSON
 from tests.support.bundled import bundled_model_ids
 from tools import soak
 from tools.load import request_bodies
@@ -45,6 +48,7 @@ from tools.soak import (
     main,
     speed_probe_ms,
     verdicts_of,
+    whole,
     window_of,
 )
 
@@ -220,6 +224,22 @@ def test_every_bad_request_of_the_mix_gets_its_4xx(server: LocalServer) -> None:
     cycle = mix.cycle(0, random.Random(0))
     assert [call.kind for call in cycle] == ["single"] * len(mix.singles) + ["batch"] + ["bad"] * 2
     assert cycle[-2:] == mix.bad[:2] and mix.cycle(1, random.Random(0))[-2:] == mix.bad[2:4]
+
+
+def test_half_the_batches_ask_for_lines_and_a_cut_stream_is_a_failure(
+    server: LocalServer,
+) -> None:
+    mix = Mix.of(request_bodies(seed=0), batch_targets=2)
+    for batches in mix.batches.values():
+        assert [call.accept for call in batches[:2]] == [None, NDJSON]
+    call = next(iter(mix.batches.values()))[1]
+    with httpx.Client(base_url=server.url, timeout=60) as client:
+        response = client.post(call.path, content=call.content, headers=call.headers)
+    assert response.headers["content-type"] == NDJSON
+    assert whole(call, 200, response.content) == 200
+    cut = response.content.rsplit(b"\n", 2)[0] + b"\n"  # without the end line
+    assert whole(call, 200, cut) == 0
+    assert whole(call, 503, b"") == 503
 
 
 def test_a_short_soak_runs_end_to_end(
