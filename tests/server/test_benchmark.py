@@ -97,8 +97,13 @@ def test_the_command_writes_every_configuration_and_size(tmp_path: Path) -> None
         assert batch["singles_over_batch"] == pytest.approx(
             batch["singles_median_ms"] / batch["batch_median_ms"]
         )
-    assert text.count("| default (`SMM_BATCH_THREADS=0`: ") == 1
-    assert text.count("| one thread (`SMM_BATCH_THREADS=1`) |") == 1
+        assert batch["singles_over_batch_json"] == pytest.approx(
+            batch["singles_median_ms"] / batch["batch_json_median_ms"]
+        )
+    # Each server's batch read as lines and as one JSON object.
+    assert text.count("| default (`SMM_BATCH_THREADS=0`: ") == 2
+    for form in ("read as lines", "read as one JSON object"):
+        assert text.count(f"| one thread (`SMM_BATCH_THREADS=1`), {form} |") == 1
     assert text.count("Where the default batch's time goes") == 1
 
 
