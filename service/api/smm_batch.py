@@ -169,6 +169,14 @@ def answer_lines(
 _COMPUTING: set[asyncio.Future[None]] = set()  # the streamed batches' computations, held
 
 
+def _computed(computation: asyncio.Future[None]) -> None:
+    """A streamed batch's computation ended: let it go, its error marked as seen (the
+    lines' reader raises it where a reader is left; where none is, nobody can be told)."""
+    _COMPUTING.discard(computation)
+    if not computation.cancelled():
+        computation.exception()
+
+
 async def stream_batch(
     model: ServedModel,
     queries: list[Query],
@@ -187,7 +195,7 @@ async def stream_batch(
     )  # fmt: skip
     computation = asyncio.ensure_future(computing)
     _COMPUTING.add(computation)
-    computation.add_done_callback(_COMPUTING.discard)
+    computation.add_done_callback(_computed)
     await first_line_or_error(lines, computation)
     return StreamingResponse(lines.read(computation), media_type=NDJSON)
 
