@@ -732,8 +732,13 @@ def batch_profile(batch: dict, one_thread: dict | None = None) -> list[str]:
         f"Even with correction, connection and summaries free, the batch would take the "
         f"sampling ({bound.at_once} targets at a time) and what lies outside the pipeline, "
         f"{bound.floor_ms:.1f} ms per target: at most "
-        f"{bound.most_x:.1f}x the singles (goal {BATCH_GOAL_X:g}x). The rest of the "
-        "goal needs a cheaper network evaluation or answer transport, not only batching.",
+        f"{bound.most_x:.1f}x the singles (goal {BATCH_GOAL_X:g}x). "
+        + (
+            "The rest of the goal needs a cheaper network evaluation or answer transport, "
+            "not only batching."
+            if bound.most_x < BATCH_GOAL_X
+            else "This bound does not rule the goal out; the cores' bound below does."
+        ),
     ]
     cpu = cpu_bound(batch)
     if cpu is not None:
