@@ -216,8 +216,7 @@ class SmmClient:
     ) -> httpx.Response:
         """One request, sent again as the retry policy allows; the last answer, whatever
         its status, or SmmTimeoutError / SmmConnectionError."""
-        with self._open(method, path, body, timeout) as response:
-            response.read()
+        with self._open(method, path, body, timeout, streamed=False) as response:
             return response
 
     @contextmanager
@@ -228,9 +227,11 @@ class SmmClient:
         body: BaseModel | None,
         timeout: float | None,
         accept: str | None = None,
+        streamed: bool = True,
     ) -> Iterator[httpx.Response]:
         """`_send`, with the answer's body left to read from the response while it
-        arrives (closed when the block ends)."""
+        arrives (closed when the block ends); `streamed` False: read whole first, a
+        connection dropped while reading it retried as one dropped before it."""
         # Absent and null mean the same in the contract; absent keeps the body small.
         content = None if body is None else body.model_dump_json(exclude_none=True).encode()
         headers = {"Content-Type": "application/json"} if content is not None else {}
@@ -244,7 +245,7 @@ class SmmClient:
                 method, path, content=content, headers=headers, timeout=per_call
             )
             try:
-                response = self.http.send(outgoing, stream=True)
+                response = self.http.send(outgoing, stream=streamed)
             except RETRIED_TRANSPORT_ERRORS as error:
                 if attempt >= self.retry.max_attempts:
                     raise SmmConnectionError(

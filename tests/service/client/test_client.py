@@ -10,7 +10,8 @@ SmmConnectionError; a read timeout is raised as SmmTimeoutError at once; a 422 c
 each field's location and the server's message; the body sent is the request model's
 JSON without nulls, with the API key header; a batch is asked for as NDJSON lines and
 read back into its response, and lines cut off before their end raise
-SmmConnectionError.
+SmmConnectionError; a connection dropped while an answer's body is read is retried as
+one dropped before it.
 """
 
 from __future__ import annotations
@@ -229,3 +230,19 @@ def test_lines_cut_off_before_the_end_raise_a_connection_error(
     client, _, _ = make(Script(ndjson(*lines)))
     with pytest.raises(SmmConnectionError, match="stopped before its last line"):
         client.smm_batch(BATCH)
+
+
+class DroppedBody(httpx.SyncByteStream):
+    """A body whose connection drops after its first bytes."""
+
+    def __iter__(self) -> Iterator[bytes]:
+        yield b'{"status": '
+        raise httpx.ReadError("connection reset while reading the body")
+
+
+def test_a_connection_dropped_while_reading_the_answer_is_retried() -> None:
+    script = Script(httpx.Response(200, stream=DroppedBody()), httpx.Response(200, json=LIVE))
+    client, waits, events = make(script)
+    assert client.healthz().status == "alive"
+    assert len(script.requests) == 2 and waits == [0.5]
+    assert [e.reason for e in events] == ["ReadError"]
