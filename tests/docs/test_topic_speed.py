@@ -208,7 +208,8 @@ def test_the_batch_block_is_the_reports_batch_per_target() -> None:
     assert first[1][3] == f"{one_thread['singles_over_batch']:.2f}x"
     for row, run in zip(first, (batch, one_thread), strict=True):  # as one JSON object
         assert row[4:6] == [
-            f"{run['batch_json_median_ms']:.0f}", f"{run['singles_over_batch_json']:.2f}x"
+            f"{run['batch_json_median_ms']:.0f}",
+            f"{run['singles_over_batch_json']:.2f}x",
         ]
     targets, server = batch["targets"], batch["server_batch_median_ms"]
     outside = (batch["batch_median_ms"] - server["total"]) / targets
