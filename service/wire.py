@@ -484,6 +484,10 @@ class BatchItemOut(BaseModel):
     )
 
 
+# POST /smm/batch's answer as lines (SmmBatchResponse): asked for with `Accept`, sent so.
+NDJSON = "application/x-ndjson"
+
+
 class SmmBatchHead(BaseModel):
     """The model that answers a batch: SmmBatchResponse's first fields, and the first line
     of its NDJSON stream."""

@@ -61,7 +61,7 @@ from typing import Any, Literal
 import httpx
 import numpy as np
 
-from service.client.client import NDJSON
+from service.wire import NDJSON
 from tools.load import (
     add_client_arguments,
     machine_description,

@@ -28,7 +28,8 @@ from collections.abc import AsyncIterator
 
 from fastapi import Request
 
-NDJSON = "application/x-ndjson"
+from service.wire import NDJSON
+
 _END = b""  # after the last line
 
 

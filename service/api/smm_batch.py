@@ -18,7 +18,6 @@ from fastapi.responses import StreamingResponse
 
 from service.api.answers import Fields, encode, model_fields
 from service.api.batch_lines import (
-    NDJSON,
     BatchLines,
     ClientGone,
     first_line_or_error,
@@ -40,7 +39,7 @@ from service.observability.metrics import Metrics
 from service.pipeline.batch import BatchResult, run_batch
 from service.pipeline.deadline import Deadline
 from service.pipeline.types import STAGES, Query, SmmResult, TimedSpan
-from service.wire import SmmBatchRequest, SmmBatchResponse
+from service.wire import NDJSON, SmmBatchRequest, SmmBatchResponse
 
 router = APIRouter(prefix="/smm", tags=["smm"], generate_unique_id_function=operation_id)
 

@@ -31,6 +31,7 @@ from service.client.retry import (
     parse_retry_after_s,
 )
 from service.wire import (
+    NDJSON,
     BatchItemOut,
     LivenessResponse,
     ReadinessResponse,
@@ -48,7 +49,6 @@ from service.wire import (
 
 API_KEY_HEADER = "X-API-Key"  # the header service/http/auth.py reads
 REQUEST_ID_HEADER = "X-Request-ID"
-NDJSON = "application/x-ndjson"  # the batch's answer, one line per target as each is answered
 # Connecting to a server that is up takes milliseconds; an answer can take seconds (the
 # server's own deadline is SMM_REQUEST_DEADLINE_S, 30 s by default).
 DEFAULT_TIMEOUT = httpx.Timeout(60.0, connect=5.0)
@@ -190,13 +190,13 @@ class SmmClient:
                 raise  # SmmTimeoutError, from _open
             except (StopIteration, httpx.TransportError) as error:
                 cause = f": {type(error).__name__}: {error}" if str(error) else ""
-                raise SmmConnectionError(
-                    f"POST {path}: the answer from {self.http.base_url} stopped before its "
-                    f"last line{cause}"
-                ) from error
-            raise SmmConnectionError(
-                f"POST {path}: the answer from {self.http.base_url} stopped before its last line"
-            )
+                raise self._cut_off(path, cause) from error
+            raise self._cut_off(path)
+
+    def _cut_off(self, path: str, cause: str = "") -> SmmConnectionError:
+        return SmmConnectionError(
+            f"POST {path}: the answer from {self.http.base_url} stopped before its last line{cause}"
+        )
 
     def _call(
         self,

@@ -34,7 +34,7 @@ from pathlib import Path
 import httpx
 import pytest
 
-from service.client.client import NDJSON
+from service.wire import NDJSON
 from tests.support.bundled import bundled_model_ids
 from tools import soak
 from tools.load import request_bodies
