@@ -8,15 +8,13 @@ deadline cut short says so per target; the route is in the OpenAPI document."""
 from __future__ import annotations
 
 import asyncio
-import time
 from typing import Any
 
-import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
 from service.api.answers import encode
-from service.api.batch_lines import NDJSON, BatchLines, first_line_or_error
+from service.api.batch_lines import BatchLines, first_line_or_error
 from service.api.smm import smm_fields
 from service.api.smm_batch import answer_lines, batch_fields
 from service.errors import DeadlineExceededError
@@ -27,10 +25,17 @@ from service.pipeline.batch import BatchResult, run_batch
 from service.pipeline.deadline import Deadline
 from service.pipeline.run import run
 from service.pipeline.types import Query
-from service.wire import BatchItemOut, SmmBatchEnd, SmmBatchHead, SmmBatchResponse, SmmResponse
+from service.wire import (
+    NDJSON,
+    BatchItemOut,
+    SmmBatchEnd,
+    SmmBatchHead,
+    SmmBatchResponse,
+    SmmResponse,
+)
 from tests.support.app import make_client
 from tests.support.bundled import bundled_robots, served_robots_message
-from tests.support.watched import condition_of, watched
+from tests.support.watched import slow_on
 
 PLANAR = {"robot": "planar3r", "task": "position"}
 POSE_TARGETS: list[dict[str, Any]] = [
@@ -335,13 +340,7 @@ def test_a_deadline_mid_batch_sends_the_targets_left_as_deadline_exceeded(
         for y in (0.0, 0.2, 0.4)
     ]
     deadline = Deadline.after(2.0)
-    second = condition_of(planar3r, [0.5, 0.2])
-
-    def sleep_past_the_deadline_on_the_second(condition: np.ndarray) -> None:
-        if condition.tobytes() == second:
-            time.sleep(max(0.0, deadline.remaining_s()) + 0.01)
-
-    slow = watched(planar3r, sleep_past_the_deadline_on_the_second)
+    slow = slow_on(planar3r, [0.5, 0.2], deadline)
     lines = asyncio.run(Lines(slow, queries, deadline).read())
     assert len(lines) == 5 and all(line.endswith(b"\n") for line in lines)
     head = SmmBatchHead.model_validate_json(lines[0])

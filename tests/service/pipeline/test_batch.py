@@ -23,7 +23,7 @@ from service.pipeline.types import (
     Query,
     SmmResult,
 )
-from tests.support.watched import condition_of, watched
+from tests.support.watched import condition_of, slow_on, watched
 from training.evaluate.served import orientation_wxyz
 
 
@@ -193,13 +193,7 @@ def test_a_deadline_mid_batch_returns_the_answers_before_it(
         for position in ([0.5, 0.0], [0.5, 0.2], [0.5, 0.4])
     ]
     deadline = Deadline.after(2.0)
-    second = condition_of(planar3r, [0.5, 0.2])
-
-    def sleep_past_the_deadline_on_the_second(condition: np.ndarray) -> None:
-        if condition.tobytes() == second:
-            time.sleep(max(0.0, deadline.remaining_s()) + 0.01)
-
-    slow = watched(planar3r, sleep_past_the_deadline_on_the_second)
+    slow = slow_on(planar3r, [0.5, 0.2], deadline)
     batch = run_batch(slow, queries, deadline, threads=threads)
     assert not batch.complete and batch.deadline_error is not None
     assert batch.deadline_error.stage == "sample"
