@@ -361,8 +361,38 @@ static void pack_pairs(const int8_t *W, Py_ssize_t k, Py_ssize_t n, Py_ssize_t k
         }
 }
 
+/* The AVX2 product's own peak: PEAK_SUMS running sums, each adding a vpmaddwd of its own
+ * activation pairs against one vector of weight pairs, round after round, with nothing
+ * else in the loop (no loads, no quantisation, no rescaling). The weights pass through an
+ * empty asm every round, so the compiler cannot hoist the products out of the loop. Returns
+ * the sum of every lane of every running sum: rounds times the sum of each activation
+ * vector's dot product with the weights, which the caller checks, so the rounds were done. */
+#define PEAK_SUMS 10
+__attribute__((target("avx2,fma"))) static int64_t peak_avx2(const int16_t *x, const int16_t *w,
+                                                             long rounds) {
+    __m256i wv = _mm256_loadu_si256((const __m256i *)w);
+    __m256i xv[PEAK_SUMS], acc[PEAK_SUMS];
+    for (int s = 0; s < PEAK_SUMS; ++s)
+        xv[s] = _mm256_loadu_si256((const __m256i *)(x + 16 * s)), acc[s] = _mm256_setzero_si256();
+    for (long r = 0; r < rounds; ++r) {
+        __asm__ volatile("" : "+x"(wv));
+#pragma GCC unroll 16
+        for (int s = 0; s < PEAK_SUMS; ++s)
+            acc[s] = _mm256_add_epi32(acc[s], _mm256_madd_epi16(xv[s], wv));
+    }
+    int64_t total = 0;
+    for (int s = 0; s < PEAK_SUMS; ++s) {
+        int32_t lanes[8];
+        _mm256_storeu_si256((__m256i *)lanes, acc[s]);
+        for (int l = 0; l < 8; ++l) total += lanes[l];
+    }
+    return total;
+}
+
 #else
+#define PEAK_SUMS 10
 static int avx2_usable(void) { return 0; }
+static int64_t peak_avx2(const int16_t *x, const int16_t *w, long rounds) { return 0; }
 #endif
 
 /* ------------------------------------------------------------- AMX and AVX-512 path */
@@ -837,6 +867,34 @@ static PyObject *py_forward(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
+/* peak_sums() -> PEAK_SUMS: the running sums of avx2_peak. */
+static PyObject *py_peak_sums(PyObject *self, PyObject *unused) { return PyLong_FromLong(PEAK_SUMS); }
+
+/* avx2_peak(x, w, rounds) -> the checksum of peak_avx2: x int16 (PEAK_SUMS * 16,), w int16
+ * (16,); rounds * 16 * PEAK_SUMS products, the GIL released. */
+static PyObject *py_avx2_peak(PyObject *self, PyObject *args) {
+    Py_buffer x, w;
+    long rounds;
+    if (!PyArg_ParseTuple(args, "y*y*l", &x, &w, &rounds)) return NULL;
+    PyObject *result = NULL;
+    if (!avx2_usable())
+        PyErr_SetString(PyExc_ValueError, "avx2_peak needs AVX2 and FMA, which this processor lacks");
+    else if (x.len != (Py_ssize_t)(PEAK_SUMS * 16 * sizeof(int16_t)) || w.len != 16 * 2)
+        PyErr_Format(PyExc_ValueError, "avx2_peak takes x of %d int16 and w of 16, got %zd and %zd "
+                     "bytes", PEAK_SUMS * 16, x.len, w.len);
+    else if (rounds < 0)
+        PyErr_Format(PyExc_ValueError, "rounds must be >= 0, got %ld", rounds);
+    else {
+        int64_t total;
+        Py_BEGIN_ALLOW_THREADS
+        total = peak_avx2(x.buf, w.buf, rounds);
+        Py_END_ALLOW_THREADS
+        result = PyLong_FromLongLong(total);
+    }
+    PyBuffer_Release(&x), PyBuffer_Release(&w);
+    return result;
+}
+
 /* keep_scratch(bytes) -> the bound it replaces; kept blocks above the new bound are freed. */
 static PyObject *py_keep_scratch(PyObject *self, PyObject *args) {
     Py_ssize_t bytes;
@@ -902,6 +960,12 @@ static PyMethodDef methods[] = {
      "returns the bound it replaces."},
     {"kept_scratch", py_kept_scratch, METH_NOARGS,
      "kept_scratch() -> int: the bytes of the scratch blocks kept now."},
+    {"avx2_peak", py_avx2_peak, METH_VARARGS,
+     "avx2_peak(x, w, rounds) -> int: `rounds` rounds of PEAK_SUMS vpmaddwd products of x's "
+     "int16 vectors (PEAK_SUMS * 16 values) against w's (16), summed: the AVX2 product's "
+     "peak, nothing else in the loop; the sum is rounds * the sum of x's vectors' dot "
+     "products with w."},
+    {"peak_sums", py_peak_sums, METH_NOARGS, "peak_sums() -> int: PEAK_SUMS"},
     {"kernels", py_kernels, METH_NOARGS,
      "kernels() -> ((name, code), ...): the product's kernels usable on this processor, "
      "best first (amx: AMX-INT8 and AVX-512F allowed by the kernel; avx2: AVX2 and FMA; "

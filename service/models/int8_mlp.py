@@ -38,6 +38,8 @@ the `onnx` package's reading of the file.
 
 from __future__ import annotations
 
+import threading
+import time
 from dataclasses import dataclass
 from itertools import pairwise
 from pathlib import Path
@@ -209,6 +211,48 @@ def kept_scratch_bytes() -> int:
     return int(_int8_mlp.kept_scratch())
 
 
+# vpmaddwd multiplies 16 pairs of int16 (8 lanes of two) and sums each lane's two: the
+# AVX2 kernel's product, u8 x s8 widened, 16 integer products an instruction.
+PRODUCTS_PER_VPMADDWD = 16
+
+
+def avx2_product_peak(seconds: float = 0.1, threads: int = 1) -> float:
+    """The AVX2 kernel's exact integer product at its peak on this processor: integer
+    products a second on `threads` threads at once, each running vpmaddwd and nothing else
+    for about `seconds` (`_int8_mlp.avx2_peak`, the GIL released). No layer can multiply
+    faster on AVX2, so a network's products over this rate is the least time the AVX2
+    kernel can take. Each thread's sum is checked against its closed form (the rounds it
+    counts were run). ValueError on a processor without AVX2."""
+    if "avx2" not in _KERNEL_CODES:
+        raise ValueError(f"no AVX2 on this processor; usable kernels: {', '.join(_KERNEL_CODES)}")
+    sums = int(_int8_mlp.peak_sums())
+    x = (np.arange(16 * sums, dtype=np.int16) % 7 - 3).tobytes()  # small: no lane overflows
+    w = (np.arange(16, dtype=np.int16) % 5 - 2).tobytes()
+    xs, ws = np.frombuffer(x, np.int16).reshape(sums, 16), np.frombuffer(w, np.int16)
+    per_round = int((xs.astype(np.int64) @ ws.astype(np.int64)).sum())
+    trial_rounds = 100_000
+    start_s = time.perf_counter()
+    _int8_mlp.avx2_peak(x, w, trial_rounds)
+    trial_s = max(time.perf_counter() - start_s, 1e-6)
+    # A lane gains at most 2 * 3 * 2 = 12 a round: 1e8 rounds stay inside int32.
+    rounds = int(min(max(trial_rounds * seconds / trial_s, 1000), 100_000_000))
+    checksums: list[int] = [0] * threads
+
+    def probe(i: int) -> None:
+        checksums[i] = int(_int8_mlp.avx2_peak(x, w, rounds))
+
+    workers = [threading.Thread(target=probe, args=(i,)) for i in range(threads)]
+    start_s = time.perf_counter()
+    for worker in workers:
+        worker.start()
+    for worker in workers:
+        worker.join()
+    elapsed_s = time.perf_counter() - start_s
+    if checksums != [rounds * per_round] * threads:
+        raise RuntimeError(f"avx2_peak summed {checksums}, not {rounds * per_round} each")
+    return threads * rounds * sums * PRODUCTS_PER_VPMADDWD / elapsed_s
+
+
 class QuantisedNetwork:
     """The layers in compiled code: `forward(x)` of the first layer's input (B, k)."""
 
@@ -221,6 +265,8 @@ class QuantisedNetwork:
         self.width_in = int(layers[0].weight.shape[0])
         self.width_out = int(layers[-1].weight.shape[1])
         self.widest = max(int(layer.weight.shape[1]) for layer in layers)
+        # The integer products a row needs: every layer's k x n, padding aside.
+        self.products_per_row = sum(int(np.prod(layer.weight.shape)) for layer in layers)
         self._arrays = tuple(
             (
                 int(layer.weight.shape[0]),
@@ -349,6 +395,11 @@ class CompiledVelocityField:
         if parts is None:
             prefix = open_session(cut_model(graph, first_input, ("batch", network.width_in)), 1)
         return cls(prefix, first_input, parts, network, kernel, threads)
+
+    @property
+    def layers(self) -> QuantisedNetwork:
+        """The quantised layers, from the first layer's input on (the time embedding aside)."""
+        return self._network
 
     def first_input(
         self,

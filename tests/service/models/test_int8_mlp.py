@@ -21,6 +21,7 @@ from onnx import numpy_helper
 from service.config import Settings
 from service.main import create_app
 from service.manifest import FLOW_FILE, FLOW_INT8_FILE, REPO_MODELS_DIR
+from service.models import _int8_mlp  # type: ignore[attr-defined]
 from service.models.int8_mlp import (
     PARALLEL_MIN_WORK,
     CompiledVelocityField,
@@ -28,6 +29,7 @@ from service.models.int8_mlp import (
     QuantisedNetwork,
     TimeEmbedding,
     UnsupportedNetwork,
+    avx2_product_peak,
     best_kernel,
     keep_scratch,
     kept_scratch_bytes,
@@ -373,6 +375,40 @@ def test_the_layers_read_are_the_files_weights_scales_and_biases() -> None:
         np.testing.assert_array_equal(layer.bias, arrays[add.input[1]])
         np.testing.assert_array_equal(layer.weight_scale, arrays[scale.input[1]])
     assert [layer.silu for layer in layers] == [True] * (len(layers) - 1) + [False]
+
+
+def test_a_rows_products_are_every_matmuls_k_times_n_in_the_file() -> None:
+    """The integer products a row needs, against the `onnx` package's reading: the sum over
+    the file's MatMulInteger weights of k x n (1,093,120 for the iiwa14 pose network: an
+    80-wide input, four 512 x 512 layers, 7 velocities)."""
+    model = onnx.load(IIWA14_POSE_INT8)
+    arrays = {i.name: numpy_helper.to_array(i) for i in model.graph.initializer}
+    products = [n for n in model.graph.node if n.op_type == "MatMulInteger"]
+    expected = sum(arrays[node.input[1]].size for node in products)
+    _, layers = quantised_layers(read_graph(IIWA14_POSE_INT8))
+    assert QuantisedNetwork(layers).products_per_row == expected == 80 * 512 + 4 * 512**2 + 512 * 7
+
+
+@pytest.mark.skipif("avx2" not in KERNELS_HERE, reason="no AVX2 on this processor")
+def test_the_avx2_peak_probe_does_the_products_it_counts() -> None:
+    """`avx2_peak`'s sum is rounds times its vectors' dot products with the weights, worked
+    out in numpy (so it runs the rounds it is asked for, each with every product summed);
+    the rate is positive and finite on one thread and on two at once; bad arguments are
+    refused."""
+    sums = int(_int8_mlp.peak_sums())
+    rng = np.random.default_rng(0)
+    x = rng.integers(-3, 4, (sums, 16)).astype(np.int16)
+    w = rng.integers(-2, 3, 16).astype(np.int16)
+    per_round = int((x.astype(np.int64) @ w.astype(np.int64)).sum())
+    for rounds in (0, 1, 7, 12_345):
+        assert _int8_mlp.avx2_peak(x.tobytes(), w.tobytes(), rounds) == rounds * per_round
+    for threads in (1, 2):
+        rate = avx2_product_peak(0.01, threads)
+        assert 0 < rate < float("inf")
+    with pytest.raises(ValueError, match="x of 160 int16 and w of 16"):
+        _int8_mlp.avx2_peak(x.tobytes()[:-2], w.tobytes(), 1)
+    with pytest.raises(ValueError, match="rounds must be >= 0"):
+        _int8_mlp.avx2_peak(x.tobytes(), w.tobytes(), -1)
 
 
 def test_a_network_of_other_layers_is_refused_naming_what_it_found() -> None:

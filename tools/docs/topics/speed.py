@@ -18,6 +18,7 @@
     <!-- figures: parallel-min-rows -->              the least rows a flow call runs on all threads
     <!-- figures: compiled-parallel-min-rows -->     the same, on the compiled 512-wide int8 layers
     <!-- figures: int8-exactness -->                 onnxruntime's int8 against the exact network
+    <!-- figures: network-floor -->                  the AVX2 product's peak, the layers against it
 
 Options are `key=value` words: `report=NAME` reads docs/benchmark/NAME.json (default
 `benchmark`, the benchmark of record), `n=N` a size other than the goals' N, `fmt=SPEC` a
@@ -207,6 +208,36 @@ def int8_exactness() -> str:
         for r in report["results"]
     ]  # fmt: skip
     header = ["model", "network", "largest difference", "largest velocity", "rows differing"]
+    return lead + table(header, rows)
+
+
+@block("network-floor")
+def network_floor() -> str:
+    """The AVX2 product's peak on the machine of docs/benchmark/network-floor.json
+    (`tools.network_floor`), the compiled layers against it, and the least time each
+    model's default request's network work can take there, beside its time goal."""
+    report = sources.benchmark("network-floor")
+    machine = Machine.from_json(report["machine"]).describe()
+    served = report["served_kernel"].upper()
+    lead = (
+        f"Measured by `{report['command']}` on {machine}, where the service serves the "
+        f"{served} kernel: vpmaddwd alone does "
+        f"{report['peak_every_core_per_s'] / 1e9:.1f} G integer products a second on its "
+        f"{report['cores']} cores at once.\n\n"
+    )
+    rows = []
+    for r in report["results"]:
+        goal = "-" if r["goal_ms"] is None else f"{r['goal_ms']:g}"
+        out = "" if r["goal_ms"] is None or r["floor_ms"] <= r["goal_ms"] else " (over)"
+        rows.append([
+            r["model"], f"`{r['network']}`", f"{r['products_per_row']:,}",
+            f"{r['call_ms']:.1f}", f"{r['efficiency']:.0%}",
+            f"{r['evaluations']} x {r['least_rows']}", f"{r['floor_ms']:.1f}{out}", goal,
+        ])  # fmt: skip
+    header = [
+        "model", "network", "products a row", f"layers ms ({report['results'][0]['rows']} "
+        "rows, one core)", "of the peak", "evaluations x rows", "floor ms", "goal ms",
+    ]  # fmt: skip
     return lead + table(header, rows)
 
 
