@@ -31,14 +31,24 @@ import numpy as np
 from service.client import RetryPolicy, SmmClient
 from service.config import Settings
 from service.manifest import REPO_MODELS_DIR
+from service.models.int8_mlp import CompiledVelocityField, avx2_product_peak
 from service.models.registry import ServedModel, load_model
 from service.pipeline.targets import fields_reached
 from service.wire import SmmBatchRequest, SmmBatchResponse, SmmRequest, SmmResponse
+from tools.batch_bounds import (
+    CpuBound,
+    cpu_bound,
+    cpu_sentence,
+    network_bound,
+    network_sentence,
+)
 from tools.local_server import LocalServer
+from tools.network_floor import least_products
 from training.evaluate.targets import uniform_configurations
 from training.machine import Machine
 
 ROUNDS = 3
+PEAK_PROBE_S = 0.2  # the AVX2 peak probe's length after each round, on every core
 TIMEOUT_S = 600.0
 
 
@@ -108,6 +118,8 @@ def batch_against_singles(
     mismatched: set[int] = set()
     server_timings: list[dict[str, float]] = []  # the batch's, by span
     singles_cpu: list[dict[str, float]] = []  # CPU ms of each round's singles, by process
+    products = avx2_network_products(model, num_samples)
+    peaks: list[float] = []  # the AVX2 product's peak on every core, after each round
     batch_cpu: list[dict[str, float]] = []
     try:
         no_retries = RetryPolicy(max_attempts=1)
@@ -130,6 +142,8 @@ def batch_against_singles(
                 batch_json_ms.append((time.perf_counter() - start) * 1e3)
                 mismatched.update(mismatched_targets(whole, single_answers))
                 server_timings.append({str(span): ms for span, ms in answer.timings_ms.items()})
+                if products is not None:  # right after the round, at the machine's speed now
+                    peaks.append(avx2_product_peak(PEAK_PROBE_S, os.cpu_count() or 1))
     finally:
         if own:
             server.stop()
@@ -156,7 +170,25 @@ def batch_against_singles(
         "cores": os.cpu_count() or 1,
         "singles_cpu_median_ms": _median_by_key(singles_cpu),
         "batch_cpu_median_ms": _median_by_key(batch_cpu),
+        **(
+            {}
+            if products is None
+            else {
+                "network_products_per_target": products,
+                "avx2_peak_every_core_per_s": float(np.median(peaks)),
+            }
+        ),
     }
+
+
+def avx2_network_products(model: ServedModel, num_samples: int) -> int | None:
+    """The integer products each target's network work needs where this processor serves
+    the model's int8 network on the AVX2 kernel (tools.network_floor: no exact AVX2 kernel
+    multiplies faster than vpmaddwd alone), else None (AMX, onnxruntime or float32)."""
+    network = model.networks.get(model.manifest.defaults.sampler.file)
+    if not isinstance(network, CompiledVelocityField) or network.kernel != "avx2":
+        return None
+    return least_products(model.manifest, network.layers.products_per_row, num_samples)
 
 
 def one_json_object(client: SmmClient, batch: SmmBatchRequest) -> SmmBatchResponse:
@@ -218,6 +250,9 @@ def main() -> None:
         f"fast; answers identical: {result['identical']} "
         f"({Machine.from_json(result['machine']).describe()})"
     )
+    for bound in (cpu_bound(result), network_bound(result)):
+        if bound is not None:
+            print(cpu_sentence(bound) if isinstance(bound, CpuBound) else network_sentence(bound))
 
 
 if __name__ == "__main__":

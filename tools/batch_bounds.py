@@ -1,6 +1,6 @@
 """What bounds the batch against its singles, from a `tools.batch_benchmark` result.
 
-Two bounds, per target in ms, both read from the measured result (light imports only, so
+Three bounds, per target in ms, each read from the measured result (light imports only, so
 the benchmark's report and the docs' pages compute them alike):
 
 - `stage_bound`: the batch's sampling (its targets' network evaluations, as many targets
@@ -11,6 +11,11 @@ the benchmark's report and the docs' pages compute them alike):
   singles' wall time over that. A batch at the goal's ratio could spend at most the cores
   times a third of the singles' wall time per target: the CPU it must save against what
   it spends now is what batching would have to share between targets.
+- `network_bound`: where the server evaluates the int8 network on the AVX2 kernel, each
+  target's network work (its Euler steps' evaluations of its own rows: an answer equal to
+  its single answer needs exactly those products) over the AVX2 product's peak on every
+  core, measured in the same run (tools.network_floor: no exact AVX2 kernel multiplies
+  faster than vpmaddwd alone). Nothing a batch shares between targets removes it.
 """
 
 from __future__ import annotations
@@ -108,4 +113,47 @@ def cpu_sentence(cpu: CpuBound, one_thread: CpuBound | None = None) -> str:
         f"{cpu.goal_cpu_ms:.1f} ms of CPU per target, {cpu.goal_cpu_ms / least_cpu_ms:.0%} of "
         "the least a batch spent here: the rest of each target's computation would have to "
         "be work the targets share, where the batch shares only the requests' exchanges."
+    )
+
+
+@dataclass(frozen=True)
+class NetworkBound:
+    singles_ms: float  # the singles' client wall time per target
+    products: int  # the integer products each target's network work needs
+    peak_per_s: float  # the AVX2 product's peak on every core, in the same run
+
+    @property
+    def least_ms(self) -> float:
+        """The products at the peak: the least time a target's network work takes."""
+        return self.products / self.peak_per_s * 1e3
+
+    @property
+    def most_x(self) -> float:
+        return self.singles_ms / self.least_ms
+
+
+def network_bound(batch: dict[str, Any]) -> NetworkBound | None:
+    """None where the run's network was not on the AVX2 kernel (or before it was measured)."""
+    if "network_products_per_target" not in batch:
+        return None
+    return NetworkBound(
+        singles_ms=batch["singles_median_ms"] / batch["targets"],
+        products=int(batch["network_products_per_target"]),
+        peak_per_s=float(batch["avx2_peak_every_core_per_s"]),
+    )
+
+
+def network_sentence(bound: NetworkBound) -> str:
+    """The network's bound on the batch, in words (the report's and the docs' pages)."""
+    verdict = (
+        f"no batch whose answers equal the singles' reaches {BATCH_GOAL_X:g}x on this processor"
+        if bound.most_x < BATCH_GOAL_X
+        else "this bound does not rule the goal out"
+    )
+    return (
+        f"The network on AVX2: each target's network work needs {bound.products:,} integer "
+        f"products, which at the AVX2 product's peak on every core "
+        f"({bound.peak_per_s / 1e9:.1f} G a second, measured after each round) take at least "
+        f"{bound.least_ms:.1f} ms: at most **{bound.most_x:.2f}x** the singles' "
+        f"{bound.singles_ms:.1f} ms, whatever else the targets share, so {verdict}."
     )

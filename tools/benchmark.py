@@ -76,7 +76,14 @@ from service.models.registry import (
 from service.pipeline.joint_space import JointLimits
 from service.wire import SmmRequest
 from tools.batch_benchmark import batch_against_singles, target_of
-from tools.batch_bounds import BATCH_STAGES, cpu_bound, cpu_sentence, stage_bound
+from tools.batch_bounds import (
+    BATCH_STAGES,
+    cpu_bound,
+    cpu_sentence,
+    network_bound,
+    network_sentence,
+    stage_bound,
+)
 from tools.connect_profile import profile_connect
 from tools.connect_profile import summarise as summarise_connect
 from tools.goals import (
@@ -743,6 +750,9 @@ def batch_profile(batch: dict, one_thread: dict | None = None) -> list[str]:
     cpu = cpu_bound(batch)
     if cpu is not None:
         lines += ["", cpu_sentence(cpu, None if one_thread is None else cpu_bound(one_thread))]
+    network = network_bound(batch)
+    if network is not None:
+        lines += ["", network_sentence(network)]
     return lines
 
 

@@ -50,11 +50,19 @@ def served_int8(manifest: Manifest) -> str | None:
     return sampler.file if sampler.precision == "int8" else None
 
 
-def least_rows(manifest: Manifest) -> int:
-    """The rows a default request's sampler evaluates at least: num_samples, or one round's
-    where the model draws in rounds."""
-    round_rows = manifest.defaults.sampler.round_samples
-    return min(manifest.defaults.num_samples, round_rows or manifest.defaults.num_samples)
+def least_rows(manifest: Manifest, num_samples: int | None = None) -> int:
+    """The rows a request of `num_samples` (None: the default) evaluates at least at each
+    Euler step: num_samples, or one round's where the model draws in rounds."""
+    asked = manifest.defaults.num_samples if num_samples is None else num_samples
+    return min(asked, manifest.defaults.sampler.round_samples or asked)
+
+
+def least_products(
+    manifest: Manifest, products_per_row: int, num_samples: int | None = None
+) -> int:
+    """The integer products a request's network work needs at least: its Euler steps'
+    evaluations of its least rows."""
+    return manifest.defaults.sampler.steps * least_rows(manifest, num_samples) * products_per_row
 
 
 def measure(model_dir: Path, rounds: int, seed: int) -> dict[str, Any]:

@@ -3,16 +3,21 @@ object) against K single POST /smm on a real server; every batch answer of both 
 checked against its single answer, and a differing
 answer is caught by index; each phase's CPU time is the server's and the client's, as the
 kernel counts a process's (`tools.procfs.cpu_seconds`, checked against the clock
-Python reads for its own process)."""
+Python reads for its own process); where AVX2 serves the int8 network, the run records
+each target's network products (steps x rows x the layers' products a row) and the AVX2
+peak."""
 
 from __future__ import annotations
 
 import os
 import time
 
+import pytest
+
 from service.api.answers import encode
 from service.api.smm import smm_fields
 from service.api.smm_batch import batch_fields
+from service.models.int8_mlp import CompiledVelocityField
 from service.models.registry import ServedModel
 from service.pipeline.batch import BatchResult
 from service.pipeline.run import run
@@ -44,8 +49,19 @@ def test_batch_against_singles_times_both_and_finds_the_answers_identical(
         cpu = result[phase]
         # The server answers every target; the client at least parses every answer.
         assert cpu["server"] > 0 and cpu["client"] > 0
-        assert cpu["total"] == cpu["server"] + cpu["client"]
+        # each key's median over the rounds (2: their mean), so the total's to round-off
+        assert cpu["total"] == pytest.approx(cpu["server"] + cpu["client"])
     assert result["cores"] == os.cpu_count()
+    # The network's products a target, and the AVX2 peak, where AVX2 serves the network.
+    served = planar3r.networks[planar3r.manifest.defaults.sampler.file]
+    on_avx2 = isinstance(served, CompiledVelocityField) and served.kernel == "avx2"
+    assert ("network_products_per_target" in result) == on_avx2
+    if isinstance(served, CompiledVelocityField) and on_avx2:
+        steps = planar3r.manifest.defaults.sampler.steps
+        rows = min(100, planar3r.manifest.defaults.sampler.round_samples or 100)
+        expected = steps * rows * served.layers.products_per_row
+        assert result["network_products_per_target"] == expected
+        assert result["avx2_peak_every_core_per_s"] > 0
 
 
 def test_cpu_seconds_is_the_kernels_count_of_the_process() -> None:

@@ -143,6 +143,29 @@ def test_the_batch_profile_is_per_target_with_the_bounds_of_sampling_transport_a
     assert "at most 40.0 ms of CPU per target, 143% of the least" in cpu
 
 
+def test_the_batch_profile_bounds_the_batch_by_the_network_on_avx2() -> None:
+    """Where the run measured the AVX2 peak: a target's products at the every-core peak
+    are the least its network work takes, and the singles over that the most a batch
+    gains; absent without the figures (AMX, onnxruntime)."""
+    batch = {
+        "targets": 4, "batch_median_ms": 80.0, "singles_median_ms": 240.0,
+        "server_batch_median_ms": {"sample": 40.0, "correct": 8.0, "connect": 12.0,
+                                   "summarise": 4.0, "total": 64.0},
+    }  # fmt: skip
+    assert not any(line.startswith("The network on AVX2") for line in batch_profile(batch))
+    # 1.5e9 products at 5e10 a second: 30 ms; singles 60 ms a target: at most 2x
+    measured = {**batch, "network_products_per_target": 1_500_000_000,
+                "avx2_peak_every_core_per_s": 5e10}  # fmt: skip
+    (line,) = [x for x in batch_profile(measured) if x.startswith("The network on AVX2")]
+    assert "needs 1,500,000,000 integer products" in line
+    assert "(50.0 G a second, measured after each round) take at least 30.0 ms" in line
+    assert "at most **2.00x** the singles' 60.0 ms" in line
+    assert "no batch whose answers equal the singles' reaches 3x" in line
+    fast = {**measured, "avx2_peak_every_core_per_s": 1e11}  # 15 ms: at most 4x
+    (line,) = [x for x in batch_profile(fast) if x.startswith("The network on AVX2")]
+    assert "at most **4.00x**" in line and "does not rule the goal out" in line
+
+
 def test_restarts_reach_the_valid_count_asked_for(planar3r: ServedModel) -> None:
     limits = planar3r.limits
     q_targets = uniform_configurations(limits, 2, seed=7)
