@@ -362,35 +362,41 @@ static void pack_pairs(const int8_t *W, Py_ssize_t k, Py_ssize_t n, Py_ssize_t k
 }
 
 /* The AVX2 product's own peak: PEAK_SUMS running sums, each adding a vpmaddwd of its own
- * activation pairs against one vector of weight pairs, round after round, with nothing
- * else in the loop (no loads, no quantisation, no rescaling). The weights pass through an
- * empty asm every round, so the compiler cannot hoist the products out of the loop. Returns
- * the sum of every lane of every running sum: rounds times the sum of each activation
- * vector's dot product with the weights, which the caller checks, so the rounds were done. */
-#define PEAK_SUMS 10
+ * activation pairs (read from memory, as the layers broadcast theirs) against one vector of
+ * weight pairs, round after round, with nothing else in the loop (no quantisation, no
+ * rescaling). The sums stay in registers (PEAK_SUMS + 1 of the 16); an empty asm each
+ * round, which may change the weights and the activations' pointer, keeps the compiler
+ * from hoisting the products or the loads out of the loop. Returns the sum of every lane of every running
+ * sum: rounds times the sum of each activation vector's dot product with the weights,
+ * which the caller checks, so the rounds were run. */
+#define PEAK_SUMS 12
+#define PEAK_STEP(a, s) \
+    a = _mm256_add_epi32(a, _mm256_madd_epi16(_mm256_loadu_si256((const __m256i *)(xr + 16 * s)), wv))
 __attribute__((target("avx2,fma"))) static int64_t peak_avx2(const int16_t *x, const int16_t *w,
                                                              long rounds) {
     __m256i wv = _mm256_loadu_si256((const __m256i *)w);
-    __m256i xv[PEAK_SUMS], acc[PEAK_SUMS];
-    for (int s = 0; s < PEAK_SUMS; ++s)
-        xv[s] = _mm256_loadu_si256((const __m256i *)(x + 16 * s)), acc[s] = _mm256_setzero_si256();
+    __m256i a0 = _mm256_setzero_si256(), a1 = a0, a2 = a0, a3 = a0, a4 = a0, a5 = a0, a6 = a0,
+            a7 = a0, a8 = a0, a9 = a0, a10 = a0, a11 = a0;
+    const int16_t *xr = x;
     for (long r = 0; r < rounds; ++r) {
-        __asm__ volatile("" : "+x"(wv));
-#pragma GCC unroll 16
-        for (int s = 0; s < PEAK_SUMS; ++s)
-            acc[s] = _mm256_add_epi32(acc[s], _mm256_madd_epi16(xv[s], wv));
+        __asm__ volatile("" : "+x"(wv), "+r"(xr));
+        PEAK_STEP(a0, 0), PEAK_STEP(a1, 1), PEAK_STEP(a2, 2), PEAK_STEP(a3, 3);
+        PEAK_STEP(a4, 4), PEAK_STEP(a5, 5), PEAK_STEP(a6, 6), PEAK_STEP(a7, 7);
+        PEAK_STEP(a8, 8), PEAK_STEP(a9, 9), PEAK_STEP(a10, 10), PEAK_STEP(a11, 11);
     }
+    __m256i sums[PEAK_SUMS] = {a0, a1, a2, a3, a4, a5, a6, a7, a8, a9, a10, a11};
     int64_t total = 0;
     for (int s = 0; s < PEAK_SUMS; ++s) {
         int32_t lanes[8];
-        _mm256_storeu_si256((__m256i *)lanes, acc[s]);
+        _mm256_storeu_si256((__m256i *)lanes, sums[s]);
         for (int l = 0; l < 8; ++l) total += lanes[l];
     }
     return total;
 }
+#undef PEAK_STEP
 
 #else
-#define PEAK_SUMS 10
+#define PEAK_SUMS 12
 static int avx2_usable(void) { return 0; }
 static int64_t peak_avx2(const int16_t *x, const int16_t *w, long rounds) { return 0; }
 #endif
