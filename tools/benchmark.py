@@ -54,6 +54,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -65,6 +66,7 @@ import numpy as np
 from service.client import RetryPolicy, SmmClient
 from service.config import Settings
 from service.manifest import REPO_MODELS_DIR, Manifest
+from service.models.int8_mlp import avx2_product_peak
 from service.models.registry import (
     ONNX_FLOW,
     ServedModel,
@@ -75,7 +77,12 @@ from service.models.registry import (
 )
 from service.pipeline.joint_space import JointLimits
 from service.wire import SmmRequest
-from tools.batch_benchmark import batch_against_singles, target_of
+from tools.batch_benchmark import (
+    PEAK_PROBE_S,
+    avx2_network_products,
+    batch_against_singles,
+    target_of,
+)
 from tools.batch_bounds import (
     BATCH_STAGES,
     cpu_bound,
@@ -360,7 +367,20 @@ def benchmark_model(
         "sampler_precision": manifest.defaults.sampler.precision,
         "sampler_flow": manifest.defaults.sampler.flow,
         "sizes": rows,
+        **network_floor_at_goal_n(model),
     }
+
+
+def network_floor_at_goal_n(model: ServedModel) -> dict[str, object]:
+    """Where this processor serves the model's int8 network on the AVX2 kernel: the network
+    work's products at the goals' N and the AVX2 product's every-core peak, measured right
+    after the model's runs (tools.network_floor: no exact AVX2 kernel multiplies faster
+    than vpmaddwd alone). Empty elsewhere."""
+    products = avx2_network_products(model, GOAL_NUM_SAMPLES)
+    if products is None:
+        return {}
+    peak = avx2_product_peak(PEAK_PROBE_S, os.cpu_count() or 1)
+    return {"network_floor": {"products": products, "peak_every_core_per_s": peak}}
 
 
 def markdown(report: dict) -> str:
@@ -603,6 +623,20 @@ def _time_bound(entry: dict, ms: float, most_ms: float, stage: dict[str, float])
             f"{max(left_ms, 0.0):.1f} ms for sampling: {evaluations} evaluations of the "
             f"network at its {per_evaluation_ms:.2f} ms each, where the served sampler takes "
             f"{steps}. "
+        )
+    floor = entry.get("network_floor")
+    if floor is not None:
+        least_ms = floor["products"] / floor["peak_every_core_per_s"] * 1e3
+        text += (
+            f"On this processor's AVX2 kernel the network's products at N = {GOAL_NUM_SAMPLES} "
+            f"({floor['products']:,}) take at least {least_ms:.1f} ms at vpmaddwd's peak on "
+            f"every core ({floor['peak_every_core_per_s'] / 1e9:.1f} G a second, measured in "
+            "the run)"
+            + (
+                ": the goal is out of reach of this network here. "
+                if least_ms > most_ms
+                else ", under the goal. "
+            )
         )
     profile = entry.get("connect_profile")
     if profile is not None:

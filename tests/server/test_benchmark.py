@@ -22,6 +22,7 @@ import numpy as np
 import pytest
 
 from service.manifest import REPO_MODELS_DIR
+from service.models.int8_mlp import CompiledVelocityField, best_kernel
 from service.models.registry import ServedModel, load_model
 from service.pipeline.collision.check import CollisionCheck
 from service.pipeline.collision.scene import Scene
@@ -83,6 +84,18 @@ def test_the_command_writes_every_configuration_and_size(tmp_path: Path) -> None
     # The connect stage profiled on the same targets: the compiled kernels are part of it.
     profile = entry["connect_profile"]
     assert 0 < profile["kernels_ms"] < profile["connect_ms"] and profile["kernel_calls"] > 0
+    # Where AVX2 serves the int8 network: its products at the goals' N and the AVX2 peak.
+    on_avx2 = best_kernel() == "avx2" and entry["sampler_precision"] == "int8"
+    assert ("network_floor" in entry) == on_avx2
+    if on_avx2:
+        manifest = load_model(REPO_MODELS_DIR / "planar3r-position", threads=1).manifest
+        flow = CompiledVelocityField.open(
+            REPO_MODELS_DIR / "planar3r-position" / manifest.defaults.sampler.file
+        )
+        # planar 3R draws 128 rows a round: the least a request evaluates at each step
+        expected = entry["sampler_steps"] * 128 * flow.layers.products_per_row
+        assert entry["network_floor"]["products"] == expected
+        assert entry["network_floor"]["peak_every_core_per_s"] > 0
     text = (tmp_path / "benchmark.md").read_text()
     # every configuration and HTTP at 3 sizes, then its goal row and where its time goes
     assert text.count("| planar3r-position |") == 3 * (len(names) + 1) + 3 + 2
@@ -255,6 +268,24 @@ def test_bounds_name_the_stage_past_the_goal_or_the_evaluations_left_for_samplin
         line.startswith("- planar3r-position, truth:") and "coverage p95 rad 0.02 vs 0.01" in line
         for line in lines
     )
+
+
+def test_bounds_give_the_networks_avx2_floor_where_the_run_measured_it() -> None:
+    """A model whose run recorded its network's products and the AVX2 peak: the products
+    at the peak are the least the network takes, over or under the goal; none without."""
+    row = _goal_row(100.0, {"sample": 80.0, "correct": 5.0, "connect": 12.0}, 900.0)
+    entry = {"sampler_steps": 4, "judged": [], "sizes": {"1000": row}}
+    (plain,) = [x for x in _bounds({"models": {"iiwa14-pose": entry}}) if "time:" in x]
+    assert "AVX2" not in plain
+    # 4.4e9 products at 1e11 a second: 44 ms, over the 15 ms goal
+    floor = {"products": 4_400_000_000, "peak_every_core_per_s": 1e11}
+    over = {**entry, "network_floor": floor}
+    (line,) = [x for x in _bounds({"models": {"iiwa14-pose": over}}) if "time:" in x]
+    assert "products at N = 1000 (4,400,000,000) take at least 44.0 ms" in line
+    assert "(100.0 G a second, measured in the run): the goal is out of reach" in line
+    under = {**entry, "network_floor": {**floor, "peak_every_core_per_s": 1e12}}  # 4.4 ms
+    (line,) = [x for x in _bounds({"models": {"iiwa14-pose": under}}) if "time:" in x]
+    assert "take at least 4.4 ms" in line and ", under the goal." in line
 
 
 def test_a_committed_paper_judgement_is_read_service_first(
