@@ -35,13 +35,7 @@ from service.models.int8_mlp import CompiledVelocityField, avx2_product_peak
 from service.models.registry import ServedModel, load_model
 from service.pipeline.targets import fields_reached
 from service.wire import SmmBatchRequest, SmmBatchResponse, SmmRequest, SmmResponse
-from tools.batch_bounds import (
-    CpuBound,
-    cpu_bound,
-    cpu_sentence,
-    network_bound,
-    network_sentence,
-)
+from tools.batch_bounds import cpu_bound, cpu_sentence, network_bound, network_sentence
 from tools.local_server import LocalServer
 from tools.network_floor import least_products
 from training.evaluate.targets import uniform_configurations
@@ -250,9 +244,11 @@ def main() -> None:
         f"fast; answers identical: {result['identical']} "
         f"({Machine.from_json(result['machine']).describe()})"
     )
-    for bound in (cpu_bound(result), network_bound(result)):
-        if bound is not None:
-            print(cpu_sentence(bound) if isinstance(bound, CpuBound) else network_sentence(bound))
+    cpu, network = cpu_bound(result), network_bound(result)
+    if cpu is not None:
+        print(cpu_sentence(cpu))
+    if network is not None:
+        print(network_sentence(network))
 
 
 if __name__ == "__main__":

@@ -103,7 +103,7 @@ def measure(model_dir: Path, rounds: int, seed: int) -> dict[str, Any]:
 def with_floor(result: dict[str, Any], every_core_per_s: float) -> dict[str, Any]:
     """`result` with the floor of its default request's network work on every core, and at
     the goals' N, beside its time goal (None for a model without one)."""
-    products = result["evaluations"] * result["products_per_row"]
+    products = result["evaluations"] * result["products_per_row"]  # a row, every step
     goal = {model: ms for model, ms, _ in GOALS}.get(result["model"])
     return {
         **result,
