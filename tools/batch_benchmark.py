@@ -31,18 +31,16 @@ import numpy as np
 from service.client import RetryPolicy, SmmClient
 from service.config import Settings
 from service.manifest import REPO_MODELS_DIR
-from service.models.int8_mlp import CompiledVelocityField, avx2_product_peak
 from service.models.registry import ServedModel, load_model
 from service.pipeline.targets import fields_reached
 from service.wire import SmmBatchRequest, SmmBatchResponse, SmmRequest, SmmResponse
 from tools.batch_bounds import cpu_bound, cpu_sentence, network_bound, network_sentence
 from tools.local_server import LocalServer
-from tools.network_floor import least_products
+from tools.network_floor import avx2_network_products, every_core_peak
 from training.evaluate.targets import uniform_configurations
 from training.machine import Machine
 
 ROUNDS = 3
-PEAK_PROBE_S = 0.2  # the AVX2 peak probe's length after each round, on every core
 TIMEOUT_S = 600.0
 
 
@@ -137,7 +135,7 @@ def batch_against_singles(
                 mismatched.update(mismatched_targets(whole, single_answers))
                 server_timings.append({str(span): ms for span, ms in answer.timings_ms.items()})
                 if products is not None:  # right after the round, at the machine's speed now
-                    peaks.append(avx2_product_peak(PEAK_PROBE_S, os.cpu_count() or 1))
+                    peaks.append(every_core_peak())
     finally:
         if own:
             server.stop()
@@ -173,16 +171,6 @@ def batch_against_singles(
             }
         ),
     }
-
-
-def avx2_network_products(model: ServedModel, num_samples: int) -> int | None:
-    """The integer products each target's network work needs where this processor serves
-    the model's int8 network on the AVX2 kernel (tools.network_floor: no exact AVX2 kernel
-    multiplies faster than vpmaddwd alone), else None (AMX, onnxruntime or float32)."""
-    network = model.networks.get(model.manifest.defaults.sampler.file)
-    if not isinstance(network, CompiledVelocityField) or network.kernel != "avx2":
-        return None
-    return least_products(model.manifest, network.layers.products_per_row, num_samples)
 
 
 def one_json_object(client: SmmClient, batch: SmmBatchRequest) -> SmmBatchResponse:

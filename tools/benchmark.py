@@ -54,7 +54,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -66,7 +65,6 @@ import numpy as np
 from service.client import RetryPolicy, SmmClient
 from service.config import Settings
 from service.manifest import REPO_MODELS_DIR, Manifest
-from service.models.int8_mlp import avx2_product_peak
 from service.models.registry import (
     ONNX_FLOW,
     ServedModel,
@@ -77,12 +75,7 @@ from service.models.registry import (
 )
 from service.pipeline.joint_space import JointLimits
 from service.wire import SmmRequest
-from tools.batch_benchmark import (
-    PEAK_PROBE_S,
-    avx2_network_products,
-    batch_against_singles,
-    target_of,
-)
+from tools.batch_benchmark import batch_against_singles, target_of
 from tools.batch_bounds import (
     BATCH_STAGES,
     cpu_bound,
@@ -110,6 +103,7 @@ from tools.goals import (
     timed_run,
 )
 from tools.local_server import LocalServer
+from tools.network_floor import avx2_network_products, every_core_peak
 from training.checkout import git_commit
 from training.evaluate.compare import better_than, worse_than
 from training.evaluate.judge import JUDGED_SEPARATOR, figures, paper_defaults
@@ -379,8 +373,7 @@ def network_floor_at_goal_n(model: ServedModel) -> dict[str, object]:
     products = avx2_network_products(model, GOAL_NUM_SAMPLES)
     if products is None:
         return {}
-    peak = avx2_product_peak(PEAK_PROBE_S, os.cpu_count() or 1)
-    return {"network_floor": {"products": products, "peak_every_core_per_s": peak}}
+    return {"network_floor": {"products": products, "peak_every_core_per_s": every_core_peak()}}
 
 
 def markdown(report: dict) -> str:

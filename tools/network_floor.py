@@ -35,6 +35,7 @@ import numpy as np
 
 from service.manifest import MANIFEST_FILE, REPO_MODELS_DIR, Manifest
 from service.models.int8_mlp import CompiledVelocityField, avx2_product_peak, best_kernel
+from service.models.registry import ServedModel
 from tools.goals import GOAL_NUM_SAMPLES, GOALS
 from training.machine import Machine
 
@@ -42,6 +43,7 @@ ROWS = 1000  # rows of the timed call: the per-row cost is flat from a few hundr
 ROUNDS = 9  # each round: the peak probe, then CALLS calls of the layers
 CALLS = 5
 PROBE_S = 0.1
+PEAK_PROBE_S = 0.2  # the every-core probe a benchmark runs after a model's or a round's runs
 
 
 def served_int8(manifest: Manifest) -> str | None:
@@ -63,6 +65,21 @@ def least_products(
     """The integer products a request's network work needs at least: its Euler steps'
     evaluations of its least rows."""
     return manifest.defaults.sampler.steps * least_rows(manifest, num_samples) * products_per_row
+
+
+def avx2_network_products(model: ServedModel, num_samples: int) -> int | None:
+    """The integer products each target's network work needs where this processor serves
+    the model's int8 network on the AVX2 kernel (no exact AVX2 kernel multiplies faster
+    than vpmaddwd alone), else None (AMX, onnxruntime or float32)."""
+    network = model.networks.get(model.manifest.defaults.sampler.file)
+    if not isinstance(network, CompiledVelocityField) or network.kernel != "avx2":
+        return None
+    return least_products(model.manifest, network.layers.products_per_row, num_samples)
+
+
+def every_core_peak(seconds: float = PEAK_PROBE_S) -> float:
+    """The AVX2 product's peak on every core of this machine at once, products a second."""
+    return avx2_product_peak(seconds, os.cpu_count() or 1)
 
 
 def measure(model_dir: Path, rounds: int, seed: int) -> dict[str, Any]:
@@ -130,7 +147,7 @@ def main() -> None:
         and served_int8(Manifest.model_validate_json((d / MANIFEST_FILE).read_bytes()))
     ]
     measured = [measure(d, args.rounds, args.seed) for d in chosen]
-    every_core = float(np.median([avx2_product_peak(PROBE_S, cores) for _ in range(args.rounds)]))
+    every_core = float(np.median([every_core_peak(PROBE_S) for _ in range(args.rounds)]))
     results = [with_floor(r, every_core) for r in measured]
     print(
         f"{Machine.from_json(machine.ended().as_json()).describe()}; served kernel "

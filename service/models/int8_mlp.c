@@ -82,6 +82,10 @@ typedef struct {
     Layer layers[];
 } Network;
 
+/* The running sums of the AVX2 peak probe (peak_avx2): with the weights, 13 of AVX2's 16
+ * vector registers. */
+#define PEAK_SUMS 12
+
 /* The product's paths, best first where the processor has them. */
 enum { KERNEL_PLAIN = 0, KERNEL_AVX2 = 1, KERNEL_AMX = 2 };
 
@@ -366,12 +370,12 @@ static void pack_pairs(const int8_t *W, Py_ssize_t k, Py_ssize_t n, Py_ssize_t k
  * weight pairs, round after round, with nothing else in the loop (no quantisation, no
  * rescaling). The sums stay in registers (PEAK_SUMS + 1 of the 16); an empty asm each
  * round, which may change the weights and the activations' pointer, keeps the compiler
- * from hoisting the products or the loads out of the loop. Returns the sum of every lane of every running
- * sum: rounds times the sum of each activation vector's dot product with the weights,
- * which the caller checks, so the rounds were run. */
-#define PEAK_SUMS 12
-#define PEAK_STEP(a, s) \
-    a = _mm256_add_epi32(a, _mm256_madd_epi16(_mm256_loadu_si256((const __m256i *)(xr + 16 * s)), wv))
+ * from hoisting the products or the loads out of the loop. Returns the sum of every lane
+ * of every running sum: rounds times the sum of each activation vector's dot product with
+ * the weights, which the caller checks, so the rounds were run. */
+#define PEAK_STEP(a, s)                                                                    \
+    a = _mm256_add_epi32(                                                                  \
+        a, _mm256_madd_epi16(_mm256_loadu_si256((const __m256i *)(xr + 16 * s)), wv))
 __attribute__((target("avx2,fma"))) static int64_t peak_avx2(const int16_t *x, const int16_t *w,
                                                              long rounds) {
     __m256i wv = _mm256_loadu_si256((const __m256i *)w);
@@ -396,9 +400,10 @@ __attribute__((target("avx2,fma"))) static int64_t peak_avx2(const int16_t *x, c
 #undef PEAK_STEP
 
 #else
-#define PEAK_SUMS 12
 static int avx2_usable(void) { return 0; }
-static int64_t peak_avx2(const int16_t *x, const int16_t *w, long rounds) { return 0; }
+static int64_t peak_avx2(const int16_t *x, const int16_t *w, long rounds) {
+    return 0;  /* never called: avx2_usable() is 0 */
+}
 #endif
 
 /* ------------------------------------------------------------- AMX and AVX-512 path */
@@ -874,7 +879,9 @@ static PyObject *py_forward(PyObject *self, PyObject *args) {
 }
 
 /* peak_sums() -> PEAK_SUMS: the running sums of avx2_peak. */
-static PyObject *py_peak_sums(PyObject *self, PyObject *unused) { return PyLong_FromLong(PEAK_SUMS); }
+static PyObject *py_peak_sums(PyObject *self, PyObject *unused) {
+    return PyLong_FromLong(PEAK_SUMS);
+}
 
 /* avx2_peak(x, w, rounds) -> the checksum of peak_avx2: x int16 (PEAK_SUMS * 16,), w int16
  * (16,); rounds * 16 * PEAK_SUMS products, the GIL released. */
@@ -884,10 +891,12 @@ static PyObject *py_avx2_peak(PyObject *self, PyObject *args) {
     if (!PyArg_ParseTuple(args, "y*y*l", &x, &w, &rounds)) return NULL;
     PyObject *result = NULL;
     if (!avx2_usable())
-        PyErr_SetString(PyExc_ValueError, "avx2_peak needs AVX2 and FMA, which this processor lacks");
+        PyErr_SetString(PyExc_ValueError,
+                        "avx2_peak needs AVX2 and FMA, which this processor lacks");
     else if (x.len != (Py_ssize_t)(PEAK_SUMS * 16 * sizeof(int16_t)) || w.len != 16 * 2)
-        PyErr_Format(PyExc_ValueError, "avx2_peak takes x of %d int16 and w of 16, got %zd and %zd "
-                     "bytes", PEAK_SUMS * 16, x.len, w.len);
+        PyErr_Format(PyExc_ValueError,
+                     "avx2_peak takes x of %d int16 and w of 16, got %zd and %zd bytes",
+                     PEAK_SUMS * 16, x.len, w.len);
     else if (rounds < 0)
         PyErr_Format(PyExc_ValueError, "rounds must be >= 0, got %ld", rounds);
     else {
