@@ -118,11 +118,11 @@ class Settings(BaseSettings):
     compiled_int8: bool = Field(
         True,
         description="Evaluate the int8 flow networks with the compiled layers "
-        "(service/models/int8_mlp.py) where the processor has AMX or AVX2: the exact integer "
-        "product on every processor (onnxruntime's saturates on AVX2 without VNNI, and a "
-        "replica there would answer otherwise), in fewer passes over the rows (`python -m "
-        "tools.onnx_threads` times both). false, or a processor with neither: onnxruntime's "
-        "session.",
+        "(service/models/int8_mlp.py) where the processor has AMX, AVX-512 VNNI or AVX2: the "
+        "exact integer product on every processor (onnxruntime's saturates on AVX2 without "
+        "VNNI, and a replica there would answer otherwise), in fewer passes over the rows "
+        "(`python -m tools.onnx_threads` times both). false, or a processor with none of "
+        "them: onnxruntime's session.",
     )
     log_level: LogLevel = Field(
         "info", description="Level of the service's JSON logs and of uvicorn's."

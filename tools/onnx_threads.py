@@ -9,7 +9,7 @@ opens it (workers that spin only while a call runs): with one intra-op thread, a
 the threads the service gives a session on this machine (`Settings`). At each row count the two take
 turns, a block of calls each per round, so a load that comes and goes falls on both
 alike. An int8 network is timed on the compiled layers as well (service/models/int8_mlp.py,
-one thread, the exact product), where the processor has AMX or AVX2: the service serves
+one thread, the exact product), where the processor has AMX, VNNI or AVX2: the service serves
 it there (`Settings.compiled_int8`). Prints the median time per call of each, which is faster,
 and what the service runs that row count on (every thread from `sessions.PARALLEL_MIN_ROWS`
 rows). Compare figures only within one run (the CPU differs between machines).

@@ -10,13 +10,15 @@
  * in its order, so a call gives the same bits as the session does (the tests pin it).
  *
  * The product is the exact integer sum on every path: on AMX (tdpbusd, 16 x 16 tiles of
- * u8 x s8 -> s32) where the processor and the kernel allow it, else on AVX2 (vpmaddwd on
- * the operands widened to int16: each pair's sum is exact in int32), else on plain C
- * loops; so every path gives the same bits. onnxruntime's own kernel is exact only on
+ * u8 x s8 -> s32) where the processor and the kernel allow it, else on AVX-512 VNNI
+ * (vpdpbusd: four u8 x s8 products summed into each int32 lane, without saturation),
+ * else on AVX2 (vpmaddwd on the operands widened to int16: each pair's sum is exact in
+ * int32), else on plain C loops; so every path gives the same bits. onnxruntime's own kernel is exact only on
  * processors with VNNI or AMX: on AVX2 alone it multiplies with vpmaddubsw, whose int16
  * pair sums saturate (an input near 255 against two weights near 127), and its velocities
  * differ from the exact ones by up to hundreds on such a network. The elementwise tail
- * runs on AVX-512 beside AMX (every AMX processor has it), on AVX2 with FMA beside AVX2,
+ * runs on AVX-512 beside AMX (every AMX processor has it) and VNNI, on AVX2 with FMA
+ * beside AVX2,
  * and in plain C (fmaf) otherwise: the same correctly rounded operations in the same order.
  *
  * Plain C99, the CPython API and the compiler's intrinsics (target attributes, so the file
@@ -87,7 +89,7 @@ typedef struct {
 #define PEAK_SUMS 12
 
 /* The product's paths, best first where the processor has them. */
-enum { KERNEL_PLAIN = 0, KERNEL_AVX2 = 1, KERNEL_AMX = 2 };
+enum { KERNEL_PLAIN = 0, KERNEL_AVX2 = 1, KERNEL_AMX = 2, KERNEL_VNNI = 3 };
 
 /* ------------------------------------------------------------------ plain C, any CPU */
 
@@ -585,8 +587,83 @@ __attribute__((target("amx-tile"))) static void tiles_configure(void) { _tile_lo
 
 __attribute__((target("amx-tile"))) static void tiles_release(void) { _tile_release(); }
 
+/* ------------------------------------------------------------ AVX-512 VNNI path */
+
+/* 1 when this processor (and the system's saving of its registers) has AVX-512F, BW and
+ * VNNI: Intel from Cascade Lake, AMD from Zen 4. */
+static int vnni_state = -1;
+
+static int vnni_usable(void) {
+    if (vnni_state >= 0) return vnni_state;
+    __builtin_cpu_init();
+    vnni_state = __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512bw") &&
+                 __builtin_cpu_supports("avx512vnni");
+    return vnni_state;
+}
+
+/* A block of the product on VNNI: R rows (at most VNNI_ROWS) by N_BLOCK columns, two
+ * vectors of 16 int32 sums a row (2 R + 3 of the 32 vector registers). */
+#define VNNI_ROWS 8
+
+/* Rows [i, i + R) of the quantised input a (M, k_pad) uint8 against column tiles t and
+ * t + 1 of the packed weights (AMX's B tiles, whose 64-byte rows are vpdpbusd's operand:
+ * four consecutive k of one column per int32 lane), into rows [r0, r0 + R) of acc
+ * (M_BLOCK, N_BLOCK). Inlined with R constant, so the sums stay in registers. */
+__attribute__((target("avx512f,avx512bw,avx512vnni"), always_inline)) static inline void
+block_vnni(const Layer *L, const uint8_t *a, Py_ssize_t i, int R, Py_ssize_t t, int32_t *acc,
+           Py_ssize_t r0) {
+    Py_ssize_t k_pad = L->k_pad, n_tiles = L->n_pad / N_TILE;
+    __m512i sum[VNNI_ROWS][2];
+#pragma GCC unroll 8
+    for (int r = 0; r < R; ++r) sum[r][0] = sum[r][1] = _mm512_setzero_si512();
+    for (Py_ssize_t kb = 0; kb < k_pad / K_BLOCK; ++kb) {
+        const int8_t *b = L->packed + (kb * n_tiles + t) * 1024;
+        const uint8_t *ak = a + i * k_pad + kb * K_BLOCK;
+#pragma GCC unroll 2
+        for (int q = 0; q < K_BLOCK / 4; ++q) {
+            __m512i w0 = _mm512_load_si512((const void *)(b + q * 64));
+            __m512i w1 = _mm512_load_si512((const void *)(b + 1024 + q * 64));
+#pragma GCC unroll 8
+            for (int r = 0; r < R; ++r) {
+                int32_t quad;
+                memcpy(&quad, ak + r * k_pad + 4 * q, sizeof quad);
+                __m512i x = _mm512_set1_epi32(quad);
+                sum[r][0] = _mm512_dpbusd_epi32(sum[r][0], x, w0);
+                sum[r][1] = _mm512_dpbusd_epi32(sum[r][1], x, w1);
+            }
+        }
+    }
+#pragma GCC unroll 8
+    for (int r = 0; r < R; ++r) {
+        _mm512_store_si512((void *)(acc + (r0 + r) * N_BLOCK), sum[r][0]);
+        _mm512_store_si512((void *)(acc + (r0 + r) * N_BLOCK + N_TILE), sum[r][1]);
+    }
+}
+
+/* One layer on VNNI: a (M, k_pad) uint8 -> out (M, n) float32, a block of M_BLOCK rows by
+ * N_BLOCK columns at a time (the block's weights, 16 kB of a 512-deep layer, and its rows'
+ * input stay in the first-level cache), each block's tail by tail_avx512 as on AMX. */
+__attribute__((target("avx512f,avx512bw,avx512vnni"))) static void layer_vnni(
+    const Layer *L, const uint8_t *a, Py_ssize_t M, float scale, int32_t zero_point, float *out,
+    float *low, float *high) {
+    int32_t acc[M_BLOCK * N_BLOCK] __attribute__((aligned(64)));
+    __m512 lo = _mm512_set1_ps(INFINITY), hi = _mm512_set1_ps(-INFINITY);
+    for (Py_ssize_t i0 = 0; i0 < M; i0 += M_BLOCK) {
+        Py_ssize_t rows = M - i0 < M_BLOCK ? M - i0 : M_BLOCK;
+        for (Py_ssize_t t = 0; t < L->n_pad / N_TILE; t += 2) {
+            Py_ssize_t r = 0;
+            for (; r + VNNI_ROWS <= rows; r += VNNI_ROWS)
+                block_vnni(L, a, i0 + r, VNNI_ROWS, t, acc, r);
+            for (; r < rows; ++r) block_vnni(L, a, i0 + r, 1, t, acc, r);
+            tail_avx512(L, acc, 0, rows, i0, t * N_TILE, scale, zero_point, out, &lo, &hi);
+        }
+    }
+    *low = _mm512_reduce_min_ps(lo), *high = _mm512_reduce_max_ps(hi);
+}
+
 #else
 static int amx_usable(void) { return 0; }
+static int vnni_usable(void) { return 0; }
 #endif
 
 /* ------------------------------------------------------------------------ forward */
@@ -648,7 +725,7 @@ typedef struct {
     const float *x;
     float *y;
     Py_ssize_t M;
-    int kernel, threads;  /* kernel: KERNEL_AMX, KERNEL_AVX2 or KERNEL_PLAIN */
+    int kernel, threads;  /* kernel: KERNEL_AMX, KERNEL_VNNI, KERNEL_AVX2 or KERNEL_PLAIN */
     uint8_t *a;           /* the quantised input: uint8 (M_pad, k_pad), int16 on AVX2 */
     float *buffers[2];
     int32_t *rows[MAX_THREADS];
@@ -678,8 +755,8 @@ static void call_rows(Call *call, int share) {
     Py_ssize_t i1 = call->threads == 1 || share == 1 ? M : split;
     Py_ssize_t count = i1 - i0, k0 = net->layers[0].k;
 #if HAVE_X86_PATHS
-    if (call->kernel == KERNEL_AMX) {
-        tiles_configure();
+    if (call->kernel == KERNEL_AMX || call->kernel == KERNEL_VNNI) {
+        if (call->kernel == KERNEL_AMX) tiles_configure();
         min_max_avx512(call->x + i0 * k0, (size_t)(count * k0), &call->low[0][share],
                        &call->high[0][share]);
     } else if (call->kernel == KERNEL_AVX2)
@@ -708,6 +785,9 @@ static void call_rows(Call *call, int share) {
         if (call->kernel == KERNEL_AMX) {
             quantise_avx512(x, count, L->k, L->k_pad, scale, zero_point, a);
             layer_amx(L, a, count, scale, zero_point, o, lo, hi);
+        } else if (call->kernel == KERNEL_VNNI) {
+            quantise_avx512(x, count, L->k, L->k_pad, scale, zero_point, a);
+            layer_vnni(L, a, count, scale, zero_point, o, lo, hi);
         } else if (call->kernel == KERNEL_AVX2) {
             int16_t *a16 = (int16_t *)call->a + i0 * L->k_pad;
             quantise_avx2(x, count, L->k, L->k_pad, scale, zero_point, a16);
@@ -851,7 +931,7 @@ static PyObject *py_network(PyObject *self, PyObject *args) {
 
 static int kernel_usable(int kernel) {
     return kernel == KERNEL_PLAIN || (kernel == KERNEL_AVX2 && avx2_usable()) ||
-           (kernel == KERNEL_AMX && amx_usable());
+           (kernel == KERNEL_VNNI && vnni_usable()) || (kernel == KERNEL_AMX && amx_usable());
 }
 
 /* forward(network, x, M, kernel, threads, y): the network on x's M rows into y. */
@@ -943,8 +1023,9 @@ static PyObject *py_kernels(PyObject *self, PyObject *unused) {
     PyObject *names = PyList_New(0);
     if (names == NULL) return NULL;
     static const struct { const char *name; int code; } all[] = {
-        {"amx", KERNEL_AMX}, {"avx2", KERNEL_AVX2}, {"plain", KERNEL_PLAIN}};
-    for (int i = 0; i < 3; ++i) {
+        {"amx", KERNEL_AMX}, {"vnni", KERNEL_VNNI}, {"avx2", KERNEL_AVX2},
+        {"plain", KERNEL_PLAIN}};
+    for (int i = 0; i < (int)(sizeof all / sizeof all[0]); ++i) {
         if (!kernel_usable(all[i].code)) continue;
         PyObject *item = Py_BuildValue("(si)", all[i].name, all[i].code);
         if (item == NULL || PyList_Append(names, item) != 0) {
@@ -983,8 +1064,8 @@ static PyMethodDef methods[] = {
     {"peak_sums", py_peak_sums, METH_NOARGS, "peak_sums() -> int: PEAK_SUMS"},
     {"kernels", py_kernels, METH_NOARGS,
      "kernels() -> ((name, code), ...): the product's kernels usable on this processor, "
-     "best first (amx: AMX-INT8 and AVX-512F allowed by the kernel; avx2: AVX2 and FMA; "
-     "plain: any)."},
+     "best first (amx: AMX-INT8 and AVX-512F allowed by the kernel; vnni: AVX-512F, BW "
+     "and VNNI; avx2: AVX2 and FMA; plain: any)."},
     {NULL, NULL, 0, NULL},
 };
 

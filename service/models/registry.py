@@ -170,7 +170,7 @@ def compiled_flow(kernel: str) -> str:
 
 def int8_on_compiled_layers() -> bool:
     """Whether this processor serves an int8 network on the compiled layers (with the
-    setting on): where it has AMX or AVX2 (int8_mlp.SERVED_KERNELS)."""
+    setting on): where it has AMX, AVX-512 VNNI or AVX2 (int8_mlp.SERVED_KERNELS)."""
     return best_kernel() in SERVED_KERNELS
 
 
@@ -189,7 +189,7 @@ def flow_kernel(velocity: VelocityField) -> str:
 def open_flow(path: Path, threads: int, serial: bool, compiled_int8: bool) -> VelocityField:
     """The flow network at `path`: an int8 one on the compiled layers (int8_mlp.py: the
     exact integer product on every processor) when `compiled_int8` and the processor
-    has AMX or AVX2, else onnxruntime's session (`threads`, and with `serial` a one-thread
+    has AMX, VNNI or AVX2, else onnxruntime's session (`threads`, and with `serial` a one-thread
     session beside it)."""
     if compiled_int8 and path.name in INT8_FLOW_FILES and int8_on_compiled_layers():
         try:

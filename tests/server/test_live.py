@@ -52,5 +52,5 @@ def test_answers_and_log_lines_share_the_request_id(server: LocalServer) -> None
     assert access["route"] == "/smm" and access["model"] == "iiwa14-position"
     started = [line for line in server.log_lines() if line.get("message") == "model loaded"]
     assert len(started) == len(bundled_model_ids())
-    # Every bundled model serves int8: on the compiled layers where AMX or AVX2 is, naming it.
+    # Every bundled model serves int8: on the compiled layers where AMX, VNNI or AVX2 is, naming it.
     assert {line["flow"] for line in started} == {int8_flow_here()}

@@ -1,6 +1,6 @@
 """The flow-threads benchmark (`python -m tools.onnx_threads`): it times the served
-network on one thread, on the service's threads and (an int8 network, where AMX or AVX2 is
-usable) on the compiled layers at each row count asked, and marks the row counts the
+network on one thread, on the service's threads and (an int8 network, where AMX, VNNI or
+AVX2 is usable) on the compiled layers at each row count asked, and marks the row counts the
 service runs on every thread as `sessions.PARALLEL_MIN_ROWS` says."""
 
 from __future__ import annotations

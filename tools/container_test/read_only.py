@@ -168,10 +168,10 @@ def check_flow_kernels(log_path: Path, checks: Checks) -> None:
     """Each model's start-up line names what evaluates its flow network: the compiled int8
     layers on the kernel this processor gives them (the container's is this machine's, and
     for AMX the kernel must grant the tiles inside it too), onnxruntime for a float32
-    network or on a processor with neither AMX nor AVX2."""
+    network or on a processor with none of AMX, VNNI and AVX2."""
     int8_flow = int8_flow_here()
     with checks.check(
-        "read-only root: int8 flow networks on the compiled layers where AMX or AVX2 is"
+        "read-only root: int8 flow networks on the compiled layers where AMX, VNNI or AVX2 is"
     ) as note:
         loaded = [
             line

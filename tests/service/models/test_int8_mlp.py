@@ -1,13 +1,14 @@
 """The compiled int8 flow layers (service/models/int8_mlp.py) compute the quantised network
 exactly: a layer's output is, to the bit, the one worked out here with numpy's int64
 product (where a saturating product, onnxruntime's on AVX2 without VNNI, differs); every
-kernel this processor has (AMX, AVX2, plain C) gives the same bits on every bundled int8
-network from 1 row to more than a block's, on one thread and two, from concurrent threads;
+kernel this processor has (AMX, AVX-512 VNNI, AVX2, plain C) gives the same bits on every
+bundled int8 network from 1 row to more than a block's, on one thread and two, from
+concurrent threads;
 and onnxruntime's velocities to the bit where its product is exact (VNNI or AMX). The layers
 read from the file are the file's (the `onnx` package reads them too); a network of other
 layers or a kernel the processor lacks is refused, naming what it found or what is usable;
-the registry serves an int8 network on the compiled layers where AMX or AVX2 is and the
-setting allows.
+the registry serves an int8 network on the compiled layers where AMX, VNNI or AVX2 is and
+the setting allows.
 """
 
 import threading
@@ -92,10 +93,11 @@ def test_the_compiled_layers_give_onnxruntimes_velocities_to_the_bit(path: Path)
 
 @pytest.mark.parametrize("path", _int8_flows(), ids=lambda p: f"{p.parent.name}/{p.name}")
 def test_every_kernel_here_gives_the_same_bits(path: Path) -> None:
-    """Row counts around the AVX2 kernel's 4-row and AMX's 32-row blocks, a sampler's 500
-    and 1200 rows, on one thread and two: every kernel against the plain C loops."""
+    """Row counts around the AVX2 kernel's 4-row blocks, VNNI's 8-row ones and AMX's and
+    VNNI's 32-row ones, a sampler's 500 and 1200 rows, on one thread and two: every kernel
+    against the plain C loops."""
     flows = {kernel: CompiledVelocityField.open(path, kernel=kernel) for kernel in KERNELS_HERE}
-    for rows in (1, 2, 3, 4, 5, 31, 32, 33, 500, 1200):
+    for rows in (1, 2, 3, 4, 5, 7, 8, 9, 31, 32, 33, 41, 500, 1200):
         inputs = _inputs(path, rows, seed=rows)
         expected = flows["plain"](**inputs)
         for kernel, flow in flows.items():
@@ -275,7 +277,7 @@ def test_a_kernel_this_processor_lacks_is_refused_naming_the_usable_ones() -> No
     network = QuantisedNetwork(layers)
     x = np.zeros((2, 80), np.float32)
     usable = ", ".join(KERNELS_HERE)
-    for kernel in ("sse9", *(k for k in ("amx", "avx2") if k not in KERNELS_HERE)):
+    for kernel in ("sse9", *(k for k in ("amx", "vnni", "avx2") if k not in KERNELS_HERE)):
         with pytest.raises(ValueError, match=f"kernel '{kernel}' is not usable.*{usable}"):
             network.forward(x, kernel)
         with pytest.raises(ValueError, match=f"usable here: {usable}"):
@@ -446,9 +448,9 @@ def test_a_large_call_takes_two_threads_only_when_no_other_runs() -> None:
     assert taken == [2, 1, 1]
 
 
-def test_the_registry_serves_int8_on_the_compiled_layers_where_amx_or_avx2_is() -> None:
+def test_the_registry_serves_int8_on_the_compiled_layers_where_amx_vnni_or_avx2_is() -> None:
     compiled = open_flow(IIWA14_POSE_INT8, threads=1, serial=False, compiled_int8=True)
-    assert int8_on_compiled_layers() == (best_kernel() in ("amx", "avx2"))
+    assert int8_on_compiled_layers() == (best_kernel() in ("amx", "vnni", "avx2"))
     expected = CompiledVelocityField if int8_on_compiled_layers() else OnnxVelocityField
     assert isinstance(compiled, expected)
     session = open_flow(IIWA14_POSE_INT8, threads=1, serial=False, compiled_int8=False)
