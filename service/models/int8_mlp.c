@@ -13,13 +13,13 @@
  * u8 x s8 -> s32) where the processor and the kernel allow it, else on AVX-512 VNNI
  * (vpdpbusd: four u8 x s8 products summed into each int32 lane, without saturation),
  * else on AVX2 (vpmaddwd on the operands widened to int16: each pair's sum is exact in
- * int32), else on plain C loops; so every path gives the same bits. onnxruntime's own kernel is exact only on
- * processors with VNNI or AMX: on AVX2 alone it multiplies with vpmaddubsw, whose int16
- * pair sums saturate (an input near 255 against two weights near 127), and its velocities
- * differ from the exact ones by up to hundreds on such a network. The elementwise tail
- * runs on AVX-512 beside AMX (every AMX processor has it) and VNNI, on AVX2 with FMA
- * beside AVX2,
- * and in plain C (fmaf) otherwise: the same correctly rounded operations in the same order.
+ * int32), else on plain C loops; so every path gives the same bits. onnxruntime's own
+ * kernel is exact only on processors with VNNI or AMX: on AVX2 alone it multiplies with
+ * vpmaddubsw, whose int16 pair sums saturate (an input near 255 against two weights near
+ * 127), and its velocities differ from the exact ones by up to hundreds on such a network.
+ * The elementwise tail runs on AVX-512 beside AMX (every AMX processor has it) and VNNI,
+ * on AVX2 with FMA beside AVX2, and in plain C (fmaf) otherwise: the same correctly
+ * rounded operations in the same order.
  *
  * Plain C99, the CPython API and the compiler's intrinsics (target attributes, so the file
  * builds for any x86-64 and elsewhere without the AMX path); no numpy headers.
@@ -782,12 +782,10 @@ static void call_rows(Call *call, int share) {
         uint8_t *a = call->a + i0 * L->k_pad;
         float *o = out + i0 * L->n, *lo = &call->low[l + 1][share], *hi = &call->high[l + 1][share];
 #if HAVE_X86_PATHS
-        if (call->kernel == KERNEL_AMX) {
+        if (call->kernel == KERNEL_AMX || call->kernel == KERNEL_VNNI) {
             quantise_avx512(x, count, L->k, L->k_pad, scale, zero_point, a);
-            layer_amx(L, a, count, scale, zero_point, o, lo, hi);
-        } else if (call->kernel == KERNEL_VNNI) {
-            quantise_avx512(x, count, L->k, L->k_pad, scale, zero_point, a);
-            layer_vnni(L, a, count, scale, zero_point, o, lo, hi);
+            (call->kernel == KERNEL_AMX ? layer_amx : layer_vnni)(L, a, count, scale,
+                                                                  zero_point, o, lo, hi);
         } else if (call->kernel == KERNEL_AVX2) {
             int16_t *a16 = (int16_t *)call->a + i0 * L->k_pad;
             quantise_avx2(x, count, L->k, L->k_pad, scale, zero_point, a16);

@@ -17,8 +17,8 @@ Eigen's) runs in onnxruntime, cut from the same file (onnx_file.cut_model).
 
 The integer product is exact on every kernel, and that is why an int8 network is served
 here wherever AVX2 is: onnxruntime's product is exact only on processors with VNNI or AMX.
-Where VNNI is, the VNNI kernel multiplies about three times as fast as the AVX2 one and as
-fast as onnxruntime's (`python -m tools.onnx_threads`).
+Where VNNI is, the VNNI kernel multiplies about as fast as onnxruntime's
+(`python -m tools.onnx_threads` times both).
 On AVX2 alone (AMD EPYC before Zen 4, Intel before Cascade Lake) MLAS multiplies u8 by s8
 with vpmaddubsw, whose int16 sums of two products saturate, and the iiwa14 pose network's
 velocities then differ from the exact ones on nearly every row of a sampler's call, by up
