@@ -17,7 +17,7 @@ from service.pipeline.connect.settings import trace_settings
 from service.pipeline.connect.trace import TracedPiece, trace_fibre
 from service.pipeline.correction import error_norms
 from service.pipeline.deadline import Deadline
-from service.pipeline.joint_space import JointLimits
+from service.pipeline.joint_space import TWO_PI, JointBox, JointLimits
 from service.pipeline.space import FibreSpace
 from service.pipeline.types import ComponentPath
 
@@ -94,7 +94,7 @@ def extend_curves(
     owner = owner_path(q_accepted_rad, curves.paths, limits, on_curve_rad)  # (K,)
     q_stray = q_accepted_rad[owner < 0]
     if q_outside_rad is not None and len(q_outside_rad):
-        far = off_the_reached(q_outside_rad, curves.reached_rad, limits, spec.trace_step_rad)
+        far = off_the_reached(q_outside_rad, curves.reached_rad, spec.trace_step_rad)
         q_stray = np.concatenate([q_stray, q_outside_rad[far]])
     if not len(q_stray):
         return Extension(curves, 0, owner)
@@ -113,15 +113,22 @@ def extend_curves(
 
 
 def off_the_reached(
-    q_rad: FloatArray,  # (O, n)
-    reached_rad: FloatArray,  # (R, n)
-    limits: JointLimits,
+    q_rad: FloatArray,  # (O, n) outside the limits: any turn of each joint
+    reached_rad: FloatArray,  # (R, n) points the trace reached, on the torus
     within_rad: float,
-) -> BoolArray:  # (O,) no reached point within `within_rad` (joint metric)
+) -> BoolArray:  # (O,) no reached point within `within_rad` on the torus
+    """Which samples no traced point comes near, on the joint torus (every joint a circle),
+    where the trace walks and the kinematics repeats: a sample outside the limits is often
+    a turn away from the traced point beside it (a joint at 3.21 rad beside one at -3.04,
+    or DLS leaving a joint at 61.7 rad), as far apart in the joint metric of limited
+    joints as they are close on the torus."""
     if not len(reached_rad):
         return np.ones(len(q_rad), dtype=bool)
-    box = limits.box(np.concatenate([reached_rad, q_rad]), margin_rad=1.0)
-    distance, _ = box.tree(reached_rad).query(box.points(q_rad), k=1)
+    n = q_rad.shape[1]
+    torus = JointBox(
+        box_rad=np.full(n, TWO_PI), shift_rad=np.zeros(n), periodic=np.ones(n, dtype=bool)
+    )
+    distance, _ = torus.tree(reached_rad).query(torus.points(q_rad), k=1)
     return np.asarray(distance, dtype=np.float64).reshape(len(q_rad)) > within_rad
 
 

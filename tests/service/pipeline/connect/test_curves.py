@@ -1,7 +1,9 @@
 """curves: which samples lie on the curves traced so far, and tracing those that do not.
 
-`off_the_reached` measures in the joint metric (a periodic joint wraps): a sample within
-the distance of a reached point is on, one beyond it off, every sample off an empty set.
+`off_the_reached` measures on the joint torus, every joint a circle whether the limits bound
+it or not (where the trace walks): a sample within the distance of a reached point is on,
+one beyond it off, a turn of any joint changes nothing, every sample is off an empty set,
+and on random points it agrees with the brute-force torus distance.
 `extend_curves` on the planar 3R (two loops at 0.5 m, by the closed form of
 training/evaluate/references/planar3r.py): samples on the traced loop add nothing and
 count no stray; a sample of the other loop is traced, its loop added once, and the
@@ -24,7 +26,7 @@ from service.pipeline.connect.settings import trace_settings
 from service.pipeline.connect.trace import trace_fibre
 from service.pipeline.deadline import NO_DEADLINE
 from service.pipeline.fibre import project
-from service.pipeline.joint_space import JointLimits
+from service.pipeline.joint_space import wrap_to_pi
 from service.pipeline.run import collision_of, encode, space_of
 from service.pipeline.types import Query
 from training.evaluate.references.planar3r import closed_form_smm
@@ -32,16 +34,25 @@ from training.evaluate.served import orientation_wxyz
 from training.evaluate.targets import uniform_configurations
 
 
-def test_off_the_reached_uses_the_joint_metric() -> None:
-    limits = JointLimits(
-        lower_rad=np.array([-np.pi, -1.0]), upper_rad=np.array([np.pi, 1.0]),
-        periodic=np.array([True, False]),
-    )  # fmt: skip
+def test_off_the_reached_measures_on_the_torus() -> None:
     reached = np.array([[3.1, 0.0], [0.0, 0.5]])
     q = np.array([[-3.1, 0.05], [0.0, 0.72], [0.0, 0.68], [1.5, 0.0]])
     # (-3.1, 0.05) is 0.083 + from (3.1, 0) across the wrap; 0.22 and 0.18 from (0, 0.5).
-    assert off_the_reached(q, reached, limits, 0.2).tolist() == [False, True, False, True]
-    assert off_the_reached(q, reached[:0], limits, 0.2).all()
+    assert off_the_reached(q, reached, 0.2).tolist() == [False, True, False, True]
+    # A joint a turn or ten away (outside any limits) is the same point to the kinematics.
+    turned = q + 2.0 * np.pi * np.array([[0, 1], [-3, 0], [10, -1], [1, 1]])
+    assert off_the_reached(turned, reached, 0.2).tolist() == [False, True, False, True]
+    assert off_the_reached(q, reached[:0], 0.2).all()
+
+
+def test_off_the_reached_agrees_with_the_brute_force_torus_distance() -> None:
+    rng = np.random.default_rng(3)
+    reached = rng.uniform(-4.0, 4.0, size=(300, 7))
+    q = rng.uniform(-20.0, 20.0, size=(200, 7))
+    difference = wrap_to_pi(q[:, None, :] - reached[None, :, :])  # (200, 300, 7)
+    nearest = np.linalg.norm(difference, axis=2).min(axis=1)  # (200,)
+    within = float(np.median(nearest))
+    assert off_the_reached(q, reached, within).tolist() == (nearest > within).tolist()
 
 
 def test_extend_traces_only_samples_on_no_traced_curve(planar3r: ServedModel) -> None:
