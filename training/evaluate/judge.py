@@ -155,6 +155,8 @@ class Judgement:
     candidate: dict[str, float]
     incumbent: dict[str, float]
     worse: list[str]  # the candidate's worse figures; empty: no worse
+    # The candidate's sampling seeds are the incumbent's moved by this (0: the same seeds).
+    candidate_seed_offset: int = 0
 
     @property
     def no_worse(self) -> bool:
@@ -166,6 +168,8 @@ class Judgement:
             f"{self.targets} report targets (seed {self.seed}) and {self.near_singular_targets} "
             "near-singular ones against the exact SMMs"
         )
+        if self.candidate_seed_offset:
+            where += f", the candidate's sampling seeds moved by {self.candidate_seed_offset}"
         if self.no_worse:
             return f"no worse than the incumbent on {where}"
         return f"worse than the incumbent on {where}: " + "; ".join(self.worse)
@@ -180,12 +184,16 @@ def judge(
     seed: int = REPORT_SEED,
     progress: Callable[[str], None] = lambda line: None,
     candidate_model: ServedModel | None = None,
+    candidate_seed_offset: int = 0,
 ) -> Judgement:
     """Both defaults on the same targets and seeds, measured against the exact SMMs
     (`ground_truth` refuses a robot without a reference, naming those with one).
 
     `candidate_model`: another trained network for the same robot and task (a narrower
     one, say) that answers with `candidate`; None: `model`'s own network answers both.
+    `candidate_seed_offset`: target i's candidate samples are drawn from seed i + offset
+    (the incumbent's from seed i). The incumbent judged against itself so is the judge's
+    own noise: the same sampler on other draws, which the rule should find no worse.
     """
     if candidate_model is not None:
         check_same_problem(candidate_model, model)
@@ -199,11 +207,13 @@ def judge(
     truths = [ground_truth(model, q, seed + i) for i, q in enumerate(q_targets)]
     measured = {}
     networks = {"candidate": candidate_model or model, "incumbent": model}
+    offsets = {"candidate": candidate_seed_offset, "incumbent": 0}
     for name, defaults in (("candidate", candidate), ("incumbent", incumbent)):
         served = serving(networks[name], defaults)
         progress(f"judge: {name} on {len(q_targets)} targets")
         answers = [
-            served_target(served, q, defaults.num_samples, seed=i) for i, q in enumerate(q_targets)
+            served_target(served, q, defaults.num_samples, seed=i + offsets[name])
+            for i, q in enumerate(q_targets)
         ]
         measured[name] = figures(model, answers, truths)
     return Judgement(
@@ -213,6 +223,7 @@ def judge(
         candidate=measured["candidate"],
         incumbent=measured["incumbent"],
         worse=worse_than(measured["candidate"], measured["incumbent"], COVERAGE_MARGIN),
+        candidate_seed_offset=candidate_seed_offset,
     )
 
 
@@ -400,6 +411,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--targets", type=int, default=REPORT_TARGETS)
     parser.add_argument("--near-singular", type=int, default=NEAR_SINGULAR)
     parser.add_argument("--seed", type=int, default=REPORT_SEED)
+    parser.add_argument(
+        "--candidate-seed-offset", type=int, default=0,
+        help="draw the candidate's samples for target i from seed i + this (default 0: the "
+        "incumbent's seeds); with --candidate '{}' the served defaults are judged against "
+        "themselves on other draws: the judge's own noise",
+    )  # fmt: skip
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--out", type=Path, help="write the judgement as JSON here")
     parser.add_argument(
@@ -415,6 +432,8 @@ def run_command(args: argparse.Namespace, parser: argparse.ArgumentParser) -> No
         parser.error("give --candidate, --candidate-model-dir or both")
     if args.write and args.num_samples is not None:
         parser.error("--write serves the candidate as given: leave out --num-samples")
+    if args.write and args.candidate_seed_offset:
+        parser.error("--write serves the candidate as given: leave out --candidate-seed-offset")
     model_dir = args.models_dir / args.model
     model = load_model(model_dir, threads=args.threads)
     incumbent = model.manifest.defaults
@@ -436,6 +455,7 @@ def run_command(args: argparse.Namespace, parser: argparse.ArgumentParser) -> No
     judgement = judge(
         model, candidate, incumbent, args.targets, args.near_singular, args.seed,
         progress=lambda line: print(line, flush=True), candidate_model=candidate_model,
+        candidate_seed_offset=args.candidate_seed_offset,
     )  # fmt: skip
     record = {
         "model": args.model,

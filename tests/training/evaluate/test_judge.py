@@ -6,6 +6,10 @@
   rho = 3 of the unit-link arm (the closed form), where few uniform targets do.
 - A candidate that returns one sample misses the second loop inside rho = 1 and is judged
   worse on count right; the incumbent judged against itself is no worse.
+- With a candidate seed offset, the candidate's figures are the evaluation's figures of
+  its answers drawn from seeds i + offset, computed here without the judge; the incumbent
+  against itself so is judged on other draws (the verdict says so); the CLI records the
+  offset and refuses to `--write` such a judgement, naming the option.
 - `judged_defaults`: swept defaults equal to the incumbent's serve without a judgement;
   worse ones give way to the incumbent's, its reasons kept, the verdict with its figures
   in reasons, and the sweep's reason for an axis the incumbent had none for marked unserved;
@@ -38,8 +42,11 @@ from service.manifest import MANIFEST_FILE, REPO_MODELS_DIR, Manifest
 from service.models.registry import ServedModel
 from training.cli import main as smm_train
 from training.evaluate import judge as judging
+from training.evaluate.methods import served_target
 from training.evaluate.references.planar3r import planar3r_position
+from training.evaluate.served import serving
 from training.evaluate.targets import uniform_configurations
+from training.evaluate.truth import ground_truth
 
 SMALL = partial(judging.judge, targets=12, near_singular=4)
 
@@ -71,6 +78,40 @@ def test_a_one_sample_candidate_is_judged_worse_and_the_incumbent_no_worse(
     assert "worse than the incumbent" in verdict.summary()
     same = SMALL(planar3r, incumbent, incumbent)
     assert same.no_worse and same.candidate == same.incumbent
+
+
+def test_a_seed_offset_draws_the_candidate_from_other_seeds(
+    planar3r: ServedModel, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    incumbent = planar3r.manifest.defaults
+    few = incumbent.model_copy(update={"num_samples": 3})  # so that draws differ in figures
+    verdict = SMALL(planar3r, few, few, candidate_seed_offset=1000)
+    limits = planar3r.limits
+    q_targets = np.concatenate([
+        uniform_configurations(limits, 12, judging.REPORT_SEED),
+        judging.near_singular_configurations(planar3r, 4, judging.REPORT_SEED + 1),
+    ])  # fmt: skip
+    truths = [ground_truth(planar3r, q, judging.REPORT_SEED + i) for i, q in enumerate(q_targets)]
+    served = serving(planar3r, few)
+    for offset, figures in ((1000, verdict.candidate), (0, verdict.incumbent)):
+        answers = [served_target(served, q, 3, seed=i + offset) for i, q in enumerate(q_targets)]
+        assert judging.figures(planar3r, answers, truths) == figures
+    assert verdict.candidate != verdict.incumbent  # other draws: other answers
+    assert "the candidate's sampling seeds moved by 1000" in verdict.summary()
+
+    out = tmp_path / "self.json"
+    smm_train(["judge", "--model", "planar3r-position", "--candidate", "{}",
+               "--candidate-seed-offset", "7", "--targets", "4", "--near-singular", "1",
+               "--out", str(out)])  # fmt: skip
+    record = json.loads(out.read_text())
+    assert record["candidate_seed_offset"] == 7
+    assert record["candidate_defaults"] == record["incumbent_defaults"]
+    assert "seeds moved by 7" in record["verdict"]
+    capsys.readouterr()
+    with pytest.raises(SystemExit):
+        smm_train(["judge", "--model", "planar3r-position", "--candidate", "{}",
+                   "--candidate-seed-offset", "7", "--write"])  # fmt: skip
+    assert "leave out --candidate-seed-offset" in capsys.readouterr().err
 
 
 def test_judged_defaults_keep_the_incumbent_unless_no_worse(planar3r: ServedModel) -> None:

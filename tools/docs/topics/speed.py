@@ -575,6 +575,8 @@ def speed_judged(name: str) -> str:
     rows = [["defaults", defaults("incumbent"), defaults("candidate")]]
     if record.get("candidate_model"):
         rows.append(["model", "served", f"`{record['candidate_model']}`"])
+    if offset := record.get("candidate_seed_offset"):
+        rows.append(["sampling seed of target i", "i", f"i + {offset}"])
     for key, label in TRUTH:
         if key in record["incumbent"] or key in record["candidate"]:
             rows.append([

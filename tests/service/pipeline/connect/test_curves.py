@@ -10,6 +10,9 @@ count no stray; a sample of the other loop is traced, its loop added once, and t
 reached points grow. The exact paths of all traced pieces measured at once equal each
 piece's own, on real pieces and on pieces with an inexact point, a long step, a loop
 opened there and no point.
+`duplicate`: a path is one traced again only of a path on its own curve (the same arc
+walked either way), not of one as long with ends elsewhere, a shorter one, a twin 0.03 rad
+beside it or none; a NaN arc is like none.
 """
 
 from __future__ import annotations
@@ -21,14 +24,19 @@ import numpy as np
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
 from service.pipeline.connect import extend_curves, trace_curves
-from service.pipeline.connect.curves import all_exact_paths, exact_paths, off_the_reached
+from service.pipeline.connect.curves import (
+    all_exact_paths,
+    duplicate,
+    exact_paths,
+    off_the_reached,
+)
 from service.pipeline.connect.settings import trace_settings
 from service.pipeline.connect.trace import trace_fibre
 from service.pipeline.deadline import NO_DEADLINE
 from service.pipeline.fibre import project
-from service.pipeline.joint_space import wrap_to_pi
+from service.pipeline.joint_space import JointLimits, wrap_to_pi
 from service.pipeline.run import collision_of, encode, space_of
-from service.pipeline.types import Query
+from service.pipeline.types import ComponentPath, Query
 from training.evaluate.references.planar3r import closed_form_smm
 from training.evaluate.served import orientation_wxyz
 from training.evaluate.targets import uniform_configurations
@@ -115,3 +123,28 @@ def test_all_exact_paths_equal_each_pieces_own() -> None:
                          (a.orientation_error_rad, b.orientation_error_rad)):  # fmt: skip
                 np.testing.assert_array_equal(x, y)
     assert [len(p) for p, _ in together[-4:]] == [1, 2, 2, 0]
+
+
+def _arc_path(centre: tuple[float, float], start: float, stop: float) -> ComponentPath:
+    """An open arc of radius 1 about `centre` in a 2-joint space, at 0.02 rad."""
+    angle = np.linspace(start, stop, int(np.ceil((stop - start) / 0.02)) + 1)
+    q = np.stack([centre[0] + np.cos(angle), centre[1] + np.sin(angle)], axis=1)
+    arc = float(np.linalg.norm(np.diff(q, axis=0), axis=1).sum())
+    zeros = np.zeros(len(q))
+    return ComponentPath(q, zeros, zeros, closed=False, arc_length_rad=arc)
+
+
+def test_a_path_is_a_duplicate_only_of_one_on_the_same_curve() -> None:
+    limits = JointLimits(np.full(2, -10.0), np.full(2, 10.0), np.zeros(2, dtype=bool))
+    arc = _arc_path((0.0, 0.0), 0.0, 2.0)
+    again = replace(arc, q_rad=arc.q_rad[::-1].copy())  # the same curve walked back
+    moved = _arc_path((0.3, 0.0), 0.0, 2.0)  # as long, ends 0.3 rad away: another curve
+    shorter = _arc_path((0.0, 0.0), 0.0, 1.5)
+    twin = _arc_path((0.0, 0.03), 0.0, 2.0)  # 0.03 rad beside it, ends within the spacing
+    others = [moved, shorter, twin]
+    assert not duplicate(arc, [], limits, 0.05)
+    assert not duplicate(arc, others, limits, 0.05)
+    assert duplicate(arc, [*others, again], limits, 0.05)
+    assert duplicate(again, [moved, arc], limits, 0.05)
+    # The arc-length test comes first: a NaN arc is like none.
+    assert not duplicate(replace(arc, arc_length_rad=float("nan")), [again], limits, 0.05)
