@@ -1,6 +1,8 @@
 """The network floor (`python -m tools.network_floor`): per bundled int8 network, the products
 a row are the layers' k x n, the floor is the default request's evaluations of its least
-rows times those products over the every-core peak (the arithmetic checked here apart),
+rows times those products over the every-core peak, and at the goals' N the same with its
+least rows there (one round's for a model drawing in rounds; the arithmetic checked here
+apart),
 the goal is the one tools.goals sets, and a run writes every model whose served sampler is
 int8 into its report."""
 
@@ -34,11 +36,14 @@ def test_the_floor_is_the_requests_products_over_the_every_core_peak() -> None:
     # planar 3R draws in rounds: a request evaluates one round's rows at least
     assert manifest.defaults.sampler.round_samples is not None
     assert measured["least_rows"] == manifest.defaults.sampler.round_samples
+    assert measured["least_rows_goal_n"] == manifest.defaults.sampler.round_samples
     assert 0 < measured["efficiency"] < math.inf and measured["call_ms"] > 0
     floored = network_floor.with_floor(measured, every_core_per_s=1e10)
     products = measured["evaluations"] * measured["products_per_row"]
     assert floored["floor_ms"] == pytest.approx(products * measured["least_rows"] / 1e10 * 1e3)
-    assert floored["floor_goal_n_ms"] == pytest.approx(products * GOAL_NUM_SAMPLES / 1e10 * 1e3)
+    # at the goals' N too: its first round of 128 rows, not all 1000
+    rows = manifest.defaults.sampler.round_samples
+    assert floored["floor_goal_n_ms"] == pytest.approx(products * rows / 1e10 * 1e3)
     assert floored["goal_ms"] == dict((m, ms) for m, ms, _ in GOALS)["planar3r-position"]
 
 
@@ -46,6 +51,7 @@ def test_a_model_without_rounds_evaluates_its_num_samples() -> None:
     manifest = _manifest("iiwa14-pose")
     assert manifest.defaults.sampler.round_samples is None
     assert network_floor.least_rows(manifest) == manifest.defaults.num_samples
+    assert network_floor.least_rows(manifest, GOAL_NUM_SAMPLES) == GOAL_NUM_SAMPLES
 
 
 def test_a_run_reports_every_model_served_int8(

@@ -31,8 +31,9 @@ OPTIONS = {
     "quantise": ["--model-dir"],
     "quality": ["--model-dir", "--write"],
     "judge": [
-        "--candidate", "--candidate-model-dir", "--model", "--models-dir", "--near-singular",
-        "--num-samples", "--out", "--seed", "--targets", "--threads", "--write",
+        "--candidate", "--candidate-model-dir", "--candidate-seed-offset", "--model",
+        "--models-dir", "--near-singular", "--num-samples", "--out", "--seed", "--targets",
+        "--threads", "--write",
     ],
     "report": [
         "--markdown-only", "--model", "--num-samples", "--out", "--seed", "--table-2",
