@@ -1,10 +1,9 @@
 """The network floor (`python -m tools.network_floor`): per bundled int8 network, the products
 a row are the layers' k x n, the floor is the default request's evaluations of its least
 rows times those products over the every-core peak, and at the goals' N the same with its
-least rows there (one round's for a model drawing in rounds; the arithmetic checked here
-apart),
-the goal is the one tools.goals sets, and a run writes every model whose served sampler is
-int8 into its report."""
+least rows there (one round's for a model drawing in rounds), the arithmetic checked here
+apart; the goal is the one tools.goals sets, and a run writes every model whose served
+sampler is int8 into its report."""
 
 from __future__ import annotations
 

@@ -145,6 +145,20 @@ def near_singular_configurations(
     return q[np.argsort(smallest)[:count]]
 
 
+def judged_configurations(
+    model: ServedModel, targets: int, near_singular: int, seed: int
+) -> FloatArray:  # (targets + near_singular, n)
+    """The configurations whose FK the judge answers: the report's first `targets` (uniform
+    in the limits, `seed`), then `near_singular` ones (`near_singular_configurations`,
+    seed + 1); target i's truth is drawn from seed + i and its samples from seed i."""
+    return np.concatenate(
+        [
+            uniform_configurations(model.limits, targets, seed),
+            near_singular_configurations(model, near_singular, seed + 1),
+        ]
+    )
+
+
 @dataclass(frozen=True)
 class Judgement:
     """A candidate's and the incumbent's figures on the same targets, and the verdict."""
@@ -197,13 +211,7 @@ def judge(
     """
     if candidate_model is not None:
         check_same_problem(candidate_model, model)
-    limits = model.limits
-    q_targets = np.concatenate(
-        [
-            uniform_configurations(limits, targets, seed),
-            near_singular_configurations(model, near_singular, seed + 1),
-        ]
-    )
+    q_targets = judged_configurations(model, targets, near_singular, seed)
     truths = [ground_truth(model, q, seed + i) for i, q in enumerate(q_targets)]
     measured = {}
     networks = {"candidate": candidate_model or model, "incumbent": model}

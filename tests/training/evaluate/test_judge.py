@@ -86,11 +86,7 @@ def test_a_seed_offset_draws_the_candidate_from_other_seeds(
     incumbent = planar3r.manifest.defaults
     few = incumbent.model_copy(update={"num_samples": 3})  # so that draws differ in figures
     verdict = SMALL(planar3r, few, few, candidate_seed_offset=1000)
-    limits = planar3r.limits
-    q_targets = np.concatenate([
-        uniform_configurations(limits, 12, judging.REPORT_SEED),
-        judging.near_singular_configurations(planar3r, 4, judging.REPORT_SEED + 1),
-    ])  # fmt: skip
+    q_targets = judging.judged_configurations(planar3r, 12, 4, judging.REPORT_SEED)
     truths = [ground_truth(planar3r, q, judging.REPORT_SEED + i) for i, q in enumerate(q_targets)]
     served = serving(planar3r, few)
     for offset, figures in ((1000, verdict.candidate), (0, verdict.incumbent)):
