@@ -34,7 +34,7 @@ import torch
 from service.manifest import TaskSpec
 from training.config import TrainConfig
 from training.defaults import START_NUM_SAMPLES, START_SAMPLER_STEPS
-from training.evaluate.judge import near_singular_for, robot_has_ground_truth
+from training.evaluate.judge import DRAWS, near_singular_for, robot_has_ground_truth
 from training.evaluate.packages import installed, missing_message
 from training.evaluate.quality import PAPER_SAMPLER
 from training.evaluate.truth import REFERENCE_PACKAGES
@@ -227,10 +227,10 @@ def reflow_s(config: TrainConfig, costs: UnitCosts) -> float:
 
 def judge_s(config: TrainConfig, costs: UnitCosts, robot: str, task: str) -> float:
     """One judgement (training/evaluate/judge.py): the exact SMM of each target, and the
-    candidate's and the incumbent's answers."""
+    candidate's and the incumbent's answers, DRAWS of each."""
     targets = config.judge_targets + near_singular_for(config.judge_targets)
     truth = GROUND_TRUTH_S.get((robot, task), max(GROUND_TRUTH_S.values()))
-    answers = 2 * _query_s(costs, START_NUM_SAMPLES, START_SAMPLER_STEPS)
+    answers = 2 * DRAWS * _query_s(costs, START_NUM_SAMPLES, START_SAMPLER_STEPS)
     return targets * (truth + answers)
 
 
@@ -330,9 +330,9 @@ def judge_stage(config: TrainConfig, task: TaskSpec, costs: UnitCosts) -> Stage:
     near = near_singular_for(config.judge_targets)
     return Stage(
         "judge",
-        f"{config.judge_targets} report targets and {near} near-singular ones against "
-        "the exact SMMs, if the reflow's sweep changes what serves (each further "
-        "candidate judged costs as much again)",
+        f"{config.judge_targets} report targets and {near} near-singular ones, {DRAWS} "
+        "draws each, against the exact SMMs, if the reflow's sweep changes what serves "
+        "(each further candidate judged costs as much again)",
         judge_s(config, costs, robot, task.name),
         at_most=True,
     )

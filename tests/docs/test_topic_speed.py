@@ -240,6 +240,22 @@ def test_a_judge_record_is_shown_side_by_side() -> None:
     assert service["merges_per_target"] > paper["merges_per_target"]
     with pytest.raises(FileNotFoundError, match=r"the records are: .*paper-iiwa14-pose-n1000"):
         run_block("speed-judged", ["no-such-record"])
+    # A record of one draw a target, without paired tests, says the rule it was judged by.
+    assert "Verdict (one draw a target, refused on any figure worse)" in run_block(
+        "speed-judged", ["paper-iiwa14-pose-n1000"]
+    )
+
+
+def test_a_paired_judge_record_shows_each_gain_and_its_z() -> None:
+    record = read("judge-self1000-iiwa14-pose")
+    text = run_block("speed-judged", ["self1000-iiwa14-pose"])
+    rows = {row[0]: row[1:] for row in body(text)}
+    for key, label in (("count_right", "count right"), ("recall", "recall")):
+        test, z = record["tests"][key], record["z"][key]
+        assert rows[label][2].startswith(f"{test['gain']:+.3g} (z {z:.2f})")
+    assert rows["coverage p95 rad"][2] == "-"  # a margin, not a paired test
+    assert f"{record['draws']} draws each" in text.splitlines()[0]
+    assert "one draw a target" not in text
 
 
 def test_the_judged_records_say_what_the_page_says() -> None:

@@ -31,13 +31,13 @@ OPTIONS = {
     "quantise": ["--model-dir"],
     "quality": ["--model-dir", "--write"],
     "judge": [
-        "--candidate", "--candidate-model-dir", "--candidate-seed-offset", "--model",
-        "--models-dir", "--near-singular", "--num-samples", "--out", "--seed", "--targets",
-        "--threads", "--write",
+        "--candidate", "--candidate-model-dir", "--candidate-seed-offset", "--draws",
+        "--model", "--models-dir", "--near-singular", "--num-samples", "--out", "--seed",
+        "--targets", "--threads", "--write",
     ],
     "report": [
-        "--markdown-only", "--model", "--num-samples", "--out", "--seed", "--table-2",
-        "--targets",
+        "--candidate", "--markdown-only", "--model", "--num-samples", "--out", "--seed",
+        "--table-2", "--targets",
     ],
     "scenes": [
         "--margin-m", "--markdown-only", "--max-obstacles", "--model", "--out", "--seed",

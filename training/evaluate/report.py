@@ -22,6 +22,8 @@ the sample accounting of every answer (sampled = accepted + rejected) is the pip
 own, checked by the service's tests.
 
     smm-train report --model iiwa14-pose --targets 200   # -> docs/reports/
+    smm-train report --model iiwa14-pose --targets 200 \
+        --candidate '{"sampler": {"flow": "reflow", "steps": 2}}' --out /tmp/candidate
     smm-train report --table-2   # the paper's Table 2 beside ours
 """
 
@@ -47,6 +49,7 @@ from training.evaluate.baselines.fourier import (
     fourier_targets,
     load_for,
 )
+from training.evaluate.judge import candidate_defaults
 from training.evaluate.methods import (
     MethodTarget,
     flow_target,
@@ -62,6 +65,7 @@ from training.evaluate.metrics import (
 )
 from training.evaluate.reference_fk import reference_fk_check
 from training.evaluate.rendering import markdown, table_2
+from training.evaluate.served import serving
 from training.evaluate.targets import near_boundary, uniform_configurations
 from training.evaluate.truth import ground_truth
 from training.kinematics import load_chain
@@ -164,6 +168,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--num-samples", type=int, default=1000)
     parser.add_argument("--out", type=Path, default=REPORTS_DIR)
     parser.add_argument(
+        "--candidate",
+        help="a JSON object: the served defaults so changed answer (smm-train judge's "
+        "--candidate), to see a candidate under the report's protocol; write it elsewhere "
+        "than the committed reports (--out)",
+    )
+    parser.add_argument(
         "--table-2", action="store_true", help="print Table 2 of every report in --out; no run"
     )
     parser.add_argument(
@@ -184,6 +194,13 @@ def run_command(args: argparse.Namespace, parser: argparse.ArgumentParser) -> No
         (args.out / f"{args.model}.md").write_text(markdown(args.model, saved))
         return
     model = load_model(REPO_MODELS_DIR / args.model, threads=0)
+    if args.candidate is not None:
+        if args.out.resolve() == REPORTS_DIR:
+            parser.error("--candidate: give --out, away from the committed reports")
+        try:
+            model = serving(model, candidate_defaults(model.manifest.defaults, args.candidate))
+        except ValueError as error:
+            parser.error(str(error))
     report = build_report(model, args.targets, args.seed, args.num_samples)
     skipped = report.get("skipped")
     if isinstance(skipped, dict):

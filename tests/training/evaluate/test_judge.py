@@ -1,13 +1,15 @@
 """judge: serving defaults judged against the exact SMMs, and the export's use of it.
 
-- A candidate is worse exactly where one of the evaluation's figures is worse than the
-  incumbent's (coverage p95 only beyond its margin); a figure either lacks is skipped.
+- The judge's figures pool every target's draws, each draw's answer measured as the
+  evaluation measures it; a candidate is worse where a figure's paired test over the
+  targets (paired.py) or the coverage margin says so, each reason naming its figure.
 - The near-singular targets of the planar 3R lie near its critical values, rho = 1 and
   rho = 3 of the unit-link arm (the closed form), where few uniform targets do.
 - A candidate that returns one sample misses the second loop inside rho = 1 and is judged
   worse on count right; the incumbent judged against itself is no worse.
 - With a candidate seed offset, the candidate's figures are the evaluation's figures of
-  its answers drawn from seeds i + offset, computed here without the judge; the incumbent
+  its answers drawn from seeds i + offset (+ the draw's stride), computed here without the
+  judge, and its paired gains those of its per-target sums; the incumbent
   against itself so is judged on other draws (the verdict says so); the CLI records the
   offset and refuses to `--write` such a judgement, naming the option.
 - `judged_defaults`: swept defaults equal to the incumbent's serve without a judgement;
@@ -74,6 +76,7 @@ def test_a_one_sample_candidate_is_judged_worse_and_the_incumbent_no_worse(
     one = incumbent.model_copy(update={"num_samples": 1})
     verdict = SMALL(planar3r, one, incumbent)
     assert verdict.candidate["count_right"] < verdict.incumbent["count_right"]
+    assert verdict.tests["count_right"].worse
     assert any(w.startswith("count right") for w in verdict.worse)
     assert "worse than the incumbent" in verdict.summary()
     same = SMALL(planar3r, incumbent, incumbent)
@@ -85,13 +88,26 @@ def test_a_seed_offset_draws_the_candidate_from_other_seeds(
 ) -> None:
     incumbent = planar3r.manifest.defaults
     few = incumbent.model_copy(update={"num_samples": 3})  # so that draws differ in figures
-    verdict = SMALL(planar3r, few, few, candidate_seed_offset=1000)
+    verdict = SMALL(planar3r, few, few, candidate_seed_offset=1000, draws=2)
+    assert verdict.draws == 2
     q_targets = judging.judged_configurations(planar3r, 12, 4, judging.REPORT_SEED)
     truths = [ground_truth(planar3r, q, judging.REPORT_SEED + i) for i, q in enumerate(q_targets)]
     served = serving(planar3r, few)
+    right = {}
     for offset, figures in ((1000, verdict.candidate), (0, verdict.incumbent)):
-        answers = [served_target(served, q, 3, seed=i + offset) for i, q in enumerate(q_targets)]
-        assert judging.figures(planar3r, answers, truths) == figures
+        seeds = [(i + offset, i + offset + judging.DRAW_SEED_STRIDE) for i in range(16)]
+        answers = [
+            [served_target(served, q, 3, seed=s) for s in pair]
+            for q, pair in zip(q_targets, seeds, strict=True)
+        ]
+        flat = [a for pair in answers for a in pair]
+        assert judging.figures(planar3r, flat, [t for t in truths for _ in (0, 1)]) == figures
+        right[offset] = np.array([
+            [judging.measure(a, t, planar3r.limits.periodic).right for a in pair]
+            for pair, t in zip(answers, truths, strict=True)
+        ], dtype=float)  # fmt: skip
+    gains = right[1000].mean(axis=1) - right[0].mean(axis=1)
+    assert verdict.tests["count_right"].gain == pytest.approx(gains.mean(), rel=1e-12)
     assert verdict.candidate != verdict.incumbent  # other draws: other answers
     assert "the candidate's sampling seeds moved by 1000" in verdict.summary()
 
@@ -175,7 +191,7 @@ def test_a_candidate_judged_no_worse_serves_marking_what_it_changed(
     candidate = judging.candidate_defaults(served, '{"correction_steps": 10}')
     no_worse = judging.Judgement(
         targets=6, near_singular_targets=2, seed=7, candidate={"count_right": 1.0},
-        incumbent={"count_right": 1.0}, worse=[],
+        incumbent={"count_right": 1.0}, worse=[], draws=4,
     )  # fmt: skip
     serving = judging.served_candidate(served, candidate, no_worse, "the candidate X")
     assert serving.model_dump(exclude={"reasons"}) == candidate.model_dump(exclude={"reasons"})
@@ -207,8 +223,8 @@ def test_a_candidate_judged_no_worse_serves_marking_what_it_changed(
     assert earlier == served.reasons[judging.JUDGED].split(judging.JUDGED_SEPARATOR)
     assert verdict == (
         f"the candidate X, changing correction_steps {served.correction_steps} -> 10, serves: "
-        "no worse than the incumbent on 6 report targets (seed 7) and 2 near-singular ones "
-        "against the exact SMMs"
+        "no worse than the incumbent on 6 report targets (seed 7) and 2 near-singular ones, "
+        "4 draws each, against the exact SMMs"
     )
     with pytest.raises(ValueError, match="judged worse does not serve"):
         judging.served_candidate(served, candidate, replace(no_worse, worse=["count right"]), "X")

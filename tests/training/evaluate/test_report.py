@@ -2,12 +2,19 @@
 configurations within the limits (by the service's FK and by the closed form's), covers
 the closed-form SMM, checks the returned paths, times the connect stage (median and p95,
 the restarts' too) and writes every table; the Fourier baseline runs or the report says
-why not.
+why not. `smm-train report --candidate` reports the served defaults so changed, written
+only away from the committed reports.
 """
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
+import pytest
+
 from service.models.registry import ServedModel
+from training.cli import main as smm_train
 from training.evaluate.baselines.fourier import FOURIER
 from training.evaluate.rendering import markdown
 from training.evaluate.report import build_report
@@ -46,3 +53,18 @@ def test_small_planar_report_meets_the_closed_form(planar3r: ServedModel) -> Non
     text = markdown("planar3r-position", report)
     assert "| FM + DLS |" in text and "| random-restart DLS |" in text and "count right" in text
     assert "connect p95 ms" in text and "max gap rad" in text and "Count right: " in text
+
+
+def test_a_candidate_is_reported_at_its_defaults_away_from_the_reports(
+    planar3r: ServedModel, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    steps = planar3r.manifest.defaults.correction_steps + 1
+    small = ["report", "--model", "planar3r-position", "--targets", "2", "--num-samples", "50"]
+    smm_train([*small, "--candidate", f'{{"correction_steps": {steps}}}', "--out", str(tmp_path)])
+    report = json.loads((tmp_path / "planar3r-position.json").read_text())
+    assert report["defaults"]["correction_steps"] == steps
+    assert report["defaults"]["sampler"] == planar3r.manifest.defaults.sampler.model_dump()
+    capsys.readouterr()
+    with pytest.raises(SystemExit):
+        smm_train([*small, "--candidate", "{}"])
+    assert "--candidate: give --out" in capsys.readouterr().err

@@ -549,12 +549,15 @@ def speed_batch(*arguments: str) -> str:
 def speed_judged(name: str) -> str:
     """docs/benchmark/judge-<name>.json side by side: the incumbent's and the candidate's
     defaults (their connectivity settings where the two differ; the model, where it
-    differs) and truth figures, and the verdict."""
+    differs) and truth figures, each component figure's paired gain and z where the
+    record holds them (training/evaluate/paired.py), and the verdict, with the rule of a
+    record of one draw a target that holds no paired tests."""
     if name not in sources.judged():
         raise FileNotFoundError(
             f"no docs/benchmark/judge-{name}.json; the records are: {sources.judged()}"
         )
     record = sources.benchmark(f"judge-{name}")
+    tests = record.get("tests") or {}
 
     def defaults(side: str) -> str:
         d = record[f"{side}_defaults"]
@@ -572,21 +575,35 @@ def speed_judged(name: str) -> str:
         ]
         return f"{words}, {d['correction_steps']} DLS, {drawn}" + "".join(connectivity)
 
-    rows = [["defaults", defaults("incumbent"), defaults("candidate")]]
+    def gain(key: str) -> list[str]:
+        if not tests:
+            return []
+        if key not in tests:
+            return ["-"]
+        test, z = tests[key], record["z"][key]
+        lost = f", lost on targets {test['lost_targets']}" if test["lost_targets"] else ""
+        z_text = "inf" if z is None else f"{z:.2f}"
+        return [f"{test['gain']:+.3g} (z {z_text}){lost}"]
+
+    blank = [""] if tests else []
+    rows = [["defaults", defaults("incumbent"), defaults("candidate"), *blank]]
     if record.get("candidate_model"):
-        rows.append(["model", "served", f"`{record['candidate_model']}`"])
+        rows.append(["model", "served", f"`{record['candidate_model']}`", *blank])
     if offset := record.get("candidate_seed_offset"):
-        rows.append(["sampling seed of target i", "i", f"i + {offset}"])
+        rows.append(["sampling seed of target i", "i", f"i + {offset}", *blank])
     for key, label in TRUTH:
         if key in record["incumbent"] or key in record["candidate"]:
             rows.append([
-                label, auto(record["incumbent"].get(key)), auto(record["candidate"].get(key))
+                label, auto(record["incumbent"].get(key)), auto(record["candidate"].get(key)),
+                *gain(key),
             ])  # fmt: skip
     targets = record["targets"] + record["near_singular_targets"]
-    return (
-        table([f"{targets} targets (seed {record['seed']})", "incumbent", "candidate"], rows)
-        + f"\n\nVerdict: the candidate is {record['verdict']}."
-    )
+    draws = record.get("draws", 1)
+    plural = "s" if draws > 1 else ""
+    header = [f"{targets} targets (seed {record['seed']}), {draws} draw{plural} each",
+              "incumbent", "candidate"] + (["candidate's gain (z)"] if tests else [])  # fmt: skip
+    rule = "" if tests else " (one draw a target, refused on any figure worse)"
+    return table(header, rows) + f"\n\nVerdict{rule}: the candidate is {record['verdict']}."
 
 
 def _short_names(words: str) -> list[str]:
