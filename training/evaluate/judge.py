@@ -67,7 +67,7 @@ import numpy as np
 
 from service.manifest import MANIFEST_FILE, REPO_MODELS_DIR, Defaults
 from service.models.registry import ServedModel, load_model
-from service.pipeline.arrays import BoolArray, FloatArray, IntArray
+from service.pipeline.arrays import BoolArray, FloatArray
 from service.pipeline.correction import jacobian_on_fibre
 from service.pipeline.joint_space import JointLimits
 from training.defaults import write_defaults
@@ -80,7 +80,7 @@ from training.evaluate.metrics import (
     found_components,
     nearest_distance,
 )
-from training.evaluate.paired import Z_REFUSE, Paired, paired
+from training.evaluate.paired import Z_REFUSE, Counts, Paired, paired
 from training.evaluate.quality import PAPER_SAMPLER
 from training.evaluate.served import serving
 from training.evaluate.targets import uniform_configurations
@@ -309,12 +309,8 @@ def judge(
     )
 
 
-def _sums(
-    measured: list[list[Measure]], key: str
-) -> tuple[FloatArray, FloatArray, BoolArray, IntArray] | None:
-    """One side's figure `key` for paired.py: its sum on each target and draw (T, S), its
-    units on each target (T,), whether each unit is right on each draw (U, S) and each
-    unit's target (U,); None where an answer lacks the figure."""
+def _counts(measured: list[list[Measure]], key: str) -> Counts | None:
+    """One side's figure `key` as paired.py reads it; None where an answer lacks it."""
     targets = len(measured)
     if key == "recall":
         if any(m.found is None for row in measured for m in row):
@@ -325,7 +321,7 @@ def _sums(
         sums = np.array([f.sum(axis=0) for f in found], dtype=float)  # (T, S)
         units = np.array([len(f) for f in found], dtype=float)  # (T,)
         unit_target = np.repeat(np.arange(targets), [len(f) for f in found])  # (U,)
-        return sums, units, np.concatenate(found), unit_target
+        return Counts(sums, units, np.concatenate(found), unit_target)
     field_name = {
         "count_right": "right",
         "splits_per_target": "splits",
@@ -336,7 +332,7 @@ def _sums(
         return None
     sums = np.array(values, dtype=float)  # (T, S)
     good = sums > 0 if key == "count_right" else sums == 0  # (T, S)
-    return sums, np.ones(targets), good, np.arange(targets)
+    return Counts(sums, np.ones(targets), good, np.arange(targets))
 
 
 def compared(candidate: list[list[Measure]], incumbent: list[list[Measure]]) -> dict[str, Paired]:
@@ -346,12 +342,10 @@ def compared(candidate: list[list[Measure]], incumbent: list[list[Measure]]) -> 
     for key, _, more_is_better in TRUTH_FIGURES:
         if key == "coverage_p95_rad":
             continue
-        ours, theirs = _sums(candidate, key), _sums(incumbent, key)
-        if ours is None or theirs is None or not ours[1].sum():
+        ours, theirs = _counts(candidate, key), _counts(incumbent, key)
+        if ours is None or theirs is None or not theirs.units.sum():
             continue
-        tests[key] = paired(
-            ours[0], theirs[0], theirs[1], more_is_better, ours[2], theirs[2], theirs[3]
-        )
+        tests[key] = paired(ours, theirs, more_is_better)
     return tests
 
 

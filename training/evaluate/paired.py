@@ -25,10 +25,20 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 from service.pipeline.arrays import BoolArray, FloatArray, IntArray
 
 Z_REFUSE = 2.326  # the standard normal's one-sided 1 % point
+
+
+class Counts(NamedTuple):
+    """One sampler's figure on T targets of S draws, as the paired test reads it."""
+
+    sums: FloatArray  # (T, S) the figure's sum on each target and draw
+    units: FloatArray  # (T,) the figure's units on each target
+    good: BoolArray  # (U, S) whether each unit is right on each draw
+    unit_target: IntArray  # (U,) the target of each unit
 
 
 @dataclass(frozen=True)
@@ -52,26 +62,19 @@ class Paired:
         return self.z < -Z_REFUSE or bool(self.lost_targets)
 
 
-def paired(
-    candidate: FloatArray,  # (T, S) the figure's sum on each target and draw
-    incumbent: FloatArray,  # (T, S)
-    units: FloatArray,  # (T,) the figure's units on each target
-    more_is_better: bool,
-    candidate_good: BoolArray,  # (U, S) whether each unit is right on each draw
-    incumbent_good: BoolArray,  # (U, S)
-    unit_target: IntArray,  # (U,) the target of each unit
-) -> Paired:
-    """The paired gain of one figure, its standard error and the targets of lost units."""
-    gains = candidate.mean(axis=1) - incumbent.mean(axis=1)  # (T,)
+def paired(candidate: Counts, incumbent: Counts, more_is_better: bool) -> Paired:
+    """The paired gain of one figure, its standard error and the targets of lost units
+    (the units and their targets are the incumbent's: both answer the same targets)."""
+    gains = candidate.sums.mean(axis=1) - incumbent.sums.mean(axis=1)  # (T,)
     if not more_is_better:
         gains = -gains
-    total = float(units.sum())
+    total = float(incumbent.units.sum())
     count = len(gains)
     spread = float(((gains - gains.mean()) ** 2).sum()) if count > 1 else 0.0
     standard_error = math.sqrt(count / (count - 1) * spread) / total if count > 1 else 0.0
-    lost = incumbent_good.all(axis=1) & ~candidate_good.any(axis=1)  # (U,)
+    lost = incumbent.good.all(axis=1) & ~candidate.good.any(axis=1)  # (U,)
     return Paired(
         gain=float(gains.sum()) / total,
         standard_error=standard_error,
-        lost_targets=sorted({int(t) for t in unit_target[lost]}),
+        lost_targets=sorted({int(t) for t in incumbent.unit_target[lost]}),
     )

@@ -13,7 +13,7 @@
 import numpy as np
 from scipy import stats
 
-from training.evaluate.paired import Z_REFUSE, Paired, paired
+from training.evaluate.paired import Z_REFUSE, Counts, Paired, paired
 
 TARGETS, DRAWS = 200, 4
 
@@ -22,10 +22,10 @@ def _per_target(
     candidate: np.ndarray, incumbent: np.ndarray, more_is_better: bool = True
 ) -> Paired:
     """paired() of a figure with one unit a target, right where the sum is positive."""
-    targets = len(candidate)
+    units, unit_target = np.ones(len(candidate)), np.arange(len(candidate))
     return paired(
-        candidate, incumbent, np.ones(targets), more_is_better,
-        candidate > 0, incumbent > 0, np.arange(targets),
+        Counts(candidate, units, candidate > 0, unit_target),
+        Counts(incumbent, units, incumbent > 0, unit_target), more_is_better,
     )  # fmt: skip
 
 
@@ -42,7 +42,10 @@ def test_z_is_the_paired_t_statistic_of_the_per_target_means() -> None:
     found_c = np.minimum(components[:, None], rng.binomial(12, 0.9, (50, 3)))
     found_i = np.minimum(components[:, None], rng.binomial(12, 0.95, (50, 3)))
     good = np.ones((int(components.sum()), 3), dtype=bool)
-    recall = paired(found_c, found_i, components, True, good, good, np.zeros(len(good), int))
+    at = np.zeros(len(good), int)
+    recall = paired(
+        Counts(found_c, components, good, at), Counts(found_i, components, good, at), True
+    )
     assert np.isclose(recall.gain, (found_c.mean(1) - found_i.mean(1)).sum() / components.sum())
     t = stats.ttest_rel(found_c.mean(axis=1), found_i.mean(axis=1)).statistic
     assert np.isclose(recall.z, t, rtol=1e-12)
