@@ -1489,8 +1489,12 @@ static Py_ssize_t chain_fronts_of(const double *q, Py_ssize_t T, Py_ssize_t n, P
     for (Py_ssize_t f = 0; f <= F; ++f) front_first[f] = 0;
     for (Py_ssize_t i = 0; i < reached; ++i) ++front_first[by_front[i] + 1];
     for (Py_ssize_t f = 0; f < F; ++f) front_first[f + 1] += front_first[f];
-    for (Py_ssize_t f = 0; f < F; ++f) ahead[f] = front_first[f]; /* fill positions */
-    for (Py_ssize_t i = 0; i < reached; ++i) front_rows[ahead[by_front[i]]++] = S + i;
+    /* Each front's start is its fill position (there are 2 S fronts and may be fewer than
+       2 S points, so no T-long scratch holds them), moved on to the next front's start by
+       the fill; then shifted back one place. */
+    for (Py_ssize_t i = 0; i < reached; ++i) front_rows[front_first[by_front[i]]++] = S + i;
+    for (Py_ssize_t f = F; f > 0; --f) front_first[f] = front_first[f - 1];
+    front_first[0] = 0;
     for (Py_ssize_t f = 0; f < F; ++f) {
         long long other = partner[f], a = front_first[f], b = front_first[f + 1];
         overlap[f] = 0;

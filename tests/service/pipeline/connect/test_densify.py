@@ -5,7 +5,9 @@ fronts (rows in order, unwrapped points, closedness), the same curves refined ne
 limits, the same runs (points, rows, closedness, the outside point at each end) and the same
 pieces (every path point, its error, closedness); and on a closed curve that leaves the
 limits and comes back twice (turned to start outside, so no run wraps round). A curve wholly
-inside is one run, one wholly outside none; malformed curve bounds are refused."""
+inside is one run, one wholly outside none; malformed curve bounds are refused. Fronts
+that reached fewer points than there are fronts chain as the loops chain them, and the
+compiled chaining writes nothing past the buffers it is given."""
 
 from __future__ import annotations
 
@@ -14,7 +16,7 @@ import pytest
 
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
-from service.pipeline import native
+from service.pipeline import _native, native  # type: ignore[attr-defined]
 from service.pipeline.connect.trace import TraceSettings, walk
 from service.pipeline.connect.trace.cut import Runs, cut_by_limits, refine_near_limits
 from service.pipeline.connect.trace.densify import densify
@@ -164,3 +166,45 @@ def test_curve_bounds_that_do_not_cover_the_points_are_refused() -> None:
             loop.points, loop.rows, np.array([0, 30]), np.array([True]), np.zeros(2),
             limits.lower_rad, limits.upper_rad, limits.periodic,
         )  # fmt: skip
+
+
+# Fronts that reached fewer points than there are fronts: 3 seeds, 6 fronts and 2 reached
+# points (fronts 0 and 3, which met), as at a near-singular target where most fronts fail
+# on their first step (a Panda pose one did).
+FEW_SEEDS = 3
+FEW_BY_FRONT = np.array([0, 3])  # (reached,) the front that reached each point
+FEW_PARTNER = np.array([3, -1, -1, 0, -1, -1])  # (fronts,)
+
+
+def test_fronts_that_reached_fewer_points_than_fronts_chain_as_the_loops_chain_them() -> None:
+    """Seeds whose fronts mostly reached nothing: the compiled chaining gives the Python
+    loops' curves (every seed on one, the two that met joined through their fronts), and it
+    writes nothing past the buffers it is given at the sizes `native.chain_fronts` gives
+    them: its 2 S fronts may outnumber its T points, so no scratch of T rows may hold
+    per-front state (one that did corrupted the heap of a process answering such a target)."""
+    seeds, by_front, partner = FEW_SEEDS, FEW_BY_FRONT, FEW_PARTNER
+    total, n = seeds + len(by_front), 7
+    q = np.random.default_rng(12).uniform(-3.0, 3.0, (total, n))
+    evaluated = Evaluated(q, np.zeros((total, 6)), np.zeros((total, 6, n)), np.zeros((total, n)))
+    fronts = [seeds + np.flatnonzero(by_front == f) for f in range(2 * seeds)]
+    rows, first, closed = native.chain_fronts(q, seeds, by_front, partner)
+    assert_same_curves(
+        Curves.of(evaluated, rows, first, closed),
+        reference.chain(evaluated, seeds, fronts, partner),
+    )
+    assert len(first) - 1 == 2  # seeds 0 and 1 joined, seed 2 alone
+
+    guard = 4  # sentinel entries after every buffer the kernel writes
+    sizes = {  # what native.chain_fronts allocates: fronts + 1, reached, seeds, fronts, total ...
+        "front_first": (2 * seeds + 1, np.int64), "front_rows": (len(by_front), np.int64),
+        "visited": (seeds, np.uint8), "overlap": (2 * seeds, np.uint8),
+        "ahead": (total, np.int64), "behind": (total, np.int64), "rows": (total, np.int64),
+        "first": (seeds + 1, np.int64), "closed": (seeds, np.uint8),
+    }  # fmt: skip
+    padded = {name: np.full(size + guard, 77, dtype) for name, (size, dtype) in sizes.items()}
+    _native.chain_fronts(
+        q, total, n, seeds, by_front, partner,
+        *(padded[name][: sizes[name][0]] for name in sizes),
+    )  # fmt: skip
+    for name, (size, _) in sizes.items():
+        assert np.all(padded[name][size:] == 77), f"{name}: written past its {size} entries"
