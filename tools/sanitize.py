@@ -1,0 +1,130 @@
+"""The compiled kernels under AddressSanitizer: a write past a buffer stops the run there.
+
+    python -m tools.sanitize                                # tests/service/pipeline
+    python -m tools.sanitize tests/service/pipeline/connect -q -k chain
+
+The kernels (service/pipeline/native.c, service/models/int8_mlp.c) trust the sizes of the
+buffers their Python wrappers give them, and a write past one corrupts the heap silently
+until something frees the block beside it, far from the kernel, or never. Built with
+`-fsanitize=address`, every read or write outside a buffer aborts at once with the
+kernel's file and line. This builds both, as setup.py builds them plus the sanitizer,
+into a temporary directory, and runs pytest on the given arguments with libasan preloaded
+(and libstdc++, whose exceptions the sanitizer intercepts for the C++ extensions the
+tests load); this module, given to pytest as a plugin (`-p tools.sanitize`), puts the
+sanitized builds in place of the installed ones before anything imports them. Leak
+detection is off: CPython leaves its own allocations to the end of the process. Each
+report (the access, the kernel's stack, the buffer's allocation) is printed after pytest
+ends, since pytest captures what the process writes; the exit status is pytest's, or 1
+where a report was written.
+
+Needs the C compiler the install uses and its AddressSanitizer runtime (with GCC:
+libasan, part of its standard install).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import sysconfig
+import tempfile
+from importlib.machinery import ExtensionFileLoader
+from importlib.util import module_from_spec, spec_from_loader
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parent.parent
+# The extensions as setup.py declares them: module, source, its flags.
+EXTENSIONS = (
+    ("service.pipeline._native", "service/pipeline/native.c", ("-std=c99", "-fno-fast-math")),
+    (
+        "service.models._int8_mlp",
+        "service/models/int8_mlp.c",
+        ("-std=c99", "-fno-fast-math", "-ffp-contract=off"),
+    ),
+)
+SANITIZE = ("-fsanitize=address", "-fno-omit-frame-pointer", "-g", "-O1")
+# Where the plugin finds the sanitized builds (set by `main` for the pytest it runs).
+BUILDS_ENV = "SMM_SANITIZED_KERNELS"
+DEFAULT_TESTS = ("tests/service/pipeline",)
+
+
+def compiler() -> str:
+    """The C compiler CPython was built with (what setuptools uses), `cc` without one."""
+    return str(sysconfig.get_config_var("CC") or "cc").split()[0]
+
+
+def runtime_library(cc: str, name: str) -> Path:
+    """A runtime library the compiler ships (`libasan.so`, `libstdc++.so`)."""
+    found = subprocess.run(
+        [cc, f"-print-file-name={name}"], capture_output=True, text=True, check=True
+    ).stdout.strip()
+    path = Path(found)
+    if not path.is_absolute() or not path.exists():
+        raise SystemExit(f"{cc} has no {name}: install its AddressSanitizer runtime")
+    return path.resolve()
+
+
+def build(out_dir: Path, cc: str) -> dict[str, Path]:
+    """Each extension built with the sanitizer into `out_dir`: its module name -> file."""
+    include = sysconfig.get_paths()["include"]
+    suffix = sysconfig.get_config_var("EXT_SUFFIX")
+    built = {}
+    for module, source, flags in EXTENSIONS:
+        target = out_dir / (module.rsplit(".", 1)[1] + suffix)
+        command = [
+            cc, "-shared", "-fPIC", *flags, *SANITIZE, f"-I{include}", "-Iservice/pipeline",
+            source, "-o", str(target), "-lpthread",
+        ]  # fmt: skip
+        subprocess.run(command, cwd=REPO, check=True)
+        built[module] = target
+    return built
+
+
+def install_sanitized(builds_dir: Path) -> None:
+    """Load the sanitized builds under the extensions' module names (sys.modules), so the
+    packages' `from service.pipeline import _native` takes them."""
+    suffix = sysconfig.get_config_var("EXT_SUFFIX")
+    for module, _, _ in EXTENSIONS:
+        path = builds_dir / (module.rsplit(".", 1)[1] + suffix)
+        loader = ExtensionFileLoader(module, str(path))
+        spec = spec_from_loader(module, loader)
+        assert spec is not None
+        extension = module_from_spec(spec)
+        loader.exec_module(extension)
+        sys.modules[module] = extension
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument(
+        "pytest_args", nargs="*", default=list(DEFAULT_TESTS),
+        help=f"what pytest runs (default: {' '.join(DEFAULT_TESTS)})",
+    )  # fmt: skip
+    args, extra = parser.parse_known_args(argv)
+    cc = compiler()
+    preload = [runtime_library(cc, "libasan.so"), runtime_library(cc, "libstdc++.so")]
+    with tempfile.TemporaryDirectory(prefix="smm-asan-") as tmp:
+        build(Path(tmp), cc)
+        log = Path(tmp) / "asan"  # the reports, one file a process (pytest captures fd 2)
+        env = {
+            **os.environ,
+            BUILDS_ENV: tmp,
+            "LD_PRELOAD": " ".join(str(p) for p in preload),
+            "ASAN_OPTIONS": f"detect_leaks=0:abort_on_error=1:log_path={log}",
+        }
+        command = [sys.executable, "-m", "pytest", "-p", "tools.sanitize", "-p", "no:cacheprovider"]
+        status = subprocess.run([*command, *args.pytest_args, *extra], cwd=REPO, env=env).returncode
+        reports = sorted(Path(tmp).glob("asan.*"))
+        for report in reports:
+            sys.stderr.write(report.read_text())
+        return status or (1 if reports else 0)
+
+
+# Imported by pytest as a plugin (`-p tools.sanitize`, before the conftest files and the
+# tests import the kernels): the sanitized builds take the extensions' place.
+if os.environ.get(BUILDS_ENV):
+    install_sanitized(Path(os.environ[BUILDS_ENV]))
+
+if __name__ == "__main__":
+    raise SystemExit(main())
