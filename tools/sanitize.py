@@ -7,10 +7,10 @@ The kernels (service/pipeline/native.c, service/models/int8_mlp.c) trust the siz
 buffers their Python wrappers give them, and a write past one corrupts the heap silently
 until something frees the block beside it, far from the kernel, or never. Built with
 `-fsanitize=address`, every read or write outside a buffer aborts at once with the
-kernel's file and line. This builds both, as setup.py builds them plus the sanitizer,
-into a temporary directory, and runs pytest on the given arguments with libasan preloaded
-(and libstdc++, whose exceptions the sanitizer intercepts for the C++ extensions the
-tests load); this module, given to pytest as a plugin (`-p tools.sanitize`), puts the
+kernel's file and line. This builds both with setup.py (its sources and flags) plus
+the sanitizer into a temporary directory, and runs pytest on the given arguments with
+libasan preloaded (and libstdc++, whose exceptions the sanitizer intercepts for the C++
+extensions the tests load); this module, given to pytest as a plugin (`-p tools.sanitize`), puts the
 sanitized builds in place of the installed ones before anything imports them. Leak
 detection is off: CPython leaves its own allocations to the end of the process. Each
 report (the access, the kernel's stack, the buffer's allocation) is printed after pytest
@@ -34,16 +34,7 @@ from importlib.util import module_from_spec, spec_from_loader
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parent.parent
-# The extensions as setup.py declares them: module, source, its flags.
-EXTENSIONS = (
-    ("service.pipeline._native", "service/pipeline/native.c", ("-std=c99", "-fno-fast-math")),
-    (
-        "service.models._int8_mlp",
-        "service/models/int8_mlp.c",
-        ("-std=c99", "-fno-fast-math", "-ffp-contract=off"),
-    ),
-)
-SANITIZE = ("-fsanitize=address", "-fno-omit-frame-pointer", "-g", "-O1")
+SANITIZE = "-fsanitize=address -fno-omit-frame-pointer -g"
 # Where the plugin finds the sanitized builds (set by `main` for the pytest it runs).
 BUILDS_ENV = "SMM_SANITIZED_KERNELS"
 DEFAULT_TESTS = ("tests/service/pipeline",)
@@ -65,28 +56,24 @@ def runtime_library(cc: str, name: str) -> Path:
     return path.resolve()
 
 
-def build(out_dir: Path, cc: str) -> dict[str, Path]:
-    """Each extension built with the sanitizer into `out_dir`: its module name -> file."""
-    include = sysconfig.get_paths()["include"]
-    suffix = sysconfig.get_config_var("EXT_SUFFIX")
-    built = {}
-    for module, source, flags in EXTENSIONS:
-        target = out_dir / (module.rsplit(".", 1)[1] + suffix)
-        command = [
-            cc, "-shared", "-fPIC", *flags, *SANITIZE, f"-I{include}", "-Iservice/pipeline",
-            source, "-o", str(target), "-lpthread",
-        ]  # fmt: skip
-        subprocess.run(command, cwd=REPO, check=True)
-        built[module] = target
-    return built
+def build(out_dir: Path) -> None:
+    """setup.py's extensions, its sources and flags, built with the sanitizer into
+    `out_dir` (under their packages' paths)."""
+    env = {**os.environ, "CFLAGS": SANITIZE, "LDFLAGS": "-fsanitize=address"}
+    command = [
+        sys.executable, "setup.py", "-q", "build_ext",
+        "--build-lib", str(out_dir / "lib"), "--build-temp", str(out_dir / "temp"),
+    ]  # fmt: skip
+    subprocess.run(command, cwd=REPO, env=env, check=True, stdout=subprocess.DEVNULL)
 
 
 def install_sanitized(builds_dir: Path) -> None:
-    """Load the sanitized builds under the extensions' module names (sys.modules), so the
-    packages' `from service.pipeline import _native` takes them."""
+    """Load every sanitized build under its module's name (sys.modules), so the packages'
+    `from service.pipeline import _native` takes it."""
+    lib = builds_dir / "lib"
     suffix = sysconfig.get_config_var("EXT_SUFFIX")
-    for module, _, _ in EXTENSIONS:
-        path = builds_dir / (module.rsplit(".", 1)[1] + suffix)
+    for path in sorted(lib.rglob(f"*{suffix}")):
+        module = ".".join(path.relative_to(lib).parts)[: -len(suffix)]
         loader = ExtensionFileLoader(module, str(path))
         spec = spec_from_loader(module, loader)
         assert spec is not None
@@ -105,7 +92,7 @@ def main(argv: list[str] | None = None) -> int:
     cc = compiler()
     preload = [runtime_library(cc, "libasan.so"), runtime_library(cc, "libstdc++.so")]
     with tempfile.TemporaryDirectory(prefix="smm-asan-") as tmp:
-        build(Path(tmp), cc)
+        build(Path(tmp))
         log = Path(tmp) / "asan"  # the reports, one file a process (pytest captures fd 2)
         env = {
             **os.environ,
