@@ -180,8 +180,8 @@ def test_fronts_that_reached_fewer_points_than_fronts_chain_as_the_loops_chain_t
     """Seeds whose fronts mostly reached nothing: the compiled chaining gives the Python
     loops' curves (every seed on one, the two that met joined through their fronts), and it
     writes nothing past the buffers it is given at the sizes `native.chain_fronts` gives
-    them: its 2 S fronts may outnumber its T points, so no scratch of T rows may hold
-    per-front state (one that did corrupted the heap of a process answering such a target)."""
+    them: its 2 S fronts may outnumber its T points, so per-front state in a scratch of T
+    rows would be written past its end, into the heap of the process answering the target."""
     seeds, by_front, partner = FEW_SEEDS, FEW_BY_FRONT, FEW_PARTNER
     total, n = seeds + len(by_front), 7
     q = np.random.default_rng(12).uniform(-3.0, 3.0, (total, n))
