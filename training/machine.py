@@ -2,7 +2,10 @@
 
 Times are only comparable within one run on one machine (the CPU model differs between
 sessions), and a run that shared its cores with other work is slower than the machine:
-the load average over the run says so (above the core count, other work waited).
+the load average over the run says so (above the core count, other work waited). A
+virtual machine's model name can hide its generation ("AMD EPYC" for every one of
+them), so the record also keeps the processor's family and model numbers and the widest
+integer dot product its flags list, which decide the int8 network's speed.
 """
 
 from __future__ import annotations
@@ -36,6 +39,33 @@ def cpu_flags() -> frozenset[str]:
     return frozenset((_cpuinfo("flags") or "").split())
 
 
+# /proc/cpuinfo's keys of the processor's generation; the tab tells "model" from "model name".
+CPU_GENERATION_KEYS = (("family", "cpu family"), ("model", "model\t"), ("stepping", "stepping"))
+
+
+def cpu_generation() -> str | None:
+    """The processor's family, model and stepping numbers as /proc/cpuinfo lists them
+    ("family 25 model 17 stepping 1"), None where it lists none (not Linux on x86)."""
+    numbers = [(name, _cpuinfo(key)) for name, key in CPU_GENERATION_KEYS]
+    if any(value is None for _, value in numbers):
+        return None
+    return " ".join(f"{name} {value}" for name, value in numbers)
+
+
+# The widest integer dot product first: what the int8 layers can run on (int8_mlp.KERNELS).
+DOT_PRODUCT_FLAGS = (
+    ("amx_int8", "AMX-INT8"),
+    ("avx512_vnni", "AVX-512 VNNI"),
+    ("avx_vnni", "AVX-VNNI"),
+    ("avx2", "AVX2"),
+)
+
+
+def widest_dot_product(flags: frozenset[str]) -> str | None:
+    """The widest integer dot-product instruction set among `flags`, None without any."""
+    return next((name for flag, name in DOT_PRODUCT_FLAGS if flag in flags), None)
+
+
 def load_average_1min() -> float | None:
     """The 1-minute load average (runnable processes), None where the OS has none."""
     try:
@@ -51,10 +81,15 @@ class Machine:
     python: str
     load_1min_start: float | None
     load_1min_end: float | None = None
+    generation: str | None = None  # "family 25 model 17 stepping 1"; None in older records
+    dot_product: str | None = None  # "AVX-512 VNNI"; None in older records
 
     @classmethod
     def now(cls) -> Machine:
-        return cls(cpu_model(), os.cpu_count() or 1, platform.python_version(), load_average_1min())
+        return cls(
+            cpu_model(), os.cpu_count() or 1, platform.python_version(), load_average_1min(),
+            generation=cpu_generation(), dot_product=widest_dot_product(cpu_flags()),
+        )  # fmt: skip
 
     def ended(self) -> Machine:
         """The same record with the load average at the end of the run."""
@@ -64,7 +99,9 @@ class Machine:
         """CPU, cores, Python and the load average at the start and the end. Above the core
         count the load is other work's, which inflates times, unless `own_load` says what
         of the run's own loads the cores (a soak's clients and server, by design)."""
-        text = f"{self.cpu}, {self.cores} cores, Python {self.python}"
+        identity = ", ".join(x for x in (self.generation, self.dot_product) if x is not None)
+        text = self.cpu + (f" ({identity})" if identity else "")
+        text += f", {self.cores} cores, Python {self.python}"
         loads = [x for x in (self.load_1min_start, self.load_1min_end) if x is not None]
         if loads:
             text += f"; 1-min load average {' -> '.join(f'{x:g}' for x in loads)}"

@@ -1,7 +1,10 @@
-"""training/machine.py: the CPU model is read from /proc/cpuinfo where it exists (the same
-name the kernel lists); the load average is the OS's own; a record round-trips through its
-JSON; the description names CPU, cores and load, and says the times are inflated exactly
-when the load went above the core count (by more than half a process)."""
+"""training/machine.py: the CPU model, its family, model and stepping numbers are read from
+/proc/cpuinfo where it exists (the same values the kernel lists); the widest integer dot
+product is the first of AMX-INT8, AVX-512 VNNI, AVX-VNNI and AVX2 the flags hold; the load
+average is the OS's own; a record round-trips through its JSON, and one written before the
+generation was recorded still loads; the description names CPU, its generation, cores and
+load, and says the times are inflated exactly when the load went above the core count (by
+more than half a process)."""
 
 from __future__ import annotations
 
@@ -10,7 +13,13 @@ from pathlib import Path
 
 import pytest
 
-from training.machine import Machine, cpu_model, load_average_1min
+from training.machine import (
+    Machine,
+    cpu_generation,
+    cpu_model,
+    load_average_1min,
+    widest_dot_product,
+)
 
 
 def test_the_cpu_model_and_load_are_the_os_own() -> None:
@@ -24,6 +33,51 @@ def test_the_cpu_model_and_load_are_the_os_own() -> None:
     after = os.getloadavg()[0]
     assert measured is not None
     assert min(before, after) - 0.01 <= measured <= max(before, after) + 0.01
+
+
+def test_the_generation_is_the_kernel_listed_family_model_and_stepping() -> None:
+    cpuinfo = Path("/proc/cpuinfo")
+    fields: dict[str, str] = {}
+    if cpuinfo.exists():
+        for line in cpuinfo.read_text().split("\n\n")[0].splitlines():
+            key, _, value = line.partition(":")
+            fields.setdefault(key.strip(), value.strip())
+    if not {"cpu family", "model", "stepping"} <= fields.keys():
+        assert cpu_generation() is None
+        return
+    expected = (
+        f"family {fields['cpu family']} model {fields['model']} stepping {fields['stepping']}"
+    )
+    assert cpu_generation() == expected
+
+
+@pytest.mark.parametrize(
+    ("flags", "widest"),
+    [
+        ({"sse2", "avx2", "avx512f", "avx512_vnni", "amx_tile", "amx_int8"}, "AMX-INT8"),
+        ({"avx2", "avx_vnni", "avx512f", "avx512_vnni"}, "AVX-512 VNNI"),
+        ({"avx2", "avx_vnni"}, "AVX-VNNI"),
+        ({"sse4_2", "avx2", "fma"}, "AVX2"),
+        ({"sse4_2", "neon"}, None),
+    ],
+)
+def test_the_widest_dot_product_is_the_first_the_flags_hold(
+    flags: set[str], widest: str | None
+) -> None:
+    assert widest_dot_product(frozenset(flags)) == widest
+
+
+def test_the_description_names_the_generation_and_an_older_record_still_loads() -> None:
+    machine = Machine(
+        "AMD EPYC", 2, "3.11.9", 0.5, 1.0,
+        generation="family 25 model 17 stepping 1", dot_product="AVX-512 VNNI",
+    )  # fmt: skip
+    text = machine.describe()
+    assert text.startswith("AMD EPYC (family 25 model 17 stepping 1, AVX-512 VNNI), 2 cores")
+    assert Machine.from_json(machine.as_json()) == machine
+    older = {"cpu": "AMD EPYC", "cores": 2, "python": "3.11.9", "load_1min_start": 0.5,
+             "load_1min_end": 1.0}  # fmt: skip
+    assert Machine.from_json(older).describe().startswith("AMD EPYC, 2 cores")
 
 
 @pytest.mark.parametrize(
