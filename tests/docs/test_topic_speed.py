@@ -88,7 +88,11 @@ def test_bench_names_the_valid_choices() -> None:
 def test_bench_machine_names_the_reports_machine_and_threads() -> None:
     text = run_block("bench-machine", [])
     machine = BENCH["machine"]
-    assert text.startswith(f"{machine['cpu']}, {machine['cores']} cores")
+    # The CPU's name, then its generation and dot product where the report recorded them.
+    identity = [machine.get(key) for key in ("generation", "dot_product")]
+    named = ", ".join(x for x in identity if x)
+    cpu = f"{machine['cpu']} ({named})" if named else machine["cpu"]
+    assert text.startswith(f"{cpu}, {machine['cores']} cores")
     assert "commit" not in text
     assert f"{BENCH['onnx_threads']} onnxruntime threads per session" in text
 
