@@ -91,6 +91,30 @@ def test_models_table_marks_the_times_of_reports_run_beside_other_work() -> None
         assert table[(model_id,)][7].endswith(" *") == loaded, model_id
 
 
+def test_the_times_name_one_machine_only_where_every_report_records_the_same() -> None:
+    """Reports share a machine where cores, CPU name and generation agree; one without a
+    recorded generation shares none with one that has it (the name alone is the same on
+    processors of several generations)."""
+
+    def ran_on(cpu: str, generation: str | None) -> dict[str, Any]:
+        machine = {"cpu": cpu, "cores": 2, "python": "3.11.7", "load_1min_start": 0.5}
+        if generation is not None:
+            machine["generation"] = generation
+        return {"machine": machine}
+
+    zen4 = "family 25 model 17 stepping 1"
+    assert topic.machine_words([ran_on("AMD EPYC", zen4)] * 2) == "a 2-core AMD EPYC"
+    assert topic.machine_words([ran_on("AMD EPYC", None)] * 2) == "a 2-core AMD EPYC"
+    for other in (ran_on("AMD EPYC", None), ran_on("AMD EPYC", "family 26 model 2 stepping 0")):
+        assert topic.machine_words([ran_on("AMD EPYC", zen4), other]).startswith(
+            "each report's machine"
+        )
+    machines = [report(model_id)["machine"] for model_id in MODEL_IDS]
+    words = topic.machine_words([{"machine": machine} for machine in machines])
+    kinds = {(m["cores"], m["cpu"], m.get("generation")) for m in machines}
+    assert words.startswith("each report's machine") is (len(kinds) > 1)
+
+
 def test_models_training_is_the_manifests_budget() -> None:
     table = rows(run_block("models-training", []))
     for model_id in MODEL_IDS:

@@ -227,11 +227,17 @@ def timed(report: dict[str, Any], ms: float) -> str:
 
 
 def machine_words(reports: list[dict[str, Any]]) -> str:
-    """The machine the reports ran on, if they share one: `a 2-core AMD EPYC`."""
-    machines = {(r["machine"]["cores"], r["machine"]["cpu"]) for r in reports}
+    """The machine the reports ran on, if they share one: `a 2-core AMD EPYC`. A virtual
+    machine's model name is the same on processors of several generations, so reports
+    share a machine only where they record the same generation (training/machine.py); a
+    report that predates the record shares none with one that has it."""
+    machines = {
+        (r["machine"]["cores"], r["machine"]["cpu"], r["machine"].get("generation"))
+        for r in reports
+    }
     if len(machines) != 1:
-        return "each report's machine"
-    cores, cpu = machines.pop()
+        return "each report's machine (times compare within one report only)"
+    cores, cpu, _ = machines.pop()
     return f"a {cores}-core {cpu}"
 
 
