@@ -52,7 +52,8 @@ def cpu_generation() -> str | None:
     return " ".join(f"{name} {value}" for name, value in numbers)
 
 
-# The widest integer dot product first: what the int8 layers can run on (int8_mlp.KERNELS).
+# The processor's integer dot products, widest first, as its flags name them. What the
+# service's int8 layers run on is the kernel int8_mlp picks (the benchmark records it).
 DOT_PRODUCT_FLAGS = (
     ("amx_int8", "AMX-INT8"),
     ("avx512_vnni", "AVX-512 VNNI"),
