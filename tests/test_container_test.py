@@ -11,7 +11,8 @@ deploy/base/deployment.yaml; a child process is found below its parent. Against 
 server on 127.0.0.1 with the settings the container gets, every HTTP check passes, each
 request is logged once, and SIGTERM ends it with its "shut down" line. The report is
 written only when every check passed, with the keys of the committed docs/container.json
-(tools/docs reads it), and its exit status says which.
+(tools/docs reads it), and its exit status says which; its machine is named with the
+processor's generation, as every report names it.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import platform
 import subprocess
 import sys
 from pathlib import Path
@@ -39,11 +41,12 @@ from tools.container_test.read_only import (
     deployment_env,
     deployment_memory_limit_bytes,
 )
-from tools.container_test.report import finish
+from tools.container_test.report import finish, machine_words
 from tools.container_test.server import descendants, json_lines
 from tools.container_test.server_checks import check_access_log, check_graceful_stop
 from tools.container_test.targets import NEAREST_BOUND_RAD, TARGETS, bundled_models, check_answer
 from tools.local_server import LocalServer
+from training.machine import Machine
 
 
 def one_configuration_answer(q: np.ndarray, accepted: int = 1) -> dict[str, Any]:
@@ -226,3 +229,12 @@ def test_the_http_checks_pass_against_a_real_server_with_the_containers_settings
     ]
     assert len(request_ids) == len(set(request_ids)) == 2 + len(bundled_models()) + 2
     assert sorted(figures["first_request_ms"]) == bundled_models()
+
+
+def test_the_machine_is_named_with_its_generation_as_every_report_names_it() -> None:
+    zen4 = Machine("AMD EPYC", 2, "3.11.7", 0.5, generation="family 25 model 17 stepping 1",
+                   dot_product="AVX-512 VNNI")  # fmt: skip
+    assert machine_words(zen4) == (
+        f"AMD EPYC (family 25 model 17 stepping 1, AVX-512 VNNI), 2 cores, {platform.machine()}"
+    )
+    assert machine_words(Machine("Intel Xeon", 4, "3.11.7", None)).startswith("Intel Xeon, 4 ")

@@ -4,13 +4,13 @@
 from __future__ import annotations
 
 import json
-import os
 import platform
 import time
 from pathlib import Path
 from typing import Any
 
 from tools.container_test.outcomes import Checks
+from training.machine import Machine
 
 
 def finish(
@@ -24,7 +24,7 @@ def finish(
     timings["total_s"] = round(time.monotonic() - started, 1)
     record = {
         "measured_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-        "machine": f"{os.cpu_count()} cores, {platform.machine()}",
+        "machine": machine_words(Machine.now()),
         **figures,
         "timings": timings,
         "checks": [{"name": n, "ok": ok, "detail": d} for n, ok, d in checks.results],
@@ -48,3 +48,11 @@ def finish(
     path.write_text(json.dumps(record, indent=2) + "\n")
     print(f"container test passed: {len(checks.results)} checks; figures in {path}")
     return 0
+
+
+def machine_words(machine: Machine) -> str:
+    """The processor as every report names it (its generation and widest integer dot
+    product: a VM's "AMD EPYC" is Zen 3, 4 or 5 alike), its cores and architecture."""
+    identity = ", ".join(x for x in (machine.generation, machine.dot_product) if x is not None)
+    cpu = machine.cpu + (f" ({identity})" if identity else "")
+    return f"{cpu}, {machine.cores} cores, {platform.machine()}"
