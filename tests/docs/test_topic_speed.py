@@ -17,6 +17,7 @@ from typing import Any
 
 import pytest
 import yaml
+from scipy import stats
 
 from tools.docs.blocks import run_block
 from tools.goals import BATCH_GOAL_X, GOALS
@@ -262,6 +263,43 @@ def test_a_paired_judge_record_shows_each_gain_and_its_z() -> None:
     assert rows["coverage p95 rad"][2] == "-"  # a margin, not a paired test
     assert f"{record['draws']} draws each" in text.splitlines()[0]
     assert "one draw a target" not in text
+
+
+def test_judge_records_on_two_target_sets_combine_their_z_and_say_what_the_page_says() -> None:
+    served, refused = (
+        ("n300-iiwa14-pose", "n300-iiwa14-pose-seed11"),
+        ("n250-iiwa14-pose", "n250-iiwa14-pose-seed11"),
+    )
+    for names, verdict in ((served, "no worse on any component figure"), (refused, None)):
+        records = [read(f"judge-{name}") for name in names]
+        text = run_block("speed-judged-together", list(names))
+        for key, label in (("count_right", "count right"), ("recall", "recall")):
+            z_of_sets = [r["z"][key] for r in records]
+            upper_tail = stats.norm.sf(z_of_sets)
+            z = stats.combine_pvalues(upper_tail, method="stouffer").statistic
+            assert f"{label} {z:+.2f}" in text
+        # Each set alone serves the candidate (the page: "each set's verdict is no worse").
+        assert all(r["worse"] == [] for r in records)
+        if verdict is not None:
+            assert text.endswith(f"Together the candidate is {verdict}.")
+    # The page: N = 250 is refused together, on recall, and N = 300 serves.
+    assert "refused on recall" in run_block("speed-judged-together", list(refused))
+    assert manifest("iiwa14-pose")["defaults"]["num_samples"] == 300
+    # The iiwa14 position's N = 750: no worse on each set and together; coverage p95 rises
+    # on both (fewer samples over a 4-D fibre), within the judge's margin.
+    n750 = ("n750-iiwa14-position", "n750-iiwa14-position-seed11")
+    text = run_block("speed-judged-together", list(n750))
+    assert text.endswith("Together the candidate is no worse on any component figure.")
+    for name in n750:
+        record = read(f"judge-{name}")
+        assert record["worse"] == [] and record["draws"] == 4
+        coverage = [record[side]["coverage_p95_rad"] for side in ("candidate", "incumbent")]
+        assert 1.0 < coverage[0] / coverage[1] < 1.10
+    assert manifest("iiwa14-position")["defaults"]["num_samples"] == 750
+    with pytest.raises(FileNotFoundError, match="the records are"):
+        run_block("speed-judged-together", ["n300-iiwa14-pose"])
+    with pytest.raises(ValueError, match="not one candidate"):
+        run_block("speed-judged-together", ["n300-iiwa14-pose", "n250-iiwa14-pose"])
 
 
 def test_the_judged_records_say_what_the_page_says() -> None:

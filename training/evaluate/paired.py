@@ -78,3 +78,13 @@ def paired(candidate: Counts, incumbent: Counts, more_is_better: bool) -> Paired
         standard_error=standard_error,
         lost_targets=sorted({int(t) for t in incumbent.unit_target[lost]}),
     )
+
+
+def together(z_of_sets: list[float]) -> float:
+    """Stouffer's z of one figure judged on k independent target sets: sum z_i / sqrt k,
+    standard normal where the candidate is the incumbent on other draws, as each z_i is.
+    Sets that each fall short of the refusal in the same direction refuse together (two
+    at -1.8: -2.55 < -Z_REFUSE); one set's z is itself."""
+    if not z_of_sets:
+        raise ValueError("together needs the z of at least one target set")
+    return sum(z_of_sets) / math.sqrt(len(z_of_sets))

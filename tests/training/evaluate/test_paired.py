@@ -8,12 +8,16 @@
 - A candidate that loses one target for good (wrong on every draw where the incumbent is
   right on every draw) is refused through the lost unit, though its mean gain is within
   the draws' spread; one that is worse on every target by the same amount has z = -inf.
+- `together`: the z of several independent target sets combined is Stouffer's (scipy's
+  combine_pvalues); two sets each short of the refusal in the same direction refuse
+  together, and one set's z is itself.
 """
 
 import numpy as np
+import pytest
 from scipy import stats
 
-from training.evaluate.paired import Z_REFUSE, Counts, Paired, paired
+from training.evaluate.paired import Z_REFUSE, Counts, Paired, paired, together
 
 TARGETS, DRAWS = 200, 4
 
@@ -89,3 +93,14 @@ def test_a_target_lost_for_good_is_refused_and_a_uniform_loss_is_infinitely_sure
     assert uniform.z == -np.inf and uniform.worse
     assert _per_target(incumbent, incumbent).z == 0.0
     assert not _per_target(incumbent, incumbent).worse
+
+
+def test_sets_judged_apart_combine_as_stouffers_z() -> None:
+    for z_of_sets in ([-1.77, -1.91], [-1.57, -1.0, 0.4], [2.0]):
+        upper_tail = stats.norm.sf(z_of_sets)
+        expected = stats.combine_pvalues(upper_tail, method="stouffer").statistic
+        assert together(z_of_sets) == pytest.approx(expected, abs=1e-12)
+    assert together([-2.0]) == -2.0
+    assert together([-1.8, -1.8]) < -Z_REFUSE < -1.8
+    with pytest.raises(ValueError, match="at least one"):
+        together([])

@@ -28,6 +28,7 @@ short names: service, float32, base, paper, restart, http.
 
 from __future__ import annotations
 
+import json
 import math
 from typing import Any
 
@@ -62,6 +63,7 @@ from tools.goals import (
     timed_run,
 )
 from training.evaluate.compare import TRUTH_FIGURES, worse_than
+from training.evaluate.paired import Z_REFUSE, together
 from training.machine import Machine
 
 # Short names for the configurations a report keys by their long names.
@@ -604,6 +606,39 @@ def speed_judged(name: str) -> str:
               "incumbent", "candidate"] + (["candidate's gain (z)"] if tests else [])  # fmt: skip
     rule = "" if tests else " (one draw a target, refused on any figure worse)"
     return table(header, rows) + f"\n\nVerdict{rule}: the candidate is {record['verdict']}."
+
+
+@block("speed-judged-together")
+def speed_judged_together(*names: str) -> str:
+    """docs/benchmark/judge-<name>.json of one candidate on independent target sets (their
+    seeds), each component figure's z combined (training/evaluate/paired.py `together`:
+    Stouffer's), and whether the sets together refuse it on any."""
+    missing = [n for n in names if n not in sources.judged()]
+    if len(names) < 2 or missing:
+        raise FileNotFoundError(
+            f"speed-judged-together needs two judge records or more, not {missing or names}; "
+            f"the records are: {sources.judged()}"
+        )
+    records = [sources.benchmark(f"judge-{name}") for name in names]
+    candidates = {json.dumps(r["candidate_defaults"], sort_keys=True) for r in records}
+    seeds = [r["seed"] for r in records]
+    if len(candidates) > 1 or len(set(seeds)) < len(seeds):
+        raise ValueError(f"{names}: not one candidate on target sets of different seeds")
+    refused, parts = [], []
+    for key, label in TRUTH:
+        if not all(key in r.get("z", {}) for r in records):
+            continue
+        z = together([r["z"][key] for r in records])
+        parts.append(f"{label} {z:+.2f}")
+        if z < -Z_REFUSE:
+            refused.append(label)
+    seeds_words = " and ".join(str(s) for s in seeds)
+    verdict = f"refused on {', '.join(refused)}" if refused else "no worse on any component figure"
+    return (
+        f"The {len(records)} target sets (seeds {seeds_words}) together, z = sum z / sqrt "
+        f"{len(records)} (Stouffer's; refused below -{Z_REFUSE}): {'; '.join(parts)}. "
+        f"Together the candidate is {verdict}."
+    )
 
 
 def _short_names(words: str) -> list[str]:
