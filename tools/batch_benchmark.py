@@ -1,20 +1,21 @@
 """Batch against singles: K targets as one POST /smm/batch against K POST /smm one after another.
 
-    python -m tools.batch_benchmark --model iiwa14-pose --targets 64 --num-samples 1000
+    python -m tools.batch_benchmark --model iiwa14-pose --targets 64 [--num-samples N]
 
 Over HTTP, as a planner would ask (`smm-serve` as a real uvicorn process on 127.0.0.1,
 `tools.local_server.LocalServer`, asked through the project's client `service.client`,
-like tools/benchmark.py's `OverHttp`): the targets are
-the FK of configurations uniform in the joint limits (the evaluation's held-out targets,
-seed 7), target i with seed i. Each round sends the K single requests one after another,
-then the one batch; the client's wall time of each, median over the rounds, and their
-ratio (singles / batch: how many times faster the batch answers the same targets). The
-client reads the batch as the server streams it (NDJSON, each target's answer parsed
-while the server computes the next: `SmmClient.smm_batch`); each round also asks for the
-batch as one JSON object, read and parsed once it has all arrived, as a client without
-`Accept: application/x-ndjson` gets it. Every batch answer must equal its single answer
-(JSON equal, timings aside): the figures are only reported beside that check. Compare
-times only within one run.
+like tools/benchmark.py's `OverHttp`): the targets are the FK of configurations uniform
+in the joint limits (the evaluation's held-out targets, seed 7), target i with seed i,
+at the model's served default N (the requests carry no num_samples, as a client asks
+without options) unless --num-samples sets one. Each round sends the K single requests
+one after another, then the one batch; the client's wall time of each, median over the
+rounds, and their ratio (singles / batch: how many times faster the batch answers the
+same targets). The client reads the batch as the server streams it (NDJSON, each
+target's answer parsed while the server computes the next: `SmmClient.smm_batch`); each
+round also asks for the batch as one JSON object, read and parsed once it has all
+arrived, as a client without `Accept: application/x-ndjson` gets it. Every batch answer
+must equal its single answer (JSON equal, timings aside): the figures are only reported
+beside that check. Compare times only within one run.
 """
 
 from __future__ import annotations
@@ -70,7 +71,7 @@ def mismatched_targets(batch: SmmBatchResponse, singles: Sequence[SmmResponse]) 
 def batch_against_singles(
     model: ServedModel,
     q_targets: np.ndarray,  # (K, n) configurations whose FK are the targets
-    num_samples: int,
+    num_samples: int | None,
     rounds: int = ROUNDS,
     server: LocalServer | None = None,
     progress: Callable[[str], None] = lambda line: None,
@@ -78,6 +79,8 @@ def batch_against_singles(
 ) -> dict[str, Any]:
     """Time K targets as one POST /smm/batch against K POST /smm one after another.
 
+    `num_samples`: each target's, None for the model's served default (the requests then
+    carry none, and the record names the default's N with `served_default`).
     `server`: a running LocalServer to ask (its limits must admit the batch); None starts
     one with the default settings but the batch limits and deadline raised to fit the K
     targets, and `server_settings` (Settings fields, `batch_threads=1`). Returns
@@ -87,7 +90,12 @@ def batch_against_singles(
     """
     manifest = model.manifest
     targets = [target_of(model, q) for q in q_targets]
-    common = {"robot": manifest.robot, "task": manifest.task.name, "num_samples": num_samples}
+    served_default = num_samples is None
+    common: dict[str, Any] = {"robot": manifest.robot, "task": manifest.task.name}
+    if num_samples is None:
+        num_samples = manifest.defaults.num_samples
+    else:
+        common["num_samples"] = num_samples
     singles = [
         SmmRequest.model_validate({**common, "target": t, "seed": i}) for i, t in enumerate(targets)
     ]
@@ -147,6 +155,7 @@ def batch_against_singles(
         "model": model.reference,
         "targets": len(targets),
         "num_samples": num_samples,
+        "served_default": served_default,
         "rounds": rounds,
         "singles_median_ms": singles_median,
         "batch_median_ms": batch_median,
@@ -210,7 +219,9 @@ def main() -> None:
     bundled = sorted(p.name for p in REPO_MODELS_DIR.iterdir() if (p / "manifest.json").exists())
     parser.add_argument("--model", required=True, choices=bundled)
     parser.add_argument("--targets", type=int, default=64)
-    parser.add_argument("--num-samples", type=int, default=1000)
+    parser.add_argument(
+        "--num-samples", type=int, default=None, help="per target (default: the served default)"
+    )
     parser.add_argument("--rounds", type=int, default=ROUNDS)
     parser.add_argument("--seed", type=int, default=7)
     args = parser.parse_args()
@@ -224,7 +235,7 @@ def main() -> None:
     result["machine"] = machine.ended().as_json()
     print(json.dumps(result, indent=1))
     print(
-        f"{args.model}, {args.targets} targets x {args.num_samples} samples, over HTTP: "
+        f"{args.model}, {args.targets} targets x {result['num_samples']} samples, over HTTP: "
         f"{args.targets} single requests {result['singles_median_ms']:.0f} ms, one batch "
         f"{result['batch_median_ms']:.0f} ms as lines, {result['batch_json_median_ms']:.0f} ms as "
         f"one JSON object (median of {args.rounds}): the batch "

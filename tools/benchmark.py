@@ -707,7 +707,8 @@ def _batch(batch: dict, one_thread: dict | None) -> list[str]:
     lines = [
         f"Many targets in one request (`tools.batch_benchmark`, over HTTP, {batch['rounds']} "
         f"rounds): {batch['targets']} targets of {batch['model']} at N = "
-        f"{batch['num_samples']}, target i with seed i, as one POST /smm/batch against as "
+        f"{batch['num_samples']}{' (served default)' if batch.get('served_default') else ''}"
+        ", target i with seed i, as one POST /smm/batch against as "
         "many POST /smm sent one after another (the batch read as the server streams it, "
         "NDJSON, each answer parsed while the server computes the next, and where measured "
         "also as one JSON object, parsed once it has all arrived); every batch answer "

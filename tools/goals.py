@@ -34,9 +34,10 @@ GOALS: tuple[tuple[str, float, float | None], ...] = (
 # Over HTTP (smm-serve on 127.0.0.1, one request at a time, the client's wall time),
 # median at N = 1000: (model, at most ms).
 HTTP_GOALS: tuple[tuple[str, float], ...] = (("iiwa14-pose", 20.0), ("panda-pose", 20.0))
-# The batch's samples per target, and the speed goal for it: at least this many times
-# faster than its targets sent one after another.
-BATCH_NUM_SAMPLES = 1000
+# The batch's samples per target (None: the model's served default, what a client gets
+# without asking, the goals' "adaptive default"), and the speed goal for it: at least
+# this many times faster than its targets sent one after another.
+BATCH_NUM_SAMPLES: int | None = None
 BATCH_GOAL_X = 3.0
 
 

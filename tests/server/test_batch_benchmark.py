@@ -36,6 +36,7 @@ def test_batch_against_singles_times_both_and_finds_the_answers_identical(
     result = batch_against_singles(planar3r, q_targets, num_samples=100, rounds=2)
     assert result["identical"] is True and result["mismatched"] == []
     assert result["targets"] == 3 and result["num_samples"] == 100
+    assert result["served_default"] is False
     assert len(result["singles_ms"]) == len(result["batch_ms"]) == 2
     assert len(result["batch_json_ms"]) == 2  # the same batch asked as one JSON object
     assert result["singles_median_ms"] > 0 and result["batch_median_ms"] > 0
@@ -62,6 +63,16 @@ def test_batch_against_singles_times_both_and_finds_the_answers_identical(
         expected = steps * rows * served.layers.products_per_row
         assert result["network_products_per_target"] == expected
         assert result["avx2_peak_every_core_per_s"] > 0
+
+
+def test_batch_at_the_served_default_asks_without_num_samples(planar3r: ServedModel) -> None:
+    """num_samples None: the requests carry none, so the server answers at the model's
+    served default N, which the record names; the answers still match the singles'."""
+    q_targets = uniform_configurations(planar3r.limits, 2, seed=7)
+    result = batch_against_singles(planar3r, q_targets, num_samples=None, rounds=1)
+    assert result["served_default"] is True
+    assert result["num_samples"] == planar3r.manifest.defaults.num_samples
+    assert result["identical"] is True
 
 
 def test_cpu_seconds_is_the_kernels_count_of_the_process() -> None:
