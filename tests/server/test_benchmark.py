@@ -270,21 +270,40 @@ def test_bounds_name_the_stage_past_the_goal_or_the_evaluations_left_for_samplin
     )
 
 
+def test_bounds_read_the_served_default_where_it_is_fewer_than_the_goals_n() -> None:
+    """The goals read both N = 1000 and the served default; a goal missed at both is
+    bounded at the fewer (the served 300), a model served above 1000 at 1000, and a report
+    that did not measure its default at 1000."""
+    at_300 = _goal_row(16.0, {"sample": 4.0, "correct": 1.0, "connect": 9.0}, 300.0)
+    at_1000 = _goal_row(30.0, {"sample": 16.0, "correct": 3.0, "connect": 10.0}, 900.0)
+    sizes = {"300": at_300, "1000": at_1000}
+    entry = {"sampler_steps": 4, "judged": [], "default_num_samples": 300, "sizes": sizes}
+    (line,) = [x for x in _bounds({"models": {"iiwa14-pose": entry}}) if "time" in x]
+    assert line.startswith("- iiwa14-pose, time (N = 300, the served default): 16.0 ms, 1.0 ms")
+    assert "Everything but sampling takes 12.0 ms, which leaves 3.0 ms for sampling: 3 " in line
+    above = {**entry, "default_num_samples": 2000, "sizes": {"1000": at_1000}}
+    (line,) = [x for x in _bounds({"models": {"iiwa14-pose": above}}) if "time" in x]
+    assert line.startswith("- iiwa14-pose, time (N = 1000): 30.0 ms")
+    unmeasured = {**entry, "sizes": {"1000": at_1000}}
+    (line,) = [x for x in _bounds({"models": {"iiwa14-pose": unmeasured}}) if "time" in x]
+    assert line.startswith("- iiwa14-pose, time (N = 1000): 30.0 ms")
+
+
 def test_bounds_give_the_networks_avx2_floor_where_the_run_measured_it() -> None:
     """A model whose run recorded its network's products and the AVX2 peak: the products
     at the peak are the least the network takes, over or under the goal; none without."""
     row = _goal_row(100.0, {"sample": 80.0, "correct": 5.0, "connect": 12.0}, 900.0)
     entry = {"sampler_steps": 4, "judged": [], "sizes": {"1000": row}}
-    (plain,) = [x for x in _bounds({"models": {"iiwa14-pose": entry}}) if "time:" in x]
+    (plain,) = [x for x in _bounds({"models": {"iiwa14-pose": entry}}) if "time (" in x]
     assert "AVX2" not in plain
     # 4.4e9 products at 1e11 a second: 44 ms, over the 15 ms goal
     floor = {"products": 4_400_000_000, "peak_every_core_per_s": 1e11}
     over = {**entry, "network_floor": floor}
-    (line,) = [x for x in _bounds({"models": {"iiwa14-pose": over}}) if "time:" in x]
+    (line,) = [x for x in _bounds({"models": {"iiwa14-pose": over}}) if "time (" in x]
     assert "products at N = 1000 (4,400,000,000) take at least 44.0 ms" in line
     assert "(100.0 G a second, measured in the run): the goal is out of reach" in line
     under = {**entry, "network_floor": {**floor, "peak_every_core_per_s": 1e12}}  # 4.4 ms
-    (line,) = [x for x in _bounds({"models": {"iiwa14-pose": under}}) if "time:" in x]
+    (line,) = [x for x in _bounds({"models": {"iiwa14-pose": under}}) if "time (" in x]
     assert "take at least 4.4 ms" in line and ", under the goal." in line
 
 
@@ -361,4 +380,4 @@ def test_the_time_goals_read_the_default_request_and_the_ratio_the_kinematic_ans
     lines = "\n".join(_goals(report))
     assert "| iiwa14-pose | 1000 | 17.0 | 15 | 40.0 | 20 | no: 1.13x the goal | no worse |" in lines
     bounds = "\n".join(_bounds(report))
-    assert "iiwa14-pose, time: 17.0 ms, 2.0 ms (1.13x) over the goal of 15 ms" in bounds
+    assert "iiwa14-pose, time (N = 1000): 17.0 ms, 2.0 ms (1.13x) over the goal of 15 ms" in bounds

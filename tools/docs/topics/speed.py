@@ -60,6 +60,8 @@ from tools.goals import (
     RESTART,
     SERVICE,
     SSIK,
+    bound_label,
+    bound_num_samples,
     timed_run,
 )
 from training.evaluate.compare import TRUTH_FIGURES, worse_than
@@ -408,9 +410,10 @@ def _served_default_row(entry: dict[str, Any]) -> tuple[int, dict[str, Any]] | N
 
 @block("speed-bound")
 def speed_bound(model_id: str, *arguments: str) -> str:
-    """What bounds a model's time goal: its stages at N = 1000, then either the stage that
-    alone passes the goal or the network evaluations the other stages leave for sampling,
-    and the connect stage profiled alone."""
+    """What bounds a model's time goal: its stages at N = 1000, or at its served default
+    where that is fewer (`bound_num_samples`), then either the stage that alone passes the
+    goal or the network evaluations the other stages leave for sampling, and the connect
+    stage profiled alone."""
     chosen = options(arguments, {"report": "benchmark"})
     report = sources.benchmark(chosen["report"])
     goals = {goal[0]: goal[1] for goal in GOALS}
@@ -418,13 +421,14 @@ def speed_bound(model_id: str, *arguments: str) -> str:
         raise KeyError(f"no time goal for {model_id!r}; the goals are for: {sorted(goals)}")
     most_ms = goals[model_id]
     entry = model_entry(report, model_id, chosen["report"])
-    asked = timed_run(size_row(entry, GOAL_NUM_SAMPLES, chosen["report"]))
+    asked = timed_run(size_row(entry, bound_num_samples(entry), chosen["report"]))
     took, stage = asked["median_ms"], asked["median_stage_ms"]
     spans = {name: stage.get(name, 0.0) for name in STAGES}
     steps = entry["sampler_steps"]
     per_evaluation = spans["sample"] / steps
     lines = [
-        f"- **{took:.1f} ms** against the goal's {most_ms:g} ms: sample {spans['sample']:.1f} "
+        f"- **{took:.1f} ms** at {bound_label(entry)}, against the goal's {most_ms:g} ms: "
+        f"sample {spans['sample']:.1f} "
         f"({steps} evaluations of the {entry['sampler_precision']} network, "
         f"{per_evaluation:.2f} ms each), correct {spans['correct']:.1f}, connect "
         f"{spans['connect']:.1f}, the rest {max(took - sum(spans.values()), 0.0):.1f} ms."
