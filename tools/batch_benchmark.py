@@ -25,17 +25,29 @@ import json
 import os
 import time
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 
+from service.api.answers import encode
+from service.api.smm import query_for_model, smm_fields
 from service.client import RetryPolicy, SmmClient
 from service.config import Settings
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
+from service.pipeline.run import run
 from service.pipeline.targets import fields_reached
 from service.wire import SmmBatchRequest, SmmBatchResponse, SmmRequest, SmmResponse
-from tools.batch_bounds import cpu_bound, cpu_sentence, network_bound, network_sentence
+from tools.batch_bounds import (
+    compiled_bound,
+    compiled_sentence,
+    cpu_bound,
+    cpu_sentence,
+    network_bound,
+    network_sentence,
+)
+from tools.connect_profile import KernelTimer
 from tools.local_server import LocalServer
 from tools.network_floor import avx2_network_products, every_core_peak
 from training.evaluate.targets import uniform_configurations
@@ -147,6 +159,7 @@ def batch_against_singles(
     finally:
         if own:
             server.stop()
+    work = compiled_work(model, singles)
     singles_median = float(np.median(singles_ms))
     batch_median = float(np.median(batch_ms))
     batch_json_median = float(np.median(batch_json_ms))
@@ -171,6 +184,7 @@ def batch_against_singles(
         "cores": os.cpu_count() or 1,
         "singles_cpu_median_ms": _median_by_key(singles_cpu),
         "batch_cpu_median_ms": _median_by_key(batch_cpu),
+        "compiled_work_ms": work,
         **(
             {}
             if products is None
@@ -179,6 +193,40 @@ def batch_against_singles(
                 "avx2_peak_every_core_per_s": float(np.median(peaks)),
             }
         ),
+    }
+
+
+def compiled_work(model: ServedModel, requests: Sequence[SmmRequest]) -> dict[str, float]:
+    """What each target's answer costs that no sharing between a batch's targets removes,
+    mean ms per target over `requests`, answered in process on one thread (the model
+    reopened with one thread; warm): `compiled`, its compiled work, every call into
+    `service.pipeline.native` (the kinematics of a compiled chain among them) and the flow
+    network, which an answer equal to its single answer makes on exactly its own rows;
+    `encode`, its answer's JSON encoding; `answer`, the whole answer (stages 1-6), whose
+    rest, the pipeline's Python and numpy between those calls, is all a batch could share.
+    Kinematics evaluated otherwise (ONNX, a model without a compiled chain) count in the
+    rest, which can only understate the compiled work."""
+    one = load_model(
+        REPO_MODELS_DIR / model.manifest.model_id, threads=1, compiled_int8=Settings().compiled_int8
+    )
+    timer = KernelTimer()
+    timed = replace(one, networks={name: timer.timed(f) for name, f in one.networks.items()})
+    queries = [query_for_model(request, timed) for request in requests]
+    run(timed, queries[0])  # warm-up
+    answer_s = encode_s = 0.0
+    with timer.timing():
+        for query in queries:
+            start = time.perf_counter()
+            result = run(timed, query)
+            answered = time.perf_counter()
+            encode(smm_fields(timed, query, result))
+            answer_s += answered - start
+            encode_s += time.perf_counter() - answered
+    count = max(len(queries), 1)
+    return {
+        "answer": answer_s * 1e3 / count,
+        "compiled": timer.seconds * 1e3 / count,
+        "encode": encode_s * 1e3 / count,
     }
 
 
@@ -243,9 +291,11 @@ def main() -> None:
         f"fast; answers identical: {result['identical']} "
         f"({Machine.from_json(result['machine']).describe()})"
     )
-    cpu, network = cpu_bound(result), network_bound(result)
+    cpu, network, compiled = cpu_bound(result), network_bound(result), compiled_bound(result)
     if cpu is not None:
         print(cpu_sentence(cpu))
+    if compiled is not None:
+        print(compiled_sentence(compiled))
     if network is not None:
         print(network_sentence(network))
 

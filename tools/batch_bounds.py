@@ -1,6 +1,6 @@
 """What bounds the batch against its singles, from a `tools.batch_benchmark` result.
 
-Three bounds, per target in ms, each read from the measured result (light imports only, so
+Four bounds, per target in ms, each read from the measured result (light imports only, so
 the benchmark's report and the docs' pages compute them alike):
 
 - `stage_bound`: the batch's sampling (its targets' network evaluations, as many targets
@@ -11,6 +11,11 @@ the benchmark's report and the docs' pages compute them alike):
   singles' wall time over that. A batch at the goal's ratio could spend at most the cores
   times a third of the singles' wall time per target: the CPU it must save against what
   it spends now is what batching would have to share between targets.
+- `compiled_bound`: the compiled work. Each target's answer calls the compiled kernels
+  and the flow network on its own rows, encodes its JSON, and the client reads it
+  (`tools.batch_benchmark.compiled_work`, in process on one thread, and the client's CPU
+  in the batch): spread over every core, that takes at least its sum even if a batch
+  shared every line of the pipeline's Python and numpy between its targets at no cost.
 - `network_bound`: where the server evaluates the int8 network on the AVX2 kernel, each
   target's network work (its Euler steps' evaluations of its own rows: an answer equal to
   its single answer needs exactly those products) over the AVX2 product's peak on every
@@ -113,6 +118,67 @@ def cpu_sentence(cpu: CpuBound, one_thread: CpuBound | None = None) -> str:
         f"{cpu.goal_cpu_ms:.1f} ms of CPU per target, {cpu.goal_cpu_ms / least_cpu_ms:.0%} of "
         "the least a batch spent here: the rest of each target's computation would have to "
         "be work the targets share, where the batch shares only the requests' exchanges."
+    )
+
+
+@dataclass(frozen=True)
+class CompiledBound:
+    cores: int
+    singles_ms: float  # the singles' client wall time per target
+    answer_ms: float  # a target's whole answer in process on one thread
+    compiled_ms: float  # its compiled kernels and flow network on one thread
+    encode_ms: float  # its answer's JSON encoding
+    client_ms: float  # the client's CPU per target in the batch
+
+    @property
+    def unshared_ms(self) -> float:
+        """CPU per target that no sharing between targets removes."""
+        return self.compiled_ms + self.encode_ms + self.client_ms
+
+    @property
+    def least_ms(self) -> float:
+        return self.unshared_ms / self.cores
+
+    @property
+    def most_x(self) -> float:
+        return self.singles_ms / self.least_ms
+
+
+def compiled_bound(batch: dict[str, Any]) -> CompiledBound | None:
+    """None for a result measured without the compiled work or the processes' CPU."""
+    work = batch.get("compiled_work_ms")
+    if work is None or "batch_cpu_median_ms" not in batch:
+        return None
+    targets = batch["targets"]
+    return CompiledBound(
+        cores=int(batch["cores"]),
+        singles_ms=batch["singles_median_ms"] / targets,
+        answer_ms=float(work["answer"]),
+        compiled_ms=float(work["compiled"]),
+        encode_ms=float(work["encode"]),
+        client_ms=batch["batch_cpu_median_ms"]["client"] / targets,
+    )
+
+
+def compiled_sentence(bound: CompiledBound) -> str:
+    """The compiled work's bound on the batch, in words (the report's and the docs' pages)."""
+    verdict = (
+        f"so sharing the Python alone cannot reach {BATCH_GOAL_X:g}x here: the compiled work "
+        "itself, the answers' encoding or the client's reading must get cheaper"
+        if bound.most_x < BATCH_GOAL_X
+        else "so this bound does not rule the goal out"
+    )
+    shareable_ms = max(bound.answer_ms - bound.compiled_ms, 0.0)
+    return (
+        f"What no sharing between targets removes: each target's answer takes "
+        f"{bound.answer_ms:.1f} ms in process on one thread, {bound.compiled_ms:.1f} ms of it "
+        f"in the compiled kernels and the flow network on its own rows (the other "
+        f"{shareable_ms:.1f} ms, the pipeline's Python and numpy between those calls, is all "
+        f"a batch could share); its JSON encoding takes {bound.encode_ms:.1f} ms and the "
+        f"client's reading of it {bound.client_ms:.1f} ms of CPU. Even with that Python "
+        f"shared at no cost, {bound.unshared_ms:.1f} ms of CPU per target over {bound.cores} "
+        f"cores takes at least {bound.least_ms:.1f} ms: at most **{bound.most_x:.2f}x** the "
+        f"singles' {bound.singles_ms:.1f} ms, {verdict}."
     )
 
 

@@ -79,6 +79,8 @@ from service.wire import SmmRequest
 from tools.batch_benchmark import batch_against_singles, target_of
 from tools.batch_bounds import (
     BATCH_STAGES,
+    compiled_bound,
+    compiled_sentence,
     cpu_bound,
     cpu_sentence,
     network_bound,
@@ -794,6 +796,9 @@ def batch_profile(batch: dict, one_thread: dict | None = None) -> list[str]:
     cpu = cpu_bound(batch)
     if cpu is not None:
         lines += ["", cpu_sentence(cpu, None if one_thread is None else cpu_bound(one_thread))]
+    compiled = compiled_bound(batch)
+    if compiled is not None:
+        lines += ["", compiled_sentence(compiled)]
     network = network_bound(batch)
     if network is not None:
         lines += ["", network_sentence(network)]

@@ -44,15 +44,37 @@ from training.evaluate.targets import uniform_configurations
 @dataclass
 class KernelTimer:
     """Time and calls of the compiled kernels while it is entered: each public function of
-    `service.pipeline.native` is wrapped (callers look them up on the module at call time)."""
+    `service.pipeline.native` is wrapped (callers look them up on the module at call time),
+    and any other compiled callable through `timed` (a flow network). A call made inside
+    another timed call (a kernel's Python wrapper calling another) counts once, as part of
+    the outer one."""
 
     calls: int = 0
     seconds: float = 0.0
+    _owner: int | None = None
+    _depth: int = 0
+
+    def timed(self, kernel: Callable[..., Any]) -> Callable[..., Any]:
+        """`kernel`, timed while the timer is entered, on the thread that entered it."""
+
+        def call(*args: Any, **kwargs: Any) -> Any:
+            if threading.get_ident() != self._owner or self._depth:
+                return kernel(*args, **kwargs)
+            self._depth += 1
+            start = time.perf_counter()
+            try:
+                return kernel(*args, **kwargs)
+            finally:
+                self.seconds += time.perf_counter() - start
+                self.calls += 1
+                self._depth -= 1
+
+        return call
 
     @contextmanager
     def timing(self) -> Iterator[None]:
         """Count the kernels called on this thread (those set aside run beside it)."""
-        owner = threading.get_ident()
+        self._owner = threading.get_ident()
         originals = {
             name: getattr(native, name)
             for name in dir(native)
@@ -60,27 +82,14 @@ class KernelTimer:
             and inspect.isfunction(getattr(native, name))
             and getattr(native, name).__module__ == native.__name__
         }
-
-        def timed(kernel: Callable[..., Any]) -> Callable[..., Any]:
-            def call(*args: Any, **kwargs: Any) -> Any:
-                if threading.get_ident() != owner:
-                    return kernel(*args, **kwargs)
-                start = time.perf_counter()
-                try:
-                    return kernel(*args, **kwargs)
-                finally:
-                    self.seconds += time.perf_counter() - start
-                    self.calls += 1
-
-            return call
-
         for name, kernel in originals.items():
-            setattr(native, name, timed(kernel))
+            setattr(native, name, self.timed(kernel))
         try:
             yield
         finally:
             for name, kernel in originals.items():
                 setattr(native, name, kernel)
+            self._owner = None
 
 
 def profile_connect(

@@ -39,6 +39,8 @@ from service.models import int8_mlp
 from service.models.sessions import PARALLEL_MIN_ROWS
 from tools.batch_bounds import (
     BATCH_STAGES,
+    compiled_bound,
+    compiled_sentence,
     cpu_bound,
     cpu_sentence,
     network_bound,
@@ -539,6 +541,7 @@ def speed_batch(*arguments: str) -> str:
     one = report.get("batch_one_thread")
     one_cpu = None if one is None else cpu_bound(one)
     network = network_bound(batch)
+    compiled = compiled_bound(batch)
     return (
         f"{first}\n\nWhere the default batch's time goes, ms per target (each target's own "
         f"stages, {bound.at_once} targets at a time; outside: the client's wall time less the "
@@ -547,6 +550,7 @@ def speed_batch(*arguments: str) -> str:
         f"({bound.at_once} targets at a time) and what lies outside the pipeline would still "
         f"take {bound.floor_ms:.1f} ms per target: at most **{bound.most_x:.1f}x** the singles."
         + ("" if cpu is None else f"\n\n{cpu_sentence(cpu, one_cpu)}")
+        + ("" if compiled is None else f"\n\n{compiled_sentence(compiled)}")
         + ("" if network is None else f"\n\n{network_sentence(network)}")
     )
 
