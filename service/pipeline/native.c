@@ -687,6 +687,273 @@ static void hull_separation_rows(const double *hulls, const long long *counts, P
     }
 }
 
+/* ---------------------------------------------------------------- obstacles (scene.py) */
+
+/* A request's obstacles as scene.py's Scene gives them: per obstacle its shape (OBSTACLE_*),
+ * dimensions (3, unused ones 0), rotation R (3, 3, obstacle frame -> base frame), position
+ * t (3), reach (the radius about t that holds it) and pad (the radius its core is grown
+ * by: a sphere's, a capsule's). */
+enum { OBSTACLE_BOX = 0, OBSTACLE_SPHERE = 1, OBSTACLE_CYLINDER = 2, OBSTACLE_CAPSULE = 3 };
+typedef struct {
+    const long long *shape;
+    const double *dims, *rotation, *position, *reach, *pad;
+    Py_ssize_t count;
+} Obstacles;
+
+static double sign_of(double x) { return x != x ? x : (double)((x > 0) - (x < 0)); }
+
+/* numpy's minimum and maximum: NaN wins. */
+static double nan_min(double x, double y) { return x != x || y != y ? NAN : (x < y ? x : y); }
+static double nan_max(double x, double y) { return x != x || y != y ? NAN : (x > y ? x : y); }
+
+/* Obstacle.signed_distance_m at a base-frame point: R^T (p - t) as numpy's row vector
+ * (p - t) @ R, then the shape's closed form (negative inside; NaN at a NaN point). */
+static double obstacle_distance(const Obstacles *o, Py_ssize_t k, const double *p) {
+    const double *R = o->rotation + 9 * k, *t = o->position + 3 * k, *d = o->dims + 3 * k;
+    double v[3] = {p[0] - t[0], p[1] - t[1], p[2] - t[2]}, l[3];
+    for (int j = 0; j < 3; ++j) l[j] = v[0] * R[j] + v[1] * R[3 + j] + v[2] * R[6 + j];
+    switch (o->shape[k]) {
+    case OBSTACLE_BOX: {
+        double e[3], outside = 0.0;
+        for (int i = 0; i < 3; ++i) {
+            e[i] = fabs(l[i]) - 0.5 * d[i];
+            double out = nan_max(e[i], 0.0);
+            outside += out * out;
+        }
+        double most = nan_max(nan_max(e[0], e[1]), e[2]);
+        return sqrt(outside) + nan_min(most, 0.0);
+    }
+    case OBSTACLE_SPHERE:
+        return sqrt(l[0] * l[0] + l[1] * l[1] + l[2] * l[2]) - d[0];
+    case OBSTACLE_CYLINDER: {
+        double radial = hypot(l[0], l[1]) - d[1], axial = fabs(l[2]) - 0.5 * d[0];
+        double outside = hypot(nan_max(radial, 0.0), nan_max(axial, 0.0));
+        return outside + nan_min(nan_max(radial, axial), 0.0);
+    }
+    default: { /* capsule */
+        double half = 0.5 * d[0], z = l[2] < -half ? -half : (l[2] > half ? half : l[2]);
+        return sqrt(l[0] * l[0] + l[1] * l[1] + (l[2] - z) * (l[2] - z)) - d[1];
+    }
+    }
+}
+
+/* Obstacle.support_m along a base-frame direction u: the point of its core farthest
+ * along u (a box's corner, a cylinder's rim point, a capsule's cap centre, a sphere's
+ * centre), base frame. */
+static void obstacle_support(const Obstacles *o, Py_ssize_t k, const double *u, double *out) {
+    const double *R = o->rotation + 9 * k, *t = o->position + 3 * k, *d = o->dims + 3 * k;
+    double l[3], point[3] = {0.0, 0.0, 0.0};
+    for (int j = 0; j < 3; ++j) l[j] = u[0] * R[j] + u[1] * R[3 + j] + u[2] * R[6 + j];
+    long long shape = o->shape[k];
+    if (shape == OBSTACLE_BOX)
+        for (int i = 0; i < 3; ++i) point[i] = sign_of(l[i]) * (0.5 * d[i]);
+    else if (shape == OBSTACLE_CYLINDER || shape == OBSTACLE_CAPSULE)
+        point[2] = sign_of(l[2]) * (0.5 * d[0]);
+    if (shape == OBSTACLE_CYLINDER) {
+        double radial = sqrt(l[0] * l[0] + l[1] * l[1]);
+        double scale = d[1] / (radial > 0 ? radial : 1.0);
+        point[0] = l[0] * scale, point[1] = l[1] * scale;
+    }
+    for (int i = 0; i < 3; ++i)
+        out[i] = point[0] * R[3 * i] + point[1] * R[3 * i + 1] + point[2] * R[3 * i + 2] + t[i];
+}
+
+/* GJK between a placed hull (A) and an obstacle's core (B), as hull_separation_row between
+ * two hulls: convex.py's separation_m on one row with the obstacle's support. */
+static double obstacle_separation_row(const double *vertices, long long count, const double *Ra,
+                                      const double *ta, const Obstacles *o, Py_ssize_t k,
+                                      const double *x0, double pad, double margin) {
+    double x[3] = {x0[0], x0[1], x0[2]}, simplex[4][3] = {{0}};
+    int used[4] = {1, 0, 0, 0};
+    memcpy(simplex[0], x, sizeof x);
+    double best = -INFINITY;
+    for (int iteration = 0; iteration < GJK_ITERATIONS; ++iteration) {
+        double squared = x[0] * x[0] + x[1] * x[1] + x[2] * x[2];
+        double minus_x[3] = {-x[0], -x[1], -x[2]}, sa[3], sb[3], z[3];
+        hull_support_row(vertices, count, Ra, ta, minus_x, sa);
+        obstacle_support(o, k, x, sb);
+        for (int c = 0; c < 3; ++c) z[c] = sa[c] - sb[c];
+        double along = x[0] * z[0] + x[1] * z[1] + x[2] * z[2];
+        double norm = sqrt(squared);
+        double bound = norm > 0 ? along / norm : -INFINITY;
+        if (bound - pad > best) best = bound - pad;
+        int stalled = squared - along <= GJK_STALLED * squared;
+        double points[4][3];
+        int kept[4] = {1, 0, 0, 0}, slot = 1;
+        memcpy(points[0], z, sizeof z);
+        for (int pass = 1; pass >= 0; --pass)
+            for (int i = 0; i < 4 && slot < 4; ++i)
+                if (used[i] == pass) {
+                    memcpy(points[slot], simplex[i], sizeof z);
+                    kept[slot++] = used[i];
+                }
+        nearest_in_hull_row((const double(*)[3])points, kept, x, used);
+        memcpy(simplex, points, sizeof points);
+        double upper = norm3(x) - pad;
+        int met = used[0] && used[1] && used[2] && used[3];
+        if (best >= margin || upper < margin + GJK_RESOLUTION_M || met || stalled) break;
+    }
+    return best;
+}
+
+/* The robot's bodies as the obstacle passes take them, placed at one configuration:
+ * rotation (K, 3, 3) and origin (K, 3); spheres (K, S, 3) and radius (K, S) in each body's
+ * frame, own (K,) of them its own; bounding spheres bound (K, 3), bound_radius (K,); the
+ * moving bodies' indices (M,); hulls (K, S, V, 3), hull_count (K, S), hull_pad (K, S). */
+typedef struct {
+    const double *centre, *radius, *bound, *bound_radius, *hulls, *hull_pad;
+    const long long *own, *moving, *hull_count;
+    Py_ssize_t K, S, M, V;
+} Bodies;
+
+static void place_point(const double *R, const double *t, const double *c, double *out) {
+    for (int r = 0; r < 3; ++r)
+        out[r] = R[3 * r] * c[0] + R[3 * r + 1] * c[1] + R[3 * r + 2] * c[2] + t[r];
+}
+
+/* scene.py's Scene.clearance_m at one configuration: the least of `within` and the signed
+ * distance of the moving bodies' spheres to any obstacle, with its bounds in its order:
+ * each body's bounding sphere against each obstacle's (`coarse`), the first sphere of the
+ * nearest such pair for an attained distance, then per obstacle the bodies whose bounds
+ * are under the least distance found before it, sphere by sphere. `scratch` holds M (O + 6)
+ * doubles: M O coarse bounds, M 3 bounding and M 3 first centres. */
+static double obstacle_clearance_row(const Bodies *b, const Obstacles *o, const double *R,
+                                     const double *t, double within, double *scratch) {
+    Py_ssize_t M = b->M, O = o->count, S = b->S;
+    double clearance = within;
+    if (!O || !M) return clearance;
+    double *coarse = scratch, *bounds = coarse + M * O, *firsts = bounds + M * 3;
+    Py_ssize_t nearest = -1;
+    double least = INFINITY;
+    for (Py_ssize_t m = 0; m < M; ++m) {
+        long long k = b->moving[m];
+        place_point(R + 9 * k, t + 3 * k, b->bound + 3 * k, bounds + 3 * m);
+        place_point(R + 9 * k, t + 3 * k, b->centre + k * S * 3, firsts + 3 * m);
+        for (Py_ssize_t j = 0; j < O; ++j) {
+            const double *c = bounds + 3 * m, *p = o->position + 3 * j;
+            double dx = c[0] - p[0], dy = c[1] - p[1], dz = c[2] - p[2];
+            double lower = sqrt(dx * dx + dy * dy + dz * dz) - (b->bound_radius[k] + o->reach[j]);
+            coarse[m * O + j] = lower;
+            if (nearest < 0 || lower < least || (lower != lower && least == least))
+                least = lower, nearest = m * O + j;
+        }
+    }
+    { /* numpy's argmin: the first least, or the first NaN */
+        Py_ssize_t m = nearest / O, j = nearest % O;
+        long long k = b->moving[m];
+        clearance = nan_min(clearance, obstacle_distance(o, j, firsts + 3 * m) - b->radius[k * S]);
+    }
+    double sphere[3];
+    for (Py_ssize_t j = 0; j < O; ++j) {
+        double before = clearance, least_gap = INFINITY;
+        int measured = 0;
+        for (Py_ssize_t m = 0; m < M; ++m) {
+            if (!(coarse[m * O + j] < before)) continue;
+            long long k = b->moving[m];
+            double lower = obstacle_distance(o, j, bounds + 3 * m) - b->bound_radius[k];
+            if (!(lower < before)) continue;
+            for (Py_ssize_t s = 0; s < S; ++s) {
+                place_point(R + 9 * k, t + 3 * k, b->centre + (k * S + s) * 3, sphere);
+                double gap = obstacle_distance(o, j, sphere) - b->radius[k * S + s];
+                least_gap = measured ? nan_min(least_gap, gap) : gap;
+                measured = 1;
+            }
+        }
+        if (measured) clearance = nan_min(clearance, least_gap);
+    }
+    return clearance;
+}
+
+/* scene.py's Scene.refined_clearance_m at one configuration: a lower bound of the moving
+ * bodies' least distance to the obstacles, obstacle by obstacle: a body clear by the
+ * margin on its bounding sphere counts with that bound; a configuration already not free
+ * is not measured again; every other body's own spheres with their distance, and those
+ * under the margin with their hull's GJK separation from the obstacle, the deepest
+ * first: where it leaves the configuration less clear than the margin, the others keep
+ * their distance (convex.py's separation_deepest_first_m). `scratch` holds M (S + 4)
+ * doubles: M S gaps, M lower bounds and M 3 bounding centres. */
+static double refined_obstacle_clearance_row(const Bodies *b, const Obstacles *o,
+                                             const double *R, const double *t, double margin,
+                                             double *scratch) {
+    Py_ssize_t M = b->M, O = o->count, S = b->S, V = b->V;
+    double clearance = INFINITY;
+    if (!O || !M) return clearance;
+    double *gaps = scratch, *lower = gaps + M * S, *bounds = lower + M;
+    for (Py_ssize_t m = 0; m < M; ++m) {
+        long long k = b->moving[m];
+        place_point(R + 9 * k, t + 3 * k, b->bound + 3 * k, bounds + 3 * m);
+    }
+    double sphere[3], x0[3];
+    for (Py_ssize_t j = 0; j < O; ++j) {
+        double clear_bound = INFINITY;
+        for (Py_ssize_t m = 0; m < M; ++m) {
+            lower[m] = obstacle_distance(o, j, bounds + 3 * m) - b->bound_radius[b->moving[m]];
+            if (lower[m] >= margin && lower[m] < clear_bound) clear_bound = lower[m];
+        }
+        clearance = nan_min(clearance, clear_bound);
+        if (!(clearance >= margin)) continue;
+        /* The near bodies' own spheres: their gaps, and the deepest under the margin. */
+        Py_ssize_t deepest = -1;
+        int any_near = 0;
+        for (Py_ssize_t m = 0; m < M; ++m) {
+            if (!(lower[m] < margin)) continue;
+            any_near = 1;
+            long long k = b->moving[m];
+            for (Py_ssize_t s = 0; s < S; ++s) {
+                double gap = INFINITY;
+                if (s < b->own[k]) {
+                    place_point(R + 9 * k, t + 3 * k, b->centre + (k * S + s) * 3, sphere);
+                    gap = obstacle_distance(o, j, sphere) - b->radius[k * S + s];
+                }
+                gaps[m * S + s] = gap;
+                if (gap < margin && (deepest < 0 || gap < gaps[deepest])) deepest = m * S + s;
+            }
+        }
+        if (!any_near) continue;
+        if (deepest >= 0) {
+            int failed = 0;
+            for (int pass = 0; pass < 2 && !failed; ++pass)
+                for (Py_ssize_t m = 0; m < M; ++m) {
+                    if (!(lower[m] < margin)) continue;
+                    long long k = b->moving[m];
+                    for (Py_ssize_t s = 0; s < S; ++s) {
+                        Py_ssize_t i = m * S + s;
+                        if (!(gaps[i] < margin) || (pass == 0) != (i == deepest)) continue;
+                        const double *vertices = b->hulls + (k * S + s) * V * 3;
+                        place_point(R + 9 * k, t + 3 * k, vertices, x0);
+                        for (int c = 0; c < 3; ++c) x0[c] -= o->position[3 * j + c];
+                        double pad = b->hull_pad[k * S + s] + o->pad[j];
+                        double bound = obstacle_separation_row(vertices, b->hull_count[k * S + s],
+                                                               R + 9 * k, t + 3 * k, o, j, x0,
+                                                               pad, margin);
+                        if (bound > gaps[i]) gaps[i] = bound;
+                        if (pass == 0) failed = gaps[i] < margin;
+                    }
+                }
+        }
+        for (Py_ssize_t m = 0; m < M; ++m) {
+            if (!(lower[m] < margin)) continue;
+            double least = gaps[m * S];
+            for (Py_ssize_t s = 1; s < S; ++s) least = nan_min(least, gaps[m * S + s]);
+            clearance = nan_min(clearance, least);
+        }
+    }
+    return clearance;
+}
+
+/* Either obstacle pass over rows: rotation (B, K, 3, 3), origin (B, K, 3); the sphere pass
+ * (refined 0) from within (B,), the refined pass (refined 1) at the margin. */
+static void obstacle_clearance_rows(const Bodies *b, const Obstacles *o, const double *rotation,
+                                    const double *origin, Py_ssize_t batch, int refined,
+                                    double margin, const double *within, double *clearance,
+                                    double *scratch) {
+    for (Py_ssize_t r = 0; r < batch; ++r) {
+        const double *R = rotation + r * b->K * 9, *t = origin + r * b->K * 3;
+        clearance[r] = refined ? refined_obstacle_clearance_row(b, o, R, t, margin, scratch)
+                               : obstacle_clearance_row(b, o, R, t, within[r], scratch);
+    }
+}
+
 /* ---------------------------------------------------------------- smallest singular value */
 
 /* J (m, n), m <= n -> its least singular value, by one-sided Jacobi (Hestenes) on J's rows:
@@ -1925,9 +2192,6 @@ static double closest_strands(const double *points, Py_ssize_t P, Py_ssize_t n,
    the limits, whose chord, the limits widened by a quarter of its length (how far a curve
    bends off its chord in a step), passes through the box: the slab test over the limited
    joints, NaN as numpy carries it (no step). */
-static double nan_min(double x, double y) { return x != x || y != y ? NAN : (x < y ? x : y); }
-static double nan_max(double x, double y) { return x != x || y != y ? NAN : (x > y ? x : y); }
-
 static void steps_near_limits_rows(const double *start, const double *delta, const double *low,
                                    const double *lower, const double *upper,
                                    const unsigned char *periodic, Py_ssize_t S, Py_ssize_t n,
@@ -2490,6 +2754,36 @@ static PyObject *py_hull_separation(PyObject *self, PyObject *args) {
     Py_END_ALLOW_THREADS
     Py_buffer *all[] = {&hulls, &counts, &hull_a, &rotation_a, &origin_a, &hull_b,
                         &rotation_b, &origin_b, &x0, &pad, &measure, &best};
+    for (size_t i = 0; i < sizeof all / sizeof *all; ++i) PyBuffer_Release(all[i]);
+    Py_RETURN_NONE;
+}
+
+static PyObject *py_obstacle_clearance(PyObject *self, PyObject *args) {
+    Py_buffer centre, radius, own, bound, bound_radius, moving, hulls, hull_count, hull_pad;
+    Py_buffer shape, dims, o_rotation, o_position, reach, pad, rotation, origin, within;
+    Py_buffer clearance, scratch;
+    Py_ssize_t K, S, M, V, O, batch;
+    int refined;
+    double margin;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*y*y*nnnny*y*y*y*y*y*ny*y*npdy*w*w*", &centre,
+                          &radius, &own, &bound, &bound_radius, &moving, &hulls, &hull_count,
+                          &hull_pad, &K, &S, &M, &V, &shape, &dims, &o_rotation, &o_position,
+                          &reach, &pad, &O, &rotation, &origin, &batch, &refined, &margin,
+                          &within, &clearance, &scratch))
+        return NULL;
+    Bodies b = {.centre = centre.buf, .radius = radius.buf, .bound = bound.buf,
+                .bound_radius = bound_radius.buf, .hulls = hulls.buf, .hull_pad = hull_pad.buf,
+                .own = own.buf, .moving = moving.buf, .hull_count = hull_count.buf, .K = K,
+                .S = S, .M = M, .V = V};
+    Obstacles o = {.shape = shape.buf, .dims = dims.buf, .rotation = o_rotation.buf,
+                   .position = o_position.buf, .reach = reach.buf, .pad = pad.buf, .count = O};
+    Py_BEGIN_ALLOW_THREADS
+    obstacle_clearance_rows(&b, &o, rotation.buf, origin.buf, batch, refined, margin, within.buf,
+                            clearance.buf, scratch.buf);
+    Py_END_ALLOW_THREADS
+    Py_buffer *all[] = {&centre, &radius, &own, &bound, &bound_radius, &moving, &hulls,
+                        &hull_count, &hull_pad, &shape, &dims, &o_rotation, &o_position, &reach,
+                        &pad, &rotation, &origin, &within, &clearance, &scratch};
     for (size_t i = 0; i < sizeof all / sizeof *all; ++i) PyBuffer_Release(all[i]);
     Py_RETURN_NONE;
 }
@@ -3127,6 +3421,9 @@ static PyMethodDef methods[] = {
      "helper_parts() -> the parts the row helper (row_helper.h) has done in this process"},
     {"walk_scratch", py_walk_scratch, METH_VARARGS,
      "doubles of scratch one projected or steered walk needs"},
+    {"obstacle_clearance", py_obstacle_clearance, METH_VARARGS,
+     "scene.py's obstacle clearance of placed bodies, row by row: the spheres' pass from "
+     "`within`, or the refined pass (hulls against the obstacles) at the margin"},
     {"hull_separation", py_hull_separation, METH_VARARGS,
      "GJK lower bounds of the distance between pairs of placed hulls"},
     {"self_clearance_at", py_self_clearance_at, METH_VARARGS,

@@ -258,6 +258,127 @@ def hull_separation_m(
     return best
 
 
+# The obstacle shapes in the order of native.c's OBSTACLE_* codes (scene.py's SHAPES).
+OBSTACLE_SHAPES = ("box", "sphere", "cylinder", "capsule")
+
+
+@dataclass(frozen=True)
+class ObstacleSet:
+    """A request's obstacles as the compiled obstacle passes take them (scene.py's Scene)."""
+
+    shape: IntArray  # (O,) each one's index in OBSTACLE_SHAPES
+    dims_m: FloatArray  # (O, 3) its dimensions (scene.py's DIMENSION_NAMES), unused ones 0
+    rotation: FloatArray  # (O, 3, 3) obstacle frame -> base frame
+    position_m: FloatArray  # (O, 3)
+    reach_m: FloatArray  # (O,) the radius about its position that holds it
+    pad_m: FloatArray  # (O,) the radius its core is grown by
+
+    def arguments(self) -> tuple[object, ...]:
+        count = len(self.shape)
+        shape = _int64(self.shape, "shape", (count,))
+        if count and (shape.min() < 0 or shape.max() >= len(OBSTACLE_SHAPES)):
+            raise ValueError(f"obstacle shapes must index {list(OBSTACLE_SHAPES)}")
+        return (
+            shape, _float64(self.dims_m, "dims_m", (count, 3)),
+            _float64(self.rotation, "rotation", (count, 3, 3)),
+            _float64(self.position_m, "position_m", (count, 3)),
+            _float64(self.reach_m, "reach_m", (count,)), _float64(self.pad_m, "pad_m", (count,)),
+            count,
+        )  # fmt: skip
+
+
+@dataclass(frozen=True)
+class MovingBodies:
+    """The robot's bodies as the compiled obstacle passes take them (robot.py's
+    RobotSpheres): K bodies of S spheres padded, each sphere's hull of V vertices padded,
+    and which of them move (obstacles are checked against those only)."""
+
+    centre_local_m: FloatArray  # (K, S, 3) in each body's frame
+    radius_m: FloatArray  # (K, S)
+    own_spheres: IntArray  # (K,) the first own_spheres[k] of body k are its own
+    bound_local_m: FloatArray  # (K, 3) each body's bounding sphere
+    bound_radius_m: FloatArray  # (K,)
+    moving: IntArray  # (M,) the bodies that move
+    hull_local_m: FloatArray  # (K, S, V, 3)
+    hull_count: IntArray  # (K, S) each hull's own vertices (at least 1)
+    hull_pad_m: FloatArray  # (K, S)
+
+    def arguments(self) -> tuple[object, ...]:
+        k, s = self.radius_m.shape
+        v = self.hull_local_m.shape[2]
+        moving = _int64(self.moving, "moving", (len(self.moving),))
+        if len(moving) and (moving.min() < 0 or moving.max() >= k):
+            raise ValueError(f"moving must index bodies 0 to {k - 1}")
+        counts = _int64(self.hull_count, "hull_count", (k, s))
+        if counts.size and (counts.min() < 1 or counts.max() > v):
+            raise ValueError(f"hull vertex counts must lie in 1 to {v}")
+        own = _int64(self.own_spheres, "own_spheres", (k,))
+        if own.size and (own.min() < 1 or own.max() > s):
+            raise ValueError(f"own sphere counts must lie in 1 to {s}")
+        return (
+            _float64(self.centre_local_m, "centre_local_m", (k, s, 3)),
+            _float64(self.radius_m, "radius_m", (k, s)), own,
+            _float64(self.bound_local_m, "bound_local_m", (k, 3)),
+            _float64(self.bound_radius_m, "bound_radius_m", (k,)), moving,
+            _float64(self.hull_local_m, "hull_local_m", (k, s, v, 3)), counts,
+            _float64(self.hull_pad_m, "hull_pad_m", (k, s)), k, s, len(moving), v,
+        )  # fmt: skip
+
+
+def _obstacle_pass(
+    bodies: MovingBodies,
+    obstacles: ObstacleSet,
+    rotation: FloatArray,
+    origin_m: FloatArray,
+    refined: bool,
+    margin_m: float,
+    within_m: FloatArray,
+) -> FloatArray:
+    body_arguments, obstacle_arguments = bodies.arguments(), obstacles.arguments()
+    (k, s), m, count = bodies.radius_m.shape, len(bodies.moving), len(obstacles.shape)
+    batch = len(rotation)
+    rotation = _float64(rotation, "rotation", (batch, k, 3, 3))
+    origin = _float64(origin_m, "origin_m", (batch, k, 3))
+    within = _float64(within_m, "within_m", (batch,))
+    clearance = np.empty(batch)
+    scratch = np.empty(m * max(count + 6, s + 4) + 1)
+    if batch:
+        _native.obstacle_clearance(
+            *body_arguments, *obstacle_arguments, rotation, origin, batch, refined,
+            float(margin_m), within, clearance, scratch,
+        )  # fmt: skip
+    return clearance
+
+
+def obstacle_clearance_m(
+    bodies: MovingBodies,
+    obstacles: ObstacleSet,
+    rotation: FloatArray,  # (B, K, 3, 3) each body's frame at B configurations
+    origin_m: FloatArray,  # (B, K, 3)
+    within_m: FloatArray,  # (B,) the least clearance found so far (+inf: none)
+) -> FloatArray:  # (B,)
+    """scene.py's `Scene.clearance_m`, row by row in compiled code: the least of `within_m`
+    and the signed distance (negative: penetrating) of the moving bodies' spheres to any
+    obstacle; NaN where a frame is not finite."""
+    return _obstacle_pass(bodies, obstacles, rotation, origin_m, False, 0.0, within_m)
+
+
+def refined_obstacle_clearance_m(
+    bodies: MovingBodies,
+    obstacles: ObstacleSet,
+    rotation: FloatArray,  # (R, K, 3, 3) each body's frame at R configurations
+    origin_m: FloatArray,  # (R, K, 3)
+    margin_m: float,
+) -> FloatArray:  # (R,)
+    """scene.py's `Scene.refined_clearance_m`, row by row in compiled code: a lower bound
+    of the moving bodies' least distance to the obstacles, the hulls' GJK separation
+    (the steps of convex.py's separation_m) where the spheres are under the margin."""
+    rows = len(rotation)
+    return _obstacle_pass(
+        bodies, obstacles, rotation, origin_m, True, margin_m, np.full(rows, np.inf)
+    )
+
+
 @dataclass(frozen=True)
 class _Bodies:
     """The robot's spheres as the self-clearance kernels take them, checked."""

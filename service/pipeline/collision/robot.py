@@ -198,6 +198,18 @@ class RobotSpheres:
         return self.frame > 0
 
     @cached_property
+    def moving_bodies(self) -> native.MovingBodies:
+        """These bodies as the compiled obstacle passes take them."""
+        return native.MovingBodies(
+            centre_local_m=self.centre_local_m, radius_m=self.radius_m,
+            own_spheres=self.own_spheres, bound_local_m=self.bound_local_m,
+            bound_radius_m=self.bound_radius_m,
+            moving=np.flatnonzero(self.moving).astype(np.int64),
+            hull_local_m=self.hull_local_m, hull_count=self.hull_count,
+            hull_pad_m=self.hull_pad_m,
+        )  # fmt: skip
+
+    @cached_property
     def joint_transforms(self) -> tuple[FloatArray, FloatArray]:
         """The chain's joint transforms as arrays, made once, not at every placement."""
         return joint_transforms(self.chain)

@@ -18,14 +18,14 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from functools import partial
+from functools import cached_property
 from typing import Literal, get_args
 
 import numpy as np
 
 from service.errors import RequestFieldError
+from service.pipeline import native
 from service.pipeline.arrays import FloatArray, IntArray
-from service.pipeline.collision.convex import separation_deepest_first_m, separation_m
 from service.pipeline.collision.robot import PlacedBodies, RobotSpheres
 from service.pipeline.rotations import quaternion_to_matrix
 from service.pipeline.targets import QUATERNION_NORM_TOLERANCE
@@ -143,6 +143,23 @@ class Scene:
 
     obstacles: tuple[Obstacle, ...] = ()
 
+    @cached_property
+    def compiled(self) -> native.ObstacleSet:
+        """The obstacles as the compiled obstacle passes take them."""
+        count = len(self.obstacles)
+        dims = np.zeros((count, 3))
+        for k, obstacle in enumerate(self.obstacles):
+            dims[k, : len(obstacle.dimensions_m)] = obstacle.dimensions_m
+        return native.ObstacleSet(
+            shape=np.array([native.OBSTACLE_SHAPES.index(o.shape) for o in self.obstacles],
+                           dtype=np.int64),
+            dims_m=dims,
+            rotation=np.array([o.rotation for o in self.obstacles]).reshape(count, 3, 3),
+            position_m=np.array([o.position_m for o in self.obstacles]).reshape(count, 3),
+            reach_m=np.array([o.reach_m for o in self.obstacles]),
+            pad_m=np.array([o.pad_m for o in self.obstacles]),
+        )  # fmt: skip
+
     def clearance_m(
         self,
         placed: PlacedBodies,  # the bodies at B configurations
@@ -157,41 +174,14 @@ class Scene:
         obstacle's bounding sphere (every pair at once), then against the obstacle itself;
         one sphere of the pair nearest by that bound gives each configuration an attained
         distance. Only (configuration, body, obstacle) triples whose lower bound is under
-        the configuration's least distance so far are measured sphere by sphere.
+        the configuration's least distance so far are measured sphere by sphere. Compiled,
+        row by row (`native.obstacle_clearance_m`).
         """
-        clearance = within.copy()
-        moving = np.flatnonzero(robot.moving)  # (M,)
-        if not self.obstacles or not len(moving):
-            return clearance
-        bounds = placed.bound_centres_m[:, moving]  # (B, M, 3)
-        body_radius = robot.bound_radius_m[moving]  # (M,)
-        centres = np.stack([o.position_m for o in self.obstacles])  # (K, 3)
-        reach = np.array([o.reach_m for o in self.obstacles])  # (K,)
-        apart = bounds[:, :, None, :] - centres  # (B, M, K, 3)
-        coarse = np.sqrt(np.einsum("bmki,bmki->bmk", apart, apart))
-        coarse -= body_radius[:, None] + reach  # (B, M, K) lower bounds
-        # An attained distance per configuration: the first sphere of its nearest pair.
-        nearest = coarse.reshape(len(coarse), -1).argmin(axis=1)  # (B,)
-        body_of, obstacle_of = np.divmod(nearest, len(self.obstacles))
-        for k in np.unique(obstacle_of):
-            rows = np.flatnonzero(obstacle_of == k)
-            body = moving[body_of[rows]]
-            first = placed.first_centres_m[rows, body]  # (R, 3)
-            upper = self.obstacles[k].signed_distance_m(first) - robot.radius_m[body, 0]
-            np.minimum.at(clearance, rows, upper)
-        for k, obstacle in enumerate(self.obstacles):
-            rows, bodies = np.nonzero(coarse[:, :, k] < clearance[:, None])  # (N,), (N,)
-            if not len(rows):
-                continue
-            lower = obstacle.signed_distance_m(bounds[rows, bodies]) - body_radius[bodies]
-            near = lower < clearance[rows]
-            rows, body = rows[near], moving[bodies[near]]
-            if not len(rows):
-                continue
-            gap = obstacle.signed_distance_m(placed.spheres(rows, body))  # (N, S)
-            gap -= robot.radius_m[body]
-            np.minimum.at(clearance, rows, gap.min(axis=1))
-        return clearance
+        if not self.obstacles or not robot.moving.any():
+            return within.copy()
+        return native.obstacle_clearance_m(
+            robot.moving_bodies, self.compiled, placed.rotation, placed.origin_m, within
+        )
 
     def refined_clearance_m(
         self, placed: PlacedBodies, robot: RobotSpheres, rows: IntArray, margin_m: float
@@ -200,39 +190,15 @@ class Scene:
         configurations `rows`, at least `clearance_m`'s: a (body, obstacle) pair clear by
         the margin on the bounds counts with that bound, a sphere clear by it with its
         distance, and every other sphere with its hull's separation from the obstacle
-        (robot.py, convex.py)."""
-        clearance = np.full(len(rows), np.inf)
-        moving = np.flatnonzero(robot.moving)  # (M,)
-        if not self.obstacles or not len(moving):
-            return clearance
-        bounds = placed.bound_centres_m[rows][:, moving]  # (R, M, 3)
-        body_radius = robot.bound_radius_m[moving]  # (M,)
-        for obstacle in self.obstacles:
-            lower = obstacle.signed_distance_m(bounds) - body_radius  # (R, M)
-            np.minimum.at(clearance, np.arange(len(rows)), np.where(
-                lower >= margin_m, lower, np.inf).min(axis=1))  # fmt: skip
-            # A configuration already not free is not measured again.
-            near, bodies = np.nonzero((lower < margin_m) & (clearance >= margin_m)[:, None])
-            if not len(near):
-                continue
-            row, body = rows[near], moving[bodies]
-            centres = placed.spheres(row, body)  # (N, S, 3)
-            gap = obstacle.signed_distance_m(centres) - robot.radius_m[body]  # (N, S)
-            own = np.arange(gap.shape[1])[None] < robot.own_spheres[body][:, None]
-            gap = np.where(own, gap, np.inf)
-            n, s = np.nonzero(gap < margin_m)  # the spheres whose hulls decide
-            if len(n):
-                hull = placed.hulls(row[n], body[n], s)
-                x0 = placed.hull_points(row[n], body[n], s) - obstacle.position_m
-                pad = robot.hull_pad_m[body[n], s] + obstacle.pad_m
-                gap[n, s] = separation_deepest_first_m(
-                    partial(separation_m, hull, obstacle.support_m, x0, pad, margin_m),
-                    margin_m,
-                    near[n],
-                    gap[n, s],
-                )
-            np.minimum.at(clearance, near, gap.min(axis=1))
-        return clearance
+        (robot.py, convex.py), each configuration's deepest first
+        (`convex.separation_deepest_first_m`). Compiled, row by row
+        (`native.refined_obstacle_clearance_m`)."""
+        if not self.obstacles or not robot.moving.any():
+            return np.full(len(rows), np.inf)
+        return native.refined_obstacle_clearance_m(
+            robot.moving_bodies, self.compiled, placed.rotation[rows], placed.origin_m[rows],
+            margin_m,
+        )  # fmt: skip
 
 
 def _box(p: FloatArray, dimensions: tuple[float, ...]) -> FloatArray:  # (..., 3) -> (...)
