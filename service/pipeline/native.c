@@ -1299,8 +1299,9 @@ static int walk_steps(Walk *w, Py_ssize_t max_steps, double expires_at_s, double
 
 /* local_planner.py's walk_on_fibre, one edge at a time: the same steps, projections, tests
  * and order as its lockstep numpy loop, with the fibre's coaxial crossings
- * (space.py's crossings_on_fibre) and self-collision (collision/check.py's `free` without
- * obstacles: the spheres, then the hulls where the spheres are within the margin). */
+ * (space.py's crossings_on_fibre) and collisions (collision/check.py's `free`: itself and
+ * a scene's obstacles, each by the spheres, then the hulls where the spheres are within
+ * the margin). */
 typedef struct {
     const double *fixed, *tip, *target_position, *target_rotation;
     const long long *rows;
@@ -1317,6 +1318,9 @@ typedef struct {
         *hull_pad;
     const long long *frame, *own, *pair_a, *pair_b, *hull_count;
     Py_ssize_t K, S, P, V;
+    /* A scene's obstacles, checked against the moving bodies (none: obstacles.count 0). */
+    Bodies scene_bodies;
+    Obstacles obstacles;
 } Planner;
 
 /* Scratch of one projected or steered walk, in doubles. */
@@ -1325,7 +1329,8 @@ static Py_ssize_t planner_scratch(const Planner *p) {
     /* steer_one's layout, the larger: J, e, q_new, e_new, J_new, d, g, gram, y, Jf, start,
      * the Newton scratch, e2, J2, then self_free_row's frames. */
     return m * n + m + n + m + m * n + n + n + m * m + m + m * n + n + (m + 1) * n + 2 * n + m +
-           m * n + (n + 1) * 16 + p->K * 18 + p->K * p->S * 3;
+           m * n + (n + 1) * 16 + p->K * 18 + p->K * p->S * 3 +
+           p->scene_bodies.M * (p->obstacles.count + p->S + 10);
 }
 
 static double distance_of(const double *a, const double *b, Py_ssize_t n) {
@@ -1440,6 +1445,29 @@ static int self_free_row(const Planner *p, const double *q, double *scratch) {
     return 1;
 }
 
+/* collision/check.py's `free` at q: free of itself where self-collision is checked
+ * (self_free_row), and of the scene's obstacles: the spheres' clearance to them
+ * (obstacle_clearance_row), and where it is under the margin, the refined pass's
+ * (refined_obstacle_clearance_row). Either verdict alone decides as check.py's combined
+ * clearance does: a configuration is free when both are at least the margin. */
+static int free_row(const Planner *p, const double *q, double *scratch) {
+    if (p->check_self && !self_free_row(p, q, scratch)) return 0;
+    if (!p->obstacles.count || !p->scene_bodies.M) return 1;
+    Py_ssize_t K = p->K, n = p->n;
+    double *T = scratch, *rotation = T + (n + 1) * 16, *origin = rotation + K * 9;
+    double *work = origin + K * 3;
+    if (!p->check_self) { /* self_free_row placed them otherwise */
+        frame_rows(p->joint_origin, p->joint_axis, n, q, 1, T);
+        body_frames(T, p->frame, K, rotation, origin);
+    }
+    double clearance =
+        obstacle_clearance_row(&p->scene_bodies, &p->obstacles, rotation, origin, INFINITY, work);
+    if (isnan(clearance)) return 0;
+    if (clearance >= p->margin) return 1;
+    return refined_obstacle_clearance_row(&p->scene_bodies, &p->obstacles, rotation, origin,
+                                          p->margin, work) >= p->margin;
+}
+
 /* robot.py's refined_self_clearance_m at one configuration q, its number exactly: body
  * pairs whose bounding spheres are clear by the margin count with that bound, sphere pairs
  * clear by it with their distance, and every other sphere pair with its hulls' GJK
@@ -1536,7 +1564,7 @@ static int walk_edge(const Planner *p, const double *q_from, const double *goal,
         for (Py_ssize_t k = 0; k < n && ok; ++k)
             ok = p->periodic[k] || (q_new[k] >= p->lower[k] && q_new[k] <= p->upper[k]);
         if (ok && p->sets) ok = crossings_on_fibre_row(p, q, q_new, guess, e2, J2, scratch);
-        if (ok && p->check_self) ok = self_free_row(p, q_new, frames);
+        if (ok && (p->check_self || p->obstacles.count)) ok = free_row(p, q_new, frames);
         if (!ok) return 0;
         memcpy(q, q_new, sizeof(double) * (size_t)n);
         travelled += moved;
@@ -2855,7 +2883,7 @@ static int steer_one(const Planner *p, Py_ssize_t stall_steps, double min_progre
         for (Py_ssize_t k = 0; k < n && ok; ++k)
             ok = p->periodic[k] || (q_new[k] >= p->lower[k] && q_new[k] <= p->upper[k]);
         if (ok && p->sets) ok = crossings_on_fibre_row(p, q, q_new, start, e2, J2, scratch);
-        if (ok && p->check_self) ok = self_free_row(p, q_new, frames);
+        if (ok && (p->check_self || p->obstacles.count)) ok = free_row(p, q_new, frames);
         if (!ok) return 0;
         memcpy(q, q_new, sizeof(double) * (size_t)n);
         memcpy(J, J_new, sizeof(double) * (size_t)(m * n));
@@ -2871,7 +2899,7 @@ static int steer_one(const Planner *p, Py_ssize_t stall_steps, double min_progre
 }
 
 /* The buffers every walk takes (native.py's CompiledSpace.arguments), in that order. */
-enum { SPACE_BUFFERS = 23 };
+enum { SPACE_BUFFERS = 30 };
 
 /* numbers: damping, step, stretch, tolerance, margin, expires_at_s (and for the steer,
  * min_progress); sizes: n, m, m_position, orientation, sets, check_self, K, S, P, V,
@@ -2892,6 +2920,15 @@ static Planner planner_of(const double *number, const long long *size, Py_buffer
         .max_steps = size[13], .damping = number[0], .delta = number[1], .stretch = number[2],
         .tolerance = number[3], .margin = number[4], .expires_at_s = number[5],
     };
+    p.scene_bodies = (Bodies){.centre = p.centre, .radius = p.radius, .bound = p.bound,
+                              .bound_radius = p.bound_radius, .hulls = p.hulls,
+                              .hull_pad = p.hull_pad, .own = p.own, .moving = space[23].buf,
+                              .hull_count = p.hull_count, .K = p.K, .S = p.S,
+                              .M = space[23].len / (Py_ssize_t)sizeof(long long), .V = p.V};
+    p.obstacles = (Obstacles){.shape = space[24].buf, .dims = space[25].buf,
+                              .rotation = space[26].buf, .position = space[27].buf,
+                              .reach = space[28].buf, .pad = space[29].buf,
+                              .count = space[24].len / (Py_ssize_t)sizeof(long long)};
     return p;
 }
 
@@ -3007,9 +3044,10 @@ static PyObject *py_refined_self_clearance(PyObject *self, PyObject *args) {
 }
 
 static PyObject *py_walk_scratch(PyObject *self, PyObject *args) {
-    Py_ssize_t n, m, K, S;
-    if (!PyArg_ParseTuple(args, "nnnn", &n, &m, &K, &S)) return NULL;
+    Py_ssize_t n, m, K, S, M = 0, O = 0;
+    if (!PyArg_ParseTuple(args, "nnnn|nn", &n, &m, &K, &S, &M, &O)) return NULL;
     Planner p = {.n = n, .m = m, .K = K, .S = S};
+    p.scene_bodies.M = M, p.obstacles.count = O;
     return PyLong_FromSsize_t(planner_scratch(&p));
 }
 

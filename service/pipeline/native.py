@@ -273,6 +273,14 @@ class ObstacleSet:
     reach_m: FloatArray  # (O,) the radius about its position that holds it
     pad_m: FloatArray  # (O,) the radius its core is grown by
 
+    @classmethod
+    def empty(cls) -> ObstacleSet:
+        return cls(
+            shape=np.zeros(0, dtype=np.int64), dims_m=np.zeros((0, 3)),
+            rotation=np.zeros((0, 3, 3)), position_m=np.zeros((0, 3)), reach_m=np.zeros(0),
+            pad_m=np.zeros(0),
+        )  # fmt: skip
+
     def arguments(self) -> tuple[object, ...]:
         count = len(self.shape)
         shape = _int64(self.shape, "shape", (count,))
@@ -722,8 +730,8 @@ class SelfBodies:
 @dataclass(frozen=True)
 class CompiledSpace:
     """A FibreSpace as the compiled walks take it (space.py's `compiled`): a serial chain's
-    fibre, its limits and coaxial sets, and self-collision or no collision check (a
-    scene's obstacles are the numpy loops')."""
+    fibre, its limits and coaxial sets, and its collision check: self-collision, a scene's
+    obstacles, both or neither."""
 
     fixed: FloatArray  # (n, 4, 4) as `chain_kinematics`
     tip: FloatArray  # (4, 4)
@@ -736,7 +744,10 @@ class CompiledSpace:
     periodic: BoolArray  # (n,)
     set_joint: IntArray  # (C,) the coaxial sets' joints
     set_angle_rad: FloatArray  # (C,) and angles
-    bodies: SelfBodies | None  # self-collision checked on them; None: no collision check
+    bodies: SelfBodies | None  # the robot's bodies; None: no collision check
+    check_self: bool = True  # self-collision checked on `bodies` (False: the obstacles only)
+    obstacles: ObstacleSet | None = None  # checked against the bodies `moving`
+    moving: IntArray | None = None  # (M,) the bodies that move
 
     def arguments(self) -> tuple[tuple[object, ...], list[int]]:
         """The C arguments every walk takes, checked, and (n, m, m_position, orientation,
@@ -773,8 +784,25 @@ class CompiledSpace:
             body_sizes = [0, 0, 1, 0, 1]
         else:
             body_arguments, body_sizes = _body_arguments(self.bodies, n)
+            body_sizes[0] = int(self.check_self)
         sizes = [n, m, m_position, self.target_rotation is not None, sets, *body_sizes]
-        return (*chain, *body_arguments), sizes
+        return (*chain, *body_arguments, *self._scene_arguments()), sizes
+
+    def _scene_arguments(self) -> tuple[object, ...]:
+        """The moving bodies (M,) and the obstacles' six arrays (scene.py): empty for none."""
+        if self.obstacles is None or self.bodies is None or self.moving is None:
+            return (np.zeros(0, dtype=np.int64), *ObstacleSet.empty().arguments()[:-1])
+        count = len(self.bodies.centre_local_m)
+        moving = _int64(self.moving, "moving", (len(self.moving),))
+        if len(moving) and (moving.min() < 0 or moving.max() >= count):
+            raise ValueError(f"moving must index bodies 0 to {count - 1}")
+        return (moving, *self.obstacles.arguments()[:-1])
+
+    def scene_sizes(self) -> tuple[int, int]:
+        """(M, O): the moving bodies and the obstacles the walks check."""
+        if self.obstacles is None or self.moving is None:
+            return 0, 0
+        return len(self.moving), len(self.obstacles.shape)
 
     def margin_m(self) -> float:
         return 0.0 if self.bodies is None else float(self.bodies.margin_m)
@@ -842,7 +870,8 @@ def projected_walk(
     # The first edges on the row helper (rows.helper_rows), with scratch of their own.
     first = helper_rows(edges, threads, MIN_CHUNK_WALKS)
     call_sizes = np.array([*sizes, *counts_of, edges, record, first], dtype=np.int64)
-    work = np.empty(_native.walk_scratch(n, m, sizes[6], sizes[7]) * (2 if first else 1))
+    scratch = _native.walk_scratch(n, m, sizes[6], sizes[7], *space.scene_sizes())
+    work = np.empty(scratch * (2 if first else 1))
     written = points if record else np.empty((1, n))
     expired = bool(edges) and bool(
         _native.projected_walk(
@@ -908,7 +937,8 @@ def steer_walk(
 
     first = helper_rows(walks, threads, MIN_CHUNK_WALKS)
     call_sizes = np.array([*sizes, *counts_of, walks, 0, first], dtype=np.int64)
-    work = np.empty(_native.walk_scratch(n, m, sizes[6], sizes[7]) * (2 if first else 1))
+    scratch = _native.walk_scratch(n, m, sizes[6], sizes[7], *space.scene_sizes())
+    work = np.empty(scratch * (2 if first else 1))
     expired = bool(walks) and bool(
         _native.steer_walk(numbers, call_sizes, *arguments, goal, q, arrived, work)
     )
@@ -963,7 +993,8 @@ def refined_self_clearance_at_m(
     clearance = np.empty(batch)
     if batch:
         _native.refined_self_clearance(
-            numbers, sizes, *chain, *body_arguments, _float64(q_rad, "q_rad", (batch, n)),
+            numbers, sizes, *chain, *body_arguments, np.zeros(0, dtype=np.int64),
+            *ObstacleSet.empty().arguments()[:-1], _float64(q_rad, "q_rad", (batch, n)),
             clearance, np.empty(4 * max(pairs * spheres * spheres, 1)),
             np.empty(_native.walk_scratch(n, 1, count, spheres)),
         )  # fmt: skip

@@ -56,16 +56,18 @@ class FibreSpace:
 
     def compiled(self) -> native.CompiledSpace | None:
         """This space as the compiled walks take it (a serial chain's fibre, checked for
-        self-collision or nothing), or None where they cannot: other kinematics, or a
-        scene's obstacles (the walks' numpy loops check those)."""
+        self-collision, a scene's obstacles, both or nothing), or None where they cannot:
+        other kinematics (the walks' numpy loops take those)."""
         fibre, collision, limits = self.fibre, self.collision, self.limits
         chain = fibre.chain
-        if chain is None or not fibre.damping > 0 or collision.scene.obstacles:
+        if chain is None or not fibre.damping > 0:
             return None
-        bodies = None
+        bodies, obstacles, moving = None, None, None
         robot = collision.robot
         if collision.active and robot is not None:
             bodies = robot.self_bodies(collision.margin_m)
+            if collision.scene.obstacles:
+                obstacles, moving = collision.scene.compiled, robot.moving_bodies.moving
         target = fibre.target
         return native.CompiledSpace(
             chain.fixed, chain.tip, fibre.task.position_axes, target.position_m,
@@ -73,6 +75,7 @@ class FibreSpace:
             limits.lower_rad, limits.upper_rad, limits.periodic,
             np.array([c.joint for c in self.coaxial_sets], dtype=np.int64),
             np.array([c.angle_rad for c in self.coaxial_sets]), bodies,
+            collision.self_checked, obstacles, moving,
         )  # fmt: skip
 
     def accept(self, correction: Correction) -> Acceptance:

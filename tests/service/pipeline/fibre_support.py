@@ -10,6 +10,7 @@ import numpy as np
 from service.models.chain import SerialChainKinematics
 from service.models.registry import ServedModel
 from service.pipeline.collision.check import CollisionCheck
+from service.pipeline.collision.scene import Obstacle, Scene
 from service.pipeline.fibre import Fibre
 from service.pipeline.joint_space import JointLimits, joint_distance
 from service.pipeline.run import collision_of, correct_samples, encode, sample, space_of
@@ -65,17 +66,34 @@ def ordered_planar_loop(target_m: np.ndarray, every_rad: float) -> np.ndarray:
 @dataclass(frozen=True)
 class ServedSpace:
     """A position target's space as the service builds it (self-collision and coaxial sets
-    included), the same space behind a plain callable (whose steps are numpy's: the
-    reference the compiled walks are pinned to), and valid nodes on it."""
+    included, a scene's obstacles where asked), the same space behind a plain callable
+    (whose steps are numpy's: the reference the compiled walks are pinned to), and valid
+    nodes on it."""
 
     compiled: FibreSpace
     numpy: FibreSpace
     nodes_rad: np.ndarray  # (K, n) accepted samples
 
 
-def served_position_spaces(model: ServedModel, targets: int, seed: int) -> list[ServedSpace]:
+def obstacle_scene() -> Scene:
+    """Obstacles of every shape about an arm's base, within its reach: a scene the walks
+    of a position target run into."""
+    half_turn_x = (np.cos(np.pi / 4), np.sin(np.pi / 4), 0.0, 0.0)
+    return Scene((
+        Obstacle.of(0, "box", [0.3, 0.2, 0.4], [0.5, 0.1, 0.4], None),
+        Obstacle.of(1, "sphere", [0.15], [-0.3, 0.4, 0.6], None),
+        Obstacle.of(2, "cylinder", [0.5, 0.08], [0.0, -0.5, 0.5], half_turn_x),
+        Obstacle.of(3, "capsule", [0.4, 0.06], [-0.4, -0.3, 0.3], half_turn_x),
+        Obstacle.of(4, "box", [1.2, 1.2, 0.05], [0.0, 0.0, -0.2], None),  # a table below
+    ))  # fmt: skip
+
+
+def served_position_spaces(
+    model: ServedModel, targets: int, seed: int, scene: Scene | None = None
+) -> list[ServedSpace]:
     """`targets` uniform position targets of `model` (FK of configurations in the limits),
-    each with the accepted samples of a 300-sample answer."""
+    each with the accepted samples of a 300-sample answer; with `scene`, its obstacles
+    clear of the target checked too and the samples free of them."""
     spaces = []
     for i, q_target in enumerate(uniform_configurations(model.limits, targets, seed=seed)):
         fk = model.kinematics(q_target[None])
@@ -88,8 +106,14 @@ def served_position_spaces(model: ServedModel, targets: int, seed: int) -> list[
         correction = correct_samples(model, space, sample(model, query, target))
         chain = space.fibre.kinematics
         assert isinstance(chain, SerialChainKinematics)
+        if scene is not None:  # the obstacles clear of the target by a hand's width
+            clear = tuple(
+                o for o in scene.obstacles if o.signed_distance_m(fk.position_m[0]) > 0.15
+            )
+            space = replace(space, collision=replace(space.collision, scene=Scene(clear)))
         numpy = replace(space, fibre=replace(space.fibre, kinematics=NumpyStepsKinematics(chain)))
         assert numpy.compiled() is None
         nodes = correction.q_rad[space.accept(correction).on_fibre]
+        nodes = nodes[space.valid(nodes)]
         spaces.append(ServedSpace(space, numpy, nodes))
     return spaces

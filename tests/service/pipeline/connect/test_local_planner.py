@@ -13,7 +13,12 @@ from service.models.registry import ServedModel, load_model
 from service.pipeline.connect.local_planner import PlannerSettings, edges_on_fibre, walk_on_fibre
 from service.pipeline.deadline import Deadline
 from service.pipeline.joint_space import JointLimits
-from tests.service.pipeline.fibre_support import fibre_space, planar_fibre, served_position_spaces
+from tests.service.pipeline.fibre_support import (
+    fibre_space,
+    obstacle_scene,
+    planar_fibre,
+    served_position_spaces,
+)
 from training.evaluate.references.planar3r import closed_form_smm
 
 SETTINGS = PlannerSettings(delta_rad=0.05, lambda_=2.0, projection_tolerance=1e-4)
@@ -79,18 +84,21 @@ SERVED = PlannerSettings(delta_rad=0.1, lambda_=2.0, projection_tolerance=1e-4)
 LONG_STEPS = PlannerSettings(delta_rad=0.5, lambda_=3.0, projection_tolerance=1e-4)
 
 
+@pytest.mark.parametrize("obstacles", [False, True])
 @pytest.mark.parametrize("model", ["iiwa14-position", "panda-position"])
-def test_the_compiled_walks_take_the_numpy_loops_steps(model: str) -> None:
-    """Edges between configurations on r = 4 fibres, self-collision checked and the coaxial
-    sets crossed as the service checks them: the compiled walks (`native.projected_walk`,
-    taken for a serial chain without obstacles) reach the same ends and step through the
-    same points (1e-12) as the numpy loop (the same fibre behind a plain callable, whose
-    steps are numpy's), and the same to the bit with the edges split over two threads; an
-    expired deadline stops them with the connect stage named."""
+def test_the_compiled_walks_take_the_numpy_loops_steps(model: str, obstacles: bool) -> None:
+    """Edges between configurations on r = 4 fibres, self-collision checked (and a scene's
+    obstacles of every shape) and the coaxial sets crossed as the service checks them: the
+    compiled walks (`native.projected_walk`, taken for a serial chain) reach the same ends
+    and step through the same points (1e-12) as the numpy loop (the same fibre behind a
+    plain callable, whose steps are numpy's), and the same to the bit with the edges split
+    over two threads; an expired deadline stops them with the connect stage named."""
     served = load_model(REPO_MODELS_DIR / model, threads=1)
     rng = np.random.default_rng(31)
     reached_any = failed_any = False
-    for served_space in served_position_spaces(served, 3, seed=32):
+    for served_space in served_position_spaces(
+        served, 3, seed=32, scene=obstacle_scene() if obstacles else None
+    ):
         space, through, nodes = served_space.compiled, served_space.numpy, served_space.nodes_rad
         a, b = rng.integers(len(nodes), size=(2, 200))
         # The service's steps, and steps of 0.5 rad, which some coaxial crossings refuse.

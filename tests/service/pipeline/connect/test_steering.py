@@ -24,6 +24,7 @@ from service.pipeline.space import FibreSpace
 from tests.service.pipeline.fibre_support import (
     fibre_space,
     null_space_walk,
+    obstacle_scene,
     pose_fibre,
     served_position_spaces,
 )
@@ -139,13 +140,15 @@ def test_a_walk_slides_along_a_joint_limit_to_its_goal(iiwa14_position: ServedMo
     np.testing.assert_allclose(recorded, points[1:], rtol=0, atol=1e-12)
 
 
+@pytest.mark.parametrize("obstacles", [False, True])
 @pytest.mark.parametrize("model", ["iiwa14-position", "panda-position"])
-def test_the_compiled_walks_take_the_numpy_loops_steps(model: str) -> None:
-    """Walks between configurations of r = 4 fibres, self-collision checked and the coaxial
-    sets crossed as the service checks them: the compiled walks (`native.steer_walk`, taken
-    for a serial chain without obstacles) end where the numpy loop's do (the same fibre
-    behind a plain callable), to 1e-10, and arrive alike (split over two threads: the same
-    to the bit); an expired deadline stops them with the connect stage named.
+def test_the_compiled_walks_take_the_numpy_loops_steps(model: str, obstacles: bool) -> None:
+    """Walks between configurations of r = 4 fibres, self-collision checked (and a scene's
+    obstacles of every shape) and the coaxial sets crossed as the service checks them: the
+    compiled walks (`native.steer_walk`, taken for a serial chain) end where the numpy
+    loop's do (the same fibre behind a plain callable), to 1e-10, and arrive alike (split
+    over two threads: the same to the bit); an expired deadline stops them with the
+    connect stage named.
 
     1e-10, not the single kernels' 1e-12: a walk is up to 100 steps, each projected until
     |e| is under 1e-4 rather than to convergence, so the last bits where C and numpy's
@@ -155,7 +158,9 @@ def test_the_compiled_walks_take_the_numpy_loops_steps(model: str) -> None:
     served = load_model(REPO_MODELS_DIR / model, threads=1)
     rng = np.random.default_rng(41)
     arrived_any = stopped_any = False
-    for served_space in served_position_spaces(served, 3, seed=42):
+    for served_space in served_position_spaces(
+        served, 3, seed=42, scene=obstacle_scene() if obstacles else None
+    ):
         space, through, nodes = served_space.compiled, served_space.numpy, served_space.nodes_rad
         a, b = rng.integers(len(nodes), size=(2, 60))
         compiled = steer(space, nodes[a], nodes[b], SETTINGS)
