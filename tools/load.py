@@ -24,12 +24,11 @@ import asyncio
 import ipaddress
 import json
 import os
-import platform
 import random
 import sys
 import time
 from collections import Counter
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 from urllib.parse import urlparse
 
@@ -42,7 +41,7 @@ from service.pipeline.joint_space import JointLimits
 from service.pipeline.targets import fields_reached
 from tools.local_server import LocalServer
 from training.checkout import git_commit
-from training.machine import Machine, cpu_model
+from training.machine import Machine
 
 TARGETS_PER_MODEL = 64
 
@@ -151,7 +150,9 @@ def summarise(outcomes: list[Outcome], clients: int, duration_s: float) -> Repor
 
 
 def machine_description() -> str:
-    return f"{cpu_model()}, {os.cpu_count()} cores, Python {platform.python_version()}"
+    """The CPU with its generation and widest integer dot product, the cores and Python, as
+    every report names its machine (`training.machine.Machine.describe`), without a load."""
+    return replace(Machine.now(), load_1min_start=None).describe()
 
 
 async def run_load(
