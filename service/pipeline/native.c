@@ -629,12 +629,16 @@ static void nearest_in_hull_row(const double points[4][3], const int used[4], do
 #undef OFFER
 }
 
-/* GJK between two placed hulls (convex.py's separation_m on one row): the best lower bound
- * of the distance between A + ball(pad_A) and B + ball(pad_B), pad = pad_A + pad_B. */
-static double hull_separation_row(const double *vertices_a, long long count_a, const double *Ra,
-                                  const double *ta, const double *vertices_b, long long count_b,
-                                  const double *Rb, const double *tb, const double *x0, double pad,
-                                  double margin) {
+/* A convex set by its support: `at` puts the point of `set` farthest along u (base frame)
+ * into out. */
+typedef struct {
+    void (*at)(const void *set, const double *u, double *out);
+    const void *set;
+} SupportOf;
+
+/* convex.py's separation_m on one row: GJK from x0, a point of A - B, to the best lower
+ * bound of the distance between A + ball(pad_A) and B + ball(pad_B), pad = pad_A + pad_B. */
+static double gjk_row(SupportOf a, SupportOf b, const double *x0, double pad, double margin) {
     double x[3] = {x0[0], x0[1], x0[2]}, simplex[4][3] = {{0}};
     int used[4] = {1, 0, 0, 0};
     memcpy(simplex[0], x, sizeof x);
@@ -642,8 +646,8 @@ static double hull_separation_row(const double *vertices_a, long long count_a, c
     for (int iteration = 0; iteration < GJK_ITERATIONS; ++iteration) {
         double squared = x[0] * x[0] + x[1] * x[1] + x[2] * x[2];
         double minus_x[3] = {-x[0], -x[1], -x[2]}, sa[3], sb[3], z[3];
-        hull_support_row(vertices_a, count_a, Ra, ta, minus_x, sa);
-        hull_support_row(vertices_b, count_b, Rb, tb, x, sb);
+        a.at(a.set, minus_x, sa);
+        b.at(b.set, x, sb);
         for (int c = 0; c < 3; ++c) z[c] = sa[c] - sb[c];
         double along = x[0] * z[0] + x[1] * z[1] + x[2] * z[2];
         double norm = sqrt(squared);
@@ -667,6 +671,27 @@ static double hull_separation_row(const double *vertices_a, long long count_a, c
         if (best >= margin || upper < margin + GJK_RESOLUTION_M || met || stalled) break;
     }
     return best;
+}
+
+/* A hull placed by R and t: its vertices (count, 3) in its own frame. */
+typedef struct {
+    const double *vertices, *R, *t;
+    long long count;
+} PlacedHull;
+
+static void placed_hull_at(const void *set, const double *u, double *out) {
+    const PlacedHull *h = set;
+    hull_support_row(h->vertices, h->count, h->R, h->t, u, out);
+}
+
+/* GJK between two placed hulls. */
+static double hull_separation_row(const double *vertices_a, long long count_a, const double *Ra,
+                                  const double *ta, const double *vertices_b, long long count_b,
+                                  const double *Rb, const double *tb, const double *x0, double pad,
+                                  double margin) {
+    PlacedHull a = {vertices_a, Ra, ta, count_a}, b = {vertices_b, Rb, tb, count_b};
+    return gjk_row((SupportOf){placed_hull_at, &a}, (SupportOf){placed_hull_at, &b}, x0, pad,
+                   margin);
 }
 
 /* hulls (H, V, 3) every hull padded, counts (H,); per row r of `measure`: hull index
@@ -758,42 +783,25 @@ static void obstacle_support(const Obstacles *o, Py_ssize_t k, const double *u, 
         out[i] = point[0] * R[3 * i] + point[1] * R[3 * i + 1] + point[2] * R[3 * i + 2] + t[i];
 }
 
-/* GJK between a placed hull (A) and an obstacle's core (B), as hull_separation_row between
- * two hulls: convex.py's separation_m on one row with the obstacle's support. */
+/* Obstacle k's core, as gjk_row takes a set. */
+typedef struct {
+    const Obstacles *o;
+    Py_ssize_t k;
+} ObstacleCore;
+
+static void obstacle_core_at(const void *set, const double *u, double *out) {
+    const ObstacleCore *core = set;
+    obstacle_support(core->o, core->k, u, out);
+}
+
+/* GJK between a placed hull (A) and obstacle k's core (B). */
 static double obstacle_separation_row(const double *vertices, long long count, const double *Ra,
                                       const double *ta, const Obstacles *o, Py_ssize_t k,
                                       const double *x0, double pad, double margin) {
-    double x[3] = {x0[0], x0[1], x0[2]}, simplex[4][3] = {{0}};
-    int used[4] = {1, 0, 0, 0};
-    memcpy(simplex[0], x, sizeof x);
-    double best = -INFINITY;
-    for (int iteration = 0; iteration < GJK_ITERATIONS; ++iteration) {
-        double squared = x[0] * x[0] + x[1] * x[1] + x[2] * x[2];
-        double minus_x[3] = {-x[0], -x[1], -x[2]}, sa[3], sb[3], z[3];
-        hull_support_row(vertices, count, Ra, ta, minus_x, sa);
-        obstacle_support(o, k, x, sb);
-        for (int c = 0; c < 3; ++c) z[c] = sa[c] - sb[c];
-        double along = x[0] * z[0] + x[1] * z[1] + x[2] * z[2];
-        double norm = sqrt(squared);
-        double bound = norm > 0 ? along / norm : -INFINITY;
-        if (bound - pad > best) best = bound - pad;
-        int stalled = squared - along <= GJK_STALLED * squared;
-        double points[4][3];
-        int kept[4] = {1, 0, 0, 0}, slot = 1;
-        memcpy(points[0], z, sizeof z);
-        for (int pass = 1; pass >= 0; --pass)
-            for (int i = 0; i < 4 && slot < 4; ++i)
-                if (used[i] == pass) {
-                    memcpy(points[slot], simplex[i], sizeof z);
-                    kept[slot++] = used[i];
-                }
-        nearest_in_hull_row((const double(*)[3])points, kept, x, used);
-        memcpy(simplex, points, sizeof points);
-        double upper = norm3(x) - pad;
-        int met = used[0] && used[1] && used[2] && used[3];
-        if (best >= margin || upper < margin + GJK_RESOLUTION_M || met || stalled) break;
-    }
-    return best;
+    PlacedHull a = {vertices, Ra, ta, count};
+    ObstacleCore b = {o, k};
+    return gjk_row((SupportOf){placed_hull_at, &a}, (SupportOf){obstacle_core_at, &b}, x0, pad,
+                   margin);
 }
 
 /* The robot's bodies as the obstacle passes take them, placed at one configuration:

@@ -57,10 +57,11 @@ class FibreSpace:
     def compiled(self) -> native.CompiledSpace | None:
         """This space as the compiled walks take it (a serial chain's fibre, checked for
         self-collision, a scene's obstacles, both or nothing), or None where they cannot:
-        other kinematics (the walks' numpy loops take those)."""
+        other kinematics, or a check that must see every verdict itself
+        (`CollisionCheck.compiled_walks`); the walks' numpy loops take those."""
         fibre, collision, limits = self.fibre, self.collision, self.limits
         chain = fibre.chain
-        if chain is None or not fibre.damping > 0:
+        if chain is None or not fibre.damping > 0 or not collision.compiled_walks:
             return None
         bodies, obstacles, moving = None, None, None
         robot = collision.robot

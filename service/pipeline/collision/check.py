@@ -10,6 +10,7 @@ configuration is free when its clearance is at least the margin.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
@@ -31,6 +32,11 @@ class CollisionCheck:
     check_self: bool
     margin_m: float
     threads: int = 1  # the compiled self-clearance's rows split over this many (rows.py)
+    # Whether the compiled walks may decide this check's verdicts inside their own loops
+    # (native.c, space.py's `compiled`); a check that must see every verdict itself (the
+    # evaluation's recorder, which has coal check each configuration called free) says
+    # False, and the walks then ask it step by step.
+    compiled_walks: ClassVar[bool] = True
 
     @classmethod
     def none(cls) -> CollisionCheck:

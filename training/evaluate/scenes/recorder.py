@@ -14,6 +14,7 @@ changed.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 
@@ -33,9 +34,12 @@ from service.pipeline.types import Query, SmmResult
 
 @dataclass(frozen=True)
 class RecordingCheck(CollisionCheck):
-    """A CollisionCheck that records the configurations it calls free."""
+    """A CollisionCheck that records the configurations it calls free: the walks ask it
+    step by step (their numpy loops, pinned to the compiled ones by the tests), where the
+    compiled walks would decide in C unseen."""
 
     called_free: list[FloatArray] = field(default_factory=list, compare=False)
+    compiled_walks: ClassVar[bool] = False
 
     @classmethod
     def like(cls, check: CollisionCheck) -> RecordingCheck:

@@ -4,7 +4,8 @@ what it called free.
 Its verdicts are the service's CollisionCheck's on the same configurations, and it
 records exactly the rows it called free; the answer built with it is `run`'s answer to
 the same query (same components, configurations and paths), every accepted member of it
-was recorded, and a query that checks nothing records nothing.
+was recorded, and a query that checks nothing records nothing. Its space keeps the walks'
+numpy loops, which ask it every step, where the served space's walks are compiled.
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from service.models.registry import ServedModel
-from service.pipeline.run import collision_of, run
+from service.pipeline.run import collision_of, encode, run, space_of
 from service.pipeline.types import Query
 from training.evaluate.scenes.boxes import scene_target
 from training.evaluate.scenes.coal_model import CoalModel
@@ -59,3 +60,15 @@ def test_the_recorded_answer_is_runs(panda_pose_model: ServedModel, panda_coal: 
     unchecked = _query(panda_pose_model, panda_coal, False, with_boxes=False)
     _, nothing = recorded_answer(panda_pose_model, unchecked)
     assert len(nothing.recorded(7)) == 0
+
+
+def test_the_recording_space_walks_in_numpy_so_every_step_is_seen(
+    panda_pose_model: ServedModel, panda_coal: CoalModel
+) -> None:
+    query = _query(panda_pose_model, panda_coal, True)
+    target = encode(panda_pose_model, query)
+    check = collision_of(panda_pose_model, query)
+    assert check.scene.obstacles  # the served walks check the obstacles in C
+    assert space_of(panda_pose_model, target, query.tolerance, check).compiled() is not None
+    recording = RecordingCheck.like(check)
+    assert space_of(panda_pose_model, target, query.tolerance, recording).compiled() is None
