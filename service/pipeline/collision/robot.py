@@ -31,8 +31,6 @@ from service.pipeline import native
 from service.pipeline.arrays import BoolArray, FloatArray, IntArray
 from service.pipeline.collision.convex import (
     Separation,
-    Support,
-    hull_support,
     separation_deepest_first_m,
 )
 from service.pipeline.collision.frames import frames_of, joint_transforms
@@ -41,9 +39,10 @@ from service.pipeline.collision.frames import frames_of, joint_transforms
 @dataclass(frozen=True)
 class PlacedBodies:
     """The bodies at B configurations, base frame: each body's frame; its bounding
-    sphere's and first sphere's centres when first asked for (the obstacle and refined
-    passes: the compiled self-clearance places its own); the other spheres on demand
-    (`spheres`), only for the (configuration, body) pairs a distance needs."""
+    sphere's and first sphere's centres when first asked for (the refined self pass; the
+    compiled self-clearance and obstacle passes place their own from the frames); the
+    other spheres on demand (`spheres`), only for the (configuration, body) pairs a
+    distance needs."""
 
     rotation: FloatArray  # (B, K, 3, 3) each body's frame
     origin_m: FloatArray  # (B, K, 3)
@@ -64,17 +63,6 @@ class PlacedBodies:
     @property
     def first_centres_m(self) -> FloatArray:  # (B, K, 3) each body's first sphere
         return self._centres_m[..., 1]
-
-    def hulls(self, rows: IntArray, bodies: IntArray, spheres: IntArray) -> Support:
-        """The support of hull spheres[i] of body bodies[i] at configuration rows[i]."""
-        return hull_support(
-            self.hull_local_m,
-            self.hull_count,
-            bodies,
-            spheres,
-            self.rotation[rows, bodies],
-            self.origin_m[rows, bodies],
-        )
 
     def hull_separation(
         self,

@@ -18,7 +18,11 @@ from scipy.spatial.transform import Rotation
 
 from service.pipeline import native
 from service.pipeline.arrays import FloatArray, IntArray
-from service.pipeline.collision.convex import separation_deepest_first_m, separation_m
+from service.pipeline.collision.convex import (
+    hull_support,
+    separation_deepest_first_m,
+    separation_m,
+)
 from service.pipeline.collision.robot import PlacedBodies, RobotSpheres
 from service.pipeline.collision.scene import Obstacle, Scene
 from tests.service.pipeline.test_native import COLLISION_MODELS, robot_spheres
@@ -84,7 +88,10 @@ def numpy_refined_clearance_m(
         gap = np.where(own, gap, np.inf)
         n, s = np.nonzero(gap < margin_m)
         if len(n):
-            hull = placed.hulls(row[n], body[n], s)
+            hull = hull_support(
+                placed.hull_local_m, placed.hull_count, body[n], s,
+                placed.rotation[row[n], body[n]], placed.origin_m[row[n], body[n]],
+            )  # fmt: skip
             x0 = placed.hull_points(row[n], body[n], s) - obstacle.position_m
             pad = robot.hull_pad_m[body[n], s] + obstacle.pad_m
             gap[n, s] = separation_deepest_first_m(
