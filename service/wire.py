@@ -12,6 +12,7 @@ pipeline's types (`Target`, `SampleCounts`, ...).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
@@ -34,6 +35,15 @@ MAX_OBSTACLES = 64
 # is free anyway.
 MAX_MARGIN_M = 0.5
 ShapeName = Literal["box", "sphere", "cylinder", "capsule"]
+# A configuration in an answer: joint values in radians, in the robot's joint order. A tuple,
+# not a list: CPython's cyclic garbage collector stops tracking a tuple of floats once it
+# has seen it, so a client holding many answers does not rescan their thousands of path
+# points at every collection (`python -m tools.client_parse` measures the parse both ways).
+ConfigurationOut = tuple[float, ...]
+
+# A configuration in a request: joint values in radians, as a list or a tuple (one taken
+# from an answer); strict like the rest of a request, so a string is not one.
+ConfigurationIn = Sequence[Finite]
 
 
 class _Request(BaseModel):
@@ -146,7 +156,7 @@ class SmmRequest(_Request):
     )
     seed: Seed = Field(0, description="The same seed gives the same answer.")
     tolerance: ToleranceIn = Field(default_factory=ToleranceIn)
-    reference_configuration: list[Finite] | None = Field(
+    reference_configuration: ConfigurationIn | None = Field(
         None,
         description="Joint angles in radians (model joint order); components are then ordered "
         "by their distance to it and report their nearest member.",
@@ -192,7 +202,7 @@ class CountsOut(BaseModel):
 class RoadmapOut(BaseModel):
     """How to move within a component of redundancy above 1."""
 
-    nodes: list[list[float]] = Field(
+    nodes: list[ConfigurationOut] = Field(
         description="Configurations: the component's members first, in the order of "
         "`configurations` when that is not capped, then the nodes the connect stage added "
         "to join them. Every node is within tolerance, inside the limits and free of "
@@ -209,14 +219,14 @@ class RoadmapOut(BaseModel):
 class ComponentOut(BaseModel):
     id: int
     size: int = Field(description="Accepted configurations in this component.")
-    representative: list[float]
-    configurations: list[list[float]]
-    joint_min: list[float]
-    joint_max: list[float]
+    representative: ConfigurationOut
+    configurations: list[ConfigurationOut]
+    joint_min: ConfigurationOut
+    joint_max: ConfigurationOut
     max_position_error: float = Field(description="metres")
     max_orientation_error: float = Field(description="radians; 0 for a position task")
     distance_to_reference: float | None = Field(description="joint metric, radians")
-    nearest_to_reference: list[float] | None
+    nearest_to_reference: ConfigurationOut | None
     arc_length_rad: float | None = Field(
         description="Redundancy 1: the component's length along the fibre (joint metric); "
         "null otherwise."
@@ -230,7 +240,7 @@ class ComponentOut(BaseModel):
         "point end it, at a joint limit or where the curve enters collision. Null for a "
         "closed loop and for redundancy above 1."
     )
-    path: list[list[float]] | None = Field(
+    path: list[ConfigurationOut] | None = Field(
         description="Redundancy 1: the whole component, configurations in order along the "
         "curve, consecutive ones at most 0.05 rad apart, every one within tolerance, inside "
         "the limits and free of collision. Null for redundancy above 1 or when "
@@ -247,7 +257,7 @@ class ComponentOut(BaseModel):
         "true distance: measured on spheres that cover the robot's collision geometry). "
         "Null when nothing was checked."
     )
-    safest_configuration: list[float] | None = Field(
+    safest_configuration: ConfigurationOut | None = Field(
         description="The component's configuration (member or path point) of greatest "
         "clearance. Null when nothing was checked."
     )
@@ -301,7 +311,7 @@ class SmmResponse(BaseModel):
 class GoalIn(_Request):
     """Where a self-motion goes: exactly one of the fields."""
 
-    configuration: list[Finite] | None = Field(
+    configuration: ConfigurationIn | None = Field(
         None,
         description="Joint angles in radians (model joint order): a configuration of the "
         "start's component, brought onto the fibre as the start is.",
@@ -314,7 +324,7 @@ class GoalIn(_Request):
         "itself (collisions checked). Among the component's roadmap nodes (r > 1) or "
         "path points (r = 1).",
     )
-    nearest_to: list[Finite] | None = Field(
+    nearest_to: ConfigurationIn | None = Field(
         None,
         description="Joint angles in radians: the configuration of the start's component "
         "nearest them (joint metric), among its roadmap nodes or path points.",
@@ -327,7 +337,7 @@ class SelfMotionRequest(_Request):
     robot: str = Field(examples=["iiwa14"])
     task: str = Field(examples=["position"])
     target: TargetIn
-    start: list[Finite] = Field(
+    start: ConfigurationIn = Field(
         description="Joint angles in radians (model joint order) where the motion starts: "
         "within 0.1 rad (joint metric) of a configuration that reaches the target, inside "
         "the limits and free of collision; brought onto it by Newton (422 otherwise)."
@@ -359,7 +369,7 @@ class SelfMotionResponse(BaseModel):
     )
     start_component: int = Field(description="Index into `components` of the start's.")
     goal_component: int = Field(description="Index into `components` of the goal's.")
-    path: list[list[float]] | None = Field(
+    path: list[ConfigurationOut] | None = Field(
         description="ok: configurations from the start (brought onto the fibre) to the goal, "
         "consecutive ones at most 0.05 rad apart (joint metric), every one within "
         "tolerance, inside the limits and free of collision (where checked)."
@@ -392,7 +402,7 @@ class BatchTargetIn(_Request):
     tolerance: ToleranceIn | None = Field(
         None, description="Default: the batch's (replaced whole, not field by field)."
     )
-    reference_configuration: list[Finite] | None = Field(
+    reference_configuration: ConfigurationIn | None = Field(
         None,
         description="Default: the batch's; the previous waypoint's configuration, say, to "
         "order this target's components by their distance to it.",
@@ -436,7 +446,7 @@ class SmmBatchRequest(_Request):
     )
     seed: Seed = Field(0, description="The same seed gives the same answer.")
     tolerance: ToleranceIn = Field(default_factory=ToleranceIn)
-    reference_configuration: list[Finite] | None = Field(
+    reference_configuration: ConfigurationIn | None = Field(
         None, description="As in POST /smm, for every target that gives none."
     )
     max_configurations_per_component: MaxConfigurations | None = Field(
