@@ -29,6 +29,11 @@ CHAIN_FILE = "chain.json"
 COLLISION_FILE = "collision.json"
 
 
+def bundled_model_ids() -> list[str]:
+    """The model ids under REPO_MODELS_DIR (each a directory with a manifest), sorted."""
+    return sorted(p.name for p in REPO_MODELS_DIR.iterdir() if (p / MANIFEST_FILE).exists())
+
+
 class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 

@@ -34,7 +34,7 @@ from service.api.answers import encode
 from service.api.smm import query_for_model, smm_fields
 from service.client import RetryPolicy, SmmClient
 from service.config import Settings
-from service.manifest import REPO_MODELS_DIR
+from service.manifest import REPO_MODELS_DIR, bundled_model_ids
 from service.models.registry import ServedModel, load_model
 from service.pipeline.run import run
 from service.pipeline.targets import fields_reached
@@ -264,7 +264,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawTextHelpFormatter
     )
-    bundled = sorted(p.name for p in REPO_MODELS_DIR.iterdir() if (p / "manifest.json").exists())
+    bundled = bundled_model_ids()
     parser.add_argument("--model", required=True, choices=bundled)
     parser.add_argument("--targets", type=int, default=64)
     parser.add_argument(

@@ -65,7 +65,7 @@ import numpy as np
 
 from service.client import RetryPolicy, SmmClient
 from service.config import Settings
-from service.manifest import REPO_MODELS_DIR, Manifest
+from service.manifest import REPO_MODELS_DIR, Manifest, bundled_model_ids
 from service.models.registry import (
     ONNX_FLOW,
     ServedModel,
@@ -817,7 +817,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawTextHelpFormatter
     )
-    bundled = sorted(p.name for p in REPO_MODELS_DIR.iterdir() if (p / "manifest.json").exists())
+    bundled = bundled_model_ids()
     parser.add_argument("--models", nargs="+", default=bundled, choices=bundled)
     parser.add_argument("--sizes", nargs="+", type=int, default=list(SIZES))
     parser.add_argument("--targets", type=int, default=20)

@@ -35,7 +35,7 @@ from pydantic import BaseModel, create_model
 
 from service.api.answers import encode
 from service.api.smm import query_for_model, smm_fields
-from service.manifest import REPO_MODELS_DIR
+from service.manifest import REPO_MODELS_DIR, bundled_model_ids
 from service.models.registry import ServedModel, load_model
 from service.pipeline.run import run
 from service.wire import ComponentOut, SmmRequest, SmmResponse
@@ -122,7 +122,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawTextHelpFormatter
     )
-    bundled = sorted(p.name for p in REPO_MODELS_DIR.iterdir() if (p / "manifest.json").exists())
+    bundled = bundled_model_ids()
     parser.add_argument("--model", required=True, choices=bundled)
     parser.add_argument("--targets", type=int, default=64)
     parser.add_argument("--repeats", type=int, default=3)
