@@ -7,7 +7,9 @@ starts a server on 127.0.0.1 (tools.local_server) unless `--url` names a running
 (loopback only; `--pid` then names its process, for its memory), and runs `--clients`
 concurrent clients for `--duration-s` seconds. Each client loops over a fixed mix, one
 cycle after another: POST /smm to every bundled model in turn (a reachable target of it,
-as tools.load sends), one POST /smm/batch of `--batch-targets` targets of one model (the
+as tools.load sends), one POST /smm in a scene (obstacles and self-collision checked: a
+request the scenes report evaluated, docs/reports/scenes, the models with collision
+geometry in turn), one POST /smm/batch of `--batch-targets` targets of one model (the
 model changes from cycle to cycle; half the batches ask for NDJSON lines, as the Python
 client does, half for one JSON object, and a stream of lines without its end line
 counts as a failed request), and two bad requests (malformed JSON, an unknown
@@ -16,13 +18,14 @@ oversized body, bad batches...; each must be answered with a 4xx). A 503 is hono
 sleeping its Retry-After (unless `--no-backoff`).
 
 Every `--interval-s` seconds it reads the server's resident set size (VmRSS, /proc) and
-prints one line for the window that ended: requests, statuses by kind (single, batch,
-bad), p50/p99 latency of the answered (200) single requests and of the answered batches,
-separately, and the probe: the time a fixed piece of Python work takes in this process
-right then (`speed_probe_ms`), a reading of the machine's speed under the run's own load.
-The server is CPU-bound on every core, so its CPU time per request moves with the
-machine's speed as much as with its own work; the probe, the same work under the same
-load all along, moves with the machine's speed.
+prints one line for the window that ended: requests, statuses by kind (single, scene,
+batch, bad), p50/p99 latency of the answered (200) single requests, of the answered
+requests in a scene and of the answered batches, separately, and the probe: the time a
+fixed piece of Python work takes in this process right then (`speed_probe_ms`), a
+reading of the machine's speed under the run's own load. The server is CPU-bound on
+every core, so its CPU time per request moves with the machine's speed as much as with
+its own work; the probe, the same work under the same load all along, moves with the
+machine's speed.
 At the end it compares the window ending at `--settle-s` (5 minutes by default) with what
 follows, against the goals of a flat server:
 
@@ -74,8 +77,8 @@ from tools.procfs import resident_memory_bytes
 from training.checkout import git_commit
 from training.machine import Machine
 
-Kind = Literal["single", "batch", "bad"]
-KINDS: tuple[Kind, ...] = ("single", "batch", "bad")
+Kind = Literal["single", "scene", "batch", "bad"]
+KINDS: tuple[Kind, ...] = ("single", "scene", "batch", "bad")
 
 RSS_GOAL = 0.05  # no RSS after the settle window over 5 % above the RSS at settle
 P99_GOAL = 0.10  # the last window's single-request p99 at most 10 % above the settle window's
@@ -85,6 +88,8 @@ PROBE_LOOP = 50_000
 PROBE_REPEATS = 3
 BAD_PER_CYCLE = 2
 BATCHES_PER_MODEL = 8
+SCENES_DIR = Path(__file__).resolve().parents[1] / "docs" / "reports" / "scenes"
+SCENES_PER_MODEL = 8  # the first targets of each model's scenes report
 # Environment variables that change how the server's process holds memory: recorded.
 MEMORY_ENVIRONMENT = (
     "MALLOC_ARENA_MAX",
@@ -149,6 +154,8 @@ class Window:
     batch_p50_ms: float | None
     batch_p99_ms: float | None
     probe_ms: float | None = None  # speed_probe_ms at the window's end; None: not taken
+    scene_p50_ms: float | None = None
+    scene_p99_ms: float | None = None
     # The answered single requests' latencies, for the p99 over several windows (not
     # written to the record).
     single_latencies_ms: list[float] = field(default_factory=list, repr=False)
@@ -225,6 +232,21 @@ def batch_calls(bodies: dict[str, list[dict[str, Any]]], targets: int) -> dict[s
     return calls
 
 
+def scene_calls(scenes_dir: Path = SCENES_DIR) -> list[Call]:
+    """POST /smm bodies in a scene: the first SCENES_PER_MODEL requests each model's
+    scenes report evaluated (its boxes, self-collision checked, its margin), with at most
+    5 configurations per component as the single requests ask; the models in turn."""
+    per_model: list[list[Call]] = []
+    for report_path in sorted(scenes_dir.glob("*.json")):
+        report = json.loads(report_path.read_text())
+        calls = []
+        for row in report["per_target"][:SCENES_PER_MODEL]:
+            body = {**row["request"], "max_configurations_per_component": 5}
+            calls.append(Call("scene", report["model"], "/smm", _json(body)))
+        per_model.append(calls)
+    return [call for turn in zip(*per_model, strict=True) for call in turn]
+
+
 def bad_calls(bodies: dict[str, list[dict[str, Any]]]) -> list[Call]:
     """Requests every server must refuse with a 4xx, each with its documented status
     (docs/bad-inputs.md, with the default limits): built on a valid body of the first
@@ -283,18 +305,23 @@ def bad_calls(bodies: dict[str, list[dict[str, Any]]]) -> list[Call]:
 @dataclass(frozen=True)
 class Mix:
     singles: dict[str, list[Call]]
+    scenes: list[Call]
     batches: dict[str, list[Call]]
     bad: list[Call]
 
     @classmethod
     def of(cls, bodies: dict[str, list[dict[str, Any]]], batch_targets: int) -> Mix:
-        return cls(single_calls(bodies), batch_calls(bodies, batch_targets), bad_calls(bodies))
+        return cls(
+            single_calls(bodies), scene_calls(), batch_calls(bodies, batch_targets),
+            bad_calls(bodies),
+        )  # fmt: skip
 
     def cycle(self, number: int, rng: random.Random) -> list[Call]:
-        """Cycle `number`: one single request per model, one batch (of the models in turn),
-        BAD_PER_CYCLE bad requests (in turn)."""
+        """Cycle `number`: one single request per model, one in a scene (in turn), one
+        batch (of the models in turn), BAD_PER_CYCLE bad requests (in turn)."""
         models = sorted(self.singles)
         calls = [rng.choice(self.singles[model]) for model in models]
+        calls.append(self.scenes[number % len(self.scenes)])
         calls.append(rng.choice(self.batches[models[number % len(models)]]))
         calls += [
             self.bad[(number * BAD_PER_CYCLE + i) % len(self.bad)] for i in range(BAD_PER_CYCLE)
@@ -333,8 +360,10 @@ def window_of(
     for o in outcomes:
         statuses[o.kind][str(o.status)] += 1
     single = [o.latency_s for o in outcomes if o.kind == "single" and o.status == 200]
+    scene = [o.latency_s for o in outcomes if o.kind == "scene" and o.status == 200]
     batch = [o.latency_s for o in outcomes if o.kind == "batch" and o.status == 200]
     single_p50, _, single_p99 = percentiles_ms(single)
+    scene_p50, _, scene_p99 = percentiles_ms(scene)
     batch_p50, _, batch_p99 = percentiles_ms(batch)
     return Window(
         index=index,
@@ -350,6 +379,8 @@ def window_of(
         batch_p50_ms=_ms(batch_p50),
         batch_p99_ms=_ms(batch_p99),
         probe_ms=probe_ms,
+        scene_p50_ms=_ms(scene_p50),
+        scene_p99_ms=_ms(scene_p99),
         single_latencies_ms=[latency * 1e3 for latency in single],
     )
 
@@ -448,10 +479,11 @@ def format_window(window: Window) -> str:
 
     return (
         f"{window.end_s:6.0f} s  RSS {_figure(window.rss_mib, 'MiB', 1)}  "
-        f"{window.requests} requests (single {statuses('single')}; batch {statuses('batch')}; "
-        f"bad {statuses('bad')}; errors {window.errors})  "
+        f"{window.requests} requests (single {statuses('single')}; scene {statuses('scene')}; "
+        f"batch {statuses('batch')}; bad {statuses('bad')}; errors {window.errors})  "
         f"single p50 {_figure(window.single_p50_ms, 'ms')} "
         f"p99 {_figure(window.single_p99_ms, 'ms')}  "
+        f"scene p50 {_figure(window.scene_p50_ms, 'ms')} p99 {_figure(window.scene_p99_ms, 'ms')}  "
         f"batch p50 {_figure(window.batch_p50_ms, 'ms')} p99 {_figure(window.batch_p99_ms, 'ms')}"
         f"  probe {_figure(window.probe_ms, 'ms', 2)}"
     )
@@ -618,6 +650,7 @@ def main(argv: list[str] | None = None) -> int:
             "p99_span_s": args.p99_span_s,
             "batch_targets": args.batch_targets,
             "bad_per_cycle": BAD_PER_CYCLE,
+            "scene_per_cycle": 1,
             "backoff": not args.no_backoff,
             "seed": args.seed,
             "server": settings,
@@ -629,7 +662,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"machine: {machine_description()}", flush=True)
     print(
         f"{args.clients} clients for {args.duration_s:.0f} s; a cycle: {len(mix.singles)} single, "
-        f"1 batch of {args.batch_targets}, {BAD_PER_CYCLE} of {len(mix.bad)} bad requests",
+        f"1 of {len(mix.scenes)} in a scene, 1 batch of {args.batch_targets}, "
+        f"{BAD_PER_CYCLE} of {len(mix.bad)} bad requests",
         flush=True,
     )
 

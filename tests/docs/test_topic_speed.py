@@ -466,14 +466,23 @@ def test_the_soak_goals_are_the_records_verdicts_and_its_trend() -> None:
 
 
 def test_the_soak_timeline_shows_every_tenth_minute_and_the_last() -> None:
-    rows = [line for line in run_block("soak-timeline", []).splitlines()[2:]]
+    """The first, every tenth and the last window; the latencies in a scene beside the
+    single requests' when the record sent requests in a scene."""
+    lines = run_block("soak-timeline", []).splitlines()
+    header, rows = [c.strip() for c in lines[0].strip("|").split("|")], lines[2:]
     windows = SOAK["windows"]
     expected = [windows[0]] + [w for w in windows if (w["index"] + 1) % 10 == 0]
     if windows[-1] not in expected:
         expected.append(windows[-1])
     assert len(rows) == len(expected)
+    scenes = "scene_p50_ms" in windows[0]
+    assert ("scene p99 ms" in header) is scenes
     for row, window in zip(rows, expected, strict=True):
         assert row.startswith(f"| {window['end_s'] / 60:g} | {window['rss_mib']:.0f} |")
+        cells = [c.strip() for c in row.strip("|").split("|")]
+        assert cells[header.index("single p99 ms")] == f"{window['single_p99_ms']:.0f}"
+        if scenes:
+            assert cells[header.index("scene p99 ms")] == f"{window['scene_p99_ms']:.0f}"
 
 
 def test_the_int8_exactness_table_is_the_reports_rows_and_says_which_product_it_met() -> None:

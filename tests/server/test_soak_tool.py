@@ -16,12 +16,17 @@
 - Every bad request of the mix gets its documented 4xx from a real server with the
   default settings (docs/bad-inputs.md), and the mix covers every bundled model with
   single requests and batches.
+- The requests in a scene come from the committed scenes reports, every model with one
+  in turn, and a real server answers each with a 200 that says it checked
+  self-collision and as many obstacles as the request holds; a window gives their
+  p50/p99 apart from the single requests'.
 - Every other batch asks for NDJSON lines: a real server streams them, and the same
   lines without their end line count as a failed request.
 - A 20 s soak of 2 clients against that server (--url with --pid) runs end to end: one
   printed line, one RSS reading and one speed probe per 5 s window, single requests,
-  batches and bad requests all answered as they should be, no errors, exit code 0, and
-  the JSON record with the command, the commit, the machine, the windows and the verdicts.
+  requests in a scene, batches and bad requests all answered as they should be, no
+  errors, exit code 0, and the JSON record with the command, the commit, the machine,
+  the windows and the verdicts.
 """
 
 from __future__ import annotations
@@ -60,6 +65,8 @@ def test_window_statistics_from_synthetic_outcomes() -> None:
         Outcome("single", "m", 500, 0.5, 1.0),  # error, 5xx
         Outcome("single", "m", 0, 0.5, 1.0),  # transport failure: error
         Outcome("single", "m", 404, 0.5, 1.0),  # a valid request refused: error
+        Outcome("scene", "m", 200, 0.3, 1.0),
+        Outcome("scene", "m", 200, 0.5, 1.0),
         Outcome("batch", "m", 200, 1.0, 1.0),
         Outcome("batch", "m", 200, 2.0, 1.0),
         Outcome("batch", "m", 504, 30.0, 1.0),  # error, 5xx
@@ -72,9 +79,10 @@ def test_window_statistics_from_synthetic_outcomes() -> None:
     assert (window.index, window.start_s, window.end_s) == (3, 60.0, 90.0)
     assert window.rss_mib == 300.5 and window.probe_ms == 2.5
     assert "probe 2.50 ms" in format_window(window)
-    assert window.requests == 11 + 4 + 3 + 4
+    assert window.requests == 11 + 4 + 2 + 3 + 4
     assert window.statuses == {
         "single": {"0": 1, "200": 11, "404": 1, "500": 1, "503": 1},
+        "scene": {"200": 2},
         "batch": {"200": 2, "504": 1},
         "bad": {"200": 1, "404": 1, "422": 1, "503": 1},
     }
@@ -87,6 +95,9 @@ def test_window_statistics_from_synthetic_outcomes() -> None:
     # Batches 1000 and 2000 ms: p50 1500; p99 at rank 0.99: 1000 + 0.99 * 1000 = 1990.
     assert window.batch_p50_ms == pytest.approx(1500.0)
     assert window.batch_p99_ms == pytest.approx(1990.0)
+    # Scenes 300 and 500 ms: p50 400; p99 300 + 0.99 * 200 = 498.
+    assert window.scene_p50_ms == pytest.approx(400.0)
+    assert window.scene_p99_ms == pytest.approx(498.0)
 
 
 def test_the_speed_probe_times_its_work(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -220,10 +231,30 @@ def test_every_bad_request_of_the_mix_gets_its_4xx(server: LocalServer) -> None:
     print(answered)
     assert answered == {call.name: call.expected_status for call in mix.bad}
     assert all(400 <= status < 500 for status in answered.values())
-    # A cycle: one single request per model, one batch, two bad requests, in turn.
+    # A cycle: one single request per model, one in a scene, one batch, two bad requests.
     cycle = mix.cycle(0, random.Random(0))
-    assert [call.kind for call in cycle] == ["single"] * len(mix.singles) + ["batch"] + ["bad"] * 2
+    kinds = ["single"] * len(mix.singles) + ["scene", "batch"] + ["bad"] * 2
+    assert [call.kind for call in cycle] == kinds
     assert cycle[-2:] == mix.bad[:2] and mix.cycle(1, random.Random(0))[-2:] == mix.bad[2:4]
+
+
+def test_the_requests_in_a_scene_are_answered_with_their_obstacles(server: LocalServer) -> None:
+    scenes = soak.scene_calls()
+    reports = sorted(soak.SCENES_DIR.glob("*.json"))
+    assert len(reports) >= 2 and len(scenes) == soak.SCENES_PER_MODEL * len(reports)
+    models = [call.name for call in scenes[: len(reports)]]
+    assert len(set(models)) == len(reports)  # every model in turn
+    assert {name.split("@")[0] for name in models} <= set(bundled_model_ids())
+    mix = Mix.of(request_bodies(seed=0), batch_targets=2)
+    assert [mix.cycle(i, random.Random(0))[len(mix.singles)] for i in range(3)] == scenes[:3]
+    with httpx.Client(base_url=server.url, timeout=60) as client:
+        for call in scenes[: len(reports)]:
+            response = client.post(call.path, content=call.content, headers=call.headers)
+            assert response.status_code == 200, response.text
+            asked = json.loads(call.content)
+            collision = response.json()["collision"]
+            assert collision["self_checked"] is True
+            assert collision["obstacles"] == len(asked["obstacles"]) > 0
 
 
 def test_half_the_batches_ask_for_lines_and_a_cut_stream_is_a_failure(
@@ -269,5 +300,7 @@ def test_a_short_soak_runs_end_to_end(
     assert verdicts["settle_window"] == 0 and verdicts["rss_goal_met"] is not None
     assert set(verdicts["statuses"]["single"]) <= {"200", "503"}
     assert set(verdicts["statuses"]["batch"]) <= {"200", "503"}
+    assert set(verdicts["statuses"]["scene"]) <= {"200", "503"}
     assert verdicts["statuses"]["single"]["200"] > 0 and verdicts["statuses"]["batch"]["200"] > 0
+    assert verdicts["statuses"]["scene"]["200"] > 0
     assert all(400 <= int(status) < 500 for status in verdicts["statuses"]["bad"])

@@ -870,8 +870,9 @@ def _rss_trend(windows: list[dict[str, Any]], settle_s: float) -> str:
 @block("soak-timeline")
 def soak_timeline(*arguments: str) -> str:
     """docs/benchmark/soak.json: every `every`-th window (default 10): its end, the
-    server's RSS, requests, single p50/p99 and batch p50/p99 in that window, and the
-    speed probe taken at its end."""
+    server's RSS, requests, single p50/p99, p50/p99 in a scene (a record that sent
+    requests in a scene) and batch p50/p99 in that window, and the speed probe taken at
+    its end."""
     chosen = options(arguments, {"report": "soak", "every": "10"})
     record = sources.benchmark(chosen["report"])
     every = int(chosen["every"])
@@ -879,17 +880,20 @@ def soak_timeline(*arguments: str) -> str:
     shown = [w for w in windows if (w["index"] + 1) % every == 0 or w is windows[-1]]
     if windows and windows[0] not in shown:
         shown.insert(0, windows[0])
+    scenes = all("scene_p50_ms" in w for w in windows)  # a record that sent them
     rows = [
         [
             f"{w['end_s'] / 60:g}", _whole(w["rss_mib"]), str(w["requests"]),
             _whole(w["single_p50_ms"]), _whole(w["single_p99_ms"]),
+            *([_whole(w["scene_p50_ms"]), _whole(w["scene_p99_ms"])] if scenes else []),
             _whole(w["batch_p50_ms"]), _whole(w["batch_p99_ms"]),
             "-" if w.get("probe_ms") is None else f"{w['probe_ms']:.2f}",
         ]
         for w in shown
     ]  # fmt: skip
     return table(
-        ["minute", "RSS MiB", "requests", "single p50 ms", "single p99 ms", "batch p50 ms",
+        ["minute", "RSS MiB", "requests", "single p50 ms", "single p99 ms",
+         *(["scene p50 ms", "scene p99 ms"] if scenes else []), "batch p50 ms",
          "batch p99 ms", "probe ms"],
         rows,
     )  # fmt: skip
