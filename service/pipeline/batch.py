@@ -3,11 +3,10 @@
 Every query goes through the pieces of `run.py` (target -> sample -> correct -> accept ->
 connect -> components) with its own seed, so its answer is the one `run` gives it, to
 the bit, whichever thread answers it. With `threads` above 1, that many worker threads
-answer the queries at once, each query whole: the flow network (onnxruntime) and the
-compiled kernels (native.c) release the GIL, so on two cores two threads answered 64
-iiwa14 pose targets 1.7x as fast as one (in process, one onnxruntime thread per call;
-the rest of each stage's Python holds the GIL and bounds the gain). The answers are
-collected in order.
+answer the queries at once, each query whole: the flow network and the compiled kernels
+(native.c) release the GIL, and the rest of each stage's Python holds it, which bounds
+the gain (docs/speed.md, the batch with one thread and with the default's). The answers
+are collected in order.
 
 Why the targets' samples are not concatenated into one network call per Euler step:
 measured with one onnxruntime thread (2-core AMD EPYC), a call costs the same per row

@@ -504,3 +504,32 @@ def test_the_int8_exactness_table_is_the_reports_rows_and_says_which_product_it_
     assert f"product there is {word}" in text and report["kernel"].upper() in text
     moved = any(r["rows_differing_share"] > 0 for r in report["results"])
     assert moved is not report["onnxruntime_exact"]
+
+
+def test_the_phases_table_is_the_records_rows_with_their_share_of_the_python() -> None:
+    """One row for the answer, then one per phase in the record's order (a phase indented
+    once per phase it runs in), each cell the record's, the share the phase's Python over
+    the answer's; the closing line names the phase without phases inside it that holds the
+    most Python, and its share."""
+    record = read("phases-iiwa14-pose")
+    text = run_block("phases", ["report=phases-iiwa14-pose"])
+    rows = body(text)
+    records = [record["answer"], *record["phases"]]
+    assert len(rows) == len(records)
+    answer_python = record["answer"]["python_ms"]
+    for row, entry in zip(rows, records, strict=True):
+        assert row[0].replace("&nbsp;", "").strip("* ") in (entry["label"], "the answer")
+        assert float(row[2]) == pytest.approx(entry["wall_ms"], abs=0.006)
+        assert float(row[3]) == pytest.approx(entry["compiled_ms"], abs=0.006)
+        assert float(row[4]) == pytest.approx(entry["python_ms"], abs=0.006)
+        share = 100 * entry["python_ms"] / answer_python
+        assert float(row[5].rstrip(" %")) == pytest.approx(share, abs=0.51)
+    nested = {r["label"]: r["inside"] for r in record["phases"]}
+    for row, entry in zip(rows[1:], record["phases"], strict=True):
+        levels, inside = 0, entry["inside"]
+        while inside is not None:
+            levels, inside = levels + 1, nested.get(inside)
+        assert row[0].count("&nbsp;") == 4 * levels
+    leaves = [r for r in record["phases"] if r["label"] not in set(nested.values())]
+    top = max(leaves, key=lambda r: r["python_ms"])
+    assert f"({top['label']}) holds {100 * top['python_ms'] / answer_python:.0f} %" in text

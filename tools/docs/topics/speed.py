@@ -19,6 +19,7 @@
     <!-- figures: compiled-parallel-min-rows -->     the same, on the compiled 512-wide int8 layers
     <!-- figures: int8-exactness -->                 onnxruntime's int8 against the exact network
     <!-- figures: network-floor -->                  the AVX2 product's peak, the layers against it
+    <!-- figures: phases -->                         an answer's Python and compiled work by phase
 
 Options are `key=value` words: `report=NAME` reads docs/benchmark/NAME.json (default
 `benchmark`, the benchmark of record), `n=N` a size other than the goals' N, `fmt=SPEC` a
@@ -897,3 +898,42 @@ def soak_timeline(*arguments: str) -> str:
          "batch p99 ms", "probe ms"],
         rows,
     )  # fmt: skip
+
+
+@block("phases")
+def phases(*arguments: str) -> str:
+    """docs/benchmark/phases-<model>.json (`tools.phase_profile`): the answer and each of
+    its phases, ms per target: wall, compiled, Python, and the phase's share of the
+    answer's Python; a phase inside another is indented under it. Then the largest share
+    of a phase with none timed inside it."""
+    chosen = options(arguments, {"report": "phases-iiwa14-pose"})
+    record = sources.benchmark(chosen["report"])
+    answer = record["answer"]
+    depth: dict[str | None, int] = {None: 0}
+    rows = []
+    for row in [answer, *record["phases"]]:
+        level = depth.get(row["inside"], 0) + (row is not answer and row["inside"] is not None)
+        depth[row["label"]] = level
+        name = f"{'&nbsp;&nbsp;' * 2 * level}{row['label']}"
+        rows.append(
+            [
+                name if row is not answer else "**the answer**",
+                f"{row['calls']:.1f}",
+                f"{row['wall_ms']:.2f}",
+                f"{row['compiled_ms']:.2f}",
+                f"{row['python_ms']:.2f}",
+                f"{100 * row['python_ms'] / answer['python_ms']:.0f} %",
+            ]
+        )
+    parents = {row["inside"] for row in record["phases"]}
+    leaves = [row for row in record["phases"] if row["label"] not in parents]
+    largest = max(leaves, key=lambda row: row["python_ms"])
+    share = 100 * largest["python_ms"] / answer["python_ms"]
+    return (
+        table(
+            ["phase", "calls", "wall ms", "compiled ms", "Python ms", "of the answer's Python"],
+            rows,
+        )
+        + f"\n\nOf the phases with no phase timed inside them, the one with the most Python "
+        f"({largest['label']}) holds {share:.0f} % of the answer's."
+    )
