@@ -462,6 +462,14 @@ def verdicts_of(windows: list[Window], settle_s: float, p99_span_s: float = 0.0)
     )
 
 
+def net_p99_ratio(v: Verdicts) -> float | None:
+    """The single p99's ratio over the speed probe's (no goal): the latency's drift with the
+    machine's speed taken out; None where either is missing."""
+    if not v.single_p99_ratio or not v.probe_ratio:
+        return None
+    return round(v.single_p99_ratio / v.probe_ratio, 4)
+
+
 def _median_probe_ms(windows: list[Window]) -> float | None:
     """The median speed probe of the windows that took one; None if none did."""
     probes = [w.probe_ms for w in windows if w.probe_ms is not None]
@@ -509,7 +517,8 @@ def format_verdicts(v: Verdicts) -> str:
             f"{met(v.p99_goal_met)}",
             f"speed probe (no goal): {_figure(v.probe_at_settle_ms, 'ms', 2)} at "
             f"{v.settle_s:.0f} s, {_figure(v.probe_last_ms, 'ms', 2)} in the last window "
-            f"({ratio(v.probe_ratio)})",
+            f"({ratio(v.probe_ratio)}); the single p99's ratio over it: "
+            f"{ratio(net_p99_ratio(v))}",
             f"5xx other than 503: {v.server_errors}; none: {met(v.server_errors_goal_met)}",
         ]
     )

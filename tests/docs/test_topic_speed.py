@@ -453,6 +453,9 @@ def test_the_soak_goals_are_the_records_verdicts_and_its_trend() -> None:
     rss_met = "yes" if v["rss_goal_met"] else "**no**"
     assert re.search(r"within 5 % above its value at 5 min \| [^|]+ \| " + re.escape(rss_met), text)
     assert f"{v['server_errors']} in {v['requests']} requests" in text
+    # The p99's drift with the machine's speed taken out: its ratio over the probe's.
+    net = v["single_p99_ratio"] / v["probe_ratio"]
+    assert f"(x{v['probe_ratio']:.3f}); the single p99's ratio over it: x{net:.3f}" in text
     # The trend: a least-squares line through the readings after settling, here recomputed
     # from the windows with a plain formula (not numpy's polyfit).
     after = [w for w in SOAK["windows"] if w["end_s"] > v["settle_s"]]

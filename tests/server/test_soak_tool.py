@@ -12,7 +12,7 @@
   run shorter than --settle-s measures neither.
 - The speed probe times its work: four times the loop reads more than twice the time.
   The verdicts give its median over the same two spans as the p99 (no goal), and none
-  where no window of a span took it.
+  where no window of a span took it, and the p99's ratio over the probe's (no goal).
 - Every bad request of the mix gets its documented 4xx from a real server with the
   default settings (docs/bad-inputs.md), and the mix covers every bundled model with
   single requests and batches.
@@ -195,6 +195,8 @@ def test_the_probe_is_read_over_the_p99_spans() -> None:
     assert (verdicts.probe_at_settle_ms, verdicts.probe_last_ms) == (2.1, 2.5)
     assert verdicts.probe_ratio == pytest.approx(2.5 / 2.1, abs=1e-4)
     assert "speed probe (no goal): 2.10 ms at 180 s, 2.50 ms" in format_verdicts(verdicts)
+    # Every p99 200 ms (ratio 1) over the probe's 2.5 / 2.1: 0.84.
+    assert "the single p99's ratio over it: x0.840" in format_verdicts(verdicts)
     # Windows without a probe (a record from before it) give none.
     untaken = verdicts_of(windows([300] * 6, [200] * 6), 180.0, p99_span_s=120.0)
     assert (untaken.probe_at_settle_ms, untaken.probe_last_ms, untaken.probe_ratio) == (

@@ -828,7 +828,8 @@ def soak_goals(*arguments: str) -> str:
         [
             "(no goal) the machine's speed: the speed probe's median over the same two spans "
             "(the same Python work in the soak's own process; a slower machine slows it, a "
-            "slower server does not)",
+            "slower server does not), and the p99's change over the probe's: the latency's "
+            "drift with the machine's speed taken out",
             _probe(v),
             "-",
         ],
@@ -850,9 +851,13 @@ def soak_goals(*arguments: str) -> str:
 def _probe(v: dict[str, Any]) -> str:
     if v.get("probe_at_settle_ms") is None or v.get("probe_last_ms") is None:
         return "not taken in this run"
-    return (
+    probe = (
         f"{v['probe_at_settle_ms']:.2f} ms -> {v['probe_last_ms']:.2f} ms (x{v['probe_ratio']:.3f})"
     )
+    if not v.get("single_p99_ratio") or not v["probe_ratio"]:
+        return probe
+    net = v["single_p99_ratio"] / v["probe_ratio"]
+    return f"{probe}; the single p99's ratio over it: x{net:.3f}"
 
 
 def _rss_trend(windows: list[dict[str, Any]], settle_s: float) -> str:
