@@ -92,25 +92,38 @@ class KernelTimer:
             self._owner = None
 
 
+def queries_for(
+    model: ServedModel, q_targets: FloatArray, num_samples: int | None = None
+) -> list[Query]:
+    """A query per row of q_targets (T, n): its FK as the target, seed i for target i, the
+    model's defaults but `num_samples` (None: the model's)."""
+    manifest = model.manifest
+    queries = []
+    for i, q in enumerate(q_targets):
+        fk = model.kinematics(q[None])
+        fields = fields_reached(manifest.task, fk.position_m[0], fk.rotation[0])
+        queries.append(
+            Query.for_model(
+                manifest,
+                position_m=fields.position_m,
+                orientation_wxyz=fields.orientation_wxyz,
+                axis=fields.axis,
+                num_samples=num_samples,
+                seed=i,
+            )
+        )
+    return queries
+
+
 def profile_connect(
     model: ServedModel, q_targets: FloatArray, num_samples: int | None = None, repeats: int = 1
 ) -> list[dict[str, float]]:
     """Per target (FK of each row of q_targets (T, n), seed i for target i): stages 1-4
     with the model's defaults at `num_samples` (None: the model's default), then stage 5
     with its kinematics behind a timer, `repeats` times (the least time kept)."""
-    manifest, defaults = model.manifest, model.manifest.defaults
+    defaults = model.manifest.defaults
     rows: list[dict[str, float]] = []
-    for i, q in enumerate(q_targets):
-        fk = model.kinematics(q[None])
-        fields = fields_reached(manifest.task, fk.position_m[0], fk.rotation[0])
-        query = Query.for_model(
-            manifest,
-            position_m=fields.position_m,
-            orientation_wxyz=fields.orientation_wxyz,
-            axis=fields.axis,
-            num_samples=num_samples,
-            seed=i,
-        )
+    for i, query in enumerate(queries_for(model, q_targets, num_samples)):
         # Stages 1-4 as the pipeline runs them (service/pipeline/run.py).
         target = encode(model, query)
         space = space_of(model, target, query.tolerance, collision_of(model, query))

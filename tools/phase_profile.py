@@ -34,12 +34,10 @@ from typing import Any
 
 from service.config import Settings
 from service.manifest import REPO_MODELS_DIR, bundled_model_ids
-from service.models.registry import ServedModel, load_model
+from service.models.registry import load_model
 from service.pipeline.arrays import FloatArray
 from service.pipeline.run import run
-from service.pipeline.targets import fields_reached
-from service.pipeline.types import Query
-from tools.connect_profile import KernelTimer
+from tools.connect_profile import KernelTimer, queries_for
 from training.checkout import git_commit
 from training.evaluate.targets import uniform_configurations
 from training.machine import Machine
@@ -139,7 +137,7 @@ def phases_timed(phases: Sequence[Phase], compiled: KernelTimer) -> Iterator[dic
                 owners: list[object] = [owner]
             else:
                 function = getattr(module, name)
-                owners = list(_callers(name, function))
+                owners = [*_callers(name, function)]
             wrapper = _timed_phase(function, spent[phase.label], compiled)
             for holder in owners:
                 setattr(holder, name, wrapper)
@@ -172,26 +170,6 @@ class Profile:
     repeats: int
     answer: PhaseRow  # the whole answer (stages 1-6)
     phases: list[PhaseRow]  # as PHASES lists them; those that never ran left out
-
-
-def queries_for(model: ServedModel, q_targets: FloatArray) -> list[Query]:
-    """A query per row of q_targets (T, n): its FK as the target, seed i for target i, the
-    model's defaults."""
-    manifest = model.manifest
-    queries = []
-    for i, q in enumerate(q_targets):
-        fk = model.kinematics(q[None])
-        fields = fields_reached(manifest.task, fk.position_m[0], fk.rotation[0])
-        queries.append(
-            Query.for_model(
-                manifest,
-                position_m=fields.position_m,
-                orientation_wxyz=fields.orientation_wxyz,
-                axis=fields.axis,
-                seed=i,
-            )
-        )
-    return queries
 
 
 def profile_phases(

@@ -23,8 +23,8 @@ import pytest
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import load_model
 from service.pipeline.run import run
-from tools.connect_profile import KernelTimer
-from tools.phase_profile import PHASES, main, phases_timed, profile_phases, queries_for
+from tools.connect_profile import KernelTimer, queries_for
+from tools.phase_profile import PHASES, main, phases_timed, profile_phases
 from training.evaluate.targets import uniform_configurations
 
 MODEL = "iiwa14-pose"

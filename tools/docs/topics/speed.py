@@ -914,10 +914,10 @@ def phases(*arguments: str) -> str:
     chosen = options(arguments, {"report": "phases-iiwa14-pose"})
     record = sources.benchmark(chosen["report"])
     answer = record["answer"]
-    depth: dict[str | None, int] = {None: 0}
+    depth: dict[str, int] = {}  # each label's indentation
     rows = []
     for row in [answer, *record["phases"]]:
-        level = depth.get(row["inside"], 0) + (row is not answer and row["inside"] is not None)
+        level = 0 if row["inside"] is None else depth[row["inside"]] + 1
         depth[row["label"]] = level
         name = f"{'&nbsp;&nbsp;' * 2 * level}{row['label']}"
         rows.append(
