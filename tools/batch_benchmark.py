@@ -46,6 +46,8 @@ from tools.batch_bounds import (
     cpu_sentence,
     network_bound,
     network_sentence,
+    same_work_bound,
+    same_work_sentence,
 )
 from tools.connect_profile import KernelTimer
 from tools.local_server import LocalServer
@@ -130,6 +132,7 @@ def batch_against_singles(
     mismatched: set[int] = set()
     server_timings: list[dict[str, float]] = []  # the batch's, by span
     singles_cpu: list[dict[str, float]] = []  # CPU ms of each round's singles, by process
+    singles_server_ms: list[float] = []  # each round's singles' server totals, summed
     products = avx2_network_products(model, num_samples)
     peaks: list[float] = []  # the AVX2 product's peak on every core, after each round
     batch_cpu: list[dict[str, float]] = []
@@ -144,6 +147,7 @@ def batch_against_singles(
                 single_answers = [client.smm(request) for request in singles]
                 singles_ms.append((time.perf_counter() - start) * 1e3)
                 singles_cpu.append(cpu.spent_ms())
+                singles_server_ms.append(sum(a.timings_ms["total"] for a in single_answers))
                 start, cpu = time.perf_counter(), ProcessesCpu(server)
                 answer = client.smm_batch(batch)
                 batch_ms.append((time.perf_counter() - start) * 1e3)
@@ -183,6 +187,7 @@ def batch_against_singles(
         "mismatched": sorted(mismatched),
         "cores": os.cpu_count() or 1,
         "singles_cpu_median_ms": _median_by_key(singles_cpu),
+        "singles_server_median_ms": float(np.median(singles_server_ms)),
         "batch_cpu_median_ms": _median_by_key(batch_cpu),
         "compiled_work_ms": work,
         **(
@@ -296,6 +301,9 @@ def main() -> None:
         print(cpu_sentence(cpu))
     if compiled is not None:
         print(compiled_sentence(compiled))
+    same_work = same_work_bound(result)
+    if same_work is not None:
+        print(same_work_sentence(same_work))
     if network is not None:
         print(network_sentence(network))
 

@@ -1,6 +1,6 @@
 """What bounds the batch against its singles, from a `tools.batch_benchmark` result.
 
-Four bounds, per target in ms, each read from the measured result (light imports only, so
+Five bounds, per target in ms, each read from the measured result (light imports only, so
 the benchmark's report and the docs' pages compute them alike):
 
 - `stage_bound`: the batch's sampling (its targets' network evaluations, as many targets
@@ -16,6 +16,13 @@ the benchmark's report and the docs' pages compute them alike):
   (`tools.batch_benchmark.compiled_work`, in process on one thread, and the client's CPU
   in the batch): spread over every core, that takes at least its sum even if a batch
   shared every line of the pipeline's Python and numpy between its targets at no cost.
+- `same_work_bound`: faster answers alone. Were every target's answer cheaper by the same
+  factor in the singles and the batch (compiled code for the pipeline's Python, faster
+  kernels), with nothing shared between a batch's targets, a single would still spend
+  what lies outside its answer (HTTP, validation, JSON and the client's reading) one
+  request after another, and the batch its encoding and the client's reading over the
+  cores: the ratio the batch could reach as a function of an answer's CPU, and the most
+  an answer could cost for the goal's.
 - `network_bound`: where the server evaluates the int8 network on the AVX2 kernel, each
   target's network work (its Euler steps' evaluations of its own rows: an answer equal to
   its single answer needs exactly those products) over the AVX2 product's peak on every
@@ -25,6 +32,7 @@ the benchmark's report and the docs' pages compute them alike):
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -179,6 +187,101 @@ def compiled_sentence(bound: CompiledBound) -> str:
         f"shared at no cost, {bound.unshared_ms:.1f} ms of CPU per target over {bound.cores} "
         f"cores takes at least {bound.least_ms:.1f} ms: at most **{bound.most_x:.2f}x** the "
         f"singles' {bound.singles_ms:.1f} ms, {verdict}."
+    )
+
+
+@dataclass(frozen=True)
+class SameWorkBound:
+    cores: int
+    singles_ms: float  # the singles' client wall time per target
+    single_answer_ms: float  # a single's answer on the server (its stages' total), per target
+    answer_ms: float  # a target's whole answer in process on one thread: its CPU
+    compiled_ms: float  # its compiled kernels and flow network on one thread
+    encode_ms: float  # its answer's JSON encoding
+    client_ms: float  # the client's CPU per target in the batch
+
+    @property
+    def outside_ms(self) -> float:
+        """What a single spends beyond its answer: HTTP, validation, JSON, the client."""
+        return max(self.singles_ms - self.single_answer_ms, 0.0)
+
+    @property
+    def wall_per_cpu(self) -> float:
+        """A single's answer's wall time over its CPU on one thread (under 1 where its
+        calls run on more than one thread); taken to hold at any answer cost."""
+        return self.single_answer_ms / self.answer_ms
+
+    def most_x(self, answer_cpu_ms: float) -> float:
+        """The most a batch gains were every answer to cost `answer_cpu_ms` of CPU in both:
+        the singles' wall time then over the batch's CPU then spread over the cores."""
+        singles_ms = self.outside_ms + self.wall_per_cpu * answer_cpu_ms
+        least_ms = (answer_cpu_ms + self.encode_ms + self.client_ms) / self.cores
+        return singles_ms / least_ms
+
+    @property
+    def goal_answer_ms(self) -> float | None:
+        """The most CPU an answer could cost for the goal's ratio; None where not even free
+        answers reach it, infinity where every cost does."""
+        per_core = BATCH_GOAL_X / self.cores
+        spare_ms = self.outside_ms - per_core * (self.encode_ms + self.client_ms)
+        if spare_ms < 0:
+            return None
+        if per_core <= self.wall_per_cpu:
+            return math.inf
+        return spare_ms / (per_core - self.wall_per_cpu)
+
+
+def same_work_bound(batch: dict[str, Any]) -> SameWorkBound | None:
+    """None for a result measured without the singles' server time, the compiled work or
+    the processes' CPU."""
+    work = batch.get("compiled_work_ms")
+    if work is None or "singles_server_median_ms" not in batch:
+        return None
+    if "batch_cpu_median_ms" not in batch:
+        return None
+    targets = batch["targets"]
+    return SameWorkBound(
+        cores=int(batch["cores"]),
+        singles_ms=batch["singles_median_ms"] / targets,
+        single_answer_ms=batch["singles_server_median_ms"] / targets,
+        answer_ms=float(work["answer"]),
+        compiled_ms=float(work["compiled"]),
+        encode_ms=float(work["encode"]),
+        client_ms=batch["batch_cpu_median_ms"]["client"] / targets,
+    )
+
+
+def same_work_sentence(bound: SameWorkBound) -> str:
+    """Faster answers' bound on the batch, in words (the report's and the docs' pages)."""
+    goal_ms = bound.goal_answer_ms
+    if goal_ms is None:
+        needs = (
+            f"not even free answers reach {BATCH_GOAL_X:g}x: the answers' transport must get "
+            "cheaper, or the targets share work"
+        )
+    elif math.isinf(goal_ms):
+        needs = f"any answer cost reaches {BATCH_GOAL_X:g}x"
+    else:
+        needs = (
+            f"{BATCH_GOAL_X:g}x needs answers of at most {goal_ms:.1f} ms of CPU, "
+            f"{bound.answer_ms / goal_ms:.1f} times cheaper than now, "
+            + (
+                "less than the compiled work alone: compiled code for the Python is not "
+                "enough, the kernels must get cheaper too, or the targets share work"
+                if goal_ms < bound.compiled_ms
+                else "within what compiled code for the Python would give"
+            )
+        )
+    return (
+        f"Faster answers alone, the same work per target in the singles and the batch and "
+        f"nothing shared: a single spends {bound.outside_ms:.1f} ms per target outside its "
+        f"answer (HTTP, validation, JSON and the client's reading) and "
+        f"{bound.single_answer_ms:.1f} ms on it, whose CPU on one thread is "
+        f"{bound.answer_ms:.1f} ms. Were every answer cheaper by the same factor in both, a "
+        f"single's wall time on it shrinking alike, the batch over {bound.cores} cores would "
+        f"gain at most **{bound.most_x(bound.compiled_ms):.2f}x** with the pipeline's Python "
+        f"gone from every answer ({bound.compiled_ms:.1f} ms of CPU each) and "
+        f"**{bound.most_x(0.0):.2f}x** with answers free; {needs}."
     )
 
 

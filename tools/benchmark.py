@@ -85,6 +85,8 @@ from tools.batch_bounds import (
     cpu_sentence,
     network_bound,
     network_sentence,
+    same_work_bound,
+    same_work_sentence,
     stage_bound,
 )
 from tools.connect_profile import profile_connect
@@ -799,6 +801,9 @@ def batch_profile(batch: dict, one_thread: dict | None = None) -> list[str]:
     compiled = compiled_bound(batch)
     if compiled is not None:
         lines += ["", compiled_sentence(compiled)]
+    same_work = same_work_bound(batch)
+    if same_work is not None:
+        lines += ["", same_work_sentence(same_work)]
     network = network_bound(batch)
     if network is not None:
         lines += ["", network_sentence(network)]

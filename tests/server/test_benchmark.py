@@ -44,6 +44,7 @@ from tools.benchmark import (
     paper_judgement,
     ssik_covers,
 )
+from tools.batch_bounds import same_work_bound
 from tools.connect_profile import KernelTimer
 from training.checkout import git_commit
 from training.evaluate.judge import figures
@@ -185,6 +186,52 @@ def test_the_batch_profile_bounds_the_batch_by_its_compiled_work() -> None:
     (line,) = [x for x in batch_profile(slow) if x.startswith("What no sharing")]
     # (40 + 2 + 4) / 2 = 23 ms: at most 60 / 23 = 2.61x, under the goal
     assert "at most **2.61x** the singles' 60.0 ms, so sharing the Python alone cannot" in line
+
+
+def test_the_batch_profile_bounds_the_batch_by_faster_answers_alone() -> None:
+    """With the same work per target in the singles and the batch, the singles keep what
+    lies outside their answers one after another and the batch the encoding and the
+    client's reading over the cores: the most it gains at a given answer cost, and the
+    answer cost at which it reaches the goal (where the ratio is exactly 3x)."""
+    batch = {
+        "targets": 4, "batch_median_ms": 80.0, "singles_median_ms": 240.0, "cores": 2,
+        "server_batch_median_ms": {"sample": 40.0, "correct": 8.0, "connect": 12.0,
+                                   "summarise": 4.0, "total": 64.0},
+        "singles_cpu_median_ms": {"server": 300.0, "client": 20.0, "total": 320.0},
+        "batch_cpu_median_ms": {"server": 140.0, "client": 16.0, "total": 156.0},
+        "compiled_work_ms": {"answer": 50.0, "compiled": 30.0, "encode": 2.0},
+    }  # fmt: skip
+    assert same_work_bound(batch) is None  # the singles' server time not measured
+    assert not any(line.startswith("Faster answers") for line in batch_profile(batch))
+    measured = {**batch, "singles_server_median_ms": 160.0}
+    bound = same_work_bound(measured)
+    assert bound is not None
+    # per target: singles 60 ms, 40 on the server: 20 outside; wall over CPU 40 / 50;
+    # at x ms of CPU an answer: (20 + 0.8 x) / ((x + 2 + 4) / 2).
+    assert bound.most_x(30.0) == pytest.approx(44.0 / 18.0)
+    assert bound.most_x(0.0) == pytest.approx(20.0 / 3.0)
+    goal_ms = bound.goal_answer_ms
+    assert goal_ms == pytest.approx(11.0 / 0.7)  # (20 - 1.5 x 6) / (1.5 - 0.8)
+    assert bound.most_x(goal_ms) == pytest.approx(3.0)  # the goal's ratio, exactly
+    (line,) = [x for x in batch_profile(measured) if x.startswith("Faster answers")]
+    assert "a single spends 20.0 ms per target outside its answer" in line
+    assert "and 40.0 ms on it, whose CPU on one thread is 50.0 ms" in line
+    assert "at most **2.44x** with the pipeline's Python gone from every answer (30.0 ms" in line
+    assert "**6.67x** with answers free; 3x needs answers of at most 15.7 ms of CPU, 3.2 " in line
+    assert "less than the compiled work alone" in line
+    # A slower transport: the singles spend 100 ms a target outside their answers, so
+    # compiled code for the Python (30 ms an answer) would do: (100 - 9) / 0.7 = 130 ms.
+    slow = {**measured, "singles_median_ms": 560.0}
+    (line,) = [x for x in batch_profile(slow) if x.startswith("Faster answers")]
+    assert "at most 130.0 ms of CPU" in line and "within what compiled code" in line
+    # A client reading 40 ms a target: 1.5 x 42 ms is more than the 20 ms outside.
+    heavy = {**measured, "batch_cpu_median_ms": {"server": 140.0, "client": 160.0,
+                                                 "total": 300.0}}  # fmt: skip
+    heavy_bound = same_work_bound(heavy)
+    assert heavy_bound is not None and heavy_bound.goal_answer_ms is None
+    assert heavy_bound.most_x(0.0) < 3.0
+    (line,) = [x for x in batch_profile(heavy) if x.startswith("Faster answers")]
+    assert "not even free answers reach 3x" in line
 
 
 def test_compiled_work_counts_the_kernels_and_the_network_once_each() -> None:

@@ -46,6 +46,8 @@ from tools.batch_bounds import (
     cpu_sentence,
     network_bound,
     network_sentence,
+    same_work_bound,
+    same_work_sentence,
     stage_bound,
 )
 from tools.docs import sources
@@ -543,6 +545,7 @@ def speed_batch(*arguments: str) -> str:
     one_cpu = None if one is None else cpu_bound(one)
     network = network_bound(batch)
     compiled = compiled_bound(batch)
+    same_work = same_work_bound(batch)
     return (
         f"{first}\n\nWhere the default batch's time goes, ms per target (each target's own "
         f"stages, {bound.at_once} targets at a time; outside: the client's wall time less the "
@@ -552,6 +555,7 @@ def speed_batch(*arguments: str) -> str:
         f"take {bound.floor_ms:.1f} ms per target: at most **{bound.most_x:.1f}x** the singles."
         + ("" if cpu is None else f"\n\n{cpu_sentence(cpu, one_cpu)}")
         + ("" if compiled is None else f"\n\n{compiled_sentence(compiled)}")
+        + ("" if same_work is None else f"\n\n{same_work_sentence(same_work)}")
         + ("" if network is None else f"\n\n{network_sentence(network)}")
     )
 
