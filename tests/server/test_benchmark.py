@@ -28,6 +28,7 @@ from service.pipeline.collision.check import CollisionCheck
 from service.pipeline.collision.scene import Scene
 from service.wire import SmmRequest
 from tools.batch_benchmark import compiled_work
+from tools.batch_bounds import same_work_bound
 from tools.benchmark import (
     BASE,
     DEFAULT_REQUEST,
@@ -44,7 +45,6 @@ from tools.benchmark import (
     paper_judgement,
     ssik_covers,
 )
-from tools.batch_bounds import same_work_bound
 from tools.connect_profile import KernelTimer
 from training.checkout import git_commit
 from training.evaluate.judge import figures
