@@ -211,6 +211,7 @@ def test_the_batch_profile_bounds_the_batch_by_faster_answers_alone() -> None:
     assert bound.most_x(30.0) == pytest.approx(44.0 / 18.0)
     assert bound.most_x(0.0) == pytest.approx(20.0 / 3.0)
     goal_ms = bound.goal_answer_ms
+    assert goal_ms is not None
     assert goal_ms == pytest.approx(11.0 / 0.7)  # (20 - 1.5 x 6) / (1.5 - 0.8)
     assert bound.most_x(goal_ms) == pytest.approx(3.0)  # the goal's ratio, exactly
     (line,) = [x for x in batch_profile(measured) if x.startswith("Faster answers")]
