@@ -64,3 +64,39 @@ def timed_run(row: dict) -> dict:
     """The run of a benchmark row that the time goals read: the default request's, or the
     kinematic service's in a report from before it timed the default request."""
     return row.get(DEFAULT_REQUEST) or row[SERVICE]
+
+
+def http_bound(entry: dict, most_ms: float) -> str | None:
+    """What bounds an HTTP time goal not met, or None where it is met (at N = 1000 or at the
+    served default: either meets it) or the report has no HTTP row at the bound's N.
+
+    Read at `bound_num_samples`: the client's wall time is the server's own total (the
+    pipeline, the in-process default request's work) and what lies outside it (the route's
+    validation and JSON encoding, the exchange, the client's parsing into the typed
+    answer); with the outside as it is, the goal needs the server's total within
+    `most_ms` less the outside."""
+    sizes = entry.get("sizes", {})
+    over_http = [
+        sizes[str(n)]["http"]["median_ms"]
+        for n in (GOAL_NUM_SAMPLES, entry.get("default_num_samples"))
+        if n is not None and "http" in sizes.get(str(n), {})
+    ]
+    if not over_http or min(over_http) <= most_ms:
+        return None
+    row = sizes.get(str(bound_num_samples(entry)), {})
+    if "http" not in row:
+        return None
+    http = row["http"]
+    took_ms, server_ms = http["median_ms"], http["server_median_ms"]
+    outside_ms = took_ms - server_ms
+    in_process_ms = timed_run(row)["median_ms"]
+    need_ms = most_ms - outside_ms
+    return (
+        f"over HTTP at {bound_label(entry)}: {took_ms:.1f} ms against the goal's "
+        f"{most_ms:g} ms ({took_ms / most_ms:.2f}x): the server's own total {server_ms:.1f} "
+        f"ms (the default request in process {in_process_ms:.1f} ms), the other "
+        f"{outside_ms:.1f} ms outside the pipeline (the route's validation and JSON "
+        "encoding, the exchange, the client's parsing into the typed answer). With that as "
+        f"it is, the goal needs the server's total within {max(need_ms, 0.0):.1f} ms, "
+        f"{server_ms - need_ms:.1f} ms less than here."
+    )

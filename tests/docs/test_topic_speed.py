@@ -20,7 +20,7 @@ import yaml
 from scipy import stats
 
 from tools.docs.blocks import run_block
-from tools.goals import BATCH_GOAL_X, GOALS
+from tools.goals import BATCH_GOAL_X, GOALS, HTTP_GOALS
 
 ROOT = Path(__file__).resolve().parents[2]
 BENCHMARK = ROOT / "docs" / "benchmark"
@@ -205,6 +205,28 @@ def test_the_bound_of_a_time_goal_is_its_stages_and_what_they_leave() -> None:
         assert ("the model's default N" in text) == ("num_samples" not in profile)
     with pytest.raises(KeyError, match=r"the goals are for: \['iiwa14-pose'"):
         run_block("speed-bound", ["xarm7-pose"])
+
+
+def test_the_bound_of_an_http_goal_missed_is_the_time_outside_the_pipeline() -> None:
+    """Where a model's HTTP goal is missed at both N, its block splits the client's wall
+    time at the bound's N into the server's own total and the rest, and says what the
+    server's total must come within; where it is met at either N, the block says nothing
+    of HTTP."""
+    for model_id, most_ms in HTTP_GOALS:
+        entry = BENCH["models"][model_id]
+        n = min(1000, entry.get("default_num_samples", 1000))
+        text = run_block("speed-bound", [model_id])
+        measured = [entry["sizes"][size]["http"]["median_ms"] for size in {"1000", str(n)}]
+        if min(measured) <= most_ms:
+            assert "HTTP" not in text
+            continue
+        http = entry["sizes"][str(n)]["http"]
+        outside = http["median_ms"] - http["server_median_ms"]
+        assert f"- Over HTTP at N = {n}" in text
+        assert f"{http['median_ms']:.1f} ms against the goal's {most_ms:g} ms" in text
+        assert f"the server's own total {http['server_median_ms']:.1f} ms" in text
+        assert f"the other {outside:.1f} ms outside the pipeline" in text
+        assert f"within {most_ms - outside:.1f} ms" in text
 
 
 def test_the_batch_block_is_the_reports_batch_per_target() -> None:
