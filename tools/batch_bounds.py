@@ -1,4 +1,5 @@
-"""What bounds the batch against its singles, from a `tools.batch_benchmark` result.
+"""What bounds the batch against its singles, from a `tools.batch_benchmark` result (and a
+`tools.batch_processes` record: `processes_sentence`).
 
 Five bounds, per target in ms, each read from the measured result (light imports only, so
 the benchmark's report and the docs' pages compute them alike):
@@ -28,6 +29,11 @@ the benchmark's report and the docs' pages compute them alike):
   its single answer needs exactly those products) over the AVX2 product's peak on every
   core, measured in the same run (tools.network_floor: no exact AVX2 kernel multiplies
   faster than vpmaddwd alone). Nothing a batch shares between targets removes it.
+
+And what the GIL costs: `processes_sentence` reads the same targets answered in process
+one after another, on the service's batch threads and on as many processes
+(`tools.batch_processes`); what the processes save over the threads is the time a batch's
+threads spend waiting for one another's Python.
 """
 
 from __future__ import annotations
@@ -325,4 +331,22 @@ def network_sentence(bound: NetworkBound) -> str:
         f"({bound.peak_per_s / 1e9:.1f} G a second, measured after each round) take at least "
         f"{bound.least_ms:.1f} ms: at most **{bound.most_x:.2f}x** the singles' "
         f"{bound.singles_ms:.1f} ms, whatever else the targets share, so {verdict}."
+    )
+
+
+def processes_sentence(record: dict[str, Any]) -> str:
+    """A `tools.batch_processes` record in one paragraph, as its console and the speed page
+    print it."""
+    one = record["one_after_another_ms_per_target"]
+    threads, processes = record["threads_ms_per_target"], record["processes_ms_per_target"]
+    mismatched = record["mismatched"]
+    same = f"answers differing on targets {mismatched}" if mismatched else "the same answers"
+    return (
+        f"{record['targets']} targets of {record['model']} at N = {record['num_samples']}, in "
+        f"process: {one:.1f} ms a target one after another, {threads:.1f} ms on the "
+        f"service's {record['threads']} batch threads ({one / threads:.2f}x), "
+        f"{processes:.1f} ms on {record['processes']} processes ({one / processes:.2f}x), "
+        f"with {same}. The threads take {threads / processes:.2f}x the processes' time: "
+        f"{1 - processes / threads:.0%} of the threads' batch is what sharing one process "
+        "costs them (its lock on the interpreter, the GIL: one thread's Python at a time)."
     )
