@@ -558,3 +558,15 @@ def test_the_phases_table_is_the_records_rows_with_their_share_of_the_python() -
     leaves = [r for r in record["phases"] if r["label"] not in set(nested.values())]
     top = max(leaves, key=lambda r: r["python_ms"])
     assert f"({top['label']}) holds {100 * top['python_ms'] / answer_python:.0f} %" in text
+
+
+def test_the_batch_processes_block_is_the_records_figures() -> None:
+    record = read("batch-processes-iiwa14-pose")
+    text = run_block("batch-processes", [])
+    assert text.startswith(f"Measured by `{record['command']}` on ")
+    one, threads = record["one_after_another_ms_per_target"], record["threads_ms_per_target"]
+    processes = record["processes_ms_per_target"]
+    assert f"{one:.1f} ms a target one after another, {threads:.1f} ms on the service's" in text
+    assert f"{processes:.1f} ms on {record['processes']} processes" in text
+    assert f"take {threads / processes:.2f}x the processes' time" in text
+    assert record["mismatched"] == [] and "with the same answers" in text

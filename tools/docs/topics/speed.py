@@ -20,6 +20,7 @@
     <!-- figures: int8-exactness -->                 onnxruntime's int8 against the exact network
     <!-- figures: network-floor -->                  the AVX2 product's peak, the layers against it
     <!-- figures: phases -->                         an answer's Python and compiled work by phase
+    <!-- figures: batch-processes -->                a batch on threads and on processes
 
 Options are `key=value` words: `report=NAME` reads docs/benchmark/NAME.json (default
 `benchmark`, the benchmark of record), `n=N` a size other than the goals' N, `fmt=SPEC` a
@@ -46,6 +47,7 @@ from tools.batch_bounds import (
     cpu_sentence,
     network_bound,
     network_sentence,
+    processes_sentence,
     same_work_bound,
     same_work_sentence,
     stage_bound,
@@ -912,6 +914,18 @@ def soak_timeline(*arguments: str) -> str:
          "batch p99 ms", "probe ms"],
         rows,
     )  # fmt: skip
+
+
+@block("batch-processes")
+def batch_processes(*arguments: str) -> str:
+    """docs/benchmark/batch-processes-<model>.json (`tools.batch_processes`): the same
+    targets in process one after another, on the service's batch threads and on as many
+    processes, and what sharing one process costs the threads, with the command and the
+    machine that measured it."""
+    chosen = options(arguments, {"report": "batch-processes-iiwa14-pose"})
+    record = sources.benchmark(chosen["report"])
+    machine = Machine.from_json(record["machine"]).describe()
+    return f"Measured by `{record['command']}` on {machine}: {processes_sentence(record)}"
 
 
 @block("phases")
