@@ -44,13 +44,12 @@ from service.models.registry import ServedModel, load_model
 from service.pipeline.batch import run_batch
 from service.pipeline.types import Query, SmmResult
 from service.wire import SmmRequest
-from tools.batch_benchmark import target_of
+from tools.batch_benchmark import TARGETS_SEED, target_of
 from tools.batch_bounds import processes_sentence
 from training.checkout import git_commit
 from training.evaluate.targets import uniform_configurations
 from training.machine import Machine
 
-TARGETS_SEED = 7  # the batch benchmark's targets
 ROUNDS = 3
 
 
