@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import asyncio
 import threading
-from collections.abc import AsyncIterator
+from collections.abc import AsyncGenerator
 
 from fastapi import Request
 
@@ -66,7 +66,7 @@ class BatchLines:
             self.first.set_result(None)
         self._lines.put_nowait(line)
 
-    async def read(self, computation: asyncio.Future[None]) -> AsyncIterator[bytes]:
+    async def read(self, computation: asyncio.Future[None]) -> AsyncGenerator[bytes, None]:
         """Every line, in order, until the last; then the computation's outcome (an error
         after the 200 was sent cuts the stream off). Leaving early stops the batch."""
         try:

@@ -11,6 +11,7 @@ as soon as it is answered (`batch_lines.py`).
 from __future__ import annotations
 
 import asyncio
+from collections.abc import Callable
 from typing import Any
 
 from fastapi import APIRouter, Request, Response
@@ -39,7 +40,7 @@ from service.observability.metrics import Metrics
 from service.pipeline.batch import BatchResult, run_batch
 from service.pipeline.deadline import Deadline
 from service.pipeline.types import STAGES, Query, SmmResult, TimedSpan
-from service.wire import NDJSON, SmmBatchRequest, SmmBatchResponse
+from service.wire import BATCH_LINES, NDJSON, SmmBatchRequest, SmmBatchResponse
 
 router = APIRouter(prefix="/smm", tags=["smm"], generate_unique_id_function=operation_id)
 
@@ -121,16 +122,27 @@ def batch_fields(model: ServedModel, queries: list[Query], batch: BatchResult) -
     return {**model_fields(model), "status": end["status"], "results": results, **end}
 
 
+def observer(model: ServedModel, metrics: Metrics) -> Callable[[SmmResult], None]:
+    """What a batch tells the metrics of each answer it computes: its stages and samples,
+    as POST /smm's, whether or not the answer is sent (the work was done)."""
+    model_id = model.manifest.model_id
+
+    def observe(result: SmmResult) -> None:
+        metrics.observe_pipeline(model_id, result.timings, result.counts)
+
+    return observe
+
+
 def answer_batch(
-    model: ServedModel, queries: list[Query], deadline: Deadline, threads: int
-) -> tuple[bytes, BatchResult]:
+    model: ServedModel, queries: list[Query], deadline: Deadline, threads: int, metrics: Metrics
+) -> bytes:
     """Run the batch on `threads` threads and encode its JSON answer (in a worker thread:
     both are CPU work). A batch stopped by the deadline before its first answer is a 504,
     as POST /smm's."""
-    batch = run_batch(model, queries, deadline, threads)
+    batch = run_batch(model, queries, deadline, threads, on_computed=observer(model, metrics))
     if batch.deadline_error is not None and not batch.results:
         raise batch.deadline_error
-    return encode(batch_fields(model, queries, batch)), batch
+    return encode(batch_fields(model, queries, batch))
 
 
 def answer_lines(
@@ -150,10 +162,9 @@ def answer_lines(
         if index == 0:
             lines.put(encode(model_fields(model)) + b"\n")
         lines.put(encode(item_fields(model, queries[index], index, result)) + b"\n")
-        metrics.observe_pipeline(model.manifest.model_id, result.timings, result.counts)
 
     try:
-        batch = run_batch(model, queries, deadline, threads, on_answer)
+        batch = run_batch(model, queries, deadline, threads, on_answer, observer(model, metrics))
         if batch.deadline_error is not None and not batch.results:
             raise batch.deadline_error
         for index in range(len(batch.results), len(queries)):
@@ -205,7 +216,17 @@ LINES_RESPONSE: dict[int | str, dict[str, Any]] = {
         "application/x-ndjson` the same answer as lines, each sent once its target is answered "
         "(the SmmBatchHead, one BatchItemOut per target in order, the SmmBatchEnd; a stream "
         "without the SmmBatchEnd was cut off).",
-        "content": {NDJSON: {"schema": {"type": "string", "description": "JSON lines"}}},
+        "content": {
+            NDJSON: {
+                "schema": {
+                    "description": "Each line is one JSON object: the first a SmmBatchHead, "
+                    "then a BatchItemOut per target in order, the last a SmmBatchEnd.",
+                    "oneOf": [
+                        {"$ref": f"#/components/schemas/{line.__name__}"} for line in BATCH_LINES
+                    ],
+                }
+            }
+        },
     }
 }
 
@@ -245,10 +266,8 @@ async def post_smm_batch(
     queries = to_queries(body, model, settings)
     if wants_lines(request):
         return await stream_batch(model, queries, settings, deadline, admission, metrics)
-    content, batch = await compute_in_slot(
+    content = await compute_in_slot(
         admission, metrics, deadline, answer_batch, model, queries, deadline,
-        settings.batch_threads_per_request,
+        settings.batch_threads_per_request, metrics,
     )  # fmt: skip
-    for result in batch.results:
-        metrics.observe_pipeline(model.manifest.model_id, result.timings, result.counts)
     return Response(content=content, media_type="application/json")

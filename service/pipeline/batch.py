@@ -24,6 +24,10 @@ The deadline is shared by the whole batch: the queries answered before it passed
 returned in order, and the first one it stopped names its stage. `on_answer` hears of each
 answer, in order, as soon as it and those before it are done, so a caller can send it on
 while the workers answer the next queries (POST /smm/batch's NDJSON stream).
+`on_computed` hears of every answer computed, in the thread that computed it, whether or
+not the batch returns it: one a worker finished after the batch stopped (the client left,
+or an earlier query ran past the deadline) is work done all the same, which the server's
+metrics count.
 """
 
 from __future__ import annotations
@@ -36,6 +40,7 @@ from dataclasses import dataclass
 from service.errors import DeadlineExceededError
 from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.run import Stopwatch, answer, encode
+from service.pipeline.targets import Target
 from service.pipeline.types import Query, SmmModel, SmmResult
 
 
@@ -58,6 +63,7 @@ def run_batch(
     deadline: Deadline = NO_DEADLINE,
     threads: int = 1,
     on_answer: Callable[[int, SmmResult], None] | None = None,
+    on_computed: Callable[[SmmResult], None] | None = None,
 ) -> BatchResult:
     """Answer every query; `results[i]` equals `run(model, queries[i])` but for its
     timings, whose total is the sum of its stages (they do not run back to back).
@@ -67,7 +73,8 @@ def run_batch(
     far, in order, with the DeadlineExceededError that stopped the first one unanswered.
     `on_answer(i, results[i])` is called in the calling thread, in order, as each answer
     is ready; an exception it raises stops the batch (the queries under way finish, the
-    rest are not started) and propagates.
+    rest are not started) and propagates. `on_computed(result)` is called for every query
+    answered, in the thread that answered it, as soon as it is; it must not raise.
     """
     start_s = time.perf_counter()
     watches = [Stopwatch(total="stages") for _ in queries]
@@ -76,15 +83,21 @@ def run_batch(
         with watch.stage("encode"):
             targets.append(encode(model, query))
     jobs = list(zip(queries, targets, watches, strict=True))
+
+    def answered(query: Query, target: Target, watch: Stopwatch) -> SmmResult:
+        result = answer(model, query, target, watch, deadline)
+        if on_computed is not None:
+            on_computed(result)
+        return result
+
     results: list[SmmResult] = []
     pool = ThreadPoolExecutor(threads, thread_name_prefix="smm-batch") if threads > 1 else None
     try:
         if pool is None:  # one after another, in the calling thread
-            answers = (answer(model, q, target, watch, deadline) for q, target, watch in jobs)
+            answers = (answered(q, target, watch) for q, target, watch in jobs)
         else:
             futures: list[Future[SmmResult]] = [
-                pool.submit(answer, model, query, target, watch, deadline)
-                for query, target, watch in jobs
+                pool.submit(answered, query, target, watch) for query, target, watch in jobs
             ]
             answers = (future.result() for future in futures)
         for result in answers:  # in order

@@ -8,8 +8,10 @@ deadline cut short says so per target; the route is in the OpenAPI document."""
 from __future__ import annotations
 
 import asyncio
+import time
 from typing import Any
 
+import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
@@ -35,7 +37,8 @@ from service.wire import (
 )
 from tests.support.app import make_client
 from tests.support.bundled import bundled_robots, served_robots_message
-from tests.support.watched import slow_on
+from tests.support.metrics import metric
+from tests.support.watched import condition_of, slow_on, watched
 
 PLANAR = {"robot": "planar3r", "task": "position"}
 POSE_TARGETS: list[dict[str, Any]] = [
@@ -316,20 +319,64 @@ def test_the_lines_make_up_the_json_answer(client: TestClient, robot: str) -> No
 
 
 class Lines:
-    """`answer_lines` run in a worker thread as the route runs it, its lines read back."""
+    """`answer_lines` run in a worker thread as the route runs it, its lines read back
+    (`first`: only so many, then the reader leaves), its metrics kept."""
 
-    def __init__(self, model: ServedModel, queries: list[Query], deadline: Deadline) -> None:
-        self.model, self.queries, self.deadline = model, queries, deadline
+    def __init__(
+        self, model: ServedModel, queries: list[Query], deadline: Deadline, threads: int = 2
+    ) -> None:
+        self.model, self.queries, self.deadline, self.threads = model, queries, deadline, threads
+        self.metrics = Metrics()
 
-    async def read(self) -> list[bytes]:
+    async def read(self, first: int | None = None) -> list[bytes]:
         lines = BatchLines()
         computation = asyncio.ensure_future(
             asyncio.to_thread(
-                answer_lines, self.model, self.queries, self.deadline, 2, lines, Metrics()
+                answer_lines, self.model, self.queries, self.deadline, self.threads, lines,
+                self.metrics,
             )
-        )
+        )  # fmt: skip
         await first_line_or_error(lines, computation)
-        return [line async for line in lines.read(computation)]
+        read: list[bytes] = []
+        reader = lines.read(computation)
+        async for line in reader:
+            read.append(line)
+            if first is not None and len(read) == first:
+                await reader.aclose()  # the client leaves
+                await computation  # the worker stops: the targets under way finish
+                break
+        return read
+
+    def answers_observed(self) -> float:
+        """How many answers the metrics saw computed (each observes its total time once)."""
+        text = self.metrics.exposition(None)[0].decode()
+        labels = {"model": self.model.manifest.model_id, "stage": "total"}
+        return metric(text, "smm_pipeline_stage_duration_seconds_count", **labels)
+
+
+def test_every_answer_computed_is_counted_when_the_client_leaves(planar3r: ServedModel) -> None:
+    queries = [
+        Query.for_model(planar3r.manifest, position_m=[0.5, 0.01 * i], num_samples=50, seed=i)
+        for i in range(6)
+    ]
+    first = condition_of(planar3r, queries[0].position_m)
+    sampled: set[bytes] = set()  # the conditions of the targets whose sampling began
+
+    def watch(condition: np.ndarray) -> None:
+        sampled.add(condition.tobytes())
+        if condition.tobytes() != first:
+            time.sleep(0.3)  # the other worker's target is under way when the client leaves
+
+    streamed = Lines(watched(planar3r, watch), queries, Deadline.after(60.0), threads=2)
+    lines = asyncio.run(streamed.read(first=2))  # the head and the first answer
+    assert len(lines) == 2
+    # Every target begun was answered and counted, the ones never sent too; the rest
+    # were never started.
+    assert 2 <= len(sampled) < len(queries)
+    assert streamed.answers_observed() == len(sampled)
+    whole = Lines(planar3r, queries, Deadline.after(60.0))
+    asyncio.run(whole.read())
+    assert whole.answers_observed() == len(queries)
 
 
 def test_a_deadline_mid_batch_sends_the_targets_left_as_deadline_exceeded(

@@ -4,7 +4,8 @@ several answer them at once, on the planar 3R and the iiwa14 pose; a target's ti
 add up its stages; a deadline that passes mid-batch returns the queries answered before
 it, in order, and names the stage it stopped, whatever the threads; each answer is handed
 to the listener in order, and an error the listener raises stops the batch, the queries
-not yet started never starting."""
+not yet started never starting; every query answered, sent or not (one under way when the
+batch stopped), is heard by `on_computed`, each its `run` answer."""
 
 from __future__ import annotations
 
@@ -116,6 +117,7 @@ def test_an_error_from_the_listener_stops_the_batch(planar3r: ServedModel, threa
 
     counted = watched(planar3r, watch)
     answered: list[int] = []
+    computed: list[SmmResult] = []
 
     def stop_after_the_second(index: int, result: SmmResult) -> None:
         answered.append(index)
@@ -123,10 +125,20 @@ def test_an_error_from_the_listener_stops_the_batch(planar3r: ServedModel, threa
             raise Enough
 
     with pytest.raises(Enough):
-        run_batch(counted, queries, threads=threads, on_answer=stop_after_the_second)
+        run_batch(
+            counted, queries, threads=threads, on_answer=stop_after_the_second,
+            on_computed=computed.append,
+        )  # fmt: skip
     assert answered == [0, 1]  # nothing is handed over after the error
     # Those under way finished, the rest were never started.
     assert 2 <= len(sampled) <= 2 + threads
+    # Every query whose sampling began was answered and heard, the unsent ones too, each
+    # the `run` answer of one of the queries.
+    assert len(computed) == len(sampled)
+    singles = [run(planar3r, q).components[0].configurations_rad for q in queries]
+    for result in computed:
+        heard = result.components[0].configurations_rad
+        assert sum(np.array_equal(heard, single) for single in singles) == 1
 
 
 def test_a_changed_seed_changes_only_its_own_answer(planar3r: ServedModel) -> None:
