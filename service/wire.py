@@ -552,6 +552,11 @@ class SmmBatchResponse(SmmBatchHead):
         return cls(**dict(head), status=end.status, results=results, timings_ms=end.timings_ms)
 
 
+# The models an NDJSON batch's lines are, in the order they come: one head, one item per
+# target, one end.
+BATCH_LINES: tuple[type[BaseModel], ...] = (SmmBatchHead, BatchItemOut, SmmBatchEnd)
+
+
 class RobotOut(BaseModel):
     robot: str
     task: str

@@ -8,6 +8,9 @@ has loaded and cached from then on.
 Every route's operation id is its endpoint's name less a method prefix (`operation_id`), so
 a generated client's functions read `smm`, `smm_batch`, `list_robots`, `healthz`,
 `readyz` and `metrics` rather than FastAPI's `post_smm_smm_post`.
+
+POST /smm/batch's NDJSON answer names the model of each line (`wire.BATCH_LINES`), so the
+document holds those models too, though no route returns them whole.
 """
 
 from __future__ import annotations
@@ -17,8 +20,10 @@ from typing import Any
 from fastapi import FastAPI
 from fastapi.openapi.utils import get_openapi
 from fastapi.routing import APIRoute
+from pydantic.json_schema import models_json_schema
 
 from service.models.registry import Registry
+from service.wire import BATCH_LINES
 
 
 def operation_id(route: APIRoute) -> str:
@@ -44,6 +49,7 @@ def served_openapi(app: FastAPI) -> dict[str, Any]:
         description=app.description,
         routes=app.routes,
     )
+    _add_line_models(schema)
     registry: Registry | None = getattr(app.state, "registry", None)
     if registry is None:  # not loaded yet: plain strings, and do not cache
         return schema
@@ -53,3 +59,15 @@ def served_openapi(app: FastAPI) -> dict[str, Any]:
         request["task"]["enum"] = sorted({m.manifest.task.name for m in registry.all()})
     app.openapi_schema = schema
     return schema
+
+
+def _add_line_models(schema: dict[str, Any]) -> None:
+    """The models of the batch's NDJSON lines, and those they refer to, into the document's
+    components where FastAPI left them out."""
+    _, definitions = models_json_schema(
+        [(model, "serialization") for model in BATCH_LINES],
+        ref_template="#/components/schemas/{model}",
+    )
+    components = schema.setdefault("components", {}).setdefault("schemas", {})
+    for name, definition in definitions.get("$defs", {}).items():
+        components.setdefault(name, definition)
