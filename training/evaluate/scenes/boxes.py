@@ -20,8 +20,8 @@ import numpy as np
 from service.models.registry import ServedModel
 from service.pipeline.arrays import FloatArray
 from service.pipeline.collision.scene import Obstacle
+from service.pipeline.targets import fields_reached
 from training.evaluate.scenes.coal_model import CoalModel
-from training.evaluate.served import orientation_wxyz
 
 MIN_SIDE_M, MAX_SIDE_M = 0.05, 0.4
 # Boxes drawn per box asked for before a scene settles for fewer (q_target fills space).
@@ -119,17 +119,13 @@ def request_body(model: ServedModel, scene: SceneTarget, margin_m: float) -> dic
     """The POST /smm body that asks the service this target in this scene, with the seed
     and number of samples the evaluation asked with (the target's index, the model's
     default), so that it replays the evaluated answer."""
-    q_target_rad = scene.q_target_rad
     manifest = model.manifest
-    fk = model.kinematics(q_target_rad[None])
-    target: dict[str, object] = {"position": fk.position_m[0, manifest.task.position_axes].tolist()}
-    if manifest.task.orientation:
-        w, x, y, z = orientation_wxyz(fk.rotation[0])
-        target["orientation"] = {"w": w, "x": x, "y": y, "z": z}
+    fk = model.kinematics(scene.q_target_rad[None])
+    target = fields_reached(manifest.task, fk.position_m[0], fk.rotation[0])
     return {
         "robot": manifest.robot,
         "task": manifest.task.name,
-        "target": target,
+        "target": target.wire(),
         "num_samples": manifest.defaults.num_samples,
         "seed": scene.index,
         "obstacles": list(scene.bodies),

@@ -32,8 +32,7 @@ from training.evaluate.scenes.position import MATCH_RAD as POSITION_MATCH_RAD
 from training.evaluate.scenes.rendering import markdown
 from training.evaluate.scenes.summary import summary
 from training.evaluate.scenes.target import FIBRE_POINTS, evaluate_target
-from training.evaluate.scenes.timing import TIMING_OBSTACLES, query_for
-from training.evaluate.served import orientation_wxyz
+from training.evaluate.scenes.timing import TIMING_OBSTACLES, query_for, target_fields
 from training.machine import Machine
 
 SCENES_DIR = REPORTS_DIR / "scenes"
@@ -53,6 +52,7 @@ def build_scenes_report(
         targets.append(evaluate_target(model, coal, scene, timing.obstacles, margin_m))
     return {
         "model": model.reference,
+        "task": model.manifest.task.name,
         "redundancy": model.manifest.redundancy,
         "machine": machine.ended().as_json(),
         "targets": num_targets,
@@ -84,10 +84,8 @@ def _warm_up(
 ) -> None:
     """One untimed answer first: onnxruntime's first call costs more than the rest."""
     scene = scene_target(model, coal, seed + 1, 0, max_obstacles, margin_m)
-    fk = model.kinematics(scene.q_target_rad[None])
-    position = fk.position_m[0, model.manifest.task.position_axes].tolist()
-    wxyz = orientation_wxyz(fk.rotation[0]) if model.manifest.task.orientation else None
-    run(model, query_for(model, position, wxyz, scene.obstacles, True, margin_m, 0))
+    target = target_fields(model, scene.q_target_rad)
+    run(model, query_for(model, target, scene.obstacles, True, margin_m, 0))
 
 
 def report_json(report: dict[str, Any]) -> str:

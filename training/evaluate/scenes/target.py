@@ -1,6 +1,7 @@
 """One target of the scene section: its scene, the service's answer in it, that answer
 checked by coal, its free pieces found (pose; a position where its robot's reference has
-a graph to cut, position.py), the free space the check loses, and its four timings.
+a graph to cut, position.py; not for the tool-axis task, which has no such reference),
+the free space the check loses, and its four timings.
 Everything is a JSON-ready dict, with the POST /smm body that replays it."""
 
 from __future__ import annotations
@@ -22,11 +23,11 @@ from training.evaluate.scenes.pieces import recall
 from training.evaluate.scenes.position import POSITION_REFERENCES, position_recall
 from training.evaluate.scenes.recorder import recorded_answer, same_answer
 from training.evaluate.scenes.reference import free_pieces_of_pose
-from training.evaluate.scenes.timing import query_for, time_ways_ms
-from training.evaluate.served import orientation_wxyz
+from training.evaluate.scenes.timing import query_for, target_fields, time_ways_ms
 from training.evaluate.truth import ground_truth
 
-# Exact points of a 4-D fibre checked for the free space lost, per target.
+# Exact points of a fibre without free-piece reference (position, axis) checked for the
+# free space lost, per target.
 FIBRE_POINTS = 1000
 
 
@@ -54,7 +55,7 @@ def sphere_check(
 
 
 def fibre_points(model: ServedModel, q_target_rad: FloatArray, seed: int) -> FloatArray:
-    """At most FIBRE_POINTS exact points of a position target's 4-D fibre, at random (the
+    """At most FIBRE_POINTS exact points of a position or axis target's fibre, at random (the
     kinematic report's ground truth, its grid drawn with `seed`)."""
     points = ground_truth(model, q_target_rad, seed).points
     if len(points) <= FIBRE_POINTS:
@@ -72,17 +73,13 @@ def evaluate_target(
     """The scene section's measures of one target (module docstring)."""
     manifest = model.manifest
     n = manifest.joints.count
-    fk = model.kinematics(scene.q_target_rad[None])
-    position = fk.position_m[0, manifest.task.position_axes].tolist()
-    wxyz = orientation_wxyz(fk.rotation[0]) if manifest.task.orientation else None
+    target = target_fields(model, scene.q_target_rad)
     obstacles = scene.obstacles
-    query = query_for(model, position, wxyz, obstacles, True, margin_m, scene.index)
+    query = query_for(model, target, obstacles, True, margin_m, scene.index)
     result, check = recorded_answer(model, query)
     returned, labels = _returned(result, n)
     recorded = recorded_sample(check.recorded(n), scene.index)
-    times, answers = time_ways_ms(
-        model, position, wxyz, obstacles, timing_scene, margin_m, scene.index
-    )
+    times, answers = time_ways_ms(model, target, obstacles, timing_scene, margin_m, scene.index)
     entry: dict[str, object] = {
         "index": scene.index,
         "q_target_rad": scene.q_target_rad.tolist(),
@@ -106,7 +103,8 @@ def evaluate_target(
         entry["recall"] = asdict(found)
         coal_free = pieces.q_rad[pieces.label >= 0]
     else:
-        if manifest.robot in POSITION_REFERENCES:
+        position_task = not manifest.task.orientation and manifest.task.tool_axis is None
+        if position_task and manifest.robot in POSITION_REFERENCES:
             found, steps = position_recall(
                 model, coal, sphere_check(model, obstacles, margin_m).free,
                 scene.q_target_rad, obstacles, margin_m, returned, labels,

@@ -10,18 +10,26 @@ from collections.abc import Sequence
 import numpy as np
 
 from service.models.registry import ServedModel
+from service.pipeline.arrays import FloatArray
 from service.pipeline.collision.scene import Obstacle
 from service.pipeline.run import run
+from service.pipeline.targets import TargetFields, fields_reached
 from service.pipeline.types import Query, SmmResult
 
 TIMING_OBSTACLES = 10
 WAYS = ("scene", "self_only", "nothing_checked", f"{TIMING_OBSTACLES}_boxes")
 
 
+def target_fields(model: ServedModel, q_target_rad: FloatArray) -> TargetFields:
+    """The target a configuration (n,) reaches, as a client sends it for the model's task:
+    the position, and the orientation (pose) or the tool axis (axis)."""
+    fk = model.kinematics(q_target_rad[None])
+    return fields_reached(model.manifest.task, fk.position_m[0], fk.rotation[0])
+
+
 def query_for(
     model: ServedModel,
-    position_m: Sequence[float],
-    orientation_wxyz: tuple[float, float, float, float] | None,
+    target: TargetFields,
     obstacles: Sequence[Obstacle],
     check_self: bool,
     margin_m: float,
@@ -29,15 +37,15 @@ def query_for(
 ) -> Query:
     """The query a client sends for this target and scene, with the model's defaults."""
     return Query.for_model(
-        model.manifest, position_m=position_m, orientation_wxyz=orientation_wxyz,
-        seed=seed, obstacles=obstacles, check_self=check_self, margin_m=margin_m,
+        model.manifest, position_m=target.position_m, orientation_wxyz=target.orientation_wxyz,
+        axis=target.axis, seed=seed, obstacles=obstacles, check_self=check_self,
+        margin_m=margin_m,
     )  # fmt: skip
 
 
 def time_ways_ms(
     model: ServedModel,
-    position_m: Sequence[float],
-    orientation_wxyz: tuple[float, float, float, float] | None,
+    target: TargetFields,
     scene: Sequence[Obstacle],
     timing_scene: Sequence[Obstacle],
     margin_m: float,
@@ -52,9 +60,7 @@ def time_ways_ms(
     }
     times, answers = {}, {}
     for way, (obstacles, check_self) in asked.items():
-        query = query_for(
-            model, position_m, orientation_wxyz, obstacles, check_self, margin_m, seed
-        )
+        query = query_for(model, target, obstacles, check_self, margin_m, seed)
         answers[way] = run(model, query)
         times[way] = answers[way].timings.total_ms
     return times, answers

@@ -1,10 +1,14 @@
-"""training.evaluate.scenes.report: the whole section on two Panda pose targets.
+"""training.evaluate.scenes.report: the whole section on two Panda pose targets, and on a
+UR5 tool-axis target.
 
 Every configuration the service returned or called free is free by coal (0 violations,
 by coal's own distances too: the least clearance of the returned ones is above 0), the
 answers are `run`'s, each target's request replays as a POST /smm body the API accepts,
 the figures over the targets are the sums of the per-target ones, the JSON as written
-(one line per target) reads back as the report, and the page renders from it.
+(one line per target) reads back as the report, and the page renders from it. An axis
+target's request carries the tool axis its configuration reaches (the axis the model's
+kinematics gives, to 1e-12), replays to the same answer, and its page says why it has no
+free-piece recall.
 """
 
 from __future__ import annotations
@@ -14,7 +18,8 @@ from dataclasses import asdict
 
 import numpy as np
 
-from service.models.registry import ServedModel
+from service.manifest import REPO_MODELS_DIR
+from service.models.registry import ServedModel, load_model
 from service.pipeline.collision.scene import Obstacle
 from service.pipeline.run import run
 from service.pipeline.types import Query
@@ -65,3 +70,36 @@ def test_two_panda_targets_have_no_violation(
     assert summary["free_space"]["lost_points"] == lost
     page = markdown("panda-pose", report)
     assert page.startswith("# Scenes: panda-pose") and "| exactly 10 boxes |" in page
+
+
+def test_an_axis_target_is_asked_with_the_axis_it_reaches() -> None:
+    model = load_model(REPO_MODELS_DIR / "ur5-axis", threads=0)
+    tool_axis = model.manifest.task.tool_axis
+    assert tool_axis is not None
+    report = json.loads(report_json(build_scenes_report(model, 1, 5, 3, 0.0)))
+    assert report["task"] == "axis" and report["summary"]["recall"] is None
+    exactness = report["summary"]["exactness"]
+    assert exactness["returned"]["violations"] == exactness["recorded"]["violations"] == 0
+    (target,) = report["per_target"]
+    sent = target["request"]
+    body = SmmRequest.model_validate(sent)
+    fk = model.kinematics(np.asarray(target["q_target_rad"])[None])
+    np.testing.assert_allclose(sent["target"]["axis"], fk.rotation[0] @ tool_axis, atol=1e-12)
+    assert "orientation" not in sent["target"] and body.target.axis is not None
+    x, y, z = body.target.axis
+    boxes = [
+        Obstacle.of(i, o["shape"], o["dimensions"], o["position"],
+                    tuple(o["orientation"][k] for k in "wxyz"))
+        for i, o in enumerate(sent["obstacles"])
+    ]  # fmt: skip
+    replayed = run(
+        model,
+        Query.for_model(
+            model.manifest, position_m=sent["target"]["position"], axis=(x, y, z),
+            num_samples=sent["num_samples"], seed=sent["seed"], obstacles=boxes,
+        ),
+    )  # fmt: skip
+    assert len(replayed.components) == target["components"]
+    assert asdict(replayed.counts) == target["counts"]
+    assert target["free_space"]["coal_free"] > 0
+    assert "Not measured for the tool-axis task" in markdown("ur5-axis", report)
