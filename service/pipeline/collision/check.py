@@ -75,12 +75,10 @@ class CollisionCheck:
             near = np.flatnonzero(clearance[span] < self.margin_m)  # the hulls decide
             if not len(near):
                 continue
-            if placed is None:  # itself alone: compiled, at joint values
+            refined = np.full(len(near), np.inf)
+            if self.self_checked:  # itself: compiled, at joint values
                 refined = robot.refined_self_clearance_at_m(q[near], self.margin_m)
-            else:
-                refined = np.full(len(near), np.inf)
-                if self.self_checked:
-                    refined = robot.refined_self_clearance_m(placed, near, self.margin_m)
+            if placed is not None:
                 alive = refined >= self.margin_m  # not free on itself: no obstacle asked
                 refined[alive] = np.minimum(
                     refined[alive],

@@ -4,7 +4,9 @@ its links, the check's clearance is never above coal's (self and obstacles), so 
 it calls free is free; it is never below the spheres' alone; and it refuses fewer of the
 configurations coal finds free than the spheres alone do. Its verdicts (`judged`, which
 `free` asks) are its clearance against the margin; with nothing to check,
-every configuration is free at an infinite clearance."""
+every configuration is free at an infinite clearance. With obstacles, the robot's own
+clearance is the one it has without them, to the bit: an obstacle out of reach changes no
+clearance, where the hulls decide too (the UR5, whose spheres overlap often)."""
 
 from __future__ import annotations
 
@@ -85,3 +87,20 @@ def test_the_verdicts_are_the_clearance_against_the_margin(panda: ServedModel) -
     assert not nothing.active
     clearance, free = nothing.judged(q)
     assert np.isinf(clearance).all() and free.all()
+
+
+@pytest.mark.parametrize("model_id", ["panda-pose", "ur5-axis"])
+def test_an_obstacle_out_of_reach_changes_no_clearance(model_id: str) -> None:
+    model = load_model(REPO_MODELS_DIR / model_id, threads=1)
+    robot = model.robot_spheres
+    assert robot is not None
+    q = np.random.default_rng(5).uniform(
+        model.limits.lower_rad, model.limits.upper_rad, (400, len(model.limits.lower_rad))
+    )
+    far = Scene((Obstacle.of(0, "box", [0.1, 0.1, 0.1], [50.0, 0.0, 0.0], None),))
+    for margin_m in (0.0, 0.02):
+        alone = CollisionCheck(robot, Scene(), True, margin_m).clearance_m(q)
+        beside = CollisionCheck(robot, far, True, margin_m).clearance_m(q)
+        assert np.array_equal(beside, alone)
+        # Some of these configurations are decided by the hulls (spheres within the margin).
+        assert (robot.self_clearance_at_m(q) < margin_m).any()
