@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import argparse
 import hashlib
-import json
 import multiprocessing
 import statistics
 import sys
@@ -46,6 +45,7 @@ from service.pipeline.types import Query, SmmResult
 from service.wire import SmmRequest
 from tools.batch_benchmark import TARGETS_SEED, target_of
 from tools.batch_bounds import processes_sentence
+from tools.records import command_line, write_record
 from training.checkout import git_commit
 from training.evaluate.targets import uniform_configurations
 from training.machine import Machine
@@ -181,16 +181,13 @@ def main(argv: list[str] | None = None) -> int:
     record = measure(args.model, args.targets, processes, args.rounds)
     print(processes_sentence(record))
     if args.json:
-        command = ["python -m tools.batch_processes", *(sys.argv[1:] if argv is None else argv)]
         full = {
-            "command": " ".join(command),
+            "command": command_line("tools.batch_processes", argv),
             "git_commit": git_commit(),
             "machine": machine.ended().as_json(),
             **record,
         }
-        with open(args.json, "w") as handle:
-            json.dump(full, handle, indent=1)
-            handle.write("\n")
+        write_record(args.json, full)
     return 0 if not record["mismatched"] else 1
 
 

@@ -56,7 +56,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -113,6 +112,7 @@ from tools.goals import (
 )
 from tools.local_server import LocalServer
 from tools.network_floor import avx2_network_products, every_core_peak
+from tools.records import command_line, write_record
 from training.checkout import git_commit
 from training.evaluate.compare import better_than, worse_than
 from training.evaluate.judge import JUDGED_SEPARATOR, figures, paper_defaults
@@ -854,7 +854,7 @@ def main() -> None:
     threads = settings.onnx_threads_per_session
     machine = Machine.now()
     report: dict = {
-        "command": " ".join(["python -m tools.benchmark", *sys.argv[1:]]),
+        "command": command_line("tools.benchmark"),
         "git_commit": git_commit(),  # the code measured, at the run's start
         "onnx_threads": threads,
         # The int8 flow networks on the compiled layers (the exact product), and on which kernel.
@@ -893,7 +893,7 @@ def main() -> None:
         )
     report["machine"] = machine.ended().as_json()
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "benchmark.json").write_text(json.dumps(report, indent=1) + "\n")
+    write_record(args.out / "benchmark.json", report)
     (args.out / "benchmark.md").write_text(markdown(report))
     print(markdown(report))
 

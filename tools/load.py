@@ -22,7 +22,6 @@ from __future__ import annotations
 import argparse
 import asyncio
 import ipaddress
-import json
 import os
 import random
 import sys
@@ -40,6 +39,7 @@ from service.models.sessions import OnnxKinematics, open_session
 from service.pipeline.joint_space import JointLimits
 from service.pipeline.targets import fields_reached
 from tools.local_server import LocalServer
+from tools.records import command_line, write_record
 from training.checkout import git_commit
 from training.machine import Machine
 
@@ -250,7 +250,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.url:
         require_loopback(args.url)
     record: dict[str, Any] = {
-        "command": " ".join(["python -m tools.load", *(sys.argv[1:] if argv is None else argv)]),
+        "command": command_line("tools.load", argv),
         "url": args.url,
         "settings": settings,
     }
@@ -285,9 +285,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         record["machine"] = machine.ended().as_json()
         record["runs"] = [asdict(report) for report in reports]
-        with open(args.json, "w") as handle:
-            json.dump(record, handle, indent=1)
-            handle.write("\n")
+        write_record(args.json, record)
     return 1 if any(report.errors for report in reports) else 0
 
 

@@ -23,7 +23,6 @@ from __future__ import annotations
 import argparse
 import functools
 import importlib
-import json
 import sys
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -38,6 +37,7 @@ from service.models.registry import load_model
 from service.pipeline.arrays import FloatArray
 from service.pipeline.run import run
 from tools.connect_profile import KernelTimer, queries_for
+from tools.records import command_line, write_record
 from training.checkout import git_commit
 from training.evaluate.targets import uniform_configurations
 from training.machine import Machine
@@ -273,17 +273,14 @@ def main(argv: list[str] | None = None) -> int:
     profile = profile_phases(args.model, q_targets, args.repeats)
     print(format_profile(profile))
     if args.json:
-        command = ["python -m tools.phase_profile", *(sys.argv[1:] if argv is None else argv)]
         record = {
-            "command": " ".join(command),
+            "command": command_line("tools.phase_profile", argv),
             "git_commit": git_commit(),
             "machine": machine.ended().as_json(),
             "seed": args.seed,
             **as_json(profile),
         }
-        with open(args.json, "w") as handle:
-            json.dump(record, handle, indent=1)
-            handle.write("\n")
+        write_record(args.json, record)
     return 0
 
 

@@ -74,6 +74,7 @@ from tools.load import (
 )
 from tools.local_server import LocalServer
 from tools.procfs import resident_memory_bytes
+from tools.records import command_line, write_record
 from training.checkout import git_commit
 from training.machine import Machine
 
@@ -648,7 +649,7 @@ def main(argv: list[str] | None = None) -> int:
         require_loopback(args.url)
     settings = dict(item.split("=", 1) for item in args.setting)
     record: dict[str, Any] = {
-        "command": " ".join(["python -m tools.soak", *(sys.argv[1:] if argv is None else argv)]),
+        "command": command_line("tools.soak", argv),
         "git_commit": git_commit(),
         "url": args.url,
         "settings": {
@@ -709,9 +710,7 @@ def main(argv: list[str] | None = None) -> int:
             for window in windows
         ]
         record["verdicts"] = asdict(verdicts)
-        with open(args.json, "w") as handle:
-            json.dump(record, handle, indent=1)
-            handle.write("\n")
+        write_record(args.json, record)
     return 1 if verdicts.errors else 0
 
 
