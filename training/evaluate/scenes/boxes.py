@@ -20,7 +20,7 @@ import numpy as np
 from service.models.registry import ServedModel
 from service.pipeline.arrays import FloatArray
 from service.pipeline.collision.scene import Obstacle
-from service.pipeline.targets import fields_reached
+from service.pipeline.targets import TargetFields, fields_reached
 from training.evaluate.scenes.coal_model import CoalModel
 
 MIN_SIDE_M, MAX_SIDE_M = 0.05, 0.4
@@ -115,17 +115,22 @@ def scene_target(
     return SceneTarget(index, q_target, obstacles, count, bodies)
 
 
+def target_fields(model: ServedModel, q_target_rad: FloatArray) -> TargetFields:
+    """The target a configuration (n,) reaches, as a client sends it for the model's task:
+    the position, and the orientation (pose) or the tool axis (axis)."""
+    fk = model.kinematics(q_target_rad[None])
+    return fields_reached(model.manifest.task, fk.position_m[0], fk.rotation[0])
+
+
 def request_body(model: ServedModel, scene: SceneTarget, margin_m: float) -> dict[str, object]:
     """The POST /smm body that asks the service this target in this scene, with the seed
     and number of samples the evaluation asked with (the target's index, the model's
     default), so that it replays the evaluated answer."""
     manifest = model.manifest
-    fk = model.kinematics(scene.q_target_rad[None])
-    target = fields_reached(manifest.task, fk.position_m[0], fk.rotation[0])
     return {
         "robot": manifest.robot,
         "task": manifest.task.name,
-        "target": target.wire(),
+        "target": target_fields(model, scene.q_target_rad).wire(),
         "num_samples": manifest.defaults.num_samples,
         "seed": scene.index,
         "obstacles": list(scene.bodies),

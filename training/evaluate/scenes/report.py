@@ -23,7 +23,13 @@ from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
 from service.pipeline.run import run
 from training.evaluate.report import REPORTS_DIR
-from training.evaluate.scenes.boxes import DRAWS_PER_BOX, MAX_SIDE_M, MIN_SIDE_M, scene_target
+from training.evaluate.scenes.boxes import (
+    DRAWS_PER_BOX,
+    MAX_SIDE_M,
+    MIN_SIDE_M,
+    scene_target,
+    target_fields,
+)
 from training.evaluate.scenes.coal_model import CoalModel
 from training.evaluate.scenes.exactness import RECORDED_PER_TARGET
 from training.evaluate.scenes.pieces import MATCH_RAD, MIN_PIECE_SHARE, RESOLUTION_RAD
@@ -32,7 +38,7 @@ from training.evaluate.scenes.position import MATCH_RAD as POSITION_MATCH_RAD
 from training.evaluate.scenes.rendering import markdown
 from training.evaluate.scenes.summary import summary
 from training.evaluate.scenes.target import FIBRE_POINTS, evaluate_target
-from training.evaluate.scenes.timing import TIMING_OBSTACLES, query_for, target_fields
+from training.evaluate.scenes.timing import TIMING_OBSTACLES, query_for
 from training.machine import Machine
 
 SCENES_DIR = REPORTS_DIR / "scenes"

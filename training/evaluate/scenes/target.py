@@ -16,14 +16,14 @@ from service.pipeline.collision.check import CollisionCheck
 from service.pipeline.collision.scene import Obstacle, Scene
 from service.pipeline.types import SmmResult
 from training.evaluate.methods import returned_points
-from training.evaluate.scenes.boxes import SceneTarget, request_body
+from training.evaluate.scenes.boxes import SceneTarget, request_body, target_fields
 from training.evaluate.scenes.coal_model import CoalModel
 from training.evaluate.scenes.exactness import Exactness, recorded_sample
 from training.evaluate.scenes.pieces import recall
 from training.evaluate.scenes.position import POSITION_REFERENCES, position_recall
 from training.evaluate.scenes.recorder import recorded_answer, same_answer
 from training.evaluate.scenes.reference import free_pieces_of_pose
-from training.evaluate.scenes.timing import query_for, target_fields, time_ways_ms
+from training.evaluate.scenes.timing import query_for, time_ways_ms
 from training.evaluate.truth import ground_truth
 
 # Exact points of a fibre without free-piece reference (position, axis) checked for the

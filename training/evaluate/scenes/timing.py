@@ -10,21 +10,13 @@ from collections.abc import Sequence
 import numpy as np
 
 from service.models.registry import ServedModel
-from service.pipeline.arrays import FloatArray
 from service.pipeline.collision.scene import Obstacle
 from service.pipeline.run import run
-from service.pipeline.targets import TargetFields, fields_reached
+from service.pipeline.targets import TargetFields
 from service.pipeline.types import Query, SmmResult
 
 TIMING_OBSTACLES = 10
 WAYS = ("scene", "self_only", "nothing_checked", f"{TIMING_OBSTACLES}_boxes")
-
-
-def target_fields(model: ServedModel, q_target_rad: FloatArray) -> TargetFields:
-    """The target a configuration (n,) reaches, as a client sends it for the model's task:
-    the position, and the orientation (pose) or the tool axis (axis)."""
-    fk = model.kinematics(q_target_rad[None])
-    return fields_reached(model.manifest.task, fk.position_m[0], fk.rotation[0])
 
 
 def query_for(
