@@ -66,6 +66,13 @@ def test_models_table_has_each_models_headline_figures() -> None:
     assert table[("iiwa14-pose",)][2] == "1" and table[("iiwa14-position",)][2] == "4"
 
 
+def test_the_models_page_links_every_bundled_models_report() -> None:
+    """A model added to models/ is not left out of the page's list of reports."""
+    page = (ROOT / "docs" / "models.md").read_text()
+    missing = [m for m in MODEL_IDS if f"](reports/{m}.md)" not in page]
+    assert MODEL_IDS and not missing, f"docs/models.md links no report of {missing}"
+
+
 def test_models_table_recall_counts_only_components_the_evaluation_counts() -> None:
     """r = 1: every exact component; r = 4: those of at least 1 % of the fibre."""
     table = rows(run_block("models-table", []))
