@@ -11,11 +11,17 @@ kernel's file and line. This builds both with setup.py (its sources and flags) p
 the sanitizer into a temporary directory, and runs pytest on the given arguments with
 libasan preloaded (and libstdc++, whose exceptions the sanitizer intercepts for the C++
 extensions the tests load); this module, given to pytest as a plugin (`-p tools.sanitize`), puts the
-sanitized builds in place of the installed ones before anything imports them. Leak
-detection is off: CPython leaves its own allocations to the end of the process. Each
-report (the access, the kernel's stack, the buffer's allocation) is printed after pytest
-ends, since pytest captures what the process writes; the exit status is pytest's, or 1
-where a report was written.
+sanitized builds in place of the installed ones before anything imports them.
+
+Leaks are checked when each process exits (LeakSanitizer): memory allocated and no longer
+reachable from anything. CPython leaves some of its own allocations so at the end of every
+process, so a leak counts only where its allocation's stack passes through a kernel's
+source (`KERNEL_SOURCES`): a kernel that drops a block it allocated, or a wrapper that
+keeps a reference too many to an array it made. The others are counted and left out.
+
+Each report (the access, the kernel's stack, the buffer's allocation; or the kernels'
+leaks) is printed after pytest ends, since pytest captures what the process writes; the
+exit status is pytest's, or 1 where an error or a kernel's leak was reported.
 
 Needs the C compiler the install uses and its AddressSanitizer runtime (with GCC:
 libasan, part of its standard install).
@@ -25,6 +31,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import subprocess
 import sys
 import sysconfig
@@ -37,7 +44,14 @@ REPO = Path(__file__).resolve().parent.parent
 SANITIZE = "-fsanitize=address -fno-omit-frame-pointer -g"
 # Where the plugin finds the sanitized builds (set by `main` for the pytest it runs).
 BUILDS_ENV = "SMM_SANITIZED_KERNELS"
-DEFAULT_TESTS = ("tests/service/pipeline",)
+DEFAULT_TESTS = ("tests/service/pipeline", "tests/service/models")
+# The kernels' sources (setup.py): a leak whose allocation passes through one is theirs.
+KERNEL_SOURCES = (
+    "service/pipeline/native.c",
+    "service/models/int8_mlp.c",
+    "service/pipeline/row_helper.h",
+)
+LEAK_REPORT = "ERROR: LeakSanitizer: detected memory leaks"
 
 
 def compiler() -> str:
@@ -101,16 +115,57 @@ def main(argv: list[str] | None = None) -> int:
             # new_delete_type_mismatch=0: eaik (the tests' analytic IK, C++) frees its
             # Robot through a type of another size, which the sanitizer reports and aborts
             # on; the project's kernels are C, with no new or delete for it to concern.
+            # exitcode=0: a leak found at exit is written to the report and leaves the
+            # process's exit status alone (pytest's); an error still aborts the process.
             "ASAN_OPTIONS": (
-                f"detect_leaks=0:new_delete_type_mismatch=0:abort_on_error=1:log_path={log}"
+                "detect_leaks=1:exitcode=0:new_delete_type_mismatch=0:abort_on_error=1:"
+                f"log_path={log}"
             ),
         }
         command = [sys.executable, "-m", "pytest", "-p", "tools.sanitize", "-p", "no:cacheprovider"]
         status = subprocess.run([*command, *args.pytest_args, *extra], cwd=REPO, env=env).returncode
-        reports = sorted(Path(tmp).glob("asan.*"))
-        for report in reports:
-            sys.stderr.write(report.read_text())
-        return status or (1 if reports else 0)
+        found = False
+        others = 0
+        for report in sorted(Path(tmp).glob("asan.*")):
+            text = report.read_text()
+            if not is_leak_report(text):  # an error: the process stopped there
+                sys.stderr.write(text)
+                found = True
+                continue
+            theirs = kernel_leaks(text)
+            others += len(leak_blocks(text)) - len(theirs)
+            if theirs:
+                sys.stderr.write(f"{LEAK_REPORT} by the kernels ({report.name}):\n\n")
+                sys.stderr.write("\n".join(theirs))
+                found = True
+        sys.stderr.write(
+            f"tools.sanitize: {others} leaks at exit allocated outside the kernels, left out\n"
+        )
+        return status or (1 if found else 0)
+
+
+def is_leak_report(text: str) -> bool:
+    """A report of leaks at exit only, no error (an error aborts before the leak check)."""
+    return LEAK_REPORT in text and "ERROR: AddressSanitizer" not in text
+
+
+def leak_blocks(text: str) -> list[str]:
+    """A leak report's leaks, each its header line and allocation stack."""
+    blocks = re.split(r"\n(?=(?:Direct|Indirect) leak of )", text)
+    return [
+        block.split("\n\n")[0]
+        for block in blocks
+        if re.match(r"(?:Direct|Indirect) leak of ", block)
+    ]
+
+
+def kernel_leaks(text: str, sources: tuple[str, ...] = KERNEL_SOURCES) -> list[str]:
+    """The leaks of a report whose allocation stack has a frame in one of `sources`
+    (a frame names its file by the path it was compiled from, `service/pipeline/native.c:LINE`,
+    or by an absolute one ending so)."""
+    paths = "|".join(re.escape(source) for source in sources)
+    frames = re.compile(rf"(?:\s|/)(?:{paths}):\d")
+    return [block for block in leak_blocks(text) if frames.search(block)]
 
 
 # Imported by pytest as a plugin (`-p tools.sanitize`, before the conftest files and the
