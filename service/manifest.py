@@ -247,6 +247,13 @@ class TrainingRecord(_Strict):
         "training's (smm-train --from-checkpoint re-exports a run's best.pt with newer code)",
     )
     config: dict[str, object]
+    processor: dict[str, object] | None = Field(
+        default=None,
+        description="the processor that trained it (cpu, generation, dot_product, cores; "
+        "training.machine): the same command and commit give the same weights on it, and "
+        "other weights on another, whose float and bf16 arithmetic rounds otherwise. None "
+        "for a model trained before manifests recorded it",
+    )
 
 
 class RawError(_Strict):
@@ -499,6 +506,11 @@ class ReflowRecord(_Strict):
         default=None,
         description="the base flow's sampler the model served before the reflow (what the "
         "sweep weighed the reflowed sampler against; tools/benchmark.py times both)",
+    )
+    processor: dict[str, object] | None = Field(
+        default=None,
+        description="the processor that trained the reflow (as TrainingRecord.processor); "
+        "None for a reflow trained before manifests recorded it",
     )
 
 

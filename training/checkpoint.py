@@ -65,6 +65,8 @@ class BestCheckpoint:
     # The commit the run started from (training.checkout.git_commit); None in a best.pt
     # written before runs stored it.
     git_commit: str | None = None
+    # The processor that trained it (training.machine.Machine.processor); None likewise.
+    processor: dict[str, object] | None = None
 
     def result(self, model: VelocityField) -> TrainResult:
         """`model` (built from `config`) with these weights, as a TrainResult."""
@@ -79,11 +81,17 @@ class BestCheckpoint:
 
 
 def save_best(
-    path: Path, result: TrainResult, config: TrainConfig, command: str, git_commit: str
+    path: Path,
+    result: TrainResult,
+    config: TrainConfig,
+    command: str,
+    git_commit: str,
+    processor: dict[str, object],
 ) -> None:
     atomic_torch_save(
         {
             "git_commit": git_commit,
+            "processor": processor,
             "state_dict": result.model.state_dict(),
             "best_validation_loss": result.best_validation_loss,
             "best_epoch": result.best_epoch,
@@ -105,6 +113,7 @@ def load_best(path: Path) -> BestCheckpoint:
         wall_time_s=checkpoint["wall_time_s"],
         command=checkpoint["command"],
         git_commit=checkpoint.get("git_commit"),
+        processor=checkpoint.get("processor"),
     )
 
 

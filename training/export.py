@@ -222,6 +222,7 @@ def export_model(
     command: str,
     code_commit: str,
     export_commit: str | None = None,
+    processor: dict[str, object] | None = None,
 ) -> Manifest:
     """Write flow.onnx, flow_int8.onnx, kinematics.onnx, chain.json, collision.json (when
     the URDF has collision geometry on the chain: `training.collision`, with the robot
@@ -274,6 +275,7 @@ def export_model(
             git_commit=code_commit,
             export_git_commit=None if export_commit == code_commit else export_commit,
             config=config.as_dict(),
+            processor=processor,
         ),
         collision=collision,
         created_utc=dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),

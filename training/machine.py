@@ -115,6 +115,14 @@ class Machine:
     def as_json(self) -> dict[str, object]:
         return asdict(self)
 
+    def processor(self) -> dict[str, object]:
+        """What a model's weights depend on besides the command: the processor (model,
+        generation, widest dot product) and its core count, without the load."""
+        return {
+            "cpu": self.cpu, "generation": self.generation, "dot_product": self.dot_product,
+            "cores": self.cores,
+        }  # fmt: skip
+
     @classmethod
     def from_json(cls, record: Mapping[str, Any]) -> Machine:
         return cls(**record)

@@ -71,6 +71,7 @@ from training.evaluate.quality import PAPER_SAMPLER, same_sampler
 from training.export import export_flow, sweep_and_measure
 from training.kinematics import ForwardKinematics, load_chain
 from training.loop import Best, Optimiser, RunClock, atomic_torch_save, resume_payload
+from training.machine import Machine
 from training.model import VelocityField
 from training.quantise import quantise_flow
 from training.run_log import LOG_FILE
@@ -456,6 +457,7 @@ def reflow_record(
         torch_version=torch.__version__,
         git_commit=git_commit(),
         base_sampler=base_sampler(manifest),
+        processor=Machine.now().processor(),
     )
 
 

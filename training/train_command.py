@@ -66,6 +66,7 @@ from training.data import FlowData, build_flow_data
 from training.distributed import Processes, from_environment, process_group
 from training.export import export_model, refresh_kinematics
 from training.kinematics import ForwardKinematics, joint_spec, load_chain
+from training.machine import Machine
 from training.reflow import LAST_FILE as REFLOW_LAST_FILE
 from training.reflow import ReflowConfig, reflow_command, reflow_model
 from training.robots import RobotSpec, register_urdf, robot_file, robot_spec
@@ -333,6 +334,7 @@ class Trained:
     models_dir: Path
     training_commit: str
     code_commit: str
+    training_processor: dict[str, object] | None  # None: a best.pt from before it was kept
 
 
 def train_or_load(
@@ -389,9 +391,11 @@ def train_or_load(
     say(f"[{model_id}] labelling {config.samples} configurations with pytorch-kinematics")
     data = build_flow_data(fk, joints, task, config.samples, config.seed)
     training_commit = code_commit
+    processor: dict[str, object] | None = Machine.now().processor()
     if best is not None:
         result, command = best.result(build_model(config, data)), best.command
         training_commit = best.git_commit or earlier_training_commit(models_dir / model_id, best)
+        processor = best.processor
     else:
         run_dir = args.runs_dir / model_id
         processes_note = f" in {processes.world_size} processes" if processes.distributed else ""
@@ -399,7 +403,8 @@ def train_or_load(
         result = train(config, data, run_dir=run_dir, resume=args.resume, processes=processes)
         command = shlex.join([*processes.launcher(), *(a for a in argv if a != "--resume")])
         if processes.is_main:
-            save_best(run_dir / BEST_FILE, result, config, command, code_commit)
+            assert processor is not None
+            save_best(run_dir / BEST_FILE, result, config, command, code_commit, processor)
             (run_dir / HISTORY_FILE).write_text(json.dumps(result.history, indent=1))
     return Trained(
         robot=robot,
@@ -413,6 +418,7 @@ def train_or_load(
         models_dir=models_dir,
         training_commit=training_commit,
         code_commit=code_commit,
+        training_processor=processor,
     )
 
 
@@ -437,6 +443,7 @@ def export(trained: Trained) -> None:
         command=trained.command,
         code_commit=trained.training_commit,
         export_commit=trained.code_commit,
+        processor=trained.training_processor,
     )
     print(json.dumps(manifest.model_dump(include={"quality"}), indent=1))
 

@@ -1,7 +1,7 @@
 """checkpoint: what a run keeps on disk.
 
-best.pt gives back the weights, the config, the command and the commit it was saved with
-(a best.pt from before runs stored their commit loads with none); last.pt
+best.pt gives back the weights, the config, the command, the commit and the processor it
+was saved with (a best.pt from before runs stored them loads with none); last.pt
 reloads for a resumed run whose settings differ only where a resume may change them
 (where and how fast it runs, how often it checkpoints, the measurement after) and names
 every other difference; a last.pt written before the mid-epoch and EMA fields still loads.
@@ -28,18 +28,21 @@ def data() -> FlowData:
 
 def test_best_checkpoint_round_trips_weights_and_provenance(data: FlowData, tmp_path: Path) -> None:
     result = train(TINY, data)
-    save_best(tmp_path / "best.pt", result, TINY, "smm-train --robot planar3r", "abc123+dirty")
+    processor: dict[str, object] = {"cpu": "Some CPU", "generation": None, "cores": 2}
+    command = "smm-train --robot planar3r"
+    save_best(tmp_path / "best.pt", result, TINY, command, "abc123+dirty", processor)
     best = load_best(tmp_path / "best.pt")
     assert best.config == TINY and best.command == "smm-train --robot planar3r"
-    assert best.git_commit == "abc123+dirty"
+    assert best.git_commit == "abc123+dirty" and best.processor == processor
     restored = best.result(build_model(best.config, data))
     assert restored.best_validation_loss == result.best_validation_loss
     assert restored.best_epoch == result.best_epoch
     assert weights_equal(restored.model, result.model)
     payload = torch.load(tmp_path / "best.pt", weights_only=False)
-    del payload["git_commit"]  # as the runs before it wrote best.pt
+    del payload["git_commit"], payload["processor"]  # as the runs before them wrote best.pt
     torch.save(payload, tmp_path / "older.pt")
-    assert load_best(tmp_path / "older.pt").git_commit is None
+    older = load_best(tmp_path / "older.pt")
+    assert older.git_commit is None and older.processor is None
 
 
 def test_last_checkpoint_loads_with_other_run_settings_and_names_other_differences(

@@ -37,6 +37,7 @@ from tests.support.tiny_training import TINY
 from training.checkpoint import BestCheckpoint
 from training.cli import in_subprocess, main
 from training.evaluate.references.planar3r import planar3r_position
+from training.machine import Machine
 from training.robots import robot_spec
 from training.train_command import earlier_training_commit
 
@@ -58,6 +59,9 @@ def test_tiny_model_trains_exports_and_is_served(tmp_path: Path) -> None:
     manifest = Manifest.model_validate_json((model_dir / "manifest.json").read_text())
     assert (manifest.training.samples, manifest.training.epochs) == (4000, 2)
     assert manifest.training.device == "cpu" and manifest.training.wall_time_s > 0
+    # The processor that trained it (this one), and that the reflow trained on.
+    here = Machine.now().processor()
+    assert manifest.training.processor == here and here["cpu"] and here["cores"]
     assert manifest.training.command.startswith("smm-train train --robot planar3r")
     assert np.isfinite(manifest.training.best_validation_loss)
     assert manifest.quality is not None and manifest.quality.held_out_targets == 4
@@ -75,6 +79,7 @@ def test_tiny_model_trains_exports_and_is_served(tmp_path: Path) -> None:
         "--pairs 3000 --validation-pairs 1000 --steps 30 --batch-size 512"
     )
     assert np.isfinite(manifest.reflow.one_step_endpoint_error)
+    assert manifest.reflow.processor == here
     for name, digest in manifest.files.items():
         assert sha256_of(model_dir / name) == digest
     assert (runs / "planar3r-position" / "best.pt").is_file()
@@ -96,6 +101,7 @@ def test_tiny_model_trains_exports_and_is_served(tmp_path: Path) -> None:
     best = torch.load(best_path, weights_only=False)
     assert best["git_commit"] == manifest.training.git_commit
     best["git_commit"] = "0123abc"  # as if the run had started from another commit
+    best["processor"] = {"cpu": "Another CPU", "cores": 8}  # ... on another machine
     torch.save(best, best_path)
     again = [*command[:4], "--robot", "planar3r", "--task", "position",
              "--from-checkpoint", str(best_path), *command[8 + 4 :]]  # fmt: skip
@@ -103,6 +109,7 @@ def test_tiny_model_trains_exports_and_is_served(tmp_path: Path) -> None:
     assert result.returncode == 0, result.stderr[-3000:]
     record = Manifest.model_validate_json((model_dir / "manifest.json").read_text()).training
     assert record.git_commit == "0123abc"
+    assert record.processor == {"cpu": "Another CPU", "cores": 8}  # the training's, kept
     assert record.export_git_commit == manifest.training.git_commit  # this checkout's
     assert record.command == manifest.training.command
 
