@@ -251,8 +251,8 @@ class TrainingRecord(_Strict):
         default=None,
         description="the processor that trained it (cpu, generation, dot_product, cores; "
         "training.machine): the same command and commit give the same weights on it, and "
-        "other weights on another, whose float and bf16 arithmetic rounds otherwise. None "
-        "for a model trained before manifests recorded it",
+        "may give other weights on another, where PyTorch's CPU kernels round otherwise. "
+        "None for a model trained before manifests recorded it",
     )
 
 

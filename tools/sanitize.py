@@ -45,12 +45,9 @@ SANITIZE = "-fsanitize=address -fno-omit-frame-pointer -g"
 # Where the plugin finds the sanitized builds (set by `main` for the pytest it runs).
 BUILDS_ENV = "SMM_SANITIZED_KERNELS"
 DEFAULT_TESTS = ("tests/service/pipeline", "tests/service/models")
-# The kernels' sources (setup.py): a leak whose allocation passes through one is theirs.
-KERNEL_SOURCES = (
-    "service/pipeline/native.c",
-    "service/models/int8_mlp.c",
-    "service/pipeline/row_helper.h",
-)
+# The kernels' sources, every C file under service/ (what setup.py builds, and the header
+# they share): a leak whose allocation passes through one is theirs.
+KERNEL_SOURCES = tuple(sorted(str(p.relative_to(REPO)) for p in (REPO / "service").rglob("*.[ch]")))
 LEAK_REPORT = "ERROR: LeakSanitizer: detected memory leaks"
 
 

@@ -391,7 +391,6 @@ def train_or_load(
     say(f"[{model_id}] labelling {config.samples} configurations with pytorch-kinematics")
     data = build_flow_data(fk, joints, task, config.samples, config.seed)
     training_commit = code_commit
-    processor: dict[str, object] | None = Machine.now().processor()
     if best is not None:
         result, command = best.result(build_model(config, data)), best.command
         training_commit = best.git_commit or earlier_training_commit(models_dir / model_id, best)
@@ -401,10 +400,10 @@ def train_or_load(
         processes_note = f" in {processes.world_size} processes" if processes.distributed else ""
         say(f"[{model_id}] training {config.epochs} epochs on {config.device}{processes_note}")
         result = train(config, data, run_dir=run_dir, resume=args.resume, processes=processes)
+        processor = here = Machine.now().processor()
         command = shlex.join([*processes.launcher(), *(a for a in argv if a != "--resume")])
         if processes.is_main:
-            assert processor is not None
-            save_best(run_dir / BEST_FILE, result, config, command, code_commit, processor)
+            save_best(run_dir / BEST_FILE, result, config, command, code_commit, here)
             (run_dir / HISTORY_FILE).write_text(json.dumps(result.history, indent=1))
     return Trained(
         robot=robot,
