@@ -24,7 +24,7 @@ from service.pipeline.arrays import FloatArray
 from service.pipeline.collision.check import CollisionCheck
 from service.pipeline.components import summarise_all
 from service.pipeline.connect import Extension, connect
-from service.pipeline.correction import correct
+from service.pipeline.correction import correct, correct_further
 from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.fibre import Fibre
 from service.pipeline.limits import pull_into_limits
@@ -150,8 +150,9 @@ def correct_samples(
     q_sampled_rad: FloatArray,  # (N, n)
     deadline: Deadline = NO_DEADLINE,
 ) -> Correction:
-    """Stage 3: the model's DLS steps on every sample, then for r > 1 the samples within
-    tolerance outside the limits pulled into them (`into_limits`)."""
+    """Stage 3: the model's DLS steps on every sample, taken further where none came
+    within tolerance (`correct_further`), then for r > 1 the samples within tolerance
+    outside the limits pulled into them (`into_limits`)."""
     manifest, defaults = model.manifest, model.manifest.defaults
     correction = correct(
         q_rad=q_sampled_rad,
@@ -164,6 +165,10 @@ def correct_samples(
         deadline=deadline,
         threads=model.row_threads,
     )
+    correction = correct_further(
+        correction, space.tolerance, space.fibre.target, manifest.task, model.kinematics,
+        defaults.damping, space.limits, deadline, model.row_threads,
+    )  # fmt: skip
     return into_limits(model, space, correction, deadline)
 
 

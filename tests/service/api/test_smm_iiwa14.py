@@ -3,7 +3,8 @@
 Every returned configuration is re-checked with the references' DH forward kinematics
 (training/evaluate/references/iiwa14.py): it must reach the target within the tolerance
 and lie within the paper's joint limits, and every sample must be accounted for. Shape
-errors name the field; an unreachable target is `no_solution`; components are ordered by
+errors name the field; an unreachable target is `no_solution`, a target at the arm's full
+reach is answered; components are ordered by
 their distance to a reference configuration, each reporting its nearest member; an r = 4
 component's roadmap is a connected graph of exact nodes.
 """
@@ -117,6 +118,20 @@ def test_a_target_two_metres_away_has_no_solution(client: TestClient, task: str)
     answer = response.json()
     assert answer["status"] == "no_solution" and answer["components"] == []
     assert answer["counts"]["accepted"] == 0
+
+
+def test_a_target_at_full_reach_is_answered_not_called_unreachable(client: TestClient) -> None:
+    """The arm stretched out (elbow and wrist straight): reachable, at a fold of the
+    position map where the served DLS steps end micrometres short for every sample."""
+    q_target = np.array([[0.3, 0.2, 0.1, 0.0, 0.2, 0.0, 0.0]])
+    response = smm(client, "position", target_of(q_target, "position"))
+    assert response.status_code == 200, response.text
+    answer = response.json()
+    assert answer["status"] == "ok" and answer["counts"]["accepted"] > 0
+    q = configurations(answer)
+    goal = iiwa14_pose(q_target)[0][:3, 3]
+    assert np.linalg.norm(iiwa14_pose(q)[:, :3, 3] - goal, axis=1).max() <= 1e-6
+    assert np.all(np.abs(q) <= LIMITS_RAD)
 
 
 @pytest.mark.parametrize("task", TASKS)

@@ -1,6 +1,8 @@
 """correction: a DLS step follows its closed form and reduces the error; a converged sample
 takes no further step while the others take every one; bad samples are fenced; on a
-serial chain the compiled loop takes the numpy loop's steps bitwise."""
+serial chain the compiled loop takes the numpy loop's steps bitwise; a correction that
+leaves no sample within tolerance goes further for the samples near the target (the arm
+at full reach), and only then."""
 
 import numpy as np
 import pytest
@@ -8,10 +10,18 @@ import pytest
 from service.manifest import REPO_MODELS_DIR, TaskSpec
 from service.models.chain import SerialChainKinematics
 from service.models.registry import ServedModel, load_model
-from service.pipeline.correction import CHUNK_ROWS, CONVERGED_ERROR, correct, dls_step
+from service.pipeline.correction import (
+    CHUNK_ROWS,
+    CONVERGED_ERROR,
+    EXTRA_STEPS,
+    NEAR_TOLERANCES,
+    correct,
+    correct_further,
+    dls_step,
+)
 from service.pipeline.joint_space import JointLimits
 from service.pipeline.targets import Target
-from service.pipeline.types import KinematicsResult
+from service.pipeline.types import KinematicsResult, Tolerance
 from tests.support.numpy_kernels import NumpyStepsKinematics
 from training.evaluate.references.planar3r import planar3r_jacobian, planar3r_position
 
@@ -112,6 +122,78 @@ def test_all_non_finite_samples_skip_the_kinematics(planar3r: ServedModel) -> No
     target = target_at(np.array([0.5, 0.0]))
     result = correct(q, target, POSITION_2D, planar3r.kinematics, 3, 1e-3, LIMITS)
     assert np.all(np.isinf(result.position_error_m)) and np.all(np.isnan(result.q_rad))
+
+
+MICROMETRE = Tolerance(position_m=1e-6, orientation_rad=1e-6)
+
+
+class CountingKinematics:
+    """The planar closed form, counting the configurations it is asked for."""
+
+    def __init__(self) -> None:
+        self.rows = 0
+
+    def __call__(self, q_rad: np.ndarray) -> KinematicsResult:
+        self.rows += len(q_rad)
+        return closed_form_kinematics(q_rad)
+
+
+def test_at_full_reach_a_correction_with_none_within_tolerance_goes_further() -> None:
+    # The arm stretched out (q2 = q3 = 0): a fold of the task map, where the damping slows
+    # DLS. Three steps leave every sample off by more than the tolerance.
+    rng = np.random.default_rng(3)
+    q_on = np.array([0.4, 0.0, 0.0])
+    target = planar3r_position(q_on[None])[0]
+    q = q_on + rng.normal(0, 0.05, (50, 3))
+    q[-1] = q_on + np.array([0.0, 1.5, -1.0])  # far off: outside the near radius
+    served = correct(q, target_at(target), POSITION_2D, closed_form_kinematics, 3, 1e-3, LIMITS)
+    assert not MICROMETRE.within(served.position_error_m, served.orientation_error_rad).any()
+    assert served.position_error_m[-1] > NEAR_TOLERANCES * MICROMETRE.position_m
+    further = correct_further(
+        served, MICROMETRE, target_at(target), POSITION_2D, closed_form_kinematics, 1e-3, LIMITS
+    )
+    within = MICROMETRE.within(further.position_error_m, further.orientation_error_rad)
+    assert within.sum() >= 10
+    # Against the closed form: the errors are the configurations' own.
+    closed_form_error = np.linalg.norm(planar3r_position(further.q_rad) - target, axis=1)
+    np.testing.assert_allclose(further.position_error_m, closed_form_error, atol=1e-12)
+    # The samples near the target took EXTRA_STEPS more steps of the same DLS from where
+    # the served steps left them; the others (the far one among them) stayed there.
+    near = served.position_error_m <= NEAR_TOLERANCES * MICROMETRE.position_m
+    assert 10 <= near.sum() < len(q) and not near[-1]
+    again = correct(
+        served.q_rad[near], target_at(target), POSITION_2D, closed_form_kinematics, EXTRA_STEPS,
+        1e-3, LIMITS,
+    )  # fmt: skip
+    np.testing.assert_array_equal(further.q_rad[near], again.q_rad)
+    np.testing.assert_array_equal(further.q_rad[~near], served.q_rad[~near])
+    np.testing.assert_array_equal(further.position_error_m[~near], served.position_error_m[~near])
+
+
+def test_a_correction_with_a_sample_within_tolerance_is_the_answer_as_it_is() -> None:
+    q_on = np.array([0.3, 0.4, -0.2])
+    target = planar3r_position(q_on[None])[0]
+    q = np.stack([q_on + 1e-3, q_on + np.array([0.2, -0.1, 0.1])])
+    served = correct(q, target_at(target), POSITION_2D, closed_form_kinematics, 3, 1e-3, LIMITS)
+    within = MICROMETRE.within(served.position_error_m, served.orientation_error_rad)
+    assert within[0] and not within[1]
+    kinematics = CountingKinematics()
+    further = correct_further(
+        served, MICROMETRE, target_at(target), POSITION_2D, kinematics, 1e-3, LIMITS
+    )
+    assert further is served and kinematics.rows == 0
+
+
+def test_a_target_out_of_reach_costs_no_further_step() -> None:
+    target = np.array([3.01, 0.0])  # 1 cm beyond the planar arm's reach of 3 m
+    q = np.random.default_rng(4).normal(0, 0.05, (20, 3))
+    served = correct(q, target_at(target), POSITION_2D, closed_form_kinematics, 3, 1e-3, LIMITS)
+    assert served.position_error_m.min() > NEAR_TOLERANCES * MICROMETRE.position_m
+    kinematics = CountingKinematics()
+    further = correct_further(
+        served, MICROMETRE, target_at(target), POSITION_2D, kinematics, 1e-3, LIMITS
+    )
+    assert further is served and kinematics.rows == 0
 
 
 def test_a_non_finite_row_gets_a_nan_step_and_leaves_the_others_exact() -> None:

@@ -121,11 +121,13 @@ def test_the_pipeline_pulls_for_r_above_1_and_accounts_for_every_sample(
 
     # r = 1: stage 3 is the DLS correction alone (the trace walks into the limits).
     planar = planar3r.manifest
-    planar_target = encode(planar3r, Query.for_model(planar, position_m=[1.5, 0.3]))
-    q = np.array([[0.1, 0.2, 0.3], [2.0, -1.0, 0.5]])
+    planar_query = Query.for_model(planar, position_m=[1.5, 0.3], num_samples=64)
+    planar_target = encode(planar3r, planar_query)
+    q = sample(planar3r, planar_query, planar_target)
     alone = correct(
         q, planar_target, planar.task, planar3r.kinematics, planar.defaults.correction_steps,
         planar.defaults.damping, JointLimits.of(planar.joints),
     )  # fmt: skip
+    assert (alone.position_error_m <= TOLERANCE_M).any()  # so no sample is taken further
     planar_space = space_of(planar3r, planar_target, TOLERANCE, CollisionCheck.none())
     np.testing.assert_array_equal(correct_samples(planar3r, planar_space, q).q_rad, alone.q_rad)
