@@ -29,7 +29,6 @@ libasan, part of its standard install).
 
 from __future__ import annotations
 
-import argparse
 import os
 import re
 import subprocess
@@ -93,13 +92,21 @@ def install_sanitized(builds_dir: Path) -> None:
         sys.modules[module] = extension
 
 
+def arguments_for_pytest(argv: list[str]) -> list[str]:
+    """`argv` as pytest takes it, in its order, and DEFAULT_TESTS after it when none of its
+    arguments names a test path (a file or directory here, with or without a ::node):
+    `-q` runs the default tests quietly, `-p no:randomly tests/x` passes through as is."""
+    names_a_path = any(
+        not arg.startswith("-") and (REPO / arg.split("::")[0]).exists() for arg in argv
+    )
+    return list(argv) if names_a_path else [*argv, *DEFAULT_TESTS]
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument(
-        "pytest_args", nargs="*", default=list(DEFAULT_TESTS),
-        help=f"what pytest runs (default: {' '.join(DEFAULT_TESTS)})",
-    )  # fmt: skip
-    args, extra = parser.parse_known_args(argv)
+    argv = sys.argv[1:] if argv is None else argv
+    if "-h" in argv or "--help" in argv:
+        print(f"{__doc__}\nDefault tests: {' '.join(DEFAULT_TESTS)}; other arguments go to pytest.")
+        return 0
     cc = compiler()
     preload = [runtime_library(cc, "libasan.so"), runtime_library(cc, "libstdc++.so")]
     with tempfile.TemporaryDirectory(prefix="smm-asan-") as tmp:
@@ -120,7 +127,8 @@ def main(argv: list[str] | None = None) -> int:
             ),
         }
         command = [sys.executable, "-m", "pytest", "-p", "tools.sanitize", "-p", "no:cacheprovider"]
-        status = subprocess.run([*command, *args.pytest_args, *extra], cwd=REPO, env=env).returncode
+        command += arguments_for_pytest(argv)
+        status = subprocess.run(command, cwd=REPO, env=env).returncode
         found = False
         others = 0
         for report in sorted(Path(tmp).glob("asan.*")):

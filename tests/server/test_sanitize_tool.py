@@ -4,7 +4,8 @@ run with a report naming the kernel's function and line, and the exit status say
 whose kernels stay inside their buffers pass, on the sanitized builds, whatever CPython
 itself leaves unfreed at exit; and of a leak report, the leaks allocated through a kernel's
 source are picked out (checked on a real report of a program that leaks one block from a
-file at a kernel's path and one from elsewhere)."""
+file at a kernel's path and one from elsewhere); its arguments reach pytest in their order,
+the default tests added only where none names a test path."""
 
 from __future__ import annotations
 
@@ -113,3 +114,15 @@ def test_of_a_leak_report_only_the_kernels_leaks_count(tmp_path: Path) -> None:
     assert len(sanitize.leak_blocks(text)) == 2
     (theirs,) = sanitize.kernel_leaks(text)
     assert theirs.startswith("Direct leak of 48 byte(s)") and "kernel_scratch" in theirs
+
+
+def test_arguments_reach_pytest_in_order_with_the_default_tests_only_where_none_is_named() -> None:
+    defaults = list(sanitize.DEFAULT_TESTS)
+    assert sanitize.arguments_for_pytest([]) == defaults
+    assert sanitize.arguments_for_pytest(["-q"]) == ["-q", *defaults]
+    # An option's value is not a test path: it stays after its option.
+    assert sanitize.arguments_for_pytest(["-p", "no:randomly", "-k", "chain"]) == [
+        "-p", "no:randomly", "-k", "chain", *defaults,
+    ]  # fmt: skip
+    named = ["-p", "no:randomly", "tests/service/pipeline/test_native.py::test_x", "-q"]
+    assert sanitize.arguments_for_pytest(named) == named
