@@ -44,7 +44,7 @@ OPTIONS = {
         "--targets",
     ],
     "plots": ["--out", "--targets"],
-    "merges": ["--model", "--targets"],
+    "merges": ["--model", "--out", "--targets"],
     "recipe": [
         "--epochs", "--eval-targets", "--out", "--robot", "--samples", "--task", "--work-dir",
     ],

@@ -7,9 +7,14 @@ merge and each pair of its reference components, the closest pair of the returne
 component's configurations across the two is joined by the projected local planner (the
 service's own, `service/pipeline/connect/local_planner.py`) at a fine step: every step projected
 onto the fibre to within `PROJECTION_TOLERANCE`, inside the limits, no step longer than
-2 x delta. Where that straight path holds, the two reference components are one: the
-reference split it. Where it fails, the merge stays unsettled (a longer way round may
-still join them).
+2 x delta. Where the returned component has a roadmap (r > 1), the way the service itself
+took is walked too: the shortest chain of its roadmap's edges from a node on one
+reference component to a node on the other, every edge walked again by the same fine
+planner (the service walked it at its connectivity step, 0.3 rad on a 4-D fibre, and
+projected to 1e-4; a step that long could land on another sheet of the fibre, a fine
+one follows the sheet). Where either way holds, the two reference components are one:
+the reference split it. Where both fail, the merge stays unsettled (a longer way round
+may still join them), and a roadmap edge the fine walk refuses is named (`refused_edge`).
 
     smm-train merges --model panda-position   # every merge of its report
     smm-train merges --model panda-position --targets 2 19 29
@@ -24,23 +29,30 @@ from __future__ import annotations
 import argparse
 import json
 from dataclasses import asdict, dataclass
-from itertools import combinations
+from itertools import combinations, pairwise
+from pathlib import Path
 
 import numpy as np
 from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
+from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
 from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
-from service.pipeline.arrays import FloatArray
+from service.pipeline.arrays import FloatArray, IntArray
 from service.pipeline.collision.check import CollisionCheck
 from service.pipeline.connect import PlannerSettings, edges_on_fibre
 from service.pipeline.fibre import Fibre
 from service.pipeline.joint_space import JointLimits
 from service.pipeline.space import FibreSpace
-from service.pipeline.types import Tolerance
-from training.evaluate.methods import MethodTarget, flow_target, reference_target
+from service.pipeline.types import ComponentRoadmap, Tolerance
+from training.checkout import git_commit
+from training.evaluate.methods import (
+    MethodTarget,
+    flow_target,
+    reference_target,
+    served_roadmaps,
+)
 from training.evaluate.metrics import counted_components, exact_labels
 from training.evaluate.report import REPORTS_DIR
 from training.evaluate.targets import uniform_configurations
@@ -60,6 +72,16 @@ class MergeCheck:
     shares: tuple[float, float]  # of the fibre (4-D) or arc lengths in rad (1-D)
     gap_rad: float  # joint distance of the closest pair across the two
     joined: bool  # a straight projected path joins the pair on the fibre
+    # The service's roadmap (None: the component has none): the edges of its shortest
+    # chain across the two, and whether every one holds at the fine step.
+    roadmap_edges: int | None = None
+    roadmap_joined: bool | None = None
+    refused_edge_rad: float | None = None  # the first refused edge's length
+
+    @property
+    def one_component(self) -> bool:
+        """The pair is joined on the fibre, straight or along the service's roadmap."""
+        return self.joined or bool(self.roadmap_joined)
 
 
 def space_of(model: ServedModel, q_target: FloatArray) -> FibreSpace:
@@ -96,6 +118,50 @@ def joined_on_fibre(
     return bool(reached[0])
 
 
+@dataclass(frozen=True)
+class RoadmapWalk:
+    """The service's roadmap chain between two reference components, walked finely."""
+
+    edges: int  # in the chain
+    joined: bool  # every edge held
+    refused_edge_rad: float | None  # the first edge that did not, its length
+
+
+def roadmap_walk(
+    space: FibreSpace,
+    roadmap: ComponentRoadmap,
+    exact: IntArray,  # (M,) each node's reference component
+    a: int,
+    b: int,
+    delta_rad: float = DELTA_RAD,
+) -> RoadmapWalk | None:
+    """The shortest chain of the roadmap's edges (by joint length) from a node on reference
+    component `a` to one on `b`, every edge walked again at `delta_rad`; None when no node
+    lies on one of them."""
+    nodes, edges = roadmap.q_rad, roadmap.edges
+    starts, ends = np.flatnonzero(exact == a), np.flatnonzero(exact == b)
+    if not len(starts) or not len(ends) or not len(edges):
+        return None
+    lengths = space.limits.distance(nodes[edges[:, 0]], nodes[edges[:, 1]])  # (E,)
+    graph = coo_matrix(
+        (lengths + 1e-12, (edges[:, 0], edges[:, 1])), shape=(len(nodes), len(nodes))
+    ).tocsr()
+    distance, previous, _ = dijkstra(
+        graph, directed=False, indices=starts, return_predecessors=True, min_only=True
+    )
+    end = ends[int(np.argmin(distance[ends]))]
+    if not np.isfinite(distance[end]):
+        return None
+    chain = [int(end)]
+    while previous[chain[-1]] >= 0:
+        chain.append(int(previous[chain[-1]]))
+    for i, j in pairwise(chain[::-1]):
+        if not joined_on_fibre(space, nodes[i], nodes[j], delta_rad):
+            length = float(space.limits.distance(nodes[i][None], nodes[j][None])[0])
+            return RoadmapWalk(len(chain) - 1, False, length)
+    return RoadmapWalk(len(chain) - 1, True, None)
+
+
 def check_merges(
     model: ServedModel,
     index: int,
@@ -103,8 +169,10 @@ def check_merges(
     answer: MethodTarget,
     truth: Truth,
     delta_rad: float = DELTA_RAD,
+    roadmaps: list[ComponentRoadmap | None] | None = None,
 ) -> list[MergeCheck]:
-    """Every merge of `answer` against `truth`, each checked on the fibre."""
+    """Every merge of `answer` against `truth`, each checked on the fibre: straight, and
+    along the service's roadmap where `roadmaps` gives the component's (in label order)."""
     assert answer.labels is not None and truth.size is not None
     counted = counted_components(truth)
     exact = exact_labels(answer.returned, truth)  # (K,)
@@ -113,6 +181,8 @@ def check_merges(
     for component in np.unique(answer.labels).tolist():
         mine = answer.labels == component
         on = [int(c) for c in np.unique(exact[mine]) if counted[c]]
+        roadmap = None if roadmaps is None else roadmaps[component]
+        nodes_exact = None if roadmap is None else exact_labels(roadmap.q_rad, truth)
         for a, b in combinations(on, 2):
             side_a = answer.returned[mine & (exact == a)]
             side_b = answer.returned[mine & (exact == b)]
@@ -120,6 +190,9 @@ def check_merges(
             gaps = space.limits.distance(side_a, side_b[nearest])
             i = int(np.argmin(gaps))
             q_a, q_b = side_a[i], side_b[nearest[i]]
+            walk = None
+            if roadmap is not None and nodes_exact is not None:
+                walk = roadmap_walk(space, roadmap, nodes_exact, a, b, delta_rad)
             checks.append(
                 MergeCheck(
                     target=index,
@@ -128,6 +201,9 @@ def check_merges(
                     shares=(float(truth.size[a]), float(truth.size[b])),
                     gap_rad=float(gaps[i]),
                     joined=joined_on_fibre(space, q_a, q_b, delta_rad),
+                    roadmap_edges=None if walk is None else walk.edges,
+                    roadmap_joined=None if walk is None else walk.joined,
+                    refused_edge_rad=None if walk is None else walk.refused_edge_rad,
                 )
             )
     return checks
@@ -139,16 +215,20 @@ def report_target(model: ServedModel, index: int, num_samples: int = 1000) -> li
     q_target = uniform_configurations(limits, REPORT_TARGETS, REPORT_SEED)[index]
     truth = ground_truth(model, q_target, REPORT_SEED + index)
     answer = flow_target(model, q_target, num_samples, seed=index)
-    return check_merges(model, index, q_target, answer, truth)
+    roadmaps = served_roadmaps(model, q_target, num_samples, seed=index)
+    return check_merges(model, index, q_target, answer, truth, roadmaps=roadmaps)
 
 
 def settled(checks: list[MergeCheck]) -> bool:
-    """Whether one merge's reference components are all one by the joined pairs (True: the
-    reference split a component; False: unsettled)."""
+    """Whether one merge's reference components are all one by the pairs joined, straight
+    or along the service's roadmap (True: the reference split a component; False:
+    unsettled)."""
     nodes = sorted({c for check in checks for c in check.reference_components})
     index = {node: i for i, node in enumerate(nodes)}
     pairs = [
-        tuple(index[c] for c in check.reference_components) for check in checks if check.joined
+        tuple(index[c] for c in check.reference_components)
+        for check in checks
+        if check.one_component
     ]
     rows, cols = [a for a, _ in pairs], [b for _, b in pairs]
     graph = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(len(nodes), len(nodes)))
@@ -161,6 +241,10 @@ def merge_targets(model_id: str) -> list[int]:
     return [t["index"] for t in report.get("wrong_count_targets", []) if t.get("merges")]
 
 
+# Where `--out` records a model's merges by default (docs/models.md reads it).
+MERGES_DIR = REPORTS_DIR / "merges"
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The options of `smm-train merges`."""
     parser.add_argument("--model", required=True, help="a model id under models/")
@@ -168,24 +252,53 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--targets", type=int, nargs="+", help="report indices (default: every one the "
         "committed report lists with merges)",
     )  # fmt: skip
+    parser.add_argument(
+        "--out", type=Path, help="write the record here (docs/reports/merges/<model>.json "
+        "for the committed one)",
+    )  # fmt: skip
 
 
 def run_command(args: argparse.Namespace, parser: argparse.ArgumentParser) -> None:
     """`smm-train merges`: every merge of the report's targets, and how many settle."""
     del parser
+    commit = git_commit()
     model = load_model(REPO_MODELS_DIR / args.model, threads=1)
-    reference_splits = unsettled = 0
+    merges: list[dict[str, object]] = []
     for index in args.targets or merge_targets(args.model):
         by_component: dict[int, list[MergeCheck]] = {}
         for check in report_target(model, index):
             print(json.dumps(asdict(check)))
             by_component.setdefault(check.returned_component, []).append(check)
-        for checks in by_component.values():
-            split = settled(checks)
-            reference_splits += split
-            unsettled += not split
+        for component, checks in by_component.items():
+            merges.append(
+                {
+                    "target": index,
+                    "returned_component": component,
+                    "reference_split": settled(checks),
+                    "pairs": [asdict(check) for check in checks],
+                }
+            )
+    reference_splits = sum(bool(merge["reference_split"]) for merge in merges)
+    unsettled = len(merges) - reference_splits
     print(
-        f"{reference_splits + unsettled} merges: {reference_splits} reference splits (every "
-        f"reference component of the merge joined by straight projected paths), {unsettled} "
-        "unsettled"
+        f"{len(merges)} merges: {reference_splits} reference splits (every reference "
+        "component of the merge joined on the fibre, straight or along the service's "
+        f"roadmap), {unsettled} unsettled"
     )
+    if args.out is not None:
+        command = f"smm-train merges --model {args.model}"
+        if args.targets:
+            command += " --targets " + " ".join(str(t) for t in args.targets)
+        record = {
+            "command": f"{command} --out {args.out}",
+            "git_commit": commit,
+            "model": model.reference,
+            "delta_rad": DELTA_RAD,
+            "projection_tolerance": PROJECTION_TOLERANCE,
+            "merges": len(merges),
+            "reference_splits": reference_splits,
+            "unsettled": unsettled,
+            "checks": merges,
+        }
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps(record, indent=1) + "\n")

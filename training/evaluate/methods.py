@@ -33,7 +33,7 @@ from service.pipeline.targets import (
     fields_reached,
     target_reached,
 )
-from service.pipeline.types import ComponentPath, Correction, Query, Tolerance
+from service.pipeline.types import ComponentPath, ComponentRoadmap, Correction, Query, Tolerance
 from training.evaluate.baselines.ode import trace_smm
 from training.evaluate.baselines.restart_dls import random_restart_dls
 from training.evaluate.references.ssik_charts import chart_components
@@ -180,14 +180,8 @@ def served_target(
     (the report's scene section asks with them). `check_self`: self-collision checked too,
     as a request without options asks (on a model with collision geometry), for timing
     what a client waits for; its components are then the free pieces, not the fibre's."""
-    manifest = model.manifest
     target = _target_of(model, q_target)
-    query = Query.for_model(
-        manifest, position_m=target.fields.position_m,
-        orientation_wxyz=target.fields.orientation_wxyz, axis=target.fields.axis,
-        num_samples=num_samples, seed=seed, include_paths=True, check_self=check_self,
-    )  # fmt: skip
-    result = run(model, query)
+    result = run(model, _served_query(model, target, num_samples, seed, check_self))
     none = np.zeros(0)
     components = [(c.configurations_rad, c.path) for c in result.components]
     # The keep rate's denominator: the samples drawn (fewer than num_samples where the
@@ -195,6 +189,26 @@ def served_target(
     return _answered(
         model, target.encoded, none, none, components, result.counts.sampled,
         stage_times_ms(result), result.structure.near_singular,
+    )  # fmt: skip
+
+
+def served_roadmaps(
+    model: ServedModel, q_target: np.ndarray, num_samples: int, seed: int
+) -> list[ComponentRoadmap | None]:
+    """The roadmap of each component of `served_target`'s answer (the same query, asked
+    with its roadmaps), in the order of its labels; None for a traced component."""
+    query = _served_query(model, _target_of(model, q_target), num_samples, seed, False)
+    result = run(model, replace(query, include_roadmap=True))
+    return [c.roadmap for c in result.components]
+
+
+def _served_query(
+    model: ServedModel, target: _Asked, num_samples: int, seed: int, check_self: bool
+) -> Query:
+    return Query.for_model(
+        model.manifest, position_m=target.fields.position_m,
+        orientation_wxyz=target.fields.orientation_wxyz, axis=target.fields.axis,
+        num_samples=num_samples, seed=seed, include_paths=True, check_self=check_self,
     )  # fmt: skip
 
 
