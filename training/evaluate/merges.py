@@ -7,14 +7,16 @@ merge and each pair of its reference components, the closest pair of the returne
 component's configurations across the two is joined by the projected local planner (the
 service's own, `service/pipeline/connect/local_planner.py`) at a fine step: every step projected
 onto the fibre to within `PROJECTION_TOLERANCE`, inside the limits, no step longer than
-2 x delta. Where the returned component has a roadmap (r > 1), the way the service itself
-took is walked too: the shortest chain of its roadmap's edges from a node on one
-reference component to a node on the other, every edge walked again by the same fine
-planner (the service walked it at its connectivity step, 0.3 rad on a 4-D fibre, and
-projected to 1e-4; a step that long could land on another sheet of the fibre, a fine
-one follows the sheet). Where either way holds, the two reference components are one:
-the reference split it. Where both fail, the merge stays unsettled (a longer way round
-may still join them), and a roadmap edge the fine walk refuses is named (`refused_edge`).
+2 x delta; where that straight path fails (the fibre bends away from the segment, or a
+limit cuts across it), by the steer at the same step (`steering.py`: along the part of
+the direction to b the fibre allows, sliding along the limit faces). Where the returned
+component has a roadmap (r > 1), the way the service itself took is walked too: the
+shortest chain of its roadmap's edges from a node on one reference component to a node
+on the other, every edge walked again the same two ways (the service walked it at its
+connectivity step, 0.3 rad on a 4-D fibre, projected to 1e-4, and takes a last hop of up
+to that step as it is). Where any of these holds, the two reference components are one:
+the reference split it. Where all fail, the merge stays unsettled (a longer way round may
+still join them), and the first roadmap edge refused is measured (`refused_edge_rad`).
 
     smm-train merges --model panda-position   # every merge of its report
     smm-train merges --model panda-position --targets 2 19 29
@@ -41,7 +43,7 @@ from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
 from service.pipeline.arrays import FloatArray, IntArray
 from service.pipeline.collision.check import CollisionCheck
-from service.pipeline.connect import PlannerSettings, edges_on_fibre
+from service.pipeline.connect import PlannerSettings, SteerSettings, edges_on_fibre, steer
 from service.pipeline.fibre import Fibre
 from service.pipeline.joint_space import JointLimits
 from service.pipeline.space import FibreSpace
@@ -72,6 +74,7 @@ class MergeCheck:
     shares: tuple[float, float]  # of the fibre (4-D) or arc lengths in rad (1-D)
     gap_rad: float  # joint distance of the closest pair across the two
     joined: bool  # a straight projected path joins the pair on the fibre
+    steered: bool = False  # the fine steer joins it (tried where the straight path fails)
     # The service's roadmap (None: the component has none): the edges of its shortest
     # chain across the two, and whether every one holds at the fine step.
     roadmap_edges: int | None = None
@@ -80,8 +83,9 @@ class MergeCheck:
 
     @property
     def one_component(self) -> bool:
-        """The pair is joined on the fibre, straight or along the service's roadmap."""
-        return self.joined or bool(self.roadmap_joined)
+        """The pair is joined on the fibre: straight, steered or along the service's
+        roadmap."""
+        return self.joined or self.steered or bool(self.roadmap_joined)
 
 
 def space_of(model: ServedModel, q_target: FloatArray) -> FibreSpace:
@@ -118,6 +122,45 @@ def joined_on_fibre(
     return bool(reached[0])
 
 
+# A fine steer gives up where the distance to b has not shrunk by STALL_PROGRESS_RAD over
+# the last STALL_STEPS steps (0.3 rad of walking at the fine step).
+STALL_STEPS = 100
+STALL_PROGRESS_RAD = 0.01
+
+
+def steered_on_fibre(
+    space: FibreSpace,
+    q_a_rad: FloatArray,  # (n,)
+    q_b_rad: FloatArray,  # (n,)
+    step_rad: float = DELTA_RAD,
+) -> bool:
+    """Whether the steer (`service/pipeline/connect/steering.py`: along the part of the
+    direction to b that the fibre allows, sliding along the limit faces) gets from a to
+    within `step_rad` of b at steps of `step_rad`, each projected to
+    PROJECTION_TOLERANCE: a path on the fibre inside the limits that need not follow the
+    straight segment."""
+    chord = float(space.limits.distance(q_a_rad[None], q_b_rad[None])[0])
+    settings = SteerSettings(
+        step_rad=step_rad,
+        max_steps=int(np.ceil(3.0 * chord / step_rad)) + 2,
+        lambda_=2.0,
+        projection_tolerance=PROJECTION_TOLERANCE,
+        projection_iterations=6,
+        stall_steps=STALL_STEPS,
+        min_progress_rad=STALL_PROGRESS_RAD,
+    )
+    return bool(steer(space, q_a_rad[None], q_b_rad[None], settings).arrived[0])
+
+
+def walked_on_fibre(
+    space: FibreSpace, q_a_rad: FloatArray, q_b_rad: FloatArray, step_rad: float = DELTA_RAD
+) -> bool:
+    """a and b (n,) joined on the fibre at the fine step: straight, or else by the steer."""
+    return joined_on_fibre(space, q_a_rad, q_b_rad, step_rad) or steered_on_fibre(
+        space, q_a_rad, q_b_rad, step_rad
+    )
+
+
 @dataclass(frozen=True)
 class RoadmapWalk:
     """The service's roadmap chain between two reference components, walked finely."""
@@ -136,8 +179,8 @@ def roadmap_walk(
     delta_rad: float = DELTA_RAD,
 ) -> RoadmapWalk | None:
     """The shortest chain of the roadmap's edges (by joint length) from a node on reference
-    component `a` to one on `b`, every edge walked again at `delta_rad`; None when no node
-    lies on one of them."""
+    component `a` to one on `b`, every edge walked again at `delta_rad` (`walked_on_fibre`:
+    straight, or else steered); None when no node lies on one of them."""
     nodes, edges = roadmap.q_rad, roadmap.edges
     starts, ends = np.flatnonzero(exact == a), np.flatnonzero(exact == b)
     if not len(starts) or not len(ends) or not len(edges):
@@ -156,7 +199,7 @@ def roadmap_walk(
     while previous[chain[-1]] >= 0:
         chain.append(int(previous[chain[-1]]))
     for i, j in pairwise(chain[::-1]):
-        if not joined_on_fibre(space, nodes[i], nodes[j], delta_rad):
+        if not walked_on_fibre(space, nodes[i], nodes[j], delta_rad):
             length = float(space.limits.distance(nodes[i][None], nodes[j][None])[0])
             return RoadmapWalk(len(chain) - 1, False, length)
     return RoadmapWalk(len(chain) - 1, True, None)
@@ -190,6 +233,8 @@ def check_merges(
             gaps = space.limits.distance(side_a, side_b[nearest])
             i = int(np.argmin(gaps))
             q_a, q_b = side_a[i], side_b[nearest[i]]
+            joined = joined_on_fibre(space, q_a, q_b, delta_rad)
+            steered = not joined and steered_on_fibre(space, q_a, q_b, delta_rad)
             walk = None
             if roadmap is not None and nodes_exact is not None:
                 walk = roadmap_walk(space, roadmap, nodes_exact, a, b, delta_rad)
@@ -200,7 +245,8 @@ def check_merges(
                     reference_components=(a, b),
                     shares=(float(truth.size[a]), float(truth.size[b])),
                     gap_rad=float(gaps[i]),
-                    joined=joined_on_fibre(space, q_a, q_b, delta_rad),
+                    joined=joined,
+                    steered=steered,
                     roadmap_edges=None if walk is None else walk.edges,
                     roadmap_joined=None if walk is None else walk.joined,
                     refused_edge_rad=None if walk is None else walk.refused_edge_rad,

@@ -1,14 +1,15 @@
-"""merges (is a reported merge real?): the straight projected path at a fine step joins two
-points of one exact iiwa pose component (the closed-form S-R-S arc) and never two points
-of two different exact components, however near; a chain of roadmap edges is walked again
-at the fine step, held along one exact arc and refused at an edge across two, naming it;
-on the Panda position report's target 98 the check finds the merge the report lists and
-joins two of its three reference components 0.81 rad apart by a straight path, which the
-reference (a 0.36 rad link radius on a grid, then straight walks between the pieces'
-closest nodes) keeps apart (its target 29, the first such case, the reference now joins
-itself), and the third only along the service's own roadmap, walked again finely: the
-merge is the reference's split; a merge is settled as a reference split only when its
-joined pairs connect all of its reference components."""
+"""merges (is a reported merge real?): the straight projected path and the steer, at a fine
+step, join two points of one exact iiwa pose component (the closed-form S-R-S arc) and
+never two points of two different exact components, however near; a chain of roadmap
+edges is walked again at the fine step, held along one exact arc and refused at an edge
+across two, naming it; on the Panda position report's target 98 the check finds the
+merge the report lists and joins two of its three reference components 0.81 rad apart by
+a straight path, which the reference (a 0.36 rad link radius on a grid, then straight
+walks between the pieces' closest nodes) keeps apart (its target 29, the first such case,
+the reference now joins itself), and the third only along the service's own roadmap,
+walked again finely: the merge is the reference's split; a merge is settled as a
+reference split only when its pairs joined (straight, steered or along the roadmap)
+connect all of its reference components."""
 
 from __future__ import annotations
 
@@ -28,6 +29,7 @@ from training.evaluate.merges import (
     roadmap_walk,
     settled,
     space_of,
+    steered_on_fibre,
 )
 from training.evaluate.references.iiwa14 import pose_smm
 from training.evaluate.served import with_defaults
@@ -51,11 +53,13 @@ def test_one_exact_component_is_joined_two_never(iiwa14_pose: ServedModel) -> No
     steps = np.concatenate([[0.0], np.cumsum(joint_distance(arc[1:], arc[:-1], periodic))])
     far = int(np.searchsorted(steps, 0.3))
     assert joined_on_fibre(space, arc[0], arc[far])
-    # Across two arcs: the nearest pair between them, never joined.
+    assert steered_on_fibre(space, arc[0], arc[far])
+    # Across two arcs: the nearest pair between them, never joined, straight or steered.
     for other in exact[1:]:
         gaps = joint_distance(exact[0][:, None, :], other[None, :, :], periodic)
         i, j = np.unravel_index(np.argmin(gaps), gaps.shape)
         assert not joined_on_fibre(space, exact[0][i], other[j])
+        assert not steered_on_fibre(space, exact[0][i], other[j])
 
 
 def test_a_roadmap_chain_holds_along_one_arc_and_is_refused_across_two(
@@ -123,6 +127,10 @@ def test_a_merge_is_settled_only_when_its_joined_pairs_connect_every_component()
 
     assert settled([check(0, 1, True)])
     assert not settled([check(0, 1, False)])
+    # Steered or along the service's roadmap counts as joined.
+    assert settled([replace(check(0, 1, False), steered=True)])
+    assert settled([replace(check(0, 1, False), roadmap_joined=True)])
+    assert not settled([replace(check(0, 1, False), roadmap_joined=False)])
     # 0-3 and 1-3 joined, 1-4 joined: all four one component, whatever else failed.
     assert settled([check(0, 1, False), check(0, 3, True), check(1, 3, True), check(1, 4, True)])
     # 0-1 joined, 2-3 joined, nothing between: two groups, unsettled.
