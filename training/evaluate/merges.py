@@ -17,6 +17,9 @@ connectivity step, 0.3 rad on a 4-D fibre, projected to 1e-4, and takes a last h
 to that step as it is). Where any of these holds, the two reference components are one:
 the reference split it. Where all fail, the merge stays unsettled (a longer way round may
 still join them), and the first roadmap edge refused is measured (`refused_edge_rad`).
+On a target the answer flags near a singular value neither is decided: twin strands of
+the fibre run closer there than a walk's step resolves (on the iiwa14 pose's target 177
+a fine straight walk joins two exact closed-form arcs), so a walk is no witness.
 
     smm-train merges --model panda-position   # every merge of its report
     smm-train merges --model panda-position --targets 2 19 29
@@ -80,6 +83,9 @@ class MergeCheck:
     roadmap_edges: int | None = None
     roadmap_joined: bool | None = None
     refused_edge_rad: float | None = None  # the first refused edge's length
+    # The answer flags the target near a singular value: twin strands of the fibre may
+    # run closer there than a walk's step resolves, so a walk may cross between them.
+    near_singular: bool = False
 
     @property
     def one_component(self) -> bool:
@@ -250,6 +256,7 @@ def check_merges(
                     roadmap_edges=None if walk is None else walk.edges,
                     roadmap_joined=None if walk is None else walk.joined,
                     refused_edge_rad=None if walk is None else walk.refused_edge_rad,
+                    near_singular=bool(answer.near_singular),
                 )
             )
     return checks
@@ -316,20 +323,24 @@ def run_command(args: argparse.Namespace, parser: argparse.ArgumentParser) -> No
             print(json.dumps(asdict(check)))
             by_component.setdefault(check.returned_component, []).append(check)
         for component, checks in by_component.items():
+            flagged = any(check.near_singular for check in checks)
             merges.append(
                 {
                     "target": index,
                     "returned_component": component,
-                    "reference_split": settled(checks),
+                    "near_singular": flagged,
+                    "reference_split": not flagged and settled(checks),
                     "pairs": [asdict(check) for check in checks],
                 }
             )
     reference_splits = sum(bool(merge["reference_split"]) for merge in merges)
-    unsettled = len(merges) - reference_splits
+    undecided = sum(bool(merge["near_singular"]) for merge in merges)
+    unsettled = len(merges) - reference_splits - undecided
     print(
         f"{len(merges)} merges: {reference_splits} reference splits (every reference "
-        "component of the merge joined on the fibre, straight or along the service's "
-        f"roadmap), {unsettled} unsettled"
+        "component of the merge joined on the fibre: straight, steered or along the "
+        f"service's roadmap), {unsettled} unsettled, {undecided} on targets flagged "
+        "near-singular (not decided: a walk may cross between twin strands there)"
     )
     if args.out is not None:
         command = f"smm-train merges --model {args.model}"
@@ -344,6 +355,7 @@ def run_command(args: argparse.Namespace, parser: argparse.ArgumentParser) -> No
             "merges": len(merges),
             "reference_splits": reference_splits,
             "unsettled": unsettled,
+            "near_singular": undecided,
             "checks": merges,
         }
         args.out.parent.mkdir(parents=True, exist_ok=True)

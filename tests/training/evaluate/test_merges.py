@@ -1,15 +1,17 @@
-"""merges (is a reported merge real?): the straight projected path and the steer, at a fine
-step, join two points of one exact iiwa pose component (the closed-form S-R-S arc) and
-never two points of two different exact components, however near; a chain of roadmap
-edges is walked again at the fine step, held along one exact arc and refused at an edge
-across two, naming it; on the Panda position report's target 98 the check finds the
-merge the report lists and joins two of its three reference components 0.81 rad apart by
-a straight path, which the reference (a 0.36 rad link radius on a grid, then straight
-walks between the pieces' closest nodes) keeps apart (its target 29, the first such case,
-the reference now joins itself), and the third only along the service's own roadmap,
-walked again finely: the merge is the reference's split; a merge is settled as a
-reference split only when its pairs joined (straight, steered or along the roadmap)
-connect all of its reference components."""
+"""merges (is a reported merge real?): on a regular target, the straight projected path
+and the steer, at a fine step, join two points of one exact iiwa pose component (the
+closed-form S-R-S arc) and never two points of two different exact components, however
+near; near a singular value (the iiwa pose report's target 177, flagged) a fine walk
+joins two exact arcs, so no merge there is decided; a chain of roadmap edges is walked
+again at the fine step, held along one exact arc and refused at an edge across two,
+naming it; on the Panda position report's target 98 the check finds the merge the report
+lists and joins two of its three reference components 0.81 rad apart by a straight path,
+which the reference (a 0.36 rad link radius on a grid, then straight walks between the
+pieces' closest nodes) keeps apart (its target 29, the first such case, the reference now
+joins itself), and the third only along the service's own roadmap, walked again finely:
+the merge is the reference's split; a merge is settled as a reference split only when
+its pairs joined (straight, steered or along the roadmap) connect all of its reference
+components."""
 
 from __future__ import annotations
 
@@ -105,6 +107,7 @@ def test_the_panda_position_reference_splits_the_three_pieces_of_target_98() -> 
     )
     checks = report_target(model, 98)
     assert checks, "the report lists a merge on target 98"
+    assert not any(check.near_singular for check in checks)
     joined = [c for c in checks if c.joined]
     assert [c.reference_components for c in joined] == [(0, 1)]
     # Farther apart than the reference's link radius (4.5 x its 0.079 rad grid), which is
@@ -119,6 +122,17 @@ def test_the_panda_position_reference_splits_the_three_pieces_of_target_98() -> 
     assert all(c.roadmap_joined for c in third)
     assert settled(checks)
     assert not settled([replace(c, roadmap_joined=False) for c in checks])
+
+
+def test_near_a_singular_value_a_fine_walk_crosses_between_exact_twins(
+    iiwa14_pose: ServedModel,
+) -> None:
+    # The iiwa14 pose report's target 177 (elbow straight), which the answer flags: the
+    # closed form puts the merged configurations on two exact arcs, and a fine straight
+    # walk joins them all the same, so a walk is no witness there.
+    checks = report_target(iiwa14_pose, 177)
+    assert checks and all(check.near_singular for check in checks)
+    assert any(check.joined for check in checks)
 
 
 def test_a_merge_is_settled_only_when_its_joined_pairs_connect_every_component() -> None:
