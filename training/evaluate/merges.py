@@ -231,7 +231,8 @@ def check_merges(
         mine = answer.labels == component
         on = [int(c) for c in np.unique(exact[mine]) if counted[c]]
         roadmap = None if roadmaps is None else roadmaps[component]
-        nodes_exact = None if roadmap is None else exact_labels(roadmap.q_rad, truth)
+        # The roadmap with each node's reference component, where there is one.
+        labelled = None if roadmap is None else (roadmap, exact_labels(roadmap.q_rad, truth))
         for a, b in combinations(on, 2):
             side_a = answer.returned[mine & (exact == a)]
             side_b = answer.returned[mine & (exact == b)]
@@ -241,9 +242,7 @@ def check_merges(
             q_a, q_b = side_a[i], side_b[nearest[i]]
             joined = joined_on_fibre(space, q_a, q_b, delta_rad)
             steered = not joined and steered_on_fibre(space, q_a, q_b, delta_rad)
-            walk = None
-            if roadmap is not None and nodes_exact is not None:
-                walk = roadmap_walk(space, roadmap, nodes_exact, a, b, delta_rad)
+            walk = None if labelled is None else roadmap_walk(space, *labelled, a, b, delta_rad)
             checks.append(
                 MergeCheck(
                     target=index,
@@ -292,10 +291,6 @@ def merge_targets(model_id: str) -> list[int]:
     """The targets the committed report lists with merges."""
     report = json.loads((REPORTS_DIR / f"{model_id}.json").read_text())
     return [t["index"] for t in report.get("wrong_count_targets", []) if t.get("merges")]
-
-
-# Where `--out` records a model's merges by default (docs/models.md reads it).
-MERGES_DIR = REPORTS_DIR / "merges"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
