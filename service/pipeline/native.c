@@ -2256,6 +2256,125 @@ static void steps_near_limits_rows(const double *start, const double *delta, con
     }
 }
 
+/* cut.py's `Steps.of`: every step of every curve (the closing step of a closed one
+   included), in curve order, point order within each: the curve (`loop`), the index of its
+   first point in the curve (`key`), span 1, its start (the curve's unwrapped point), delta
+   (the evaluated ends' difference the short way round, torus_difference) and the ends'
+   tangents signed along delta (`along`). Returns the step count. */
+static Py_ssize_t curve_steps_of(const double *q, const double *tangent, Py_ssize_t n,
+                                 const double *points, const long long *rows,
+                                 const long long *first, const unsigned char *closed,
+                                 Py_ssize_t L, long long *loop, double *key, double *span,
+                                 double *start, double *delta, double *start_tangent,
+                                 double *end_tangent) {
+    Py_ssize_t c = 0;
+    for (Py_ssize_t l = 0; l < L; ++l) {
+        long long a0 = first[l], size = first[l + 1] - first[l];
+        for (long long i = 0; i < size; ++i) {
+            int last = i == size - 1;
+            if (last && !closed[l]) continue;
+            long long p = a0 + i, ra = rows[p], rb = rows[last ? a0 : p + 1];
+            double *d = delta + c * n;
+            loop[c] = l, key[c] = (double)i, span[c] = 1.0;
+            for (Py_ssize_t j = 0; j < n; ++j) {
+                start[c * n + j] = points[p * n + j];
+                d[j] = wrap_to_pi(q[rb * n + j] - q[ra * n + j]);
+            }
+            along_rows(tangent + ra * n, d, 1, n, start_tangent + c * n);
+            along_rows(tangent + rb * n, d, 1, n, end_tangent + c * n);
+            ++c;
+        }
+    }
+    return c;
+}
+
+/* A refinement's steps (S of them) and where it writes the next round's (p S at most). */
+typedef struct {
+    long long *loop;
+    double *key, *span, *start, *delta, *start_tangent, *end_tangent;
+} Steps;
+
+/* One round of cut.py's `refine_near_limits` on the steps `in` (S): the steps near the limits
+   (`steps_near_limits_rows`) each split at fractions i / p (i = 1 .. p - 1) of the cubic
+   Hermite curve through its ends, each guess projected onto the fibre by Newton
+   (`newton_rows`: evaluated first, `iterations` bordered steps orthogonal to the curve's
+   direction, a row stopping once |e| <= until); a step whose p - 1 points all end within
+   |e| < 1e-6 is split there: its points are added (q, error, Jacobian, the unit tangent
+   from [J; direction^T] t = [0; 1], their curve and place `key + span i / p`) and its p
+   pieces are the next round's steps (`Steps.split`). The arithmetic is numpy's, term by
+   term. counts[0]: the steps near the limits; counts[1]: those split (their (p - 1) points
+   added, p counts[1] next steps). `scratch` holds (p - 1) (2 n + m + m n) + n n + 2 n +
+   (m + 3) n doubles (at most 64 pieces). */
+static void refine_round_of(const double *fixed, const double *tip, Py_ssize_t n,
+                            const long long *rows, Py_ssize_t m, Py_ssize_t m_position,
+                            const double *target_position, const double *target_rotation,
+                            Py_ssize_t S, Steps in, const double *low, const double *lower,
+                            const double *upper, const unsigned char *periodic, Py_ssize_t p,
+                            Py_ssize_t iterations, double until, double damping,
+                            double *added_q, double *added_error, double *added_jacobian,
+                            double *added_tangent, long long *added_loop, double *added_key,
+                            Steps out, Py_ssize_t *counts, double *scratch) {
+    Py_ssize_t k = p - 1, near = 0, split = 0;
+    double *end = scratch, *guess = end + n, *direction = guess + k * n;
+    double *error = direction + k * n, *jacobian = error + k * m, *solve = jacobian + k * m * n;
+    double *rhs = solve + n * n, *newton_scratch = rhs + n;
+    for (Py_ssize_t s = 0; s < S; ++s) {
+        const double *a = in.start + s * n, *d = in.delta + s * n;
+        unsigned char is_near;
+        steps_near_limits_rows(a, d, low, lower, upper, periodic, 1, n, &is_near);
+        if (!is_near) continue;
+        ++near;
+        for (Py_ssize_t j = 0; j < n; ++j) end[j] = a[j] + d[j];
+        for (Py_ssize_t i = 0; i < k; ++i) {
+            double fraction = (double)(i + 1) / (double)p;
+            hermite_rows(a, in.start_tangent + s * n, end, in.end_tangent + s * n, &fraction, 1, n,
+                         guess + i * n, direction + i * n);
+        }
+        unsigned char fresh[64];
+        for (Py_ssize_t i = 0; i < k; ++i) fresh[i] = 1;
+        newton_rows(fixed, tip, n, rows, m, m_position, target_position, target_rotation, guess,
+                    error, jacobian, k, iterations, until, damping, NULL, direction, fresh,
+                    newton_scratch);
+        int ok = 1;
+        for (Py_ssize_t i = 0; i < k; ++i) ok &= norm_of(error + i * m, m) < 1e-6;
+        if (!ok) continue;
+        /* The step's points, added after those of the steps split before it. */
+        Py_ssize_t at = split * k;
+        for (Py_ssize_t i = 0; i < k; ++i) {
+            double *t = added_tangent + (at + i) * n;
+            for (Py_ssize_t j = 0; j < n; ++j) rhs[j] = j == m ? 1.0 : 0.0;
+            bordered_rows(jacobian + i * m * n, direction + i * n, rhs, 1, n, t, solve);
+            double length = norm_of(t, n);
+            for (Py_ssize_t j = 0; j < n; ++j) t[j] = t[j] / length;
+            memcpy(added_q + (at + i) * n, guess + i * n, n * sizeof(double));
+            memcpy(added_error + (at + i) * m, error + i * m, m * sizeof(double));
+            memcpy(added_jacobian + (at + i) * m * n, jacobian + i * m * n,
+                   m * n * sizeof(double));
+            added_loop[at + i] = in.loop[s];
+            added_key[at + i] = in.key[s] + in.span[s] * ((double)(i + 1) / (double)p);
+        }
+        /* Its p pieces: nodes a, the added points unwrapped like a, a + d. */
+        for (Py_ssize_t i = 0; i < p; ++i) {
+            Py_ssize_t o = split * p + i;
+            double *start = out.start + o * n, *delta = out.delta + o * n;
+            for (Py_ssize_t j = 0; j < n; ++j) {
+                double from = i == 0 ? a[j] : a[j] + wrap_to_pi(guess[(i - 1) * n + j] - a[j]);
+                double to = i == k ? end[j] : a[j] + wrap_to_pi(guess[i * n + j] - a[j]);
+                start[j] = from, delta[j] = to - from;
+            }
+            const double *t_from = i == 0 ? in.start_tangent + s * n : added_tangent + (at + i - 1) * n;
+            const double *t_to = i == k ? in.end_tangent + s * n : added_tangent + (at + i) * n;
+            along_rows(t_from, delta, 1, n, out.start_tangent + o * n);
+            along_rows(t_to, delta, 1, n, out.end_tangent + o * n);
+            out.loop[o] = in.loop[s];
+            out.span[o] = in.span[s] / (double)p;
+            out.key[o] = in.key[s] + out.span[o] * (double)i;
+        }
+        ++split;
+    }
+    counts[0] = near, counts[1] = split;
+}
+
 /* Each query's k nearest points (joint metric, wrapped on the periodic joints), nearest
    first, the lower row first among equally near ones; fewer than k points give -1 after
    them. The points are binned on a grid over two joints (those that spread the points and
@@ -3290,6 +3409,66 @@ static PyObject *py_steps_near_limits(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
+static PyObject *py_curve_steps(PyObject *self, PyObject *args) {
+    Py_buffer q, tangent, points, rows, first, closed, loop, key, span, start, delta,
+        start_tangent, end_tangent;
+    Py_ssize_t n, L;
+    if (!PyArg_ParseTuple(args, "y*y*ny*y*y*y*nw*w*w*w*w*w*w*", &q, &tangent, &n, &points, &rows,
+                          &first, &closed, &L, &loop, &key, &span, &start, &delta, &start_tangent,
+                          &end_tangent))
+        return NULL;
+    Py_ssize_t count;
+    Py_BEGIN_ALLOW_THREADS
+    count = curve_steps_of(q.buf, tangent.buf, n, points.buf, rows.buf, first.buf, closed.buf, L,
+                           loop.buf, key.buf, span.buf, start.buf, delta.buf, start_tangent.buf,
+                           end_tangent.buf);
+    Py_END_ALLOW_THREADS
+    Py_buffer *all[] = {&q,    &tangent, &points, &rows,  &first,         &closed,     &loop,
+                        &key,  &span,    &start,  &delta, &start_tangent, &end_tangent};
+    for (size_t i = 0; i < sizeof all / sizeof *all; ++i) PyBuffer_Release(all[i]);
+    return PyLong_FromSsize_t(count);
+}
+
+static PyObject *py_refine_round(PyObject *self, PyObject *args) {
+    Py_buffer fixed, tip, rows, target_position, target_rotation, loop, key, span, start, delta,
+        start_tangent, end_tangent, low, lower, upper, periodic, added_q, added_error,
+        added_jacobian, added_tangent, added_loop, added_key, out_loop, out_key, out_span,
+        out_start, out_delta, out_start_tangent, out_end_tangent, scratch;
+    Py_ssize_t n, m, m_position, S, p, iterations;
+    int orientation;
+    double until, damping;
+    if (!PyArg_ParseTuple(args, "y*y*ny*nny*y*pny*y*y*y*y*y*y*y*y*y*y*nnddw*w*w*w*w*w*w*w*w*w*w*w*w*w*",
+                          &fixed, &tip, &n, &rows, &m, &m_position, &target_position,
+                          &target_rotation, &orientation, &S, &loop, &key, &span, &start, &delta,
+                          &start_tangent, &end_tangent, &low, &lower, &upper, &periodic, &p,
+                          &iterations, &until, &damping, &added_q, &added_error, &added_jacobian,
+                          &added_tangent, &added_loop, &added_key, &out_loop, &out_key, &out_span,
+                          &out_start, &out_delta, &out_start_tangent, &out_end_tangent, &scratch))
+        return NULL;
+    Py_ssize_t counts[2] = {0, 0};
+    Steps in = {loop.buf, key.buf, span.buf, start.buf, delta.buf, start_tangent.buf,
+                end_tangent.buf};
+    Steps out = {out_loop.buf, out_key.buf, out_span.buf, out_start.buf, out_delta.buf,
+                 out_start_tangent.buf, out_end_tangent.buf};
+    Py_BEGIN_ALLOW_THREADS
+    refine_round_of(fixed.buf, tip.buf, n, rows.buf, m, m_position, target_position.buf,
+                    orientation ? target_rotation.buf : NULL, S, in, low.buf, lower.buf, upper.buf,
+                    periodic.buf, p, iterations, until, damping, added_q.buf, added_error.buf,
+                    added_jacobian.buf, added_tangent.buf, added_loop.buf, added_key.buf, out,
+                    counts, scratch.buf);
+    Py_END_ALLOW_THREADS
+    Py_buffer *all[] = {&fixed,         &tip,           &rows,          &target_position,
+                        &target_rotation, &loop,        &key,           &span,
+                        &start,         &delta,         &start_tangent, &end_tangent,
+                        &low,           &lower,         &upper,         &periodic,
+                        &added_q,       &added_error,   &added_jacobian, &added_tangent,
+                        &added_loop,    &added_key,     &out_loop,      &out_key,
+                        &out_span,      &out_start,     &out_delta,     &out_start_tangent,
+                        &out_end_tangent, &scratch};
+    for (size_t i = 0; i < sizeof all / sizeof *all; ++i) PyBuffer_Release(all[i]);
+    return Py_BuildValue("nn", counts[0], counts[1]);
+}
+
 static Axis axis_of(const double *points, Py_ssize_t P, const double *queries, Py_ssize_t K,
                     Py_ssize_t n, Py_ssize_t joint, int periodic) {
     Axis axis = {joint, periodic, -PI, TWO_PI, 1};
@@ -3510,6 +3689,16 @@ static PyMethodDef methods[] = {
     {"closest_strands", py_closest_strands, METH_VARARGS,
      "closest_strands(points, P, n, first, C, closed, periodic, within_rad, strand_arc, work, "
      "curve_of, column) -> the least distance between two strands of the traced curves."},
+    {"curve_steps", py_curve_steps, METH_VARARGS,
+     "curve_steps(q, tangent, n, points, rows, first, closed, L, loop, key, span, start, delta, "
+     "start_tangent, end_tangent) -> count: every step of the traced curves (cut.Steps.of)."},
+    {"refine_round", py_refine_round, METH_VARARGS,
+     "refine_round(fixed, tip, n, rows, m, m_position, target_position, target_rotation, "
+     "orientation, S, loop, key, span, start, delta, start_tangent, end_tangent, low, lower, "
+     "upper, periodic, p, iterations, until, damping, added_q, added_error, added_jacobian, "
+     "added_tangent, added_loop, added_key, out_loop, out_key, out_span, out_start, out_delta, "
+     "out_start_tangent, out_end_tangent, scratch) -> (near, split): one round of the "
+     "refinement near the limits (cut.refine_near_limits)."},
     {"steps_near_limits", py_steps_near_limits, METH_VARARGS,
      "steps_near_limits(start, delta, low, lower, upper, periodic, S, n, split): the trace "
      "steps whose chord may pass through the limits unseen."},

@@ -19,9 +19,9 @@ beforehand, and its cache locator requires a writable directory.
 Each wrapper checks what the C code relies on (float64, C-contiguous, shapes) and
 allocates the outputs; the C code loops over rows with the GIL released. Each kernel is
 pinned by tests/service/pipeline/test_native.py to the numpy implementation it replaces
-(1e-12) and to pytorch-kinematics; the trace's cut by the limits and dense layout, by
-tests/service/pipeline/connect/test_densify.py to the Python loops they replaced (to the
-bit).
+(1e-12) and to pytorch-kinematics; the trace's refinement near the limits, cut by the
+limits and dense layout, by tests/service/pipeline/connect/test_densify.py to the Python
+loops they replaced (to the bit).
 """
 
 from __future__ import annotations
@@ -1420,6 +1420,136 @@ def steps_near_limits(
             np.ascontiguousarray(periodic, dtype=np.uint8), count, n, split,
         )  # fmt: skip
     return split.astype(bool)
+
+
+@dataclass(frozen=True)
+class TraceSteps:
+    """Steps of traced curves (C of them), as connect/trace/cut.py's `Steps` holds them."""
+
+    loop: IntArray  # (C,) which curve
+    key: FloatArray  # (C,) where the step starts in the curve: point index (+ fraction)
+    span: FloatArray  # (C,) how much of the curve's step it is
+    start: FloatArray  # (C, n) unwrapped like the curve
+    delta: FloatArray  # (C, n) to the step's end, the short way on the torus
+    start_tangent: FloatArray  # (C, n) unit, along delta
+    end_tangent: FloatArray  # (C, n)
+
+
+def curve_steps(
+    q_rad: FloatArray,  # (E, n) the evaluated points
+    tangent: FloatArray,  # (E, n) their unit tangents
+    points_rad: FloatArray,  # (P, n) the curves' points, unwrapped along each curve
+    rows: IntArray,  # (P,) their rows of q_rad
+    first: IntArray,  # (L + 1,) curve l is points [first[l], first[l + 1])
+    closed: BoolArray,  # (L,)
+) -> TraceSteps:
+    """Every step of every curve, the closing step of a closed one included, in curve
+    order: cut.py's `Steps.of`, compiled (the same numbers)."""
+    count, n = q_rad.shape
+    points, curves = len(points_rad), len(closed)
+    if n > MAX_JOINTS:
+        raise ValueError(f"{n} joints; the kernel takes at most {MAX_JOINTS}")
+    bounds = _int64(first, "first", (curves + 1,))
+    if bounds[0] != 0 or bounds[-1] != points or np.any(np.diff(bounds) < 0):
+        raise ValueError(f"first must run from 0 to the {points} points, never back")
+    point_rows = _int64(rows, "rows", (points,))
+    if points and (point_rows.min() < 0 or point_rows.max() >= count):
+        raise ValueError(f"rows must index the {count} evaluated points")
+    loop, key, span = np.empty(points, dtype=np.int64), np.empty(points), np.empty(points)
+    start, delta = np.empty((points, n)), np.empty((points, n))
+    start_tangent, end_tangent = np.empty((points, n)), np.empty((points, n))
+    steps = _native.curve_steps(
+        _float64(q_rad, "q_rad", (count, n)), _float64(tangent, "tangent", (count, n)), n,
+        _float64(points_rad, "points_rad", (points, n)), point_rows, bounds,
+        np.ascontiguousarray(closed, dtype=np.uint8), curves, loop, key, span, start, delta,
+        start_tangent, end_tangent,
+    )  # fmt: skip
+    return TraceSteps(
+        loop[:steps], key[:steps], span[:steps], start[:steps], delta[:steps],
+        start_tangent[:steps], end_tangent[:steps],
+    )  # fmt: skip
+
+
+@dataclass(frozen=True)
+class RefinedRound:
+    """One round of the refinement near the limits: the steps it found near them, the
+    points it added (A = (pieces - 1) x the steps it split, in order, step after step),
+    each with its curve and place, and the pieces of the split steps (the next round's)."""
+
+    near: int  # steps near the limits (0: the refinement is over)
+    q_rad: FloatArray  # (A, n)
+    error: FloatArray  # (A, m)
+    jacobian: FloatArray  # (A, m, n)
+    tangent: FloatArray  # (A, n) unit
+    loop: IntArray  # (A,) the curve of each
+    key: FloatArray  # (A,) its place in the curve: its step's key + span x fraction
+    steps: TraceSteps  # (pieces x split steps) the pieces
+
+
+def refine_round(
+    fixed: FloatArray,  # (n, 4, 4) as `chain_kinematics`
+    tip: FloatArray,  # (4, 4)
+    position_axes: list[int],
+    target_position_m: FloatArray,  # (len(position_axes),)
+    target_rotation: OrientationTarget,  # as `task_residual`
+    steps: TraceSteps,
+    window_low_rad: FloatArray,  # (n,)
+    lower_rad: FloatArray,  # (n,)
+    upper_rad: FloatArray,  # (n,)
+    periodic: BoolArray,  # (n,)
+    pieces: int,
+    iterations: int,
+    until: float,
+    damping: float,
+) -> RefinedRound:
+    """One round of cut.py's `refine_near_limits`, compiled (the same numbers): each step
+    near the limits (`steps_near_limits`) split at the fractions i / pieces of the Hermite
+    curve through its ends, each guess put on the fibre by `iterations` bordered Newton
+    steps (`newton`, rows stopping within `until`); a step whose points all reach |e| <
+    1e-6 gives its points (with their unit tangents) and its pieces."""
+    n = len(fixed)
+    orientation_rows, rotation = _orientation(target_rotation)
+    rows = [*position_axes, *orientation_rows]
+    m, m_position = len(rows), len(position_axes)
+    if not 0 < n <= MAX_JOINTS or m != n - 1:
+        raise ValueError(f"a task of {m} rows on {n} joints; the refinement needs n - 1 rows")
+    if not 1 < pieces <= 65:
+        raise ValueError(f"pieces must be 2 to 65, got {pieces}")
+    count, k = len(steps.loop), pieces - 1
+    added, split = k * count, pieces * count
+    out = TraceSteps(
+        np.empty(split, dtype=np.int64), np.empty(split), np.empty(split),
+        np.empty((split, n)), np.empty((split, n)), np.empty((split, n)), np.empty((split, n)),
+    )  # fmt: skip
+    q, error, jacobian = np.empty((added, n)), np.empty((added, m)), np.empty((added, m, n))
+    tangent, loop, key = np.empty((added, n)), np.empty(added, dtype=np.int64), np.empty(added)
+    scratch = np.empty(k * (2 * n + m + m * n) + n * n + 2 * n + (m + 3) * n)
+    vector = (
+        (window_low_rad, "window_low_rad"), (lower_rad, "lower_rad"), (upper_rad, "upper_rad"),
+    )  # fmt: skip
+    near, done = _native.refine_round(
+        _float64(fixed, "fixed", (n, 4, 4)), _float64(tip, "tip", (4, 4)), n,
+        np.array(rows, dtype=np.int64), m, m_position,
+        _float64(target_position_m, "target_position_m", (m_position,)), rotation,
+        target_rotation is not None, count, _int64(steps.loop, "loop", (count,)),
+        _float64(steps.key, "key", (count,)), _float64(steps.span, "span", (count,)),
+        _float64(steps.start, "start", (count, n)), _float64(steps.delta, "delta", (count, n)),
+        _float64(steps.start_tangent, "start_tangent", (count, n)),
+        _float64(steps.end_tangent, "end_tangent", (count, n)),
+        *(_float64(v, name, (n,)) for v, name in vector),
+        np.ascontiguousarray(periodic, dtype=np.uint8), pieces, iterations, float(until),
+        float(damping), q, error, jacobian, tangent, loop, key, out.loop, out.key, out.span,
+        out.start, out.delta, out.start_tangent, out.end_tangent, scratch,
+    )  # fmt: skip
+    a, s = k * done, pieces * done
+    return RefinedRound(
+        near=near, q_rad=q[:a], error=error[:a], jacobian=jacobian[:a], tangent=tangent[:a],
+        loop=loop[:a], key=key[:a],
+        steps=TraceSteps(
+            out.loop[:s], out.key[:s], out.span[:s], out.start[:s], out.delta[:s],
+            out.start_tangent[:s], out.end_tangent[:s],
+        ),
+    )  # fmt: skip
 
 
 def nearest_points(

@@ -4,6 +4,7 @@ cut by the limits into runs of consecutive points inside them."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 
@@ -18,6 +19,12 @@ from service.pipeline.connect.trace.points import (
 from service.pipeline.fibre import Fibre, project, unit_tangent
 from service.pipeline.joint_space import TWO_PI, JointLimits
 from service.pipeline.native import along, hermite
+from service.pipeline.targets import kernel_orientation
+from service.pipeline.types import ChainKinematics
+
+# Bordered Newton steps from each piece's Hermite guess onto the fibre (rows within the
+# path error stop early).
+PROJECTION_ITERATIONS = 2
 
 
 def window_low(limits: JointLimits) -> FloatArray:
@@ -47,44 +54,15 @@ def refine_near_limits(
     a step, meets the limit box, the step is split into `pieces` projected points (from
     the Hermite curve through its ends); a few rounds, each looking again only at the
     pieces of the steps the last one split, find components down to about
-    h / pieces**rounds long. The evaluated points come back with the added ones.
+    h / pieces**rounds long. The evaluated points come back with the added ones. On a
+    serial chain each round is one compiled call (`native.refine_round`), in place of
+    the numpy round's few dozen small array calls.
     """
     low = window_low(limits)
-    lower_rad, upper_rad, periodic = limits.lower_rad, limits.upper_rad, limits.periodic
     steps = Steps.of(evaluated, curves)
-    added: list[Evaluated] = []  # each round's new points, rows len(evaluated) + ... on
-    added_loop: list[IntArray] = []
-    added_key: list[FloatArray] = []  # place in the curve: its step's first point + fraction
-    count_added = 0
-    fraction = np.arange(1, pieces) / pieces  # (p - 1,)
-    for _ in range(rounds):
-        # Both ends outside, the chord through the box widened by a margin of L / 4 per
-        # step (a curve bends off its chord by ~kappa L^2 / 8), by the slab test (compiled).
-        steps = steps.take(
-            native.steps_near_limits(steps.start, steps.delta, low, lower_rad, upper_rad, periodic)
-        )
-        if not len(steps.loop):
-            break
-        count = len(steps.loop)
-        guess, direction = hermite(
-            np.repeat(steps.start, pieces - 1, axis=0),
-            np.repeat(steps.start_tangent, pieces - 1, axis=0),
-            np.repeat(steps.start + steps.delta, pieces - 1, axis=0),
-            np.repeat(steps.end_tangent, pieces - 1, axis=0),
-            np.tile(fraction, count),
-        )  # (C (p - 1), n)
-        projected = project(fibre, guess, 2, tangent=direction, until=settings.path_error)
-        ok = np.all((projected.error_norm < 1e-6).reshape(count, pieces - 1), axis=1)  # (C,)
-        if not ok.any():
-            break
-        keep = np.repeat(ok, pieces - 1)
-        new = Evaluated.of(projected, unit_tangent(projected.jacobian, previous=direction))
-        added.append(new.take(keep))
-        steps = steps.take(ok)
-        added_loop.append(np.repeat(steps.loop, pieces - 1))
-        added_key.append((steps.key[:, None] + steps.span[:, None] * fraction).ravel())
-        steps = steps.split(added[-1].q_rad, added[-1].tangent)
-        count_added += len(added[-1])
+    rounds_of = _numpy_rounds if fibre.chain is None else _compiled_rounds
+    added, added_loop, added_key = rounds_of(fibre, steps, limits, low, settings, rounds, pieces)
+    count_added = sum(len(a) for a in added)
     if not added:
         return evaluated, curves
     # The added points into their curves, in order of their places along them.
@@ -102,6 +80,90 @@ def refine_near_limits(
     return evaluated, Curves.of(evaluated, rows, first, curves.closed)
 
 
+# Each round's added points, their curves and their places along them.
+Added = tuple[list[Evaluated], list[IntArray], list[FloatArray]]
+
+
+def _compiled_rounds(
+    fibre: Fibre,
+    steps: Steps,
+    limits: JointLimits,
+    low: FloatArray,  # (n,) window_low
+    settings: TraceSettings,
+    rounds: int,
+    pieces: int,
+) -> Added:
+    """The rounds of `refine_near_limits` on a serial chain, each one compiled call
+    (`native.refine_round`: the numpy rounds' numbers)."""
+    chain = cast(ChainKinematics, fibre.chain)
+    target = fibre.target
+    rotation = kernel_orientation(fibre.task, target)
+    added: list[Evaluated] = []
+    added_loop: list[IntArray] = []
+    added_key: list[FloatArray] = []
+    trace_steps = steps.compiled()
+    for _ in range(rounds):
+        refined = native.refine_round(
+            chain.fixed, chain.tip, fibre.task.position_axes, target.position_m, rotation,
+            trace_steps, low, limits.lower_rad, limits.upper_rad, limits.periodic, pieces,
+            PROJECTION_ITERATIONS, settings.path_error, fibre.damping,
+        )  # fmt: skip
+        if not len(refined.loop):  # no step near the limits, or none split
+            break
+        added.append(Evaluated(refined.q_rad, refined.error, refined.jacobian, refined.tangent))
+        added_loop.append(refined.loop)
+        added_key.append(refined.key)
+        trace_steps = refined.steps
+    return added, added_loop, added_key
+
+
+def _numpy_rounds(
+    fibre: Fibre,
+    steps: Steps,
+    limits: JointLimits,
+    low: FloatArray,  # (n,) window_low
+    settings: TraceSettings,
+    rounds: int,
+    pieces: int,
+) -> Added:
+    """The rounds of `refine_near_limits` on any kinematics, in numpy."""
+    lower_rad, upper_rad, periodic = limits.lower_rad, limits.upper_rad, limits.periodic
+    added: list[Evaluated] = []
+    added_loop: list[IntArray] = []
+    added_key: list[FloatArray] = []
+    fraction = np.arange(1, pieces) / pieces  # (p - 1,)
+    for _ in range(rounds):
+        # Both ends outside, the chord through the box widened by a margin of L / 4 per
+        # step (a curve bends off its chord by ~kappa L^2 / 8), by the slab test (compiled).
+        steps = steps.take(
+            native.steps_near_limits(steps.start, steps.delta, low, lower_rad, upper_rad, periodic)
+        )
+        if not len(steps.loop):
+            break
+        count = len(steps.loop)
+        guess, direction = hermite(
+            np.repeat(steps.start, pieces - 1, axis=0),
+            np.repeat(steps.start_tangent, pieces - 1, axis=0),
+            np.repeat(steps.start + steps.delta, pieces - 1, axis=0),
+            np.repeat(steps.end_tangent, pieces - 1, axis=0),
+            np.tile(fraction, count),
+        )  # (C (p - 1), n)
+        projected = project(
+            fibre, guess, PROJECTION_ITERATIONS, tangent=direction, until=settings.path_error
+        )
+        ok = np.all((projected.error_norm < 1e-6).reshape(count, pieces - 1), axis=1)  # (C,)
+        if not ok.any():
+            break
+        keep = np.repeat(ok, pieces - 1)
+        new = Evaluated.of(projected, unit_tangent(projected.jacobian, previous=direction))
+        added.append(new.take(keep))
+        steps = steps.take(ok)
+        added_loop.append(np.repeat(steps.loop, pieces - 1))
+        added_key.append((steps.key[:, None] + steps.span[:, None] * fraction).ravel())
+        steps = steps.split(added[-1].q_rad, added[-1].tangent)
+    return added, added_loop, added_key
+
+
 @dataclass(frozen=True)
 class Steps:
     """Steps of traced curves between evaluated points (C of them), as the refinement
@@ -117,31 +179,23 @@ class Steps:
 
     @classmethod
     def of(cls, evaluated: Evaluated, curves: Curves) -> Steps:
-        """Every step of every curve (the closing step of a closed one included)."""
-        n = evaluated.q_rad.shape[1]
-        if not len(curves):
-            none = np.zeros((0, n))
-            return cls(np.zeros(0, np.int64), np.zeros(0), np.zeros(0), none, none, none, none)
-        size = np.diff(curves.first)  # (L,)
-        first = curves.first[:-1]  # (L,) where each curve starts
-        loop = np.repeat(np.arange(len(curves)), size)  # (P,)
-        place = np.arange(len(loop)) - first[loop]  # (P,) index in its curve
-        following = np.arange(len(loop)) + 1  # (P,) the point after, round a closed curve
-        last = place == size[loop] - 1
-        following[last] = first[loop[last]]
-        step = ~last | curves.closed[loop]
-        rows = curves.rows
-        row_a, row_b = rows[step], rows[following[step]]  # (C,) each step's ends
-        delta = torus_difference(evaluated.q_rad[row_b], evaluated.q_rad[row_a])
+        """Every step of every curve (the closing step of a closed one included), compiled
+        (`native.curve_steps`)."""
+        steps = native.curve_steps(
+            evaluated.q_rad, evaluated.tangent, curves.points, curves.rows, curves.first,
+            curves.closed,
+        )  # fmt: skip
         return cls(
-            loop=loop[step],
-            key=place[step].astype(np.float64),
-            span=np.ones(len(delta)),
-            start=curves.points[step],
-            delta=delta,
-            start_tangent=along(evaluated.tangent[row_a], delta),
-            end_tangent=along(evaluated.tangent[row_b], delta),
-        )
+            steps.loop, steps.key, steps.span, steps.start, steps.delta, steps.start_tangent,
+            steps.end_tangent,
+        )  # fmt: skip
+
+    def compiled(self) -> native.TraceSteps:
+        """The steps as `native.refine_round` takes them."""
+        return native.TraceSteps(
+            self.loop, self.key, self.span, self.start, self.delta, self.start_tangent,
+            self.end_tangent,
+        )  # fmt: skip
 
     def take(self, rows: BoolArray) -> Steps:
         return Steps(

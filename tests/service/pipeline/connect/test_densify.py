@@ -7,7 +7,8 @@ pieces (every path point, its error, closedness); and on a closed curve that lea
 limits and comes back twice (turned to start outside, so no run wraps round). A curve wholly
 inside is one run, one wholly outside none; malformed curve bounds are refused. Fronts
 that reached fewer points than there are fronts chain as the loops chain them, and the
-compiled chaining writes nothing past the buffers it is given."""
+compiled chaining writes nothing past the buffers it is given. The refinement's rounds on
+kinematics that are no serial chain (numpy) add the compiled rounds' points."""
 
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ import numpy as np
 import pytest
 
 from service.manifest import REPO_MODELS_DIR
+from service.models.chain import SerialChainKinematics
 from service.models.registry import ServedModel, load_model
 from service.pipeline import _native, native  # type: ignore[attr-defined]
 from service.pipeline.connect.trace import TraceSettings, walk
@@ -27,6 +29,7 @@ from service.pipeline.fibre import Fibre, evaluate, project, unit_tangent
 from service.pipeline.joint_space import JointLimits
 from tests.service.pipeline.connect import trace_reference as reference
 from tests.service.pipeline.fibre_support import pose_fibre
+from tests.support.numpy_kernels import NumpyStepsKinematics
 from training.evaluate.targets import uniform_configurations
 
 SETTINGS = TraceSettings(
@@ -125,6 +128,40 @@ def test_curves_runs_and_pieces_are_the_python_loops_answers(
     assert checked_pieces >= 6
 
 
+@pytest.mark.parametrize("model_id", ["iiwa14-pose", "panda-pose"])
+def test_the_refinement_on_any_kinematics_adds_the_compiled_rounds_points(
+    model_id: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The refinement's rounds run compiled on a serial chain (`native.refine_round`) and
+    in numpy on other kinematics: on the same traced curves the two add the same points
+    (to 1e-12: the numpy Newton's rounding) with the same curves, and points are added."""
+    model: ServedModel = load_model(REPO_MODELS_DIR / model_id, threads=1)
+    limits = JointLimits.of(model.manifest.joints)
+    refined = 0
+    for seed, q_target in enumerate(uniform_configurations(limits, 6, seed=41)):
+        fibre = pose_fibre(model, q_target)
+        assert isinstance(model.kinematics, SerialChainKinematics)
+        through = Fibre(fibre.target, fibre.task, NumpyStepsKinematics(model.kinematics), 1e-3)
+        near = q_target + np.random.default_rng(seed).normal(0.0, 0.5, (200, len(q_target)))
+        on_fibre = project(fibre, near, 20)
+        evaluated, curves, _ = traced(
+            fibre, on_fibre.q_rad[on_fibre.error_norm < 1e-9], monkeypatch
+        )
+        compiled, compiled_curves = refine_near_limits(fibre, evaluated, curves, limits, SETTINGS)
+        numpy_, numpy_curves = refine_near_limits(through, evaluated, curves, limits, SETTINGS)
+        assert len(compiled) == len(numpy_)
+        for ours, theirs in zip(
+            (compiled.q_rad, compiled.error, compiled.jacobian, compiled.tangent),
+            (numpy_.q_rad, numpy_.error, numpy_.jacobian, numpy_.tangent),
+            strict=True,
+        ):
+            np.testing.assert_allclose(ours, theirs, rtol=0, atol=1e-12)
+        np.testing.assert_array_equal(compiled_curves.rows, numpy_curves.rows)
+        np.testing.assert_array_equal(compiled_curves.first, numpy_curves.first)
+        refined += len(compiled) > len(evaluated)
+    assert refined >= 1
+
+
 def circle_curve(turns_rad: float = 0.0) -> tuple[Curves, JointLimits]:
     """A closed curve of 40 points round a circle of radius 1 in two joints, joint 0
     limited to [-0.5, 0.5] (the curve leaves and comes back twice), joint 1 periodic."""
@@ -165,6 +202,17 @@ def test_curve_bounds_that_do_not_cover_the_points_are_refused() -> None:
         native.cut_runs(
             loop.points, loop.rows, np.array([0, 30]), np.array([True]), np.zeros(2),
             limits.lower_rad, limits.upper_rad, limits.periodic,
+        )  # fmt: skip
+    evaluated = Evaluated(loop.points, np.zeros((40, 1)), np.zeros((40, 1, 2)), np.zeros((40, 2)))
+    with pytest.raises(ValueError, match="first must run from 0"):
+        native.curve_steps(
+            evaluated.q_rad, evaluated.tangent, loop.points, loop.rows, np.array([0, 30]),
+            np.array([True]),
+        )  # fmt: skip
+    with pytest.raises(ValueError, match="rows must index the 40 evaluated points"):
+        native.curve_steps(
+            evaluated.q_rad, evaluated.tangent, loop.points, loop.rows + 1, loop.first,
+            loop.closed,
         )  # fmt: skip
 
 
