@@ -142,14 +142,15 @@ def traced_paths(
     least sigma_min met on them, and the points the trace reached."""
     trace = trace_fibre(space, q_on_fibre_rad, trace_settings(spec), deadline)
     complete = trace.complete
-    kept = KeptPaths(space.limits, spec.path_spacing_rad)
+    paths: list[ComponentPath] = []
     for pieces, whole in all_exact_paths(
         trace.pieces, space, spec.path_spacing_rad, 2.0 * spec.trace_step_rad
     ):
         complete &= whole
         for path in pieces:
-            kept.add(path)
-    return TracedCurves(kept.paths, complete, trace.min_singular_value, trace.reached_rad)
+            if not duplicate(path, paths, space.limits, spec.path_spacing_rad):
+                paths.append(path)
+    return TracedCurves(paths, complete, trace.min_singular_value, trace.reached_rad)
 
 
 def all_exact_paths(
@@ -195,50 +196,27 @@ def all_exact_paths(
     return answers
 
 
-class KeptPaths:
-    """Paths kept once each: a path is left out when it is one kept before traced again
-    (two chains over one curve): the same arc length (within 1 % or the spacing), the same
-    closedness, the same ends (open paths, either way round) and, checked last, most of
-    its points on the other. The kept paths' arc lengths, closedness and ends are held as
-    arrays, so a path is compared with every kept one at once."""
-
-    def __init__(self, limits: JointLimits, spacing_rad: float) -> None:
-        self.limits, self.spacing_rad = limits, spacing_rad
-        self.paths: list[ComponentPath] = []
-        self._arc_rad: list[float] = []
-        self._closed: list[bool] = []
-        self._ends: list[FloatArray] = []  # (2, n) each: first and last point
-
-    def add(self, path: ComponentPath) -> bool:
-        """Keep `path` unless it is a kept one traced again; whether it was kept."""
-        if self.duplicate(path):
-            return False
-        self.paths.append(path)
-        self._arc_rad.append(path.arc_length_rad)
-        self._closed.append(path.closed)
-        self._ends.append(path.q_rad[[0, -1]])
-        return True
-
-    def duplicate(self, path: ComponentPath) -> bool:
-        """`path` is a kept one traced again."""
-        if not self.paths:
-            return False
-        arc_rad = path.arc_length_rad
-        within_rad = max(0.01 * arc_rad, self.spacing_rad)
-        alike = np.abs(np.array(self._arc_rad) - arc_rad) <= within_rad  # (a NaN arc is not)
-        alike &= np.array(self._closed) == path.closed
-        candidates = np.flatnonzero(alike)
-        if not len(candidates):
-            return False
+def duplicate(
+    path: ComponentPath, paths: list[ComponentPath], limits: JointLimits, spacing_rad: float
+) -> bool:
+    """The same piece traced twice (two chains over one curve): the same arc length, the
+    same ends (open pieces) and, checked last, most points on the other."""
+    arc_rad = path.arc_length_rad
+    within_rad = max(0.01 * arc_rad, spacing_rad)
+    for other in paths:
+        if not abs(other.arc_length_rad - arc_rad) <= within_rad:  # (a NaN arc is not alike)
+            continue
+        if other.closed != path.closed:
+            continue
         if not path.closed:
-            ends = path.q_rad[[0, -1]]  # (2, n)
-            other_ends = np.stack([self._ends[c] for c in candidates])  # (C, 2, n)
-            spacing = self.spacing_rad
-            same = self.limits.distance(ends, other_ends).max(axis=1) <= spacing
-            reversed_ = self.limits.distance(ends, other_ends[:, ::-1]).max(axis=1) <= spacing
-            candidates = candidates[same | reversed_]
-        on_curve_rad = ON_CURVE_FRACTION * self.spacing_rad
-        return any(retraced(path, [self.paths[c]], self.limits, on_curve_rad) for c in candidates)
+            ends, other_ends = path.q_rad[[0, -1]], other.q_rad[[0, -1]]
+            same = limits.distance(ends, other_ends).max() <= spacing_rad
+            reversed_ = limits.distance(ends, other_ends[::-1]).max() <= spacing_rad
+            if not (same or reversed_):
+                continue
+        if retraced(path, [other], limits, ON_CURVE_FRACTION * spacing_rad):
+            return True
+    return False
 
 
 def retraced(

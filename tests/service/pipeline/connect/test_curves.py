@@ -10,9 +10,9 @@ count no stray; a sample of the other loop is traced, its loop added once, and t
 reached points grow. The exact paths of all traced pieces measured at once equal each
 piece's own, on real pieces and on pieces with an inexact point, a long step, a loop
 opened there and no point.
-`KeptPaths`: a path is one traced again only of a path on its own curve (the same arc
+`duplicate`: a path is one traced again only of a path on its own curve (the same arc
 walked either way), not of one as long with ends elsewhere, a shorter one, a twin 0.03 rad
-beside it or none; a NaN arc is like none; a duplicate is not kept.
+beside it or none; a NaN arc is like none.
 """
 
 from __future__ import annotations
@@ -25,8 +25,8 @@ from service.manifest import REPO_MODELS_DIR
 from service.models.registry import ServedModel, load_model
 from service.pipeline.connect import extend_curves, trace_curves
 from service.pipeline.connect.curves import (
-    KeptPaths,
     all_exact_paths,
+    duplicate,
     exact_paths,
     off_the_reached,
 )
@@ -142,19 +142,9 @@ def test_a_path_is_a_duplicate_only_of_one_on_the_same_curve() -> None:
     shorter = _arc_path((0.0, 0.0), 0.0, 1.5)
     twin = _arc_path((0.0, 0.03), 0.0, 2.0)  # 0.03 rad beside it, ends within the spacing
     others = [moved, shorter, twin]
-
-    def kept(paths: list[ComponentPath]) -> KeptPaths:
-        held = KeptPaths(limits, 0.05)
-        assert all(held.add(path) for path in paths)  # no two on one curve
-        return held
-
-    assert not kept([]).duplicate(arc)
-    assert not kept(others).duplicate(arc)
-    assert kept([*others, again]).duplicate(arc)
-    assert kept([moved, arc]).duplicate(again)
+    assert not duplicate(arc, [], limits, 0.05)
+    assert not duplicate(arc, others, limits, 0.05)
+    assert duplicate(arc, [*others, again], limits, 0.05)
+    assert duplicate(again, [moved, arc], limits, 0.05)
     # The arc-length test comes first: a NaN arc is like none.
-    assert not kept([again]).duplicate(replace(arc, arc_length_rad=float("nan")))
-    # A duplicate is not kept.
-    held = kept([moved, arc])
-    assert not held.add(again)
-    assert held.paths == [moved, arc]
+    assert not duplicate(replace(arc, arc_length_rad=float("nan")), [again], limits, 0.05)
