@@ -1136,6 +1136,7 @@ static int meet_fronts(Walk *w, const double *previous, double *circle, double *
     for (Py_ssize_t f = 0; f < F; ++f) {
         any |= w->alive[f];
         if (w->step[f] > largest || isnan(w->step[f])) largest = w->step[f];
+        if (w->partner[f] >= 0) continue; /* met: never a candidate again (its circle unread) */
         for (Py_ssize_t k = 0; k < n; ++k) {
             circle[f * 2 * n + k] = cos(w->q[f * n + k]);
             circle[f * 2 * n + n + k] = sin(w->q[f * n + k]);
@@ -1145,10 +1146,23 @@ static int meet_fronts(Walk *w, const double *previous, double *circle, double *
     double reach = w->meet_factor * largest, reach2 = reach * reach + 1e-9;
     for (Py_ssize_t a = 0; a < F; ++a) {
         if (!w->alive[a]) continue;
+        const double *ca = circle + a * 2 * n;
         for (Py_ssize_t b = 0; b < F; ++b) {
-            double chordal2 = 2.0 * n - 2.0 * dot_of(circle + a * 2 * n, circle + b * 2 * n, 2 * n);
-            if (!(chordal2 <= reach2) || a == b || w->partner[b] >= 0 || !(a < b || !w->alive[b]))
-                continue;
+            if (a == b || w->partner[b] >= 0 || !(a < b || !w->alive[b])) continue;
+            /* Far apart in the first joints already: the chordal distance below, a sum of
+             * those joints' 2 - 2 cos(dq) and the rest's (each at least 0 up to rounding),
+             * exceeds the reach too. The margin covers both sums' rounding (< 1e-13), so
+             * the pairs kept are the same; most fronts are far from most. */
+            const double *cb = circle + b * 2 * n;
+            double partial = 0.0;
+            Py_ssize_t k = 0;
+            for (; k < n; ++k) {
+                partial += 2.0 - 2.0 * (ca[k] * cb[k] + ca[n + k] * cb[n + k]);
+                if (partial > reach2 + 1e-12) break;
+            }
+            if (k < n) continue;
+            double chordal2 = 2.0 * n - 2.0 * dot_of(ca, cb, 2 * n);
+            if (!(chordal2 <= reach2)) continue;
             if (count == *pair_capacity) {
                 Py_ssize_t grown = 2 * *pair_capacity + 16;
                 Pair *more = realloc(*pairs, grown * sizeof(Pair));
