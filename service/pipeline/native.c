@@ -2389,6 +2389,72 @@ static void refine_round_of(const double *fixed, const double *tip, Py_ssize_t n
     counts[0] = near, counts[1] = split;
 }
 
+/* densify.py's `limit_points` for E run ends: each from its inner point a (unwrapped) toward
+   its outside point b, read in the 2 pi window from `low`, the joint that leaves first set on
+   the limit it crosses and held there while `iterations` DLS steps (rows within `until`
+   stop) put the rest back on the fibre; then that joint exactly on its limit, whether the
+   point is good (inside the limits, within twice the step of a, |e| < 1e-8), its unit
+   tangent from [J; b - a] t = [0; 1], and the point in a's unwrapped coordinates. The
+   arithmetic is numpy's, term by term (argmin: the first least, or the first NaN). Writes
+   q_window (E, n), q_unwrapped (E, n), error (E, m), jacobian (E, m, n), tangent (E, n) and
+   good (E,). `scratch` holds n n + 5 n + (m + 3) n doubles. */
+static void limit_points_of(const double *fixed, const double *tip, Py_ssize_t n,
+                            const long long *rows, Py_ssize_t m, Py_ssize_t m_position,
+                            const double *target_position, const double *target_rotation,
+                            Py_ssize_t E, const double *a_in, const double *b_in,
+                            const double *low, const double *lower, const double *upper,
+                            const unsigned char *periodic, Py_ssize_t iterations, double until,
+                            double damping, double *q_window, double *q_unwrapped,
+                            double *error, double *jacobian, double *tangent,
+                            unsigned char *good, double *scratch) {
+    double *solve = scratch, *b = solve + n * n, *a_w = b + n, *b_w = a_w + n, *rhs = b_w + n;
+    double *previous = rhs + n, *newton_scratch = previous + n;
+    unsigned char locked[64];
+    for (Py_ssize_t e = 0; e < E; ++e) {
+        const double *a = a_in + e * n, *raw = b_in + e * n;
+        double *q = q_window + e * n;
+        Py_ssize_t joint = 0;
+        double least = 0.0, t_low_j = 0.0, t_high_j = 0.0;
+        for (Py_ssize_t j = 0; j < n; ++j) {
+            b[j] = a[j] + wrap_to_pi(raw[j] - a[j]);
+            a_w[j] = low[j] + mod_two_pi(a[j] - low[j]);
+            b_w[j] = a_w[j] + (b[j] - a[j]);
+            double t_low = b_w[j] < lower[j] ? (a_w[j] - lower[j]) / (a_w[j] - b_w[j]) : INFINITY;
+            double t_high = b_w[j] > upper[j] ? (upper[j] - a_w[j]) / (b_w[j] - a_w[j]) : INFINITY;
+            double t_cross = periodic[j] ? INFINITY : nan_min(t_low, t_high);
+            /* np.argmin: the first NaN, else the first least */
+            if (j == 0 || (least == least && (t_cross != t_cross || t_cross < least))) {
+                joint = j, least = t_cross, t_low_j = t_low, t_high_j = t_high;
+            }
+        }
+        double t = nan_min(nan_max(least, 0.0), 1.0);
+        for (Py_ssize_t j = 0; j < n; ++j) q[j] = a_w[j] + t * (b_w[j] - a_w[j]);
+        double bound = t_low_j <= t_high_j ? lower[joint] : upper[joint];
+        q[joint] = bound;
+        for (Py_ssize_t j = 0; j < n; ++j) locked[j] = j == joint;
+        unsigned char fresh = 1;
+        double *err = error + e * m, *J = jacobian + e * m * n;
+        newton_rows(fixed, tip, n, rows, m, m_position, target_position, target_rotation, q, err,
+                    J, 1, iterations, until, damping, locked, NULL, &fresh, newton_scratch);
+        q[joint] = bound;
+        int inside = 1;
+        for (Py_ssize_t j = 0; j < n; ++j)
+            inside &= periodic[j] || (q[j] >= lower[j] && q[j] <= upper[j]);
+        for (Py_ssize_t j = 0; j < n; ++j) rhs[j] = q[j] - a_w[j], previous[j] = b_w[j] - a_w[j];
+        int close = norm_of(rhs, n) <= 2.0 * norm_of(previous, n);
+        good[e] = inside && close && norm_of(err, m) < 1e-8;
+        for (Py_ssize_t j = 0; j < n; ++j) {
+            previous[j] = b[j] - a[j];
+            rhs[j] = j == m ? 1.0 : 0.0;
+            q_unwrapped[e * n + j] = q[j] + (a[j] - a_w[j]);
+        }
+        double *t_row = tangent + e * n;
+        bordered_rows(J, previous, rhs, 1, n, t_row, solve);
+        double length = norm_of(t_row, n);
+        for (Py_ssize_t j = 0; j < n; ++j) t_row[j] = t_row[j] / length;
+    }
+}
+
 /* Each query's k nearest points (joint metric, wrapped on the periodic joints), nearest
    first, the lower row first among equally near ones; fewer than k points give -1 after
    them. The points are binned on a grid over two joints (those that spread the points and
@@ -3483,6 +3549,32 @@ static PyObject *py_refine_round(PyObject *self, PyObject *args) {
     return Py_BuildValue("nn", counts[0], counts[1]);
 }
 
+static PyObject *py_limit_points(PyObject *self, PyObject *args) {
+    Py_buffer fixed, tip, rows, target_position, target_rotation, a, b, low, lower, upper,
+        periodic, q_window, q_unwrapped, error, jacobian, tangent, good, scratch;
+    Py_ssize_t n, m, m_position, E, iterations;
+    int orientation;
+    double until, damping;
+    if (!PyArg_ParseTuple(args, "y*y*ny*nny*y*pny*y*y*y*y*y*nddw*w*w*w*w*w*w*", &fixed, &tip, &n,
+                          &rows, &m, &m_position, &target_position, &target_rotation,
+                          &orientation, &E, &a, &b, &low, &lower, &upper, &periodic, &iterations,
+                          &until, &damping, &q_window, &q_unwrapped, &error, &jacobian, &tangent,
+                          &good, &scratch))
+        return NULL;
+    Py_BEGIN_ALLOW_THREADS
+    limit_points_of(fixed.buf, tip.buf, n, rows.buf, m, m_position, target_position.buf,
+                    orientation ? target_rotation.buf : NULL, E, a.buf, b.buf, low.buf, lower.buf,
+                    upper.buf, periodic.buf, iterations, until, damping, q_window.buf,
+                    q_unwrapped.buf, error.buf, jacobian.buf, tangent.buf, good.buf, scratch.buf);
+    Py_END_ALLOW_THREADS
+    Py_buffer *all[] = {&fixed, &tip,      &rows,        &target_position, &target_rotation,
+                        &a,     &b,        &low,         &lower,           &upper,
+                        &periodic, &q_window, &q_unwrapped, &error,        &jacobian,
+                        &tangent, &good,    &scratch};
+    for (size_t i = 0; i < sizeof all / sizeof *all; ++i) PyBuffer_Release(all[i]);
+    Py_RETURN_NONE;
+}
+
 static Axis axis_of(const double *points, Py_ssize_t P, const double *queries, Py_ssize_t K,
                     Py_ssize_t n, Py_ssize_t joint, int periodic) {
     Axis axis = {joint, periodic, -PI, TWO_PI, 1};
@@ -3713,6 +3805,11 @@ static PyMethodDef methods[] = {
      "added_tangent, added_loop, added_key, out_loop, out_key, out_span, out_start, out_delta, "
      "out_start_tangent, out_end_tangent, scratch) -> (near, split): one round of the "
      "refinement near the limits (cut.refine_near_limits)."},
+    {"limit_points", py_limit_points, METH_VARARGS,
+     "limit_points(fixed, tip, n, rows, m, m_position, target_position, target_rotation, "
+     "orientation, E, a, b, low, lower, upper, periodic, iterations, until, damping, q_window, "
+     "q_unwrapped, error, jacobian, tangent, good, scratch): each run end refined onto the "
+     "limit its curve crosses (densify.limit_points)."},
     {"steps_near_limits", py_steps_near_limits, METH_VARARGS,
      "steps_near_limits(start, delta, low, lower, upper, periodic, S, n, split): the trace "
      "steps whose chord may pass through the limits unseen."},

@@ -1552,6 +1552,65 @@ def refine_round(
     )  # fmt: skip
 
 
+@dataclass(frozen=True)
+class LimitPoints:
+    """Run ends refined onto the joint limit each curve crosses (E of them)."""
+
+    q_window_rad: FloatArray  # (E, n) in the 2 pi window, the limited joint on its limit
+    q_rad: FloatArray  # (E, n) the same in the inner points' unwrapped coordinates
+    error: FloatArray  # (E, m)
+    jacobian: FloatArray  # (E, m, n)
+    tangent: FloatArray  # (E, n) unit, along b - a
+    good: BoolArray  # (E,) inside the limits, near a, on the fibre
+
+
+def limit_points(
+    fixed: FloatArray,  # (n, 4, 4) as `chain_kinematics`
+    tip: FloatArray,  # (4, 4)
+    position_axes: list[int],
+    target_position_m: FloatArray,  # (len(position_axes),)
+    target_rotation: OrientationTarget,  # as `task_residual`
+    a_rad: FloatArray,  # (E, n) each run end's inner point, unwrapped
+    b_rad: FloatArray,  # (E, n) the outside point after it
+    window_low_rad: FloatArray,  # (n,)
+    lower_rad: FloatArray,  # (n,)
+    upper_rad: FloatArray,  # (n,)
+    periodic: BoolArray,  # (n,)
+    iterations: int,
+    until: float,
+    damping: float,
+) -> LimitPoints:
+    """densify.py's `limit_points` on a serial chain, compiled (the same numbers): the joint
+    that leaves first between a and b set on its limit and held while `iterations` DLS
+    steps (rows within `until` stop) put the others back on the fibre."""
+    n = len(fixed)
+    orientation_rows, rotation = _orientation(target_rotation)
+    rows = [*position_axes, *orientation_rows]
+    m, m_position = len(rows), len(position_axes)
+    if not 0 < n <= MAX_JOINTS or m != n - 1:
+        raise ValueError(f"a task of {m} rows on {n} joints; limit points need n - 1 rows")
+    count = len(a_rad)
+    out = LimitPoints(
+        np.empty((count, n)), np.empty((count, n)), np.empty((count, m)),
+        np.empty((count, m, n)), np.empty((count, n)), np.empty(count, dtype=bool),
+    )  # fmt: skip
+    vector = (
+        (window_low_rad, "window_low_rad"), (lower_rad, "lower_rad"), (upper_rad, "upper_rad"),
+    )  # fmt: skip
+    if count:
+        _native.limit_points(
+            _float64(fixed, "fixed", (n, 4, 4)), _float64(tip, "tip", (4, 4)), n,
+            np.array(rows, dtype=np.int64), m, m_position,
+            _float64(target_position_m, "target_position_m", (m_position,)), rotation,
+            target_rotation is not None, count, _float64(a_rad, "a_rad", (count, n)),
+            _float64(b_rad, "b_rad", (count, n)), *(_float64(v, name, (n,)) for v, name in vector),
+            np.ascontiguousarray(periodic, dtype=np.uint8), iterations, float(until),
+            float(damping), out.q_window_rad, out.q_rad, out.error, out.jacobian, out.tangent,
+            out.good.view(np.uint8), np.empty(n * n + 5 * n + (m + 3) * n),
+        )  # fmt: skip
+    return out
+
+
 def nearest_points(
     points_rad: FloatArray,  # (P, n)
     queries_rad: FloatArray,  # (K, n)

@@ -16,6 +16,7 @@ from service.pipeline.connect.trace.points import (
 )
 from service.pipeline.fibre import Fibre, Projection, newton, project, unit_tangent
 from service.pipeline.joint_space import JointLimits
+from service.pipeline.targets import kernel_orientation
 
 
 def densify(
@@ -81,6 +82,9 @@ def densify(
 # What each node of `native.dense_nodes` is.
 MOVING, LIMIT, REPEATED = 0, 1, 2
 
+# DLS steps that put a run end back on the fibre with its limited joint held.
+LIMIT_ITERATIONS = 6
+
 
 def limit_points(
     fibre: Fibre,
@@ -110,6 +114,20 @@ def limit_points(
     ends = np.stack([runs.points[runs.first[:-1]], runs.points[runs.first[1:] - 1]], axis=1)
     a = ends.reshape(-1, n)[keys]  # (E, n) unwrapped, consecutive on the curve
     b = runs.exits.reshape(-1, n)[keys]
+    chain = fibre.chain
+    if chain is not None:  # the same points, compiled
+        target = fibre.target
+        refined_ends = native.limit_points(
+            chain.fixed, chain.tip, fibre.task.position_axes, target.position_m,
+            kernel_orientation(fibre.task, target), a, b, window_low, lower_rad, upper_rad,
+            periodic, LIMIT_ITERATIONS, settings.path_error, fibre.damping,
+        )  # fmt: skip
+        good = refined_ends.good
+        points = Evaluated(
+            refined_ends.q_rad, refined_ends.error, refined_ends.jacobian, refined_ends.tangent
+        ).take(good)
+        found[keys[good]] = np.arange(good.sum())
+        return points, refined_ends.q_window_rad[good], found
     b = a + torus_difference(b, a)
     a_w = to_window(a, window_low)
     b_w = a_w + (b - a)  # the same step in window coordinates (may leave the window)
@@ -125,7 +143,9 @@ def limit_points(
     guess[rows, joint] = bound
     locked = np.zeros_like(guess, dtype=bool)
     locked[rows, joint] = True
-    refined = project(fibre, guess, iterations=6, locked=locked, until=settings.path_error)
+    refined = project(
+        fibre, guess, iterations=LIMIT_ITERATIONS, locked=locked, until=settings.path_error
+    )
     q = refined.q_rad
     q[rows, joint] = bound  # exactly on the limit (the locked joint did not move)
     inside = limits.contains(q)

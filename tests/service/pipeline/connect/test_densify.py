@@ -8,7 +8,8 @@ limits and comes back twice (turned to start outside, so no run wraps round). A 
 inside is one run, one wholly outside none; malformed curve bounds are refused. Fronts
 that reached fewer points than there are fronts chain as the loops chain them, and the
 compiled chaining writes nothing past the buffers it is given. The refinement's rounds on
-kinematics that are no serial chain (numpy) add the compiled rounds' points."""
+kinematics that are no serial chain (numpy) add the compiled rounds' points, and refine the
+run ends onto the limits as the compiled kernel does."""
 
 from __future__ import annotations
 
@@ -20,8 +21,8 @@ from service.models.chain import SerialChainKinematics
 from service.models.registry import ServedModel, load_model
 from service.pipeline import _native, native  # type: ignore[attr-defined]
 from service.pipeline.connect.trace import TraceSettings, walk
-from service.pipeline.connect.trace.cut import Runs, cut_by_limits, refine_near_limits
-from service.pipeline.connect.trace.densify import densify
+from service.pipeline.connect.trace.cut import Runs, cut_by_limits, refine_near_limits, window_low
+from service.pipeline.connect.trace.densify import densify, limit_points
 from service.pipeline.connect.trace.points import Curves, Evaluated
 from service.pipeline.connect.trace.seeds import spread_seeds
 from service.pipeline.deadline import NO_DEADLINE
@@ -159,6 +160,45 @@ def test_the_refinement_on_any_kinematics_adds_the_compiled_rounds_points(
         np.testing.assert_array_equal(compiled_curves.rows, numpy_curves.rows)
         np.testing.assert_array_equal(compiled_curves.first, numpy_curves.first)
         refined += len(compiled) > len(evaluated)
+    assert refined >= 1
+
+
+@pytest.mark.parametrize("model_id", ["iiwa14-pose", "panda-pose"])
+def test_run_ends_on_any_kinematics_are_the_compiled_limit_points(
+    model_id: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Each run end refined onto its limit runs compiled on a serial chain
+    (`native.limit_points`) and in numpy on other kinematics: on the same runs the two give
+    the same points (to 1e-12: the numpy Newton's rounding), on their limits, and the same
+    choice of ends; some ends are refined."""
+    model: ServedModel = load_model(REPO_MODELS_DIR / model_id, threads=1)
+    limits = JointLimits.of(model.manifest.joints)
+    low = window_low(limits)
+    refined = 0
+    for seed, q_target in enumerate(uniform_configurations(limits, 6, seed=41)):
+        fibre = pose_fibre(model, q_target)
+        assert isinstance(model.kinematics, SerialChainKinematics)
+        through = Fibre(fibre.target, fibre.task, NumpyStepsKinematics(model.kinematics), 1e-3)
+        near = q_target + np.random.default_rng(seed).normal(0.0, 0.5, (200, len(q_target)))
+        on_fibre = project(fibre, near, 20)
+        evaluated, curves, _ = traced(
+            fibre, on_fibre.q_rad[on_fibre.error_norm < 1e-9], monkeypatch
+        )
+        evaluated, curves = refine_near_limits(fibre, evaluated, curves, limits, SETTINGS)
+        runs = cut_by_limits(curves, limits)
+        ours = limit_points(fibre, runs, evaluated, limits, low, SETTINGS)
+        theirs = limit_points(through, runs, evaluated, limits, low, SETTINGS)
+        np.testing.assert_array_equal(ours[2], theirs[2])  # the same ends refined
+        for x, y in (
+            (ours[0].q_rad, theirs[0].q_rad), (ours[0].error, theirs[0].error),
+            (ours[0].jacobian, theirs[0].jacobian), (ours[0].tangent, theirs[0].tangent),
+            (ours[1], theirs[1]),
+        ):  # fmt: skip
+            np.testing.assert_allclose(x, y, rtol=0, atol=1e-12)
+        assert np.all(limits.contains(ours[1]))
+        on_limit = (ours[1] == limits.lower_rad) | (ours[1] == limits.upper_rad)  # (L, n)
+        assert np.all(on_limit.any(axis=1))  # each held exactly on a limit
+        refined += len(ours[1])
     assert refined >= 1
 
 
