@@ -1423,12 +1423,44 @@ def steps_near_limits(
 
 
 @dataclass(frozen=True)
+class _OneDimensionalTask:
+    """A task of n - 1 rows on n joints (r = 1: the trace's kernels) as the compiled kernels
+    take it: the Jacobian rows read, how many are position rows, the orientation's matrix."""
+
+    rows: IntArray  # (m,)
+    m_position: int
+    rotation: FloatArray  # (3, 3)
+    oriented: bool
+
+    @property
+    def m(self) -> int:
+        return len(self.rows)
+
+    @classmethod
+    def of(
+        cls, n: int, position_axes: list[int], target_rotation: OrientationTarget, what: str
+    ) -> _OneDimensionalTask:
+        orientation_rows, rotation = _orientation(target_rotation)
+        rows = np.array([*position_axes, *orientation_rows], dtype=np.int64)
+        if not 0 < n <= MAX_JOINTS or len(rows) != n - 1:
+            raise ValueError(f"a task of {len(rows)} rows on {n} joints; {what} needs n - 1 rows")
+        return cls(rows, len(position_axes), rotation, target_rotation is not None)
+
+    def arguments(self, target_position_m: FloatArray) -> tuple[object, ...]:
+        """The kernels' arguments after n: rows, m, m_position, the target position, the
+        orientation's matrix and whether there is one."""
+        position = _float64(target_position_m, "target_position_m", (self.m_position,))
+        return self.rows, self.m, self.m_position, position, self.rotation, self.oriented
+
+
+@dataclass(frozen=True)
 class TraceSteps:
-    """Steps of traced curves (C of them), as connect/trace/cut.py's `Steps` holds them."""
+    """Steps of traced curves (C of them), as the refinement near the limits looks at them
+    (connect/trace/cut.py's `Steps`)."""
 
     loop: IntArray  # (C,) which curve
     key: FloatArray  # (C,) where the step starts in the curve: point index (+ fraction)
-    span: FloatArray  # (C,) how much of the curve's step it is
+    span: FloatArray  # (C,) how much of the curve's step it is: 1, 1 / pieces, ...
     start: FloatArray  # (C, n) unwrapped like the curve
     delta: FloatArray  # (C, n) to the step's end, the short way on the torus
     start_tangent: FloatArray  # (C, n) unit, along delta
@@ -1508,11 +1540,8 @@ def refine_round(
     steps (`newton`, rows stopping within `until`); a step whose points all reach |e| <
     1e-6 gives its points (with their unit tangents) and its pieces."""
     n = len(fixed)
-    orientation_rows, rotation = _orientation(target_rotation)
-    rows = [*position_axes, *orientation_rows]
-    m, m_position = len(rows), len(position_axes)
-    if not 0 < n <= MAX_JOINTS or m != n - 1:
-        raise ValueError(f"a task of {m} rows on {n} joints; the refinement needs n - 1 rows")
+    task = _OneDimensionalTask.of(n, position_axes, target_rotation, "the refinement")
+    m = task.m
     if not 1 < pieces <= 65:
         raise ValueError(f"pieces must be 2 to 65, got {pieces}")
     count, k = len(steps.loop), pieces - 1
@@ -1529,9 +1558,7 @@ def refine_round(
     )  # fmt: skip
     near, done = _native.refine_round(
         _float64(fixed, "fixed", (n, 4, 4)), _float64(tip, "tip", (4, 4)), n,
-        np.array(rows, dtype=np.int64), m, m_position,
-        _float64(target_position_m, "target_position_m", (m_position,)), rotation,
-        target_rotation is not None, count, _int64(steps.loop, "loop", (count,)),
+        *task.arguments(target_position_m), count, _int64(steps.loop, "loop", (count,)),
         _float64(steps.key, "key", (count,)), _float64(steps.span, "span", (count,)),
         _float64(steps.start, "start", (count, n)), _float64(steps.delta, "delta", (count, n)),
         _float64(steps.start_tangent, "start_tangent", (count, n)),
@@ -1584,11 +1611,8 @@ def limit_points(
     that leaves first between a and b set on its limit and held while `iterations` DLS
     steps (rows within `until` stop) put the others back on the fibre."""
     n = len(fixed)
-    orientation_rows, rotation = _orientation(target_rotation)
-    rows = [*position_axes, *orientation_rows]
-    m, m_position = len(rows), len(position_axes)
-    if not 0 < n <= MAX_JOINTS or m != n - 1:
-        raise ValueError(f"a task of {m} rows on {n} joints; limit points need n - 1 rows")
+    task = _OneDimensionalTask.of(n, position_axes, target_rotation, "limit points")
+    m = task.m
     count = len(a_rad)
     out = LimitPoints(
         np.empty((count, n)), np.empty((count, n)), np.empty((count, m)),
@@ -1600,9 +1624,7 @@ def limit_points(
     if count:
         _native.limit_points(
             _float64(fixed, "fixed", (n, 4, 4)), _float64(tip, "tip", (4, 4)), n,
-            np.array(rows, dtype=np.int64), m, m_position,
-            _float64(target_position_m, "target_position_m", (m_position,)), rotation,
-            target_rotation is not None, count, _float64(a_rad, "a_rad", (count, n)),
+            *task.arguments(target_position_m), count, _float64(a_rad, "a_rad", (count, n)),
             _float64(b_rad, "b_rad", (count, n)), *(_float64(v, name, (n,)) for v, name in vector),
             np.ascontiguousarray(periodic, dtype=np.uint8), iterations, float(until),
             float(damping), out.q_window_rad, out.q_rad, out.error, out.jacobian, out.tangent,

@@ -101,7 +101,7 @@ def _compiled_rounds(
     added: list[Evaluated] = []
     added_loop: list[IntArray] = []
     added_key: list[FloatArray] = []
-    trace_steps = steps.compiled()
+    trace_steps: native.TraceSteps = steps
     for _ in range(rounds):
         refined = native.refine_round(
             chain.fixed, chain.tip, fibre.task.position_axes, target.position_m, rotation,
@@ -165,17 +165,10 @@ def _numpy_rounds(
 
 
 @dataclass(frozen=True)
-class Steps:
+class Steps(native.TraceSteps):
     """Steps of traced curves between evaluated points (C of them), as the refinement
-    looks at them: unwrapped start and chord, tangents along the chord at both ends."""
-
-    loop: IntArray  # (C,) which curve
-    key: FloatArray  # (C,) where the step starts in the curve: point index (+ fraction)
-    span: FloatArray  # (C,) how much of the curve's step it is: 1, 1 / pieces, ...
-    start: FloatArray  # (C, n) unwrapped like the curve
-    delta: FloatArray  # (C, n) to the step's end, the short way on the torus
-    start_tangent: FloatArray  # (C, n) unit, along delta
-    end_tangent: FloatArray  # (C, n)
+    looks at them: unwrapped start and chord, tangents along the chord at both ends (the
+    fields of `native.TraceSteps`, which the compiled rounds take as they are)."""
 
     @classmethod
     def of(cls, evaluated: Evaluated, curves: Curves) -> Steps:
@@ -185,17 +178,7 @@ class Steps:
             evaluated.q_rad, evaluated.tangent, curves.points, curves.rows, curves.first,
             curves.closed,
         )  # fmt: skip
-        return cls(
-            steps.loop, steps.key, steps.span, steps.start, steps.delta, steps.start_tangent,
-            steps.end_tangent,
-        )  # fmt: skip
-
-    def compiled(self) -> native.TraceSteps:
-        """The steps as `native.refine_round` takes them."""
-        return native.TraceSteps(
-            self.loop, self.key, self.span, self.start, self.delta, self.start_tangent,
-            self.end_tangent,
-        )  # fmt: skip
+        return cls(**vars(steps))
 
     def take(self, rows: BoolArray) -> Steps:
         return Steps(
