@@ -129,6 +129,21 @@ def test_curves_runs_and_pieces_are_the_python_loops_answers(
     assert checked_pieces >= 6
 
 
+def traced_both_ways(
+    model: ServedModel, q_target: np.ndarray, seed: int, monkeypatch: pytest.MonkeyPatch
+) -> tuple[Fibre, Fibre, Evaluated, Curves]:
+    """The fibre q_target reaches, on the model's serial chain and on the same kinematics
+    behind a plain callable (numpy steps), and the curves walked from points near q_target
+    on the first."""
+    fibre = pose_fibre(model, q_target)
+    assert isinstance(model.kinematics, SerialChainKinematics)
+    through = Fibre(fibre.target, fibre.task, NumpyStepsKinematics(model.kinematics), 1e-3)
+    near = q_target + np.random.default_rng(seed).normal(0.0, 0.5, (200, len(q_target)))
+    on_fibre = project(fibre, near, 20)
+    evaluated, curves, _ = traced(fibre, on_fibre.q_rad[on_fibre.error_norm < 1e-9], monkeypatch)
+    return fibre, through, evaluated, curves
+
+
 @pytest.mark.parametrize("model_id", ["iiwa14-pose", "panda-pose"])
 def test_the_refinement_on_any_kinematics_adds_the_compiled_rounds_points(
     model_id: str, monkeypatch: pytest.MonkeyPatch
@@ -140,14 +155,7 @@ def test_the_refinement_on_any_kinematics_adds_the_compiled_rounds_points(
     limits = JointLimits.of(model.manifest.joints)
     refined = 0
     for seed, q_target in enumerate(uniform_configurations(limits, 6, seed=41)):
-        fibre = pose_fibre(model, q_target)
-        assert isinstance(model.kinematics, SerialChainKinematics)
-        through = Fibre(fibre.target, fibre.task, NumpyStepsKinematics(model.kinematics), 1e-3)
-        near = q_target + np.random.default_rng(seed).normal(0.0, 0.5, (200, len(q_target)))
-        on_fibre = project(fibre, near, 20)
-        evaluated, curves, _ = traced(
-            fibre, on_fibre.q_rad[on_fibre.error_norm < 1e-9], monkeypatch
-        )
+        fibre, through, evaluated, curves = traced_both_ways(model, q_target, seed, monkeypatch)
         compiled, compiled_curves = refine_near_limits(fibre, evaluated, curves, limits, SETTINGS)
         numpy_, numpy_curves = refine_near_limits(through, evaluated, curves, limits, SETTINGS)
         assert len(compiled) == len(numpy_)
@@ -176,14 +184,7 @@ def test_run_ends_on_any_kinematics_are_the_compiled_limit_points(
     low = window_low(limits)
     refined = 0
     for seed, q_target in enumerate(uniform_configurations(limits, 6, seed=41)):
-        fibre = pose_fibre(model, q_target)
-        assert isinstance(model.kinematics, SerialChainKinematics)
-        through = Fibre(fibre.target, fibre.task, NumpyStepsKinematics(model.kinematics), 1e-3)
-        near = q_target + np.random.default_rng(seed).normal(0.0, 0.5, (200, len(q_target)))
-        on_fibre = project(fibre, near, 20)
-        evaluated, curves, _ = traced(
-            fibre, on_fibre.q_rad[on_fibre.error_norm < 1e-9], monkeypatch
-        )
+        fibre, through, evaluated, curves = traced_both_ways(model, q_target, seed, monkeypatch)
         evaluated, curves = refine_near_limits(fibre, evaluated, curves, limits, SETTINGS)
         runs = cut_by_limits(curves, limits)
         ours = limit_points(fibre, runs, evaluated, limits, low, SETTINGS)
