@@ -206,6 +206,14 @@ class ConnectivitySpec(_Strict):
     bridge_radius_rad: float = Field(gt=0)
     bridge_pairs: int = Field(ge=0)
     bridge_lambda: float = Field(gt=1)
+    limit_check_rad: float | None = Field(
+        default=None,
+        gt=0,
+        description="the spacing at which the roadmap's walks also check each step against "
+        "the joint limits between its ends (FibreSpace.inside_between); None: each step is "
+        "checked where it lands, OMPL's check, which can step over a sliver of the fibre "
+        "outside the limits",
+    )
     # r = 1 tracing.
     trace_step_rad: float = Field(gt=0)
     trace_max_steps: int = Field(ge=1)

@@ -1329,6 +1329,7 @@ typedef struct {
     const long long *rows;
     Py_ssize_t n, m, m_position;
     double damping, delta, stretch, tolerance, margin, expires_at_s;
+    double limit_check; /* space.py's LimitCheck spacing, 0: a step checked at its ends only */
     Py_ssize_t iterations, extra_iterations, set_iterations, max_steps;
     const double *lower, *upper;
     const unsigned char *periodic;
@@ -1547,6 +1548,63 @@ static double refined_self_clearance_row(const Planner *p, const double *q, doub
     return clearance;
 }
 
+/* Newton steps each step of inside_between's fine walk takes onto the fibre at most
+ * (space.py's LIMIT_CHECK_ITERATIONS). */
+#define LIMIT_CHECK_ITERATIONS 6
+
+/* space.py's `inside_between` for one step a -> b (b unwrapped toward a), both on the
+ * fibre inside the limits: 1 when the step needs no check (no limit check asked, a step
+ * no longer than its spacing, or no bounded joint near enough a limit at both ends that
+ * a path of stretch x the step could reach it), else whether a walk from a toward b at
+ * steps of the spacing gets within one step of b in at most ceil(stretch x |b - a| /
+ * spacing) + 1 steps, each projected onto the fibre (at most LIMIT_CHECK_ITERATIONS
+ * Newton steps, until within tolerance; a joint on one limit at the step's start and at b
+ * held there), within tolerance, inside the limits, no farther than stretch x the
+ * spacing and nearer b. `e`, `J`, `scratch` as project_row's. */
+static int inside_between(const Planner *p, const double *a, const double *b, double *e,
+                          double *J, double *scratch) {
+    Py_ssize_t n = p->n, m = p->m;
+    double spacing = p->limit_check;
+    if (!(spacing > 0.0)) return 1;
+    double length = distance_of(a, b, n);
+    if (!(length > spacing)) return 1;
+    double reach = p->stretch * length;
+    int near = 0;
+    for (Py_ssize_t k = 0; k < n; ++k) {
+        if (p->periodic[k]) continue;
+        double low = p->lower[k], high = p->upper[k];
+        near |= (a[k] - low) + (b[k] - low) <= reach || (high - a[k]) + (high - b[k]) <= reach;
+    }
+    if (!near) return 1;
+    Py_ssize_t most = (Py_ssize_t)ceil(reach / spacing) + 1;
+    double x[64], guess[64];
+    unsigned char held[64];
+    memcpy(x, a, sizeof(double) * (size_t)n);
+    for (Py_ssize_t step = 0; step < most; ++step) {
+        double left = distance_of(b, x, n);
+        if (left <= spacing) return 1;
+        for (Py_ssize_t k = 0; k < n; ++k) {
+            guess[k] = x[k] + spacing * (b[k] - x[k]) / left;
+            held[k] = !p->periodic[k] && ((x[k] <= p->lower[k] && b[k] <= p->lower[k]) ||
+                                          (x[k] >= p->upper[k] && b[k] >= p->upper[k]));
+        }
+        residual_rows(p->fixed, p->tip, n, guess, 1, p->rows, m, p->m_position,
+                      p->target_position, p->target_rotation, e, J);
+        newton_rows(p->fixed, p->tip, n, p->rows, m, p->m_position, p->target_position,
+                    p->target_rotation, guess, e, J, 1, LIMIT_CHECK_ITERATIONS, p->tolerance,
+                    p->damping, held, NULL, NULL, scratch);
+        double error = 0.0;
+        for (Py_ssize_t k = 0; k < m; ++k) error += e[k] * e[k];
+        if (!(sqrt(error) <= p->tolerance) || !(distance_of(guess, x, n) <= p->stretch * spacing) ||
+            !(distance_of(b, guess, n) < left))
+            return 0;
+        for (Py_ssize_t k = 0; k < n; ++k)
+            if (!p->periodic[k] && !(guess[k] >= p->lower[k] && guess[k] <= p->upper[k])) return 0;
+        memcpy(x, guess, sizeof(double) * (size_t)n);
+    }
+    return 0;
+}
+
 /* One edge: from q_from toward goal (unwrapped), steps of delta projected onto the fibre,
  * each a valid motion (converged, inside the limits, no jump, nearer the goal, no detour,
  * no unreached coaxial crossing, free) until within delta of the goal, and the last hop
@@ -1566,7 +1624,8 @@ static int walk_edge(const Planner *p, const double *q_from, const double *goal,
         /* The last hop, under delta, is taken as it is, but not across a coaxial set the
          * fibre does not reach (samples either side of a singular set it keeps apart). */
         if (distance <= p->delta)
-            return !p->sets || crossings_on_fibre_row(p, q, goal, guess, e2, J2, scratch);
+            return (!p->sets || crossings_on_fibre_row(p, q, goal, guess, e2, J2, scratch)) &&
+                   inside_between(p, q, goal, e2, J2, scratch);
         if (p->expires_at_s < INFINITY && monotonic_s() > p->expires_at_s) return -1;
         for (Py_ssize_t k = 0; k < n; ++k) q_new[k] = q[k] + p->delta * (goal[k] - q[k]) / distance;
         project_row(p, q_new, e, J, p->iterations, -1, NULL, scratch);
@@ -1586,6 +1645,7 @@ static int walk_edge(const Planner *p, const double *q_from, const double *goal,
         for (Py_ssize_t k = 0; k < n && ok; ++k)
             ok = p->periodic[k] || (q_new[k] >= p->lower[k] && q_new[k] <= p->upper[k]);
         if (ok && p->sets) ok = crossings_on_fibre_row(p, q, q_new, guess, e2, J2, scratch);
+        if (ok) ok = inside_between(p, q, q_new, e2, J2, scratch);
         if (ok && (p->check_self || p->obstacles.count)) ok = free_row(p, q_new, frames);
         if (!ok) return 0;
         memcpy(q, q_new, sizeof(double) * (size_t)n);
@@ -3090,6 +3150,7 @@ static int steer_one(const Planner *p, Py_ssize_t stall_steps, double min_progre
         for (Py_ssize_t k = 0; k < n && ok; ++k)
             ok = p->periodic[k] || (q_new[k] >= p->lower[k] && q_new[k] <= p->upper[k]);
         if (ok && p->sets) ok = crossings_on_fibre_row(p, q, q_new, start, e2, J2, scratch);
+        if (ok) ok = inside_between(p, q, q_new, e2, J2, scratch);
         if (ok && (p->check_self || p->obstacles.count)) ok = free_row(p, q_new, frames);
         if (!ok) return 0;
         memcpy(q, q_new, sizeof(double) * (size_t)n);
@@ -3108,8 +3169,8 @@ static int steer_one(const Planner *p, Py_ssize_t stall_steps, double min_progre
 /* The buffers every walk takes (native.py's CompiledSpace.arguments), in that order. */
 enum { SPACE_BUFFERS = 30 };
 
-/* numbers: damping, step, stretch, tolerance, margin, expires_at_s (and for the steer,
- * min_progress); sizes: n, m, m_position, orientation, sets, check_self, K, S, P, V,
+/* numbers: damping, step, stretch, tolerance, margin, expires_at_s, limit_check (and for
+ * the steer, min_progress); sizes: n, m, m_position, orientation, sets, check_self, K, S, P, V,
  * iterations, (extra iterations or stall steps), set_iterations, max_steps. */
 static Planner planner_of(const double *number, const long long *size, Py_buffer *space) {
     Planner p = {
@@ -3126,6 +3187,7 @@ static Planner planner_of(const double *number, const long long *size, Py_buffer
         .iterations = size[10], .extra_iterations = size[11], .set_iterations = size[12],
         .max_steps = size[13], .damping = number[0], .delta = number[1], .stretch = number[2],
         .tolerance = number[3], .margin = number[4], .expires_at_s = number[5],
+        .limit_check = number[6],
     };
     p.scene_bodies = (Bodies){.centre = p.centre, .radius = p.radius, .bound = p.bound,
                               .bound_radius = p.bound_radius, .hulls = p.hulls,
@@ -3199,7 +3261,7 @@ static void steer_walk_part(void *context, Py_ssize_t start, Py_ssize_t stop, in
     double *work = (double *)io[3].buf + (on_helper ? w->scratch_size : 0);
     int status = 0;
     for (Py_ssize_t k = start; k < stop && status == 0; ++k) {
-        int result = steer_one(p, w->size[11], w->number[6], (const double *)io[0].buf + k * n,
+        int result = steer_one(p, w->size[11], w->number[7], (const double *)io[0].buf + k * n,
                                (double *)io[1].buf + k * n, work);
         if (result < 0) status = 1;
         ((unsigned char *)io[2].buf)[k] = result == 1;

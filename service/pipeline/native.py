@@ -819,6 +819,7 @@ class PlannerRules:
     extra_iterations: int  # ... and up to this many more for a step not yet converged
     max_steps: int  # steps an edge may take
     set_iterations: int = 4  # Newton steps onto a coaxial set at a crossing (space.py)
+    limit_check_rad: float = 0.0  # space.py's `inside_between` spacing (0: none)
 
 
 @dataclass(frozen=True)
@@ -857,7 +858,7 @@ def projected_walk(
     edges = len(q_from_rad)
     numbers = np.array(
         [space.damping, rules.delta_rad, rules.stretch, rules.tolerance, space.margin_m(),
-         expires_at_s]
+         expires_at_s, rules.limit_check_rad]
     )  # fmt: skip
     counts_of = [rules.iterations, rules.extra_iterations, rules.set_iterations, rules.max_steps]
     reached = np.zeros(edges, dtype=np.uint8)
@@ -897,6 +898,7 @@ class SteerRules:
     stall_steps: int  # end a walk that got no nearer over this many steps ...
     min_progress_rad: float  # ... by at least this much
     set_iterations: int = 4  # Newton steps onto a coaxial set at a crossing (space.py)
+    limit_check_rad: float = 0.0  # space.py's `inside_between` spacing (0: none)
 
 
 @dataclass(frozen=True)
@@ -928,7 +930,7 @@ def steer_walk(
     walks = len(q_from_rad)
     numbers = np.array(
         [space.damping, rules.step_rad, rules.stretch, rules.tolerance, space.margin_m(),
-         expires_at_s, rules.min_progress_rad]
+         expires_at_s, rules.limit_check_rad, rules.min_progress_rad]
     )  # fmt: skip
     counts_of = [rules.iterations, rules.stall_steps, rules.set_iterations, rules.max_steps]
     q = np.array(_float64(q_from_rad, "q_from_rad", (walks, n)))
@@ -988,7 +990,7 @@ def refined_self_clearance_at_m(
         np.zeros(1),
     )  # fmt: skip
     _, count, spheres, pairs, _ = body_sizes
-    numbers = np.array([0.0, 0.0, 0.0, 0.0, float(bodies.margin_m), np.inf])
+    numbers = np.array([0.0, 0.0, 0.0, 0.0, float(bodies.margin_m), np.inf, 0.0])
     sizes = np.array([n, 1, 1, 0, 0, *body_sizes, 0, 0, 0, 0, batch, 0], dtype=np.int64)
     clearance = np.empty(batch)
     if batch:

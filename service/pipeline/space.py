@@ -33,6 +33,21 @@ from service.pipeline.joint_space import JointLimits, wrap_to_pi
 from service.pipeline.targets import kernel_orientation
 from service.pipeline.types import Acceptance, CoaxialSet, Correction, Tolerance
 
+# Newton steps each step of `inside_between`'s fine walk takes onto the fibre at most
+# (native.c's LIMIT_CHECK_ITERATIONS is the same).
+LIMIT_CHECK_ITERATIONS = 6
+
+
+@dataclass(frozen=True)
+class LimitCheck:
+    """How a walk checks a step against the joint limits between its ends (`inside_between`):
+    a walk at steps of `spacing_rad` between them, wherever a path `stretch` times the step
+    long could reach a limit."""
+
+    spacing_rad: float
+    stretch: float  # the walk's lambda: the longest path it takes a step to stand for
+
+
 # The fibre reaches a coaxial set where Newton, the aligning joint held on it, gets this
 # near: the answers' tolerance, not the walks' coarser 1e-4, which counts as reached a set
 # the fibre misses by less (an iiwa elbow 0.04 rad from straight on a fibre whose |q4| is
@@ -138,10 +153,11 @@ class FibreSpace:
         max_move_rad: float,  # a longer move is a jump
         tolerance: float,  # |e| a projected step must reach
         also: BoolArray | None = None,  # (A,) the walker's own conditions
+        limit_check: LimitCheck | None = None,  # the step's interior too (None: its ends)
     ) -> BoolArray:  # (A,)
         """Which steps q_from -> q_to are valid motions on the fibre; the coaxial
-        crossings and then collisions are checked last, only for the steps that pass
-        everything else."""
+        crossings, the limits between the step's ends (with `limit_check`) and then
+        collisions are checked last, only for the steps that pass everything else."""
         moved = np.linalg.norm(q_to_rad - q_from_rad, axis=1)
         ok = (error_norm <= tolerance) & self.limits.contains(q_to_rad) & (moved <= max_move_rad)
         if also is not None:
@@ -149,9 +165,75 @@ class FibreSpace:
         if self.coaxial_sets and ok.any():
             crossed = np.flatnonzero(ok)
             ok[crossed] = self.crossings_on_fibre(q_from_rad[crossed], q_to_rad[crossed], tolerance)
+        if limit_check is not None and ok.any():
+            checked = np.flatnonzero(ok)
+            ok[checked] = self.inside_between(
+                q_from_rad[checked], q_to_rad[checked], limit_check, tolerance
+            )
         if self.collision.active and ok.any():
             moving = np.flatnonzero(ok)
             ok[moving] = self.collision.free(q_to_rad[moving])
+        return ok
+
+    def inside_between(
+        self,
+        q_a_rad: FloatArray,  # (A, n) on the fibre, inside the limits
+        q_b_rad: FloatArray,  # (A, n) on the fibre, inside the limits, a step from a
+        check: LimitCheck,
+        tolerance: float,  # |e| a point of the fine walk must reach
+    ) -> BoolArray:  # (A,) False for a step whose interior the fine walk cannot follow
+        """Steps whose interior stays inside the limits, as a walk at the check's finer
+        spacing finds: a walk checks each step where it lands, so a step can pass over a
+        stretch of the fibre outside the limits narrower than itself and join pieces that
+        the limits cut apart (a 4-D fibre's thin pieces, where it touches a limit).
+
+        A step needs no check where it is no longer than the spacing, or where no bounded
+        joint is near enough a limit at both ends that a path `check.stretch` times the
+        step long could reach it (its distances to the limit at both ends summing to
+        more). Otherwise a walk goes from a toward b at steps of the spacing, re-aimed at b
+        each step, and must get within one step of b in at most ceil(stretch x |b - a| /
+        spacing) + 1 steps, each put on the fibre by Newton (at most
+        LIMIT_CHECK_ITERATIONS steps, until within `tolerance`; a joint on one limit where
+        the step starts and at b is held there, as a walk sliding along a limit face holds
+        it), within `tolerance`, inside the limits, no farther than stretch x the spacing
+        and nearer b. native.c's `inside_between` is the same, step by step.
+        """
+        ok = np.ones(len(q_a_rad), dtype=bool)
+        limits, spacing = self.limits, check.spacing_rad
+        lower, upper, bounded = limits.lower_rad, limits.upper_rad, ~limits.periodic
+        length = np.linalg.norm(q_b_rad - q_a_rad, axis=1)  # (A,)
+        reach = check.stretch * length
+        near_low = (q_a_rad - lower) + (q_b_rad - lower) <= reach[:, None]
+        near_high = (upper - q_a_rad) + (upper - q_b_rad) <= reach[:, None]
+        near = (bounded & (near_low | near_high)).any(axis=1)
+        rows = np.flatnonzero(near & (length > spacing))
+        if not len(rows):
+            return ok
+        q, goal = q_a_rad[rows].copy(), q_b_rad[rows]  # (R, n)
+        most = np.ceil(reach[rows] / spacing).astype(np.int64) + 1  # (R,) steps at most
+        walking = np.ones(len(rows), dtype=bool)
+        arrived = np.zeros(len(rows), dtype=bool)
+        for step in range(int(most.max())):
+            walking &= step < most
+            left = np.linalg.norm(goal - q, axis=1)  # (R,)
+            arrived |= walking & (left <= spacing)
+            walking &= ~arrived
+            index = np.flatnonzero(walking)
+            if not len(index):
+                break
+            q_i, goal_i = q[index], goal[index]
+            guess = q_i + spacing * (goal_i - q_i) / left[index, None]
+            held = bounded & (
+                ((q_i <= lower) & (goal_i <= lower)) | ((q_i >= upper) & (goal_i >= upper))
+            )
+            moved = project(self.fibre, guess, LIMIT_CHECK_ITERATIONS, locked=held, until=tolerance)
+            q_new = moved.q_rad
+            good = (moved.error_norm <= tolerance) & limits.contains(q_new)
+            good &= np.linalg.norm(q_new - q_i, axis=1) <= check.stretch * spacing
+            good &= np.linalg.norm(goal_i - q_new, axis=1) < left[index]
+            walking[index[~good]] = False
+            q[index[good]] = q_new[good]
+        ok[rows] = arrived
         return ok
 
     def crossings_on_fibre(

@@ -10,7 +10,11 @@ than lambda x delta and none across a coaxial set where the fibre does not reach
 made progress toward b and the path so far is no longer than lambda x the chord. The
 edge holds when b is within delta and the last hop to it crosses no coaxial set where the
 fibre does not reach it (OMPL takes the last hop as it is: next to a singular set that
-the fibre never reaches, two samples either side of it are closer than the step). A
+the fibre never reaches, two samples either side of it are closer than the step). With
+`limit_check_rad`, each step and the last hop are also checked against the limits between
+their ends at that finer spacing (`FibreSpace.inside_between`, as OMPL's motion validator
+checks a motion at its own resolution): a step checked only where it lands can pass over
+a sliver of the fibre outside the limits and join pieces they cut apart. A
 failed edge is evidence that a and b lie on different components, so candidate edges may
 be long without merging what is separate. All edges advance in lockstep: one batched
 kinematics call per Newton iteration for every edge still walking.
@@ -26,7 +30,7 @@ from service.pipeline import native
 from service.pipeline.arrays import BoolArray, FloatArray, IntArray
 from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.fibre import project
-from service.pipeline.space import FibreSpace
+from service.pipeline.space import FibreSpace, LimitCheck
 
 
 @dataclass(frozen=True)
@@ -36,6 +40,9 @@ class PlannerSettings:
     projection_tolerance: float  # |e| a projected step must reach (OMPL: 1e-4)
     projection_iterations: int = 2  # Newton steps per projected step ...
     extra_iterations: int = 3  # ... and up to this many more for a step not yet converged
+    # Each step, and the last hop, also checked against the limits between its ends at this
+    # spacing (FibreSpace.inside_between); None: a step is checked where it lands, as OMPL's.
+    limit_check_rad: float | None = None
 
 
 def edges_on_fibre(
@@ -85,9 +92,13 @@ def walk_on_fibre(
     travelled = np.zeros(num_edges)
     walking = np.ones(num_edges, dtype=bool)
     max_steps = int(np.ceil(stretch * chord.max() / delta)) + 2
+    check = (
+        None if settings.limit_check_rad is None else LimitCheck(settings.limit_check_rad, stretch)
+    )
     rules = native.PlannerRules(
         delta, stretch, settings.projection_tolerance, settings.projection_iterations,
         settings.extra_iterations, max_steps,
+        limit_check_rad=0.0 if check is None else check.spacing_rad,
     )  # fmt: skip
     compiled = _compiled_walks(space, q_from_rad, goal, chord, rules, deadline, record)
     if compiled is not None:
@@ -97,9 +108,11 @@ def walk_on_fibre(
         distance = np.linalg.norm(remaining, axis=1)
         arrived = np.flatnonzero(walking & (distance <= delta))
         walking[arrived] = False
+        tolerance = settings.projection_tolerance
         if space.coaxial_sets and len(arrived):  # the last hop, across no unreached set
-            tolerance = settings.projection_tolerance
             arrived = arrived[space.crossings_on_fibre(q[arrived], goal[arrived], tolerance)]
+        if check is not None and len(arrived):  # ... and inside the limits between
+            arrived = arrived[space.inside_between(q[arrived], goal[arrived], check, tolerance)]
         reached[arrived] = True
         if not walking.any():
             break
@@ -119,10 +132,10 @@ def walk_on_fibre(
         moved = np.linalg.norm(q_new - q[index], axis=1)
         nearer = np.linalg.norm(goal[index] - q_new, axis=1) < distance[index]
         no_detour = travelled[index] + moved <= stretch * chord[index]
-        tolerance = settings.projection_tolerance
         ok = space.motion_valid(
-            q[index], q_new, error_norm, stretch * delta, tolerance, also=nearer & no_detour
-        )
+            q[index], q_new, error_norm, stretch * delta, tolerance, also=nearer & no_detour,
+            limit_check=check,
+        )  # fmt: skip
         walking[index[~ok]] = False
         q[index[ok]] = q_new[ok]
         travelled[index[ok]] += moved[ok]

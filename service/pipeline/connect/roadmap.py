@@ -320,6 +320,7 @@ class Roadmap:
             max_steps=settings.steer_max_steps,
             lambda_=self.planner.lambda_,
             projection_tolerance=self.planner.projection_tolerance,
+            limit_check_rad=self.planner.limit_check_rad,
         )
         walk = steer(self.space, self.q_rad[start], self.q_rad[goal], steering, self.deadline)
         first = len(self.q_rad)

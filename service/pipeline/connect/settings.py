@@ -43,6 +43,7 @@ def planner_settings(spec: ConnectivitySpec) -> PlannerSettings:
         delta_rad=spec.delta_rad,
         lambda_=spec.lambda_,
         projection_tolerance=spec.projection_tolerance,
+        limit_check_rad=spec.limit_check_rad,
     )
 
 

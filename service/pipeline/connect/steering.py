@@ -12,11 +12,11 @@ gradient-projection step of constrained optimisation, on the fibre). Each step, 
 projected back onto the fibre with Newton (the joints on a limit held) and is checked as
 the planner checks its steps: converged within tolerance, inside the limits, no jump (a
 move longer than lambda x the step, or across a coaxial set where the fibre does not
-reach it). A walk ends when it is within one step of b
-(arrived), when a step fails, or when it stops getting nearer to b (a local minimum of
-the distance on the fibre). Every walk's steps form a path on the fibre inside the
-limits, from a to where it ended. All walks advance in lockstep: one batched kinematics
-call per Newton iteration for every walk still going.
+reach it) and, with `limit_check_rad`, inside the limits between its ends too. A walk
+ends when it is within one step of b (arrived), when a step fails, or when it stops
+getting nearer to b (a local minimum of the distance on the fibre). Every walk's steps
+form a path on the fibre inside the limits, from a to where it ended. All walks advance
+in lockstep: one batched kinematics call per Newton iteration for every walk still going.
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ from service.pipeline.arrays import BoolArray, FloatArray, IntArray
 from service.pipeline.connect.local_planner import points_per_walk
 from service.pipeline.deadline import NO_DEADLINE, Deadline
 from service.pipeline.fibre import evaluate, newton
-from service.pipeline.space import FibreSpace
+from service.pipeline.space import FibreSpace, LimitCheck
 
 
 @dataclass(frozen=True)
@@ -42,6 +42,9 @@ class SteerSettings:
     projection_iterations: int = 4  # Newton steps per projected step (rows stop once within)
     stall_steps: int = 8  # end a walk that got no nearer to b over this many steps ...
     min_progress_rad: float = 0.02  # ... by at least this much
+    # Each step also checked against the limits between its ends at this spacing
+    # (FibreSpace.inside_between); None: where it lands only.
+    limit_check_rad: float | None = None
 
 
 @dataclass(frozen=True)
@@ -68,12 +71,18 @@ def steer(
     lower_rad, upper_rad, periodic = limits.lower_rad, limits.upper_rad, limits.periodic
     num_walks = len(q_from_rad)
     goal = q_from_rad + limits.difference(q_to_rad, q_from_rad)  # (E, n) unwrapped
+    check = (
+        None
+        if settings.limit_check_rad is None
+        else LimitCheck(settings.limit_check_rad, settings.lambda_)
+    )
     compiled = None if record else space.compiled()
     if compiled is not None:  # the same walks, each whole in compiled code
         rules = native.SteerRules(
             settings.step_rad, settings.max_steps, settings.lambda_,
             settings.projection_tolerance, settings.projection_iterations,
             settings.stall_steps, settings.min_progress_rad,
+            limit_check_rad=0.0 if check is None else check.spacing_rad,
         )  # fmt: skip
         steered = native.steer_walk(
             compiled, q_from_rad, goal, rules, deadline.expires_at_s, space.fibre.threads
@@ -117,8 +126,9 @@ def steer(
         q_new = projected.q_rad
         max_move_rad = settings.lambda_ * settings.step_rad
         ok = space.motion_valid(
-            q_a, q_new, projected.error_norm, max_move_rad, tolerance, also=moving
-        )
+            q_a, q_new, projected.error_norm, max_move_rad, tolerance, also=moving,
+            limit_check=check,
+        )  # fmt: skip
         walking[index[~ok]] = False
         good = index[ok]
         q[good] = q_new[ok]

@@ -63,6 +63,21 @@ def ordered_planar_loop(target_m: np.ndarray, every_rad: float) -> np.ndarray:
     return ordered[np.unique(np.searchsorted(arc, np.arange(0.0, arc[-1], every_rad)))]
 
 
+def bump_of(loop: np.ndarray) -> tuple[int, int, int, int]:
+    """(joint, before, peak, after): a local maximum of a joint along the loop, inside
+    (-3, 3), with the joint 0.05 rad lower at `before` and `after` within 400 points."""
+    for joint in range(3):
+        q = loop[:, joint]
+        for peak in range(400, len(q) - 400):
+            window = q[peak - 400 : peak + 401]
+            if abs(q[peak]) < 3.0 and q[peak] == window.max() and np.ptp(window) < 1.0:
+                before = peak - int(np.argmax(q[peak::-1] < q[peak] - 0.05))
+                after = peak + int(np.argmax(q[peak:] < q[peak] - 0.05))
+                if before < peak < after:
+                    return joint, before, peak, after
+    raise AssertionError("no bump found")
+
+
 @dataclass(frozen=True)
 class ServedSpace:
     """A position target's space as the service builds it (self-collision and coaxial sets

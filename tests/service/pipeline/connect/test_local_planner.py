@@ -1,6 +1,7 @@
 """local_planner: an edge holds when a path on the fibre joins its ends inside the limits,
-and fails between different components however close (planar 3R closed form); the
-compiled walks take the numpy loop's steps on the iiwa14's and Panda's r = 4 fibres."""
+and fails between different components however close (planar 3R closed form), and across
+a sliver outside the limits narrower than a step only with the limit check; the compiled
+walks take the numpy loop's steps on the iiwa14's and Panda's r = 4 fibres."""
 
 from dataclasses import replace
 
@@ -14,6 +15,7 @@ from service.pipeline.connect.local_planner import PlannerSettings, edges_on_fib
 from service.pipeline.deadline import Deadline
 from service.pipeline.joint_space import JointLimits
 from tests.service.pipeline.fibre_support import (
+    bump_of,
     fibre_space,
     obstacle_scene,
     planar_fibre,
@@ -49,7 +51,7 @@ def test_an_edge_fails_when_the_path_leaves_the_limits(planar3r: ServedModel) ->
     fibre = planar_fibre(planar3r, target)
     # A stretch of the loop over which one joint rises and falls again: a limit just under
     # its peak leaves both ends inside but cuts the only path between them.
-    joint, before, peak, after = _bump(loop)
+    joint, before, peak, after = bump_of(loop)
     a, b = loop[before], loop[after]
     q = np.unwrap(loop[:, joint])
     limited = np.ones(3, dtype=bool)
@@ -65,23 +67,36 @@ def test_an_edge_fails_when_the_path_leaves_the_limits(planar3r: ServedModel) ->
     assert blocked.tolist() == [False]
 
 
-def _bump(loop: np.ndarray) -> tuple[int, int, int, int]:
-    """(joint, before, peak, after): a local maximum of a joint along the loop, inside
-    (-3, 3), with the joint 0.05 rad lower at `before` and `after` within 400 points."""
-    for joint in range(3):
-        q = loop[:, joint]
-        for peak in range(400, len(q) - 400):
-            window = q[peak - 400 : peak + 401]
-            if abs(q[peak]) < 3.0 and q[peak] == window.max() and np.ptp(window) < 1.0:
-                before = peak - int(np.argmax(q[peak::-1] < q[peak] - 0.05))
-                after = peak + int(np.argmax(q[peak:] < q[peak] - 0.05))
-                if before < peak < after:
-                    return joint, before, peak, after
-    raise AssertionError("no bump found")
+def test_a_step_over_a_sliver_outside_the_limits_holds_only_without_the_limit_check(
+    planar3r: ServedModel,
+) -> None:
+    """A limit 5 mrad under a joint's peak cuts the closed-form loop between two points
+    either side of the peak. A walk whose step is longer than the whole stretch takes it as
+    one last hop, checked where it lands (OMPL's check), and joins across the cut; with
+    `limit_check_rad` the hop's interior is checked at that spacing and the edge fails,
+    while the same walk on the uncut loop still holds."""
+    target = np.array([1.5, 0.5])
+    (loop,) = closed_form_smm(target, phi_step_rad=0.001)
+    fibre = planar_fibre(planar3r, target)
+    joint, before, peak, after = bump_of(loop)
+    a, b = loop[before], loop[after]
+    upper = UPPER.copy()
+    upper[joint] = loop[peak, joint] - 0.005
+    limited = np.ones(3, dtype=bool)
+    limited[joint] = False
+    cut = fibre_space(fibre, JointLimits(LOWER, upper, limited), ())
+    uncut = fibre_space(fibre, LIMITS, ())
+    one_hop = PlannerSettings(delta_rad=1.5, lambda_=2.0, projection_tolerance=1e-4)
+    checked = replace(one_hop, limit_check_rad=0.01)
+    assert np.linalg.norm(b - a) < one_hop.delta_rad  # the whole edge is one hop
+    assert edges_on_fibre(cut, a[None], b[None], one_hop).tolist() == [True]
+    assert edges_on_fibre(cut, a[None], b[None], checked).tolist() == [False]
+    assert edges_on_fibre(uncut, a[None], b[None], checked).tolist() == [True]
 
 
 SERVED = PlannerSettings(delta_rad=0.1, lambda_=2.0, projection_tolerance=1e-4)
 LONG_STEPS = PlannerSettings(delta_rad=0.5, lambda_=3.0, projection_tolerance=1e-4)
+CHECKED = replace(LONG_STEPS, limit_check_rad=0.02)  # each step's interior checked too
 
 
 @pytest.mark.parametrize("obstacles", [False, True])
@@ -92,7 +107,8 @@ def test_the_compiled_walks_take_the_numpy_loops_steps(model: str, obstacles: bo
     compiled walks (`native.projected_walk`, taken for a serial chain) reach the same ends
     and step through the same points (1e-12) as the numpy loop (the same fibre behind a
     plain callable, whose steps are numpy's), and the same to the bit with the edges split
-    over two threads; an expired deadline stops them with the connect stage named."""
+    over two threads; an expired deadline stops them with the connect stage named. With
+    the limit check (CHECKED) they agree too."""
     served = load_model(REPO_MODELS_DIR / model, threads=1)
     rng = np.random.default_rng(31)
     reached_any = failed_any = False
@@ -101,8 +117,9 @@ def test_the_compiled_walks_take_the_numpy_loops_steps(model: str, obstacles: bo
     ):
         space, through, nodes = served_space.compiled, served_space.numpy, served_space.nodes_rad
         a, b = rng.integers(len(nodes), size=(2, 200))
-        # The service's steps, and steps of 0.5 rad, which some coaxial crossings refuse.
-        for settings in (SERVED, LONG_STEPS):
+        # The service's steps, and steps of 0.5 rad, which some coaxial crossings refuse,
+        # without and with the limit check.
+        for settings in (SERVED, LONG_STEPS, CHECKED):
             compiled = walk_on_fibre(space, nodes[a], nodes[b], settings)
             reference = walk_on_fibre(through, nodes[a], nodes[b], settings)
             assert compiled.reached.tolist() == reference.reached.tolist()
@@ -119,3 +136,24 @@ def test_the_compiled_walks_take_the_numpy_loops_steps(model: str, obstacles: bo
     assert reached_any and failed_any
     with pytest.raises(DeadlineExceededError, match="connect"):
         walk_on_fibre(space, nodes[a], nodes[b], SERVED, deadline=Deadline.after(0.0))
+
+
+def test_the_limit_check_refuses_only_steps_a_walk_as_fine_as_it_refuses() -> None:
+    """Edges between configurations of the iiwa14's r = 4 fibres at steps of 0.5 rad: with
+    the limit check every edge that holds also holds without it, it refuses some that hold
+    without it, and each of those a plain walk at the check's own 0.02 rad steps refuses
+    too (the interior the long steps passed over is not there to walk)."""
+    served = load_model(REPO_MODELS_DIR / "iiwa14-position", threads=1)
+    rng = np.random.default_rng(31)
+    fine = PlannerSettings(delta_rad=0.02, lambda_=3.0, projection_tolerance=1e-4)
+    refused = 0
+    for served_space in served_position_spaces(served, 3, seed=32):
+        space, nodes = served_space.compiled, served_space.nodes_rad
+        a, b = rng.integers(len(nodes), size=(2, 200))
+        unchecked = edges_on_fibre(space, nodes[a], nodes[b], LONG_STEPS)
+        checked = edges_on_fibre(space, nodes[a], nodes[b], CHECKED)
+        assert not (checked & ~unchecked).any()
+        only = np.flatnonzero(unchecked & ~checked)
+        assert not edges_on_fibre(space, nodes[a[only]], nodes[b[only]], fine).any()
+        refused += len(only)
+    assert refused > 0

@@ -3,8 +3,9 @@ held joints still (against an explicit null-space basis); on the iiwa14's positi
 walk steered from one end of a null-space random walk reaches the other end, every step
 exact by the DH table and inside the limits; walks between the elbow-up and elbow-down
 components, which no path joins, never arrive and never change the sign of q4; a walk
-whose straight way out is blocked by a joint limit slides along it to its goal, and
-recorded it keeps the points where walks of each number of steps end; and the compiled
+whose straight way out is blocked by a joint limit slides along it to its goal (with the
+limit check too), and recorded it keeps the points where walks of each number of steps
+end; and the compiled
 walks take the numpy loop's steps on the iiwa14's and Panda's r = 4 fibres."""
 
 from dataclasses import replace
@@ -31,6 +32,7 @@ from tests.service.pipeline.fibre_support import (
 from training.evaluate.references.iiwa14 import dh_pose as iiwa14_pose
 
 SETTINGS = SteerSettings(step_rad=0.15, max_steps=100, lambda_=2.0, projection_tolerance=1e-4)
+CHECKED = replace(SETTINGS, limit_check_rad=0.02)  # each step's interior checked too
 
 
 @pytest.fixture(scope="module")
@@ -132,6 +134,9 @@ def test_a_walk_slides_along_a_joint_limit_to_its_goal(iiwa14_position: ServedMo
     limited = space(fibre, JointLimits(limits.lower_rad, limited_upper, limits.periodic))
     walk = steer(limited, start[None], goal[None], SETTINGS)
     assert walk.arrived[0]
+    # With the limit check each step's interior is walked finely, q6 held on its limit
+    # where both ends hold it: the slide along the limit still arrives.
+    assert steer(limited, start[None], goal[None], CHECKED).arrived[0]
     points = np.stack(_walk_points(limited, start, goal))
     assert np.all(points[:, 5] <= 0.9) and np.sum(points[:, 5] == 0.9) > len(points) // 2
     assert_on_fibre(points, q0)
@@ -146,9 +151,9 @@ def test_the_compiled_walks_take_the_numpy_loops_steps(model: str, obstacles: bo
     """Walks between configurations of r = 4 fibres, self-collision checked (and a scene's
     obstacles of every shape) and the coaxial sets crossed as the service checks them: the
     compiled walks (`native.steer_walk`, taken for a serial chain) end where the numpy
-    loop's do (the same fibre behind a plain callable), to 1e-10, and arrive alike (split
-    over two threads: the same to the bit); an expired deadline stops them with the
-    connect stage named.
+    loop's do (the same fibre behind a plain callable), to 1e-10, and arrive alike, with
+    and without the limit check (split over two threads: the same to the bit); an expired
+    deadline stops them with the connect stage named.
 
     1e-10, not the single kernels' 1e-12: a walk is up to 100 steps, each projected until
     |e| is under 1e-4 rather than to convergence, so the last bits where C and numpy's
@@ -163,15 +168,16 @@ def test_the_compiled_walks_take_the_numpy_loops_steps(model: str, obstacles: bo
     ):
         space, through, nodes = served_space.compiled, served_space.numpy, served_space.nodes_rad
         a, b = rng.integers(len(nodes), size=(2, 60))
-        compiled = steer(space, nodes[a], nodes[b], SETTINGS)
-        reference = steer(through, nodes[a], nodes[b], SETTINGS)
-        assert compiled.arrived.tolist() == reference.arrived.tolist()
+        for settings in (CHECKED, SETTINGS):  # with and without the limit check
+            compiled = steer(space, nodes[a], nodes[b], settings)
+            reference = steer(through, nodes[a], nodes[b], settings)
+            assert compiled.arrived.tolist() == reference.arrived.tolist()
+            np.testing.assert_allclose(compiled.q_end_rad, reference.q_end_rad, rtol=0, atol=1e-10)
         # The walks split over two threads: each is its own, to the bit.
         threaded = replace(space, fibre=replace(space.fibre, threads=2))
         split = steer(threaded, nodes[a], nodes[b], SETTINGS)
         assert split.arrived.tolist() == compiled.arrived.tolist()
         np.testing.assert_array_equal(split.q_end_rad, compiled.q_end_rad)
-        np.testing.assert_allclose(compiled.q_end_rad, reference.q_end_rad, rtol=0, atol=1e-10)
         arrived_any |= bool(compiled.arrived.any())
         stopped_any |= bool((~compiled.arrived).any())
     assert arrived_any and stopped_any
