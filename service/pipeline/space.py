@@ -10,7 +10,8 @@ projection converged, lies inside the limits, moved no farther than the step all
 jump), does not cross a coaxial set where the fibre does not reach it
 (`crossings_on_fibre`: such a step has jumped onto a nearby twin branch), and is free of
 collision: a walk's motion is checked at every step it takes, the resolution of the
-walk. Every stage that keeps configurations or walks between them asks here, so a new
+walk, and with a `LimitCheck` against the limits between a step's ends at a finer one
+(`inside_between`). Every stage that keeps configurations or walks between them asks here, so a new
 condition on what is valid is added in this module, not in each stage's signature.
 `kinematic()` is the same fibre with collisions aside: the r = 1 trace follows each
 curve whole there, and the curves are then cut where they enter collision
